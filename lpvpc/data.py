@@ -1,15 +1,49 @@
 """Trials, loaders, checks, decimation and PT-UT pairing.
 
-Units: time in s, position in rad, torque in N m (SI everywhere).
+Units: time in s, position in rad, torque in N m, velocity in rad/s, rates in Hz
+(SI everywhere). Loaders convert from the lab's units and sign convention on the way in
+(``position_unit``, ``torque_sign``); everything after them is SI.
+
+Bad data are never repaired: every check collects all the problems it finds and raises
+one :class:`~lpvpc.errors.DataError` that lists them (channel, first index, count).
 """
 
 from __future__ import annotations
 
+import csv
+import hashlib
+import io
+import math
+import os
+import struct
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import scipy.io
+import scipy.signal
+
+from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
 
 OPTIONAL_CHANNELS = ("emg", "command", "scheduling")
+REQUIRED_CHANNELS = ("time", "position", "torque")
+# Channels that hold joint angles: converted by position_unit, checked for degrees.
+ANGLE_CHANNELS = ("position", "command", "scheduling")
+
+# Relative deviation of a time step from the median step above which sampling is uneven.
+JITTER_TOLERANCE = 1e-3
+# Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
+RATE_TOLERANCE = 1e-4
+# Below this variance (rad^2) of the PT-UT position there is no perturbation to identify from.
+MIN_PERTURBATION_VARIANCE = 1e-12
+# scipy recommends decimating in stages when the factor exceeds 13.
+MAX_STAGE_FACTOR = 13
+# Anti-alias FIR per stage: Kaiser window for 80 dB, 30*q+1 taps, cutoff at the new Nyquist rate.
+# scipy.signal.decimate's own FIR (Hamming, 20*q+1 taps) has 0.3 % gain error at 5 Hz (q = 10)
+# and 53 dB stopband; this one is flat to 1e-4 up to 0.8 of the new Nyquist rate.
+FIR_ATTENUATION_DB = 80.0
+FIR_TAPS_PER_FACTOR = 30
 
 
 @dataclass
@@ -34,3 +68,592 @@ def write_trial_csv(trial: Trial, path) -> None:
     names = ["time", "position", "torque"] + [c for c in OPTIONAL_CHANNELS if c in trial.channels]
     cols = [trial.time, trial.position, trial.torque] + [trial.channels[c] for c in names[3:]]
     np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def _plural(count: int, word: str) -> str:
+    return f"{count} {word}" if count == 1 else f"{count} {word}s"
+
+
+def _finite_problems(name: str, x: np.ndarray) -> list[str]:
+    """NaN and inf in one channel, each with count and first index."""
+    problems = []
+    for label, bad in (("NaN", np.isnan(x)), ("inf", np.isinf(x))):
+        count = int(np.count_nonzero(bad))
+        if count:
+            first = int(np.flatnonzero(bad)[0])
+            problems.append(f"channel '{name}': {_plural(count, label + ' value')}, first at index {first}")
+    return problems
+
+
+def _time_problems(t: np.ndarray) -> list[str]:
+    """Non-increasing and unevenly spaced time stamps (index = sample that breaks the rule)."""
+    problems = []
+    dt = np.diff(t)
+    finite = np.isfinite(dt)
+    nonincreasing = finite & (dt <= 0)
+    count = int(np.count_nonzero(nonincreasing))
+    if count:
+        first = int(np.flatnonzero(nonincreasing)[0]) + 1
+        problems.append(
+            f"channel 'time': not strictly increasing, {_plural(count, 'step')} <= 0, "
+            f"first at index {first} ({t[first - 1]:.10g} s -> {t[first]:.10g} s)"
+        )
+    positive = finite & (dt > 0)
+    if np.any(positive):
+        step = float(np.median(dt[positive]))
+        # Steps already reported as non-increasing are not counted again as uneven.
+        uneven = positive & (np.abs(dt - step) > JITTER_TOLERANCE * step)
+        count = int(np.count_nonzero(uneven))
+        if count:
+            first = int(np.flatnonzero(uneven)[0]) + 1
+            problems.append(
+                f"channel 'time': uneven sampling, {_plural(count, 'step')} differ from the median "
+                f"step {step:.6g} s by more than {JITTER_TOLERANCE:.0e} of it, first at index {first} "
+                f"(step {dt[first - 1]:.6g} s)"
+            )
+    return problems
+
+
+def trial_problems(trial: Trial) -> list[str]:
+    """Every problem of a trial as a list of messages (empty if the trial is usable)."""
+    channels = {"time": trial.time, "position": trial.position, "torque": trial.torque}
+    channels.update(trial.channels)
+    problems: list[str] = []
+    arrays: dict[str, np.ndarray] = {}
+    for name, values in channels.items():
+        try:
+            x = np.asarray(values, dtype=float)
+        except (TypeError, ValueError):
+            problems.append(f"channel '{name}': not numeric")
+            continue
+        if x.ndim != 1:
+            problems.append(f"channel '{name}': expected a vector, got shape {x.shape}")
+            continue
+        arrays[name] = x
+    lengths = {name: len(x) for name, x in arrays.items()}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"{name} {n}" for name, n in lengths.items())
+        problems.append(f"unequal channel lengths: {listed}")
+    n = lengths.get("time", 0)
+    if "time" in arrays and n < 2:
+        problems.append(f"fewer than 2 samples ({n})")
+    for name, x in arrays.items():
+        problems += _finite_problems(name, x)
+    if "time" in arrays and n >= 2:
+        problems += _time_problems(arrays["time"])
+    return problems
+
+
+def check_trial(trial: Trial, source=None) -> Trial:
+    """Raise one :class:`DataError` listing every problem of ``trial``; return it if usable.
+
+    Checks: NaN/inf per channel, unequal channel lengths, time not strictly increasing,
+    uneven sampling (a step deviating from the median step by more than 1e-3 of it),
+    fewer than 2 samples. ``source`` (default: the trial's name) prefixes the message.
+    """
+    problems = trial_problems(trial)
+    if problems:
+        raise DataError(problems, source=str(source) if source is not None else (trial.name or None))
+    return trial
+
+
+# --------------------------------------------------------------------------- reading files
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    """Columns of a CSV file with one header row (leading ``#`` comment lines are skipped)."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")  # tolerate a BOM (spreadsheet exports)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError([f"cannot read file: {exc}"], source=str(path)) from exc
+    lines = text.splitlines()
+    header_at = None
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            # numpy.savetxt's default writes the header as a comment: accept that too.
+            names = [c.strip().lower() for c in stripped.lstrip("#").split(",")]
+            if "time" in names:
+                header_at = i
+                break
+            continue
+        header_at = i
+        break
+    if header_at is None:
+        raise DataError(["empty file (no header row)"], source=str(path))
+    names = [c.strip().lower() for c in lines[header_at].strip().lstrip("#").split(",")]
+    duplicates = sorted({c for c in names if names.count(c) > 1})
+    problems = [f"duplicate column '{c}'" for c in duplicates]
+    problems += [f"empty column name at position {i + 1}" for i, c in enumerate(names) if not c]
+    if problems:
+        raise DataError(problems, source=str(path))
+    body = [ln for ln in lines[header_at + 1:] if ln.strip() and not ln.lstrip().startswith("#")]
+    if not body:
+        return {c: np.empty(0) for c in names}
+    try:
+        values = np.loadtxt(body, delimiter=",", ndmin=2, dtype=float)
+    except ValueError:
+        values = None
+    if values is None or values.shape[1] != len(names):
+        raise DataError(_csv_row_problems(body, names, first_line=header_at + 2), source=str(path))
+    return {c: values[:, i] for i, c in enumerate(names)}
+
+
+def _csv_row_problems(body: list[str], names: list[str], first_line: int) -> list[str]:
+    """Slow diagnostic parse, only after the fast one failed: which rows and fields are bad.
+
+    Line numbers are approximate when comment or blank lines sit between data rows.
+    """
+    wrong_width: list[int] = []
+    unparsable: dict[str, list[int]] = {}
+    for k, row in enumerate(csv.reader(io.StringIO("\n".join(body)))):
+        line = first_line + k
+        if len(row) != len(names):
+            wrong_width.append(line)
+            continue
+        for name, value in zip(names, row):
+            try:
+                float(value)
+            except ValueError:
+                unparsable.setdefault(name, []).append(line)
+    problems = []
+    if wrong_width:
+        problems.append(
+            f"{_plural(len(wrong_width), 'row')} without {len(names)} fields, first at line {wrong_width[0]}"
+        )
+    for name, rows in unparsable.items():
+        problems.append(f"column '{name}': {_plural(len(rows), 'value')} not a number, first at line {rows[0]}")
+    return problems or ["cannot parse the data rows as numbers"]
+
+
+def _read_mat(path: Path) -> dict[str, np.ndarray]:
+    """Vectors of a MATLAB v5 file, variable names lower-cased, any orientation flattened."""
+    try:
+        raw = scipy.io.loadmat(str(path))
+    except NotImplementedError as exc:
+        raise DataError(["MATLAB v7.3 (HDF5) files are not supported; save with -v7"], source=str(path)) from exc
+    except (scipy.io.matlab.MatReadError, OSError, ValueError, TypeError, EOFError, struct.error) as exc:
+        raise DataError([f"cannot read MATLAB file: {exc}"], source=str(path)) from exc
+    table: dict[str, np.ndarray] = {}
+    problems = []
+    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS)
+    for key, value in raw.items():
+        name = key.lower()
+        if key.startswith("__") or name not in known:
+            continue  # MAT files often hold other variables (settings, notes): ignore them
+        x = np.asarray(value)
+        if not (np.issubdtype(x.dtype, np.number) or x.dtype == bool) or np.iscomplexobj(x):
+            problems.append(f"variable '{key}': not real numbers (dtype {x.dtype})")
+        elif x.ndim > 2 or (x.ndim == 2 and min(x.shape) > 1):
+            problems.append(f"variable '{key}': expected a vector, got shape {x.shape}")
+        else:
+            table[name] = x.astype(float).ravel()
+    if problems:
+        raise DataError(problems, source=str(path))
+    return table
+
+
+def _read_table(path) -> tuple[dict[str, np.ndarray], Path]:
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".mat"):
+        raise DataError([f"unknown file extension '{path.suffix}' (expected .csv or .mat)"], source=str(path))
+    if not path.is_file():
+        raise DataError(["no such file"], source=str(path))
+    if os.path.getsize(path) == 0:
+        raise DataError(["empty file"], source=str(path))
+    return (_read_csv(path) if suffix == ".csv" else _read_mat(path)), path
+
+
+def _require(table: dict, required, path) -> None:
+    missing = [c for c in required if c not in table]
+    if missing:
+        found = ", ".join(table) or "none"
+        raise DataError(
+            [f"missing required column '{c}' (columns found: {found})" for c in missing], source=str(path)
+        )
+
+
+# --------------------------------------------------------------------------- units and signs
+
+
+def _check_settings(position_unit: str, torque_sign: float) -> float:
+    if position_unit not in ("rad", "deg"):
+        raise ValueError(f"position_unit must be 'rad' or 'deg', got {position_unit!r}")
+    torque_sign = float(torque_sign)
+    if not math.isfinite(torque_sign) or torque_sign == 0:
+        raise ValueError(f"torque_sign must be a finite non-zero number, got {torque_sign!r}")
+    return torque_sign
+
+
+def _warn_if_degrees(trial: Trial, source: str, channels=ANGLE_CHANNELS) -> None:
+    """Warn (UnitWarning) for each angle channel whose values look like degrees."""
+    for name in channels:
+        x = trial.position if name == "position" else trial.channels.get(name)
+        if x is None or len(x) == 0 or not np.all(np.isfinite(x)):
+            continue
+        peak = float(np.max(np.abs(x)))
+        span = float(np.ptp(x))
+        # An ankle moves within about +-0.9 rad; 2*pi or a 3 rad range is not radians.
+        if peak > 2 * np.pi or span > 3.0:
+            warnings.warn(
+                f"{source}: channel '{name}' looks like degrees (max |value| {peak:.4g}, range {span:.4g}) "
+                f"but position_unit='rad'; pass position_unit='deg' if it is in degrees",
+                UnitWarning,
+                stacklevel=4,
+            )
+
+
+def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str) -> Trial:
+    """Convert angle channels to rad and apply the torque sign; warn about likely degrees."""
+    torque_sign = _check_settings(position_unit, torque_sign)
+    if position_unit == "rad":
+        _warn_if_degrees(trial, source)
+    scale = np.pi / 180.0 if position_unit == "deg" else 1.0
+    channels = {
+        k: (np.asarray(v, dtype=float) * scale if k in ANGLE_CHANNELS else np.asarray(v, dtype=float))
+        for k, v in trial.channels.items()
+    }
+    return Trial(
+        time=np.asarray(trial.time, dtype=float),
+        position=np.asarray(trial.position, dtype=float) * scale,
+        torque=np.asarray(trial.torque, dtype=float) * torque_sign,
+        channels=channels,
+        name=trial.name,
+    )
+
+
+def _trial_from_table(table, path, name, required) -> Trial:
+    _require(table, required, path)
+    channels = {c: table[c] for c in OPTIONAL_CHANNELS if c in table}
+    trial = Trial(table["time"], table["position"], table["torque"], channels, name or path.stem)
+    check_trial(trial, source=str(path))
+    return trial
+
+
+def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, name=None) -> Trial:
+    """Load one trial from CSV or MATLAB v5 ``.mat``.
+
+    Required columns/variables: ``time`` (s), ``position``, ``torque``; optional ``emg``,
+    ``command``, ``scheduling``; other columns are ignored. ``position_unit`` ("rad" or
+    "deg") is the unit of position, command and scheduling in the file; ``torque_sign``
+    multiplies torque (N m) to bring the lab's sign convention to the package's.
+    Raises DataError listing every problem; warns (UnitWarning) when radians look like degrees.
+    """
+    _check_settings(position_unit, torque_sign)
+    table, path = _read_table(path)
+    trial = _trial_from_table(table, path, name, REQUIRED_CHANNELS)
+    return _to_si(trial, position_unit, torque_sign, str(path))
+
+
+# --------------------------------------------------------------------------- decimation
+
+
+def _stage_factors(q: int) -> list[int]:
+    """Split a decimation factor into stages of at most 13 (largest first)."""
+    primes = []
+    rest = q
+    p = 2
+    while p * p <= rest:
+        while rest % p == 0:
+            primes.append(p)
+            rest //= p
+        p += 1
+    if rest > 1:
+        primes.append(rest)
+    stages: list[int] = []
+    # Greedy packing of prime factors (largest first) into stages <= 13; a prime > 13 is its own stage.
+    for p in sorted(primes, reverse=True):
+        for i, s in enumerate(stages):
+            if s * p <= MAX_STAGE_FACTOR:
+                stages[i] = s * p
+                break
+        else:
+            stages.append(p)
+    return sorted(stages, reverse=True)
+
+
+def decimation_factor(fs: float, target_fs, source=None) -> int:
+    """Integer factor from ``fs`` to ``target_fs`` (Hz); 1 if ``target_fs`` is None.
+
+    Raises DataError if ``fs`` is below ``target_fs`` or not an integer multiple of it.
+    """
+    if target_fs is None:
+        return 1
+    target_fs = float(target_fs)
+    if not target_fs > 0:
+        raise ValueError(f"target_fs must be positive or None, got {target_fs!r}")
+    if fs < target_fs * (1 - RATE_TOLERANCE):
+        raise DataError(
+            [f"sampling rate {fs:.6g} Hz is below the target rate {target_fs:.6g} Hz "
+             f"(pass target_fs=None to keep the rate)"],
+            source=source,
+        )
+    q = round(fs / target_fs)
+    if abs(fs - q * target_fs) > RATE_TOLERANCE * fs:
+        raise DataError(
+            [f"sampling rate {fs:.6g} Hz is not an integer multiple of the target rate {target_fs:.6g} Hz"],
+            source=source,
+        )
+    return int(q)
+
+
+def _antialias_fir(q: int) -> np.ndarray:
+    """Linear-phase low-pass FIR for decimation by ``q`` (unit DC gain)."""
+    return scipy.signal.firwin(
+        FIR_TAPS_PER_FACTOR * q + 1, 1.0 / q, window=("kaiser", scipy.signal.kaiser_beta(FIR_ATTENUATION_DB))
+    )
+
+
+def _decimate(x: np.ndarray, q: int) -> np.ndarray:
+    """Anti-aliased zero-phase FIR decimation by ``q``; output sample k is input sample k*q.
+
+    Same polyphase zero-phase path as ``scipy.signal.decimate(x, q, ftype="fir",
+    zero_phase=True)`` (``resample_poly``), with a sharper, flatter filter.
+    """
+    if q == 1:
+        return np.asarray(x, dtype=float).copy()
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    # scipy pads with zeros at both ends; a signal far from zero (a joint angle of -0.4 rad)
+    # would droop toward zero there. Removing the line through the end points makes both ends
+    # zero; it is added back afterwards, so the operation stays linear (same on PT-UT as on PT, UT).
+    ramp = np.linspace(x[0], x[-1], n) if n > 1 else x.copy()
+    y = x - ramp
+    for stage in _stage_factors(q):
+        y = scipy.signal.resample_poly(y, 1, stage, window=_antialias_fir(stage))
+    return y + ramp[::q]
+
+
+def decimate_trial(trial: Trial, target_fs) -> Trial:
+    """Decimate every channel of ``trial`` to ``target_fs`` (Hz) with the same anti-alias filter.
+
+    ``target_fs`` None or equal to the trial's rate returns an unchanged copy. The trial's
+    rate must be an integer multiple of ``target_fs`` (DataError otherwise); time keeps
+    every q-th stamp, so output sample k is aligned with input sample k*q.
+    """
+    q = decimation_factor(trial.fs, target_fs, source=trial.name or None)
+    n_out = -(-len(trial.time) // q)
+    if n_out < 2:
+        raise DataError(
+            [f"fewer than 2 samples after decimation by {q} ({len(trial.time)} -> {n_out})"],
+            source=trial.name or None,
+        )
+    return Trial(
+        time=np.asarray(trial.time, dtype=float)[::q].copy(),
+        position=_decimate(trial.position, q),
+        torque=_decimate(trial.torque, q),
+        channels={k: _decimate(v, q) for k, v in trial.channels.items()},
+        name=trial.name,
+    )
+
+
+# --------------------------------------------------------------------------- identification data
+
+
+@dataclass
+class PerturbationData:
+    """Identification data: perturbation position ``position`` (rad), perturbation torque
+    ``torque`` (N m), scheduling variable ``scheduling`` (rho, rad), sampling rate ``fs`` (Hz).
+
+    ``extra`` holds other channels aligned with them (``time`` (s), ``emg``,
+    ``ut_velocity`` (rad/s) ...); ``source`` says where the data came from; ``meta`` records
+    the loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
+    ``decimation``) so a model can report them.
+    """
+
+    position: np.ndarray
+    torque: np.ndarray
+    scheduling: np.ndarray
+    fs: float
+    extra: dict = field(default_factory=dict)
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=float)
+        self.torque = np.asarray(self.torque, dtype=float)
+        self.scheduling = np.asarray(self.scheduling, dtype=float)
+        self.fs = float(self.fs)
+        problems = []
+        if not (math.isfinite(self.fs) and self.fs > 0):
+            problems.append(f"sampling rate must be positive and finite, got {self.fs}")
+        arrays = {"position": self.position, "torque": self.torque, "scheduling": self.scheduling}
+        arrays.update({k: np.asarray(v) for k, v in self.extra.items() if np.ndim(v) == 1})
+        lengths = {k: len(v) for k, v in arrays.items()}
+        if len(set(lengths.values())) > 1:
+            problems.append("unequal channel lengths: " + ", ".join(f"{k} {n}" for k, n in lengths.items()))
+        for name in ("position", "torque", "scheduling"):
+            x = arrays[name]
+            if x.ndim != 1:
+                problems.append(f"channel '{name}': expected a vector, got shape {x.shape}")
+            else:
+                problems += _finite_problems(name, x)
+        if problems:
+            raise DataError(problems, source=self.source or None)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return len(self.position)
+
+    @property
+    def time(self) -> np.ndarray:
+        """Time stamps (s): ``extra['time']`` if present, else ``arange(n) / fs``."""
+        if "time" in self.extra:
+            return np.asarray(self.extra["time"], dtype=float)
+        return np.arange(self.n) / self.fs
+
+    @property
+    def data_hash(self) -> str:
+        """sha256 (hex) of position, torque, scheduling and fs as little-endian float64 bytes."""
+        h = hashlib.sha256()
+        h.update(np.int64(self.n).astype("<i8").tobytes())
+        for x in (self.position, self.torque, self.scheduling):
+            h.update(np.ascontiguousarray(x, dtype="<f8").tobytes())
+        h.update(np.float64(self.fs).astype("<f8").tobytes())
+        return h.hexdigest()
+
+    def segment(self, start: int | None = None, stop: int | None = None) -> "PerturbationData":
+        """Samples ``start:stop`` (e.g. to hold out the last part of a record for validation)."""
+        sl = slice(start, stop)
+        extra = {k: (np.asarray(v)[sl] if np.ndim(v) == 1 and len(v) == self.n else v) for k, v in self.extra.items()}
+        return PerturbationData(
+            self.position[sl], self.torque[sl], self.scheduling[sl], self.fs, extra,
+            f"{self.source}[{'' if start is None else start}:{'' if stop is None else stop}]", dict(self.meta),
+        )
+
+
+def _check_perturbation(position: np.ndarray, source: str) -> None:
+    var = float(np.var(position)) if len(position) else 0.0
+    if not np.any(position) or var < MIN_PERTURBATION_VARIANCE:
+        raise InsufficientExcitationError(
+            f"no perturbation: {source}: variance of the perturbation position is {var:.3g} rad^2 "
+            f"(< {MIN_PERTURBATION_VARIANCE:g}); are the PT and UT trials the same recording?"
+        )
+
+
+def _output_rate(fs: float, target_fs) -> float:
+    # Report the nominal target rate, not fs/q with round-off from the time stamps, so the
+    # data hash does not depend on how the time column was rounded in a file.
+    return float(target_fs) if target_fs is not None else fs
+
+
+def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
+    """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
+
+    position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
+    scheduling = UT position (rad), all decimated with one anti-alias FIR filter to
+    ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
+    ``ut_velocity`` (rad/s, gradient of the decimated UT position) and ``emg`` from PT if
+    present (decimated as given: rectify/envelope raw EMG first).
+    Raises DataError (problems of both trials, different lengths or rates) or
+    InsufficientExcitationError (no perturbation).
+    """
+    source = f"PT={pt.name or '?'}, UT={ut.name or '?'}"
+    problems = [f"PT: {p}" for p in trial_problems(pt)] + [f"UT: {p}" for p in trial_problems(ut)]
+    if problems:
+        raise DataError(problems, source=source)
+    if len(pt.time) != len(ut.time):
+        problems.append(f"PT and UT differ in length: PT has {len(pt.time)} samples, UT has {len(ut.time)}")
+    if abs(pt.fs - ut.fs) > RATE_TOLERANCE * max(pt.fs, ut.fs):
+        problems.append(f"PT and UT differ in sampling rate: PT {pt.fs:.6g} Hz, UT {ut.fs:.6g} Hz")
+    if problems:
+        raise DataError(problems, source=source)
+
+    ut_position = np.asarray(ut.position, dtype=float)
+    channels = {"scheduling": ut_position}
+    if "emg" in pt.channels:
+        channels["emg"] = pt.channels["emg"]
+    # Decimation is linear: decimating PT-UT equals the difference of the decimated trials,
+    # and position and torque go through the same filter.
+    diff = Trial(
+        time=np.asarray(pt.time, dtype=float),
+        position=np.asarray(pt.position, dtype=float) - ut_position,
+        torque=np.asarray(pt.torque, dtype=float) - np.asarray(ut.torque, dtype=float),
+        channels=channels,
+        name=source,
+    )
+    q = decimation_factor(pt.fs, target_fs, source=source)
+    low = decimate_trial(diff, target_fs) if q > 1 else diff
+    fs = _output_rate(pt.fs, target_fs)
+    _check_perturbation(low.position, source)
+    extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
+    if "emg" in low.channels:
+        extra["emg"] = low.channels["emg"]
+    meta = {"fs_original": float(pt.fs), "decimation": q}
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta)
+
+
+def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
+                           target_fs=100.0) -> PerturbationData:
+    """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
+
+    Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
+    (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg``. Units, sign and
+    decimation as in :func:`load_trial` and :func:`pair_trials`.
+    """
+    _check_settings(position_unit, torque_sign)
+    table, path = _read_table(path)
+    trial = _trial_from_table(table, path, None, REQUIRED_CHANNELS + ("scheduling",))
+    trial = _to_si(trial, position_unit, torque_sign, str(path))
+    q = decimation_factor(trial.fs, target_fs, source=str(path))
+    low = decimate_trial(trial, target_fs) if q > 1 else trial
+    fs = _output_rate(trial.fs, target_fs)
+    _check_perturbation(low.position, str(path))
+    extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
+    if "emg" in low.channels:
+        extra["emg"] = low.channels["emg"]
+    meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
+            "fs_original": float(trial.fs), "decimation": q}
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta)
+
+
+def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
+                             torque_sign: float = 1.0, target_fs=100.0) -> PerturbationData:
+    """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
+    a perturbation file, or a PerturbationData returned as is).
+
+    ``position_unit`` and ``torque_sign`` describe the inputs (applied to Trials too);
+    ``target_fs`` (Hz, None keeps the rate). Wrong combinations raise DataError.
+    """
+    given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
+    if given not in (["pt", "ut"], ["data"]):
+        raise DataError(
+            [f"give either both pt and ut, or data alone; got {', '.join(given) or 'nothing'}"]
+        )
+    torque_sign = _check_settings(position_unit, torque_sign)
+    if data is not None:
+        if isinstance(data, PerturbationData):
+            return data
+        return load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
+                                      target_fs=target_fs)
+    trials = []
+    for label, item in (("PT", pt), ("UT", ut)):
+        if isinstance(item, Trial):
+            trials.append(_to_si(item, position_unit, torque_sign, item.name or label))
+        else:
+            trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign))
+    out = pair_trials(trials[0], trials[1], target_fs=target_fs)
+    out.meta.update(position_unit=position_unit, torque_sign=torque_sign)
+    return out
+
+
+def write_perturbation_csv(data: PerturbationData, path) -> None:
+    """Write ``time,position,torque,scheduling[,emg]`` (s, rad, N m, rad) so that
+    :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
+    names = ["time", "position", "torque", "scheduling"]
+    cols = [data.time, data.position, data.torque, data.scheduling]
+    if "emg" in data.extra:
+        names.append("emg")
+        cols.append(data.extra["emg"])
+    np.savetxt(
+        path, np.column_stack(cols), delimiter=",", fmt="%.17g", comments="",
+        header="# lpvpc perturbation data; units: time s, position rad, torque N m, scheduling rad\n"
+        + ",".join(names),
+    )

@@ -1,0 +1,441 @@
+"""Tests of lpvpc.data: loaders, checks, decimation, PT-UT pairing."""
+
+from __future__ import annotations
+
+import re
+import warnings
+
+import numpy as np
+import pytest
+import scipy.io
+
+from lpvpc.data import (
+    PerturbationData,
+    Trial,
+    check_trial,
+    decimate_trial,
+    load_identification_data,
+    load_perturbation_file,
+    load_trial,
+    pair_trials,
+    write_perturbation_csv,
+    write_trial_csv,
+)
+from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
+
+FS = 1000.0
+
+
+def make_trials(seed=0, n=3000, fs=FS, emg=False):
+    """A UT on a slow trajectory and a PT = UT + small random perturbation (rad, N m)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    ut_pos = -0.1 + 0.2 * np.sin(2 * np.pi * 0.2 * t)
+    ut_tq = 2.0 + 5.0 * ut_pos + 0.01 * rng.standard_normal(n)
+    pert = 0.03 * np.sin(2 * np.pi * 3.0 * t) + 0.01 * np.sin(2 * np.pi * 7.0 * t)
+    pt_pos = ut_pos + pert
+    pt_tq = ut_tq + 40.0 * pert + 0.01 * rng.standard_normal(n)
+    ch = {"emg": np.abs(rng.standard_normal(n))} if emg else {}
+    return Trial(t, pt_pos, pt_tq, ch, "pt"), Trial(t.copy(), ut_pos, ut_tq, {}, "ut"), pert
+
+
+def simple_trial(n=200, fs=FS, seed=1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    return Trial(t, 0.1 * rng.standard_normal(n), rng.standard_normal(n), {}, "x")
+
+
+def amplitude(x, f, fs):
+    """Amplitude of the f Hz component of x by least squares on sin/cos."""
+    t = np.arange(len(x)) / fs
+    a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
+    c, *_ = np.linalg.lstsq(a, x, rcond=None)
+    return float(np.hypot(c[0], c[1]))
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+def test_csv_round_trip(tmp_path):
+    pt, _, _ = make_trials(emg=True)
+    pt.channels["command"] = pt.position * 0.5
+    path = tmp_path / "pt.csv"
+    write_trial_csv(pt, path)
+    back = load_trial(path)
+    assert back.name == "pt"
+    np.testing.assert_allclose(back.time, pt.time, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.position, pt.position, rtol=1e-9)
+    np.testing.assert_allclose(back.torque, pt.torque, rtol=1e-9)
+    assert set(back.channels) == {"emg", "command"}
+    np.testing.assert_allclose(back.channels["emg"], pt.channels["emg"], rtol=1e-9)
+    assert back.fs == pytest.approx(FS)
+
+
+@pytest.mark.parametrize("orientation", ["row", "column"])
+def test_mat_round_trip(tmp_path, orientation):
+    pt, _, _ = make_trials()
+    shape = (1, -1) if orientation == "row" else (-1, 1)
+    path = tmp_path / "pt.mat"
+    scipy.io.savemat(
+        path,
+        {
+            "time": pt.time.reshape(shape),
+            "position": pt.position.reshape(shape),
+            "torque": pt.torque.reshape(shape),
+            "scheduling": pt.position.reshape(shape),
+            "subject_notes": np.array(["ignored"]),
+        },
+    )
+    back = load_trial(path)
+    np.testing.assert_array_equal(back.position, pt.position)
+    np.testing.assert_array_equal(back.torque, pt.torque)
+    np.testing.assert_array_equal(back.channels["scheduling"], pt.position)
+    assert "subject_notes" not in back.channels
+
+
+def test_mat_matrix_variable_rejected(tmp_path):
+    path = tmp_path / "bad.mat"
+    scipy.io.savemat(path, {"time": np.arange(10.0), "position": np.zeros((10, 2)), "torque": np.zeros(10)})
+    with pytest.raises(DataError, match=r"'position'.*shape \(10, 2\)"):
+        load_trial(path)
+
+
+def test_perturbation_csv_round_trip_is_exact(tmp_path):
+    pt, ut, _ = make_trials(emg=True)
+    data = pair_trials(pt, ut)
+    path = tmp_path / "pert.csv"
+    write_perturbation_csv(data, path)
+    back = load_perturbation_file(path)
+    assert back.fs == 100.0
+    assert back.data_hash == data.data_hash
+    np.testing.assert_array_equal(back.extra["emg"], data.extra["emg"])
+    np.testing.assert_array_equal(back.time, data.time)
+
+
+def test_load_perturbation_file_decimates(tmp_path):
+    pt, ut, pert = make_trials()
+    path = tmp_path / "p.csv"
+    cols = np.column_stack([pt.time, pert, pt.torque - ut.torque, ut.position])
+    np.savetxt(path, cols, delimiter=",", header="time,position,torque,scheduling", comments="", fmt="%.17g")
+    data = load_perturbation_file(path)
+    assert data.fs == 100.0 and data.n == 300
+    ref = pair_trials(pt, ut)
+    np.testing.assert_allclose(data.position, ref.position, atol=1e-12)
+    np.testing.assert_allclose(data.scheduling, ref.scheduling, atol=1e-12)
+
+
+def test_perturbation_file_requires_scheduling(tmp_path):
+    pt, _, _ = make_trials()
+    path = tmp_path / "p.csv"
+    write_trial_csv(pt, path)
+    with pytest.raises(DataError) as err:
+        load_perturbation_file(path)
+    msg = str(err.value)
+    assert "missing required column 'scheduling'" in msg
+    assert "time, position, torque" in msg  # lists the columns found
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_nan_named_with_channel_index_and_count():
+    tr = simple_trial()
+    tr.torque[[17, 40, 41]] = np.nan
+    with pytest.raises(DataError) as err:
+        check_trial(tr)
+    assert "channel 'torque': 3 NaN values, first at index 17" in str(err.value)
+
+
+def test_inf_named():
+    tr = simple_trial()
+    tr.position[5] = -np.inf
+    with pytest.raises(DataError, match=r"channel 'position': 1 inf value, first at index 5"):
+        check_trial(tr)
+
+
+def test_unequal_lengths_named():
+    tr = simple_trial()
+    tr.torque = tr.torque[:-3]
+    with pytest.raises(DataError, match=r"unequal channel lengths: time 200, position 200, torque 197"):
+        check_trial(tr)
+
+
+def test_decreasing_time_named():
+    tr = simple_trial()
+    tr.time[50], tr.time[51] = tr.time[51], tr.time[50]
+    with pytest.raises(DataError) as err:
+        check_trial(tr)
+    assert re.search(r"not strictly increasing, 1 step <= 0, first at index 51", str(err.value))
+
+
+def test_uneven_time_named():
+    tr = simple_trial()
+    tr.time[120:] += 0.0005  # one step of 1.5 ms among 1 ms steps
+    with pytest.raises(DataError) as err:
+        check_trial(tr)
+    msg = str(err.value)
+    assert "uneven sampling, 1 step" in msg and "first at index 120" in msg
+
+
+def test_small_jitter_accepted():
+    tr = simple_trial()
+    rng = np.random.default_rng(3)
+    tr.time = tr.time + rng.uniform(-1e-7, 1e-7, tr.time.shape)  # 2e-4 of a step at most
+    assert check_trial(tr) is tr
+
+
+def test_too_few_samples():
+    with pytest.raises(DataError, match=r"fewer than 2 samples \(1\)"):
+        check_trial(Trial(np.array([0.0]), np.array([0.0]), np.array([0.0])))
+
+
+def test_all_problems_listed_at_once():
+    tr = simple_trial()
+    tr.torque[3] = np.nan
+    tr.position[7] = np.inf
+    tr.time[9] = tr.time[8]
+    with pytest.raises(DataError) as err:
+        check_trial(tr, source="trial.csv")
+    # the repeated time stamp is a zero step and the next one is a double step: both reported
+    assert len(err.value.problems) == 4
+    assert "not strictly increasing, 1 step <= 0, first at index 9" in str(err.value)
+    assert "uneven sampling, 1 step" in str(err.value)
+    assert str(err.value).startswith("trial.csv: ")
+
+
+def test_nan_in_file_is_not_dropped(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("time,position,torque\n0,0,0\n0.001,nan,0\n0.002,0,0\n")
+    with pytest.raises(DataError, match=r"t\.csv: channel 'position': 1 NaN value, first at index 1"):
+        load_trial(path)
+
+
+def test_missing_column(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("time,angle,torque\n0,0,0\n0.001,0,0\n")
+    with pytest.raises(DataError, match=r"missing required column 'position' \(columns found: time, angle, torque\)"):
+        load_trial(path)
+
+
+def test_unparsable_value_located(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("time,position,torque\n0,0,0\n0.001,abc,0\n0.002,0,0\n")
+    with pytest.raises(DataError, match=r"column 'position': 1 value not a number, first at line 3"):
+        load_trial(path)
+
+
+@pytest.mark.parametrize(
+    "name, content, expected",
+    [
+        ("x.txt", "time\n", "unknown file extension '.txt'"),
+        ("empty.csv", "", "empty file"),
+        ("nothing.csv", None, "no such file"),
+        ("junk.mat", "not a mat file", "cannot read MATLAB file"),
+    ],
+)
+def test_unreadable_files_name_path(tmp_path, name, content, expected):
+    path = tmp_path / name
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(DataError) as err:
+        load_trial(path)
+    assert expected in str(err.value) and str(path) in str(err.value)
+
+
+def test_pt_ut_different_length():
+    pt, ut, _ = make_trials()
+    ut = Trial(ut.time[:-10], ut.position[:-10], ut.torque[:-10], {}, "ut")
+    with pytest.raises(DataError, match=r"PT has 3000 samples, UT has 2990"):
+        pair_trials(pt, ut)
+
+
+def test_pt_ut_different_rate():
+    pt, ut, _ = make_trials()
+    ut = Trial(ut.time * 0.5, ut.position, ut.torque, {}, "ut")
+    with pytest.raises(DataError, match=r"PT 1000 Hz, UT 2000 Hz"):
+        pair_trials(pt, ut)
+
+
+def test_problems_of_both_trials_collected():
+    pt, ut, _ = make_trials()
+    pt.torque[10] = np.nan
+    ut.position[20] = np.inf
+    with pytest.raises(DataError) as err:
+        pair_trials(pt, ut)
+    assert err.value.problems == [
+        "PT: channel 'torque': 1 NaN value, first at index 10",
+        "UT: channel 'position': 1 inf value, first at index 20",
+    ]
+
+
+def test_no_perturbation():
+    _, ut, _ = make_trials()
+    with pytest.raises(InsufficientExcitationError, match="no perturbation"):
+        pair_trials(ut, ut)
+
+
+def test_rate_not_integer_multiple_and_below_target():
+    pt, ut, _ = make_trials(fs=250.0)
+    with pytest.raises(DataError, match="not an integer multiple"):
+        pair_trials(pt, ut, target_fs=100.0)
+    pt, ut, _ = make_trials(fs=50.0, n=300)
+    with pytest.raises(DataError, match="below the target rate"):
+        pair_trials(pt, ut, target_fs=100.0)
+    kept = pair_trials(pt, ut, target_fs=None)
+    assert kept.fs == pytest.approx(50.0) and kept.n == 300
+
+
+def test_wrong_combinations():
+    pt, ut, _ = make_trials()
+    with pytest.raises(DataError, match="got pt$"):
+        load_identification_data(pt=pt)
+    with pytest.raises(DataError, match="got pt, ut, data"):
+        load_identification_data(pt=pt, ut=ut, data="x.csv")
+    with pytest.raises(DataError, match="got nothing"):
+        load_identification_data()
+
+
+# --------------------------------------------------------------------------- units and signs
+
+
+def test_degrees_warning(tmp_path):
+    pt, _, _ = make_trials()
+    pt.position = np.degrees(pt.position)
+    path = tmp_path / "deg.csv"
+    write_trial_csv(pt, path)
+    with pytest.warns(UnitWarning, match=r"channel 'position' looks like degrees \(max \|value\| 13\.75"):
+        load_trial(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_trial(path, position_unit="deg")  # declared: no warning
+
+
+def test_degree_conversion(tmp_path):
+    pt, _, _ = make_trials()
+    pt.channels["scheduling"] = pt.position.copy()
+    deg = Trial(pt.time, np.degrees(pt.position), pt.torque, {"scheduling": np.degrees(pt.position)}, "d")
+    path = tmp_path / "deg.csv"
+    write_trial_csv(deg, path)
+    back = load_trial(path, position_unit="deg")
+    np.testing.assert_allclose(back.position, pt.position, atol=1e-9)
+    np.testing.assert_allclose(back.channels["scheduling"], pt.position, atol=1e-9)
+    np.testing.assert_allclose(back.torque, pt.torque, rtol=1e-9)  # torque untouched
+
+
+def test_torque_sign(tmp_path):
+    pt, ut, _ = make_trials()
+    paths = []
+    for tr in (pt, ut):
+        paths.append(tmp_path / f"{tr.name}.csv")
+        write_trial_csv(tr, paths[-1])
+    back = load_trial(paths[0], torque_sign=-1.0)
+    np.testing.assert_allclose(back.torque, -pt.torque, rtol=1e-9)
+    plus = load_identification_data(pt=paths[0], ut=paths[1])
+    minus = load_identification_data(pt=paths[0], ut=paths[1], torque_sign=-1)
+    np.testing.assert_allclose(minus.torque, -plus.torque, atol=1e-12)
+    np.testing.assert_allclose(minus.position, plus.position, atol=1e-12)
+    assert minus.meta["torque_sign"] == -1.0
+    with pytest.raises(ValueError, match="position_unit"):
+        load_trial(paths[0], position_unit="grad")
+
+
+# --------------------------------------------------------------------------- decimation and pairing
+
+
+def test_decimation_keeps_passband_and_removes_alias():
+    n = 20000
+    t = np.arange(n) / FS
+    slow = np.sin(2 * np.pi * 5.0 * t)
+    tone = np.sin(2 * np.pi * 300.0 * t)  # aliases to 0 Hz at 100 Hz sampling
+    tr = Trial(t, slow, tone, {"emg": slow + tone}, "dec")
+    low = decimate_trial(tr, 100.0)
+    assert len(low.time) == n // 10
+    np.testing.assert_array_equal(low.time, t[::10])
+    inner = slice(50, -50)  # away from the record's ends
+    t_low = low.time[inner]
+    assert amplitude(low.position[inner], 5.0, 100.0) == pytest.approx(1.0, abs=1e-3)
+    # phase kept too: sample k is aligned with input sample 10 k
+    np.testing.assert_allclose(low.position[inner], np.sin(2 * np.pi * 5.0 * t_low), atol=2e-3)
+    # 300 Hz sampled every 10 ms is 0 Hz: without the anti-alias filter it would be a constant
+    # equal to sin(phase) of each sample; the residual must stay below 1e-2 of the input.
+    assert np.max(np.abs(low.torque[inner])) < 1e-2
+    naive = tone[::10] + np.sin(2 * np.pi * 300.0 * 0.0005)  # check the test can fail: aliased offset
+    assert np.max(np.abs(naive)) > 1e-2
+    np.testing.assert_allclose(low.channels["emg"], low.position + low.torque, atol=1e-12)
+
+
+def test_decimation_keeps_offset_at_the_ends():
+    # A joint angle far from zero must not droop toward zero at the record's ends.
+    t = np.arange(2000) / FS
+    tr = Trial(t, np.full_like(t, -0.4), 0.01 * t, {}, "c")
+    low = decimate_trial(tr, 100.0)
+    np.testing.assert_allclose(low.position, -0.4, atol=1e-12)
+    np.testing.assert_allclose(low.torque, 0.01 * low.time, atol=1e-12)
+
+
+def test_decimation_in_stages():
+    t = np.arange(20000) / 2000.0
+    tr = Trial(t, np.sin(2 * np.pi * 2.0 * t), np.sin(2 * np.pi * 2.0 * t), {}, "s")
+    low = decimate_trial(tr, 100.0)  # factor 20 > 13 -> stages 10 and 2
+    assert len(low.time) == 1000
+    np.testing.assert_allclose(low.position[20:-20], np.sin(2 * np.pi * 2.0 * low.time[20:-20]), atol=2e-3)
+
+
+def test_pairing_gives_pt_minus_ut():
+    pt, ut, pert = make_trials(emg=True)
+    data = pair_trials(pt, ut, target_fs=None)
+    assert data.fs == pytest.approx(FS) and data.n == 3000
+    np.testing.assert_allclose(data.position, pert, atol=1e-12)
+    np.testing.assert_allclose(data.torque, pt.torque - ut.torque, atol=1e-12)
+    np.testing.assert_array_equal(data.scheduling, ut.position)
+    np.testing.assert_array_equal(data.extra["emg"], pt.channels["emg"])
+
+    low = pair_trials(pt, ut)
+    assert low.fs == 100.0 and low.n == 300
+    inner = slice(20, -20)
+    np.testing.assert_allclose(low.position[inner], pert[::10][inner], atol=1e-3)
+    np.testing.assert_allclose(low.scheduling[inner], ut.position[::10][inner], atol=1e-4)
+    np.testing.assert_array_equal(low.time, pt.time[::10])
+    # velocity of the UT position, rad/s
+    true_vel = 0.2 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * low.time)
+    np.testing.assert_allclose(low.extra["ut_velocity"][inner], true_vel[inner], atol=1e-3)
+    assert low.meta["decimation"] == 10
+
+
+def test_data_hash_deterministic_and_sensitive():
+    pt, ut, _ = make_trials()
+    a, b = pair_trials(pt, ut), pair_trials(pt, ut)
+    assert a.data_hash == b.data_hash and len(a.data_hash) == 64
+    c = PerturbationData(a.position.copy(), a.torque.copy(), a.scheduling.copy(), a.fs)
+    assert c.data_hash == a.data_hash  # extra and source do not enter the hash
+    c.torque[0] += 1e-12
+    assert c.data_hash != a.data_hash
+    d = PerturbationData(a.position, a.torque, a.scheduling, 200.0)
+    assert d.data_hash != a.data_hash
+    np.testing.assert_allclose(d.time, np.arange(a.n) / 200.0)
+
+
+def test_perturbation_data_validates():
+    with pytest.raises(DataError, match="unequal channel lengths"):
+        PerturbationData(np.zeros(5), np.zeros(4), np.zeros(5), 100.0)
+    with pytest.raises(DataError, match=r"'scheduling': 1 NaN value, first at index 2"):
+        PerturbationData(np.zeros(5), np.zeros(5), np.array([0, 0, np.nan, 0, 0]), 100.0)
+
+
+def test_segment():
+    pt, ut, _ = make_trials()
+    data = pair_trials(pt, ut)
+    tail = data.segment(210)
+    assert tail.n == 90
+    np.testing.assert_array_equal(tail.position, data.position[210:])
+    np.testing.assert_array_equal(tail.time, data.time[210:])
+
+
+def test_identification_entry_point_with_trials_and_data(tmp_path):
+    pt, ut, _ = make_trials()
+    from_trials = load_identification_data(pt=pt, ut=ut)
+    path = tmp_path / "p.csv"
+    write_perturbation_csv(from_trials, path)
+    from_file = load_identification_data(data=path)
+    assert from_file.data_hash == from_trials.data_hash
+    assert load_identification_data(data=from_trials) is from_trials
