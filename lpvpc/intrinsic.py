@@ -1,0 +1,23 @@
+"""Intrinsic pathway: the LPV impulse-response regressor (eqs. 3-11)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .equations import lagged
+
+
+def two_sided_lags(L: int):
+    """Lags -L..L of the two-sided IRF (negative lags look into the future)."""
+    return list(range(-int(L), int(L) + 1))
+
+
+def intrinsic_regressor(position, rho_basis, lags):
+    """Psi_i (eq. 11): row k is P(k) kron G_i(rho(k)), column ``l * n_i + j``.
+
+    With theta_i = H.ravel() (H of shape (n_lags, n_i)) Psi_i @ theta_i equals
+    :func:`lpvpc.equations.intrinsic_torque`.
+    """
+    P = lagged(position, lags)
+    n, n_i = rho_basis.shape
+    return (P[:, :, None] * rho_basis[:, None, :]).reshape(n, len(lags) * n_i)

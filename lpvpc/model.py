@@ -1,0 +1,311 @@
+"""The fitted LPV parallel-cascade model: prediction, physical summaries, save/load.
+
+Units: position and scheduling in rad, velocity in rad/s, torque in N m, stiffness in
+N m/rad, frequency in Hz.
+
+Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
+
+    fs                  sampling rate (Hz) the model runs at
+    intrinsic           {"lags": [-L..L], "H": n_lags x n_i (N m/rad), "basis": Basis,
+                         "causal_lags": [0..Lc], "H_causal": (Lc + 3) x n_i: lags 0..Lc,
+                         then velocity and acceleration at k}
+    reflex              {"delay": samples, "velocity_basis": Basis, "rho_basis": Basis,
+                         "Omega": n_v x n_r, "A": m x m, "B": m, "C": m, "D": scalar}
+    identified_ranges   {"scheduling": [lo, hi] (rad), "velocity": [lo, hi] (rad/s)}
+    settings            estimator settings used
+    provenance          {"data_hash", "lpvpc_version", "numpy_version", ...}
+    units, conventions  {"position": "rad", "torque": "N m", "torque_sign": +1|-1, ...}
+    fit                 identification diagnostics (VAF, singular values, order, iterations)
+
+Floats are written with Python's shortest round-trip representation, so save/load is exact.
+
+Out-of-range behaviour: scheduling values outside the identified range are clamped to
+the nearest boundary (the model holds its boundary dynamics) and an
+:class:`~lpvpc.errors.OutOfRangeWarning` names the fraction affected. Velocities outside
+the identified range continue the reflex nonlinearity along its boundary tangent, so a
+fast outlier produces a proportionate torque, never a polynomial spike.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.signal
+
+from . import equations as eq
+from .basis import Basis
+from .errors import DataError, ModelFileError, OutOfRangeWarning
+
+FORMAT = "lpvpc-model"
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Prediction:
+    """Predicted torques (N m): total = intrinsic + reflex."""
+
+    total: np.ndarray
+    intrinsic: np.ndarray
+    reflex: np.ndarray
+    out_of_range_fraction: float = 0.0
+
+
+@dataclass
+class LPVPCModel:
+    fs: float
+    lags: list
+    H: np.ndarray
+    intrinsic_basis: Basis
+    causal_lags: list
+    H_causal: np.ndarray
+    delay: int
+    velocity_basis: Basis
+    reflex_rho_basis: Basis
+    Omega: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: float
+    settings: dict = field(default_factory=dict)
+    provenance: dict = field(default_factory=dict)
+    conventions: dict = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)
+
+    # -- prediction ---------------------------------------------------------------------
+    @property
+    def scheduling_range(self):
+        return (self.intrinsic_basis.lo, self.intrinsic_basis.hi)
+
+    @property
+    def velocity_range(self):
+        return (self.velocity_basis.lo, self.velocity_basis.hi)
+
+    @property
+    def state_order(self) -> int:
+        return self.A.shape[0]
+
+    def predict(self, position, scheduling, *, causal: bool = False, velocity=None, acceleration=None,
+                warn: bool = True) -> Prediction:
+        """Torque for a perturbation position record (rad) and its scheduling record (rad).
+
+        ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
+        velocity and acceleration) that the default FMU runs without latency; velocity
+        (rad/s) and acceleration (rad/s^2) default to central differences of ``position``.
+        The default uses the identified two-sided IRF.
+        """
+        position = np.asarray(position, dtype=float)
+        scheduling = np.asarray(scheduling, dtype=float)
+        problems = []
+        if position.ndim != 1 or scheduling.shape != position.shape:
+            problems.append(f"position and scheduling must be 1-D of equal length, got {position.shape} and {scheduling.shape}")
+        else:
+            for name, x in (("position", position), ("scheduling", scheduling)):
+                bad = ~np.isfinite(x)
+                if bad.any():
+                    problems.append(f"channel {name}: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}")
+        if problems:
+            raise DataError(problems)
+        lo, hi = self.scheduling_range
+        outside = float(np.mean((scheduling < lo) | (scheduling > hi))) if len(scheduling) else 0.0
+        if outside > 0 and warn:
+            warnings.warn(
+                f"{100 * outside:.2f} % of scheduling values lie outside the identified range "
+                f"[{lo:.4f}, {hi:.4f}] rad; the model is held at the boundary there",
+                OutOfRangeWarning,
+                stacklevel=2,
+            )
+        if causal:
+            signals, H = eq.causal_signals(position, self.fs, self.causal_lags, velocity, acceleration), self.H_causal
+        else:
+            signals, H = eq.lagged(position, self.lags), self.H
+        tq_i = eq.intrinsic_torque(signals, self.intrinsic_basis.evaluate(scheduling), H)
+        z = self.reflex_drive(position, scheduling)
+        tq_r = self._reflex_filter(z)
+        return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside)
+
+    def reflex_drive(self, position, scheduling):
+        """Output z(k) of the reflex static nonlinearity for a whole record."""
+        dvel = eq.delayed_velocity(position, self.fs, self.delay)
+        return eq.reflex_drive(self.velocity_basis.evaluate(dvel), self.reflex_rho_basis.evaluate(scheduling), self.Omega)
+
+    def _reflex_filter(self, z):
+        num, den = scipy.signal.ss2tf(self.A, self.B[:, None], self.C[None, :], np.array([[self.D]]))
+        return scipy.signal.lfilter(num[0], den, z)
+
+    # -- physical summaries (the paper's figures) ---------------------------------------
+    def irf_weights(self, rho):
+        """IRF weights h_l(rho) (N m/rad), shape (len(rho), n_lags) for lags ``self.lags``."""
+        return self.intrinsic_basis.evaluate(np.atleast_1d(rho)) @ self.H.T
+
+    def elastic_stiffness(self, rho):
+        """Low-frequency intrinsic gain K(rho) in N m/rad: the sum of the IRF weights."""
+        return self.irf_weights(rho).sum(axis=1)
+
+    def intrinsic_frequency_response(self, freqs, rho):
+        """Complex intrinsic frequency response (N m/rad), shape (len(rho), len(freqs)) (Fig. 4)."""
+        w = 2 * np.pi * np.asarray(freqs, dtype=float) / self.fs
+        phasors = np.exp(-1j * np.outer(self.lags, w))  # lag l delays by l samples
+        return self.irf_weights(rho) @ phasors
+
+    def reflex_static_gain(self) -> float:
+        """DC gain of the reflex linear dynamics C (I - A)^-1 B + D."""
+        m = self.state_order
+        return float(self.C @ np.linalg.solve(np.eye(m) - self.A, self.B) + self.D)
+
+    def reflex_nonlinearity(self, velocity, rho):
+        """Static nonlinearity f(v, rho) scaled by the reflex DC gain, in N m (Fig. 5A).
+
+        Returns an array of shape (len(rho), len(velocity)): the steady reflex torque that
+        a constant delayed velocity would evoke at each position.
+        """
+        Vb = self.velocity_basis.evaluate(np.atleast_1d(velocity))
+        Rb = self.reflex_rho_basis.evaluate(np.atleast_1d(rho))
+        return self.reflex_static_gain() * (Rb @ self.Omega.T @ Vb.T)
+
+    def reflex_impulse_response(self, n: int | None = None):
+        """Impulse response of the reflex linear dynamics, (time s, response) (Fig. 5B)."""
+        n = n or int(round(0.6 * self.fs))
+        impulse = np.zeros(n)
+        impulse[0] = 1.0
+        return np.arange(n) / self.fs, self._reflex_filter(impulse)
+
+    def reflex_gain_threshold(self, rho, n_velocity: int = 200):
+        """Fit a half-wave rectifier G * max(v - th, 0) + c to the identified nonlinearity.
+
+        Returns (gain in N m s/rad, threshold in rad/s) for each rho, fitted over the
+        non-negative part of the identified velocity range.
+        """
+        rho = np.atleast_1d(np.asarray(rho, dtype=float))
+        v = np.linspace(0.0, self.velocity_range[1], n_velocity)
+        curves = self.reflex_nonlinearity(v, rho)
+        gains, thresholds = [], []
+        for f in curves:
+            best = None
+            for th in v[:-5]:
+                X = np.column_stack([np.maximum(v - th, 0.0), np.ones_like(v)])
+                coef, res, *_ = np.linalg.lstsq(X, f, rcond=None)
+                sse = float(np.sum((X @ coef - f) ** 2))
+                if best is None or sse < best[0]:
+                    best = (sse, coef[0], th)
+            gains.append(best[1])
+            thresholds.append(best[2])
+        return np.array(gains), np.array(thresholds)
+
+    # -- persistence ---------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "fs": self.fs,
+            "intrinsic": {
+                "lags": list(map(int, self.lags)),
+                "H": self.H.tolist(),
+                "basis": self.intrinsic_basis.to_dict(),
+                "causal_lags": list(map(int, self.causal_lags)),
+                "H_causal": self.H_causal.tolist(),
+            },
+            "reflex": {
+                "delay": int(self.delay),
+                "velocity_basis": self.velocity_basis.to_dict(),
+                "rho_basis": self.reflex_rho_basis.to_dict(),
+                "Omega": self.Omega.tolist(),
+                "A": self.A.tolist(),
+                "B": self.B.tolist(),
+                "C": self.C.tolist(),
+                "D": self.D,
+            },
+            "identified_ranges": {"scheduling": list(self.scheduling_range), "velocity": list(self.velocity_range)},
+            "units": {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "torque": "N m", "fs": "Hz"},
+            "settings": self.settings,
+            "provenance": self.provenance,
+            "conventions": self.conventions,
+            "fit": self.fit,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "model") -> "LPVPCModel":
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
+        if d.get("format_version") != FORMAT_VERSION:
+            raise ModelFileError(f"{source}: unsupported model format_version {d.get('format_version')!r} (expected {FORMAT_VERSION})")
+        try:
+            intr, refl = d["intrinsic"], d["reflex"]
+            model = cls(
+                fs=float(d["fs"]),
+                lags=[int(x) for x in intr["lags"]],
+                H=np.array(intr["H"], dtype=float),
+                intrinsic_basis=Basis.from_dict(intr["basis"]),
+                causal_lags=[int(x) for x in intr["causal_lags"]],
+                H_causal=np.array(intr["H_causal"], dtype=float),
+                delay=int(refl["delay"]),
+                velocity_basis=Basis.from_dict(refl["velocity_basis"]),
+                reflex_rho_basis=Basis.from_dict(refl["rho_basis"]),
+                Omega=np.array(refl["Omega"], dtype=float),
+                A=np.array(refl["A"], dtype=float),
+                B=np.array(refl["B"], dtype=float),
+                C=np.array(refl["C"], dtype=float),
+                D=float(refl["D"]),
+                settings=d.get("settings", {}),
+                provenance=d.get("provenance", {}),
+                conventions=d.get("conventions", {}),
+                fit=d.get("fit", {}),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFileError(f"{source}: corrupt model file ({type(exc).__name__}: {exc})") from None
+        model._check_shapes(source)
+        return model
+
+    def _check_shapes(self, source):
+        n_i, n_v, n_r, m = self.intrinsic_basis.size, self.velocity_basis.size, self.reflex_rho_basis.size, self.A.shape[0] if self.A.ndim == 2 else -1
+        problems = []
+        if self.H.shape != (len(self.lags), n_i):
+            problems.append(f"intrinsic H has shape {self.H.shape}, expected {(len(self.lags), n_i)}")
+        if self.H_causal.shape != (len(self.causal_lags) + 2, n_i):
+            problems.append(f"intrinsic H_causal has shape {self.H_causal.shape}, expected {(len(self.causal_lags) + 2, n_i)}")
+        if min(self.causal_lags, default=0) < 0:
+            problems.append("causal_lags must be non-negative")
+        if self.Omega.shape != (n_v, n_r):
+            problems.append(f"reflex Omega has shape {self.Omega.shape}, expected {(n_v, n_r)}")
+        if m < 1 or self.A.shape != (m, m) or self.B.shape != (m,) or self.C.shape != (m,):
+            problems.append(f"reflex state-space shapes inconsistent: A {self.A.shape}, B {self.B.shape}, C {self.C.shape}")
+        if self.delay < 1:
+            problems.append(f"reflex delay must be at least 1 sample, got {self.delay}")
+        arrays = [self.H, self.H_causal, self.Omega, self.A, self.B, self.C, np.array([self.D, self.fs])]
+        if not problems and not all(np.all(np.isfinite(a)) for a in arrays):
+            problems.append("non-finite coefficients")
+        if problems:
+            raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems))
+
+    def save(self, path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+
+    @classmethod
+    def load(cls, path) -> "LPVPCModel":
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ModelFileError(f"{path}: model file not found") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ModelFileError(f"{path}: corrupt model file ({exc})") from None
+        return cls.from_dict(d, source=str(path))
+
+    @property
+    def model_hash(self) -> str:
+        """sha256 of the canonical JSON of the model's equations and coefficients."""
+        import hashlib
+
+        d = self.to_dict()
+        core = {k: d[k] for k in ("fs", "intrinsic", "reflex")}
+        return hashlib.sha256(json.dumps(core, sort_keys=True).encode()).hexdigest()
+
+
+def vaf(measured, predicted) -> float:
+    """Variance accounted for, in percent: 100 (1 - var(measured - predicted) / var(measured))."""
+    measured = np.asarray(measured, dtype=float)
+    predicted = np.asarray(predicted, dtype=float)
+    return float(100.0 * (1.0 - np.var(measured - predicted) / np.var(measured)))

@@ -1,0 +1,112 @@
+"""MOESP subspace identification of (A, C) for the MISO form (21)-(23).
+
+Past-output MOESP (PO-MOESP, Verhaegen 1994): the future outputs are projected onto the
+past inputs and outputs after the future inputs are removed, and the extended
+observability matrix is read off the SVD of that block. Past outputs as instruments are
+robust on real data, where past-input-only instruments can lock onto slow drift.
+
+Only the inputs that drive the state (the reflex inputs U_r) are used as past
+instruments; the intrinsic inputs U_i reach the output only through D_tot (eq. 23) and
+are removed as future inputs.
+
+The block Hankel matrix (about ``2 s n_u`` rows by N columns) is never formed: its
+transpose is streamed through a QR factorisation chunk by chunk, keeping only the
+triangular factor. Memory is O((s n_u)^2), time is linear in N.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .errors import IdentificationError, InsufficientExcitationError
+
+
+@dataclass
+class SubspaceResult:
+    """Singular values of the projected future outputs and the observability basis."""
+
+    singular_values: np.ndarray
+    left_vectors: np.ndarray  # (s, s) left singular vectors
+    horizon: int
+
+    def system(self, order: int):
+        """(A, C) of the given state order from the shift invariance of Gamma_s."""
+        if not 1 <= order < self.horizon:
+            raise IdentificationError(f"state order {order} must be between 1 and horizon-1 = {self.horizon - 1}")
+        gamma = self.left_vectors[:, :order] * np.sqrt(self.singular_values[:order])
+        A = np.linalg.lstsq(gamma[:-1], gamma[1:], rcond=None)[0]
+        C = gamma[:1, :]
+        return A, C
+
+
+def hankel_rows(u_future, u_past, y, start: int, stop: int, s: int):
+    """Rows ``start..stop-1`` of the transposed block Hankel matrix [U_f; U_p; Y_p; Y_f]^T."""
+    blocks = [u_future[start + t : stop + t] for t in range(s, 2 * s)]
+    blocks += [u_past[start + t : stop + t] for t in range(s)]
+    blocks += [y[start + t : stop + t, None] for t in range(2 * s)]
+    return np.hstack(blocks)
+
+
+def streamed_r(u_future, u_past, y, s: int, chunk: int | None = None):
+    """Triangular factor R of the QR of the transposed block Hankel matrix, streamed."""
+    n_cols = s * (u_future.shape[1] + u_past.shape[1] + 2)
+    n_rows = len(y) - 2 * s + 1
+    chunk = chunk or max(4 * n_cols, 2000)
+    R = np.zeros((0, n_cols))
+    for start in range(0, n_rows, chunk):
+        stop = min(start + chunk, n_rows)
+        stacked = np.vstack([R, hankel_rows(u_future, u_past, y, start, stop, s)])
+        R = scipy.linalg.qr(stacked, mode="r", overwrite_a=True, check_finite=False)[0][:n_cols]
+    return R
+
+
+def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None) -> SubspaceResult:
+    """PO-MOESP for one output.
+
+    u_state: (N, n_r) inputs that drive the state; u_feedthrough: (N, n_f) inputs that act
+    only through the feedthrough; y: (N,) output; horizon: number of block rows s.
+    """
+    y = np.asarray(y, dtype=float)
+    s = int(horizon)
+    u_future = np.hstack([u_state, u_feedthrough])
+    n_cols = s * (u_future.shape[1] + u_state.shape[1] + 2)
+    if len(y) - 2 * s + 1 < n_cols:
+        raise InsufficientExcitationError(
+            f"too few samples for subspace identification: {len(y)} samples, need at least "
+            f"{n_cols + 2 * s - 1} for horizon {s} with {u_future.shape[1]} inputs"
+        )
+    # Scale every column to unit RMS: the QR is then well balanced between positions
+    # (~0.02 rad), basis values (~1) and torques (~N m).
+    scale_f = _rms(u_future)
+    scale_p = _rms(u_state)
+    scale_y = _rms(y[:, None])[0]
+    R = streamed_r(u_future / scale_f, u_state / scale_p, y / scale_y, s, chunk)
+    L = R.T
+    n_f = s * u_future.shape[1]
+    n_w = s * (u_state.shape[1] + 1)
+    L32 = L[n_f + n_w :, n_f : n_f + n_w]
+    U, sv, _ = np.linalg.svd(L32)
+    if not np.all(np.isfinite(sv)):
+        raise IdentificationError("subspace step produced non-finite singular values")
+    return SubspaceResult(singular_values=sv, left_vectors=U, horizon=s)
+
+
+def _rms(a):
+    r = np.sqrt(np.mean(np.square(a), axis=0))
+    return np.where(r > 0, r, 1.0)
+
+
+def candidate_orders(singular_values, max_order: int = 4, n_gaps: int = 2):
+    """State orders at the ``n_gaps`` largest gaps of log singular values (up to max_order).
+
+    The single largest gap often picks order 1 for a well-damped pole pair, so the orders
+    at the two largest gaps are returned and the caller decides between them on fit.
+    """
+    sv = np.asarray(singular_values, dtype=float)
+    k = min(max_order, len(sv) - 1)
+    gaps = np.log(sv[:k] + 1e-300) - np.log(sv[1 : k + 1] + 1e-300)
+    orders = [int(i) + 1 for i in np.argsort(gaps)[::-1][:n_gaps]]
+    return sorted(set(orders))
