@@ -1,0 +1,858 @@
+"""The virtual subject: a physics-based ankle on a stiff position servo.
+
+Simulates the two trials the LPV-PC method needs (Sobhani Tehrani, Jalaleddini, Kearney,
+EMBC 2014): an unperturbed trial (UT) that follows a slow position trajectory and a
+perturbed trial (PT) on the same trajectory with a PRALDS perturbation added. Everything
+runs at ``fs_sim`` = 1 kHz and is optionally decimated to the output rate.
+
+Units are SI everywhere: time s, angle rad (positive = dorsiflexion), angular velocity
+rad/s, acceleration rad/s^2, torque N m (positive = the torque that resists
+dorsiflexion, i.e. the same sign as ``K * angle``), stiffness N m/rad, viscosity
+N m s/rad, inertia kg m^2.
+
+The chain, one function per physical element::
+
+    trajectory (multilevel_trajectory | novel_trajectory)  --+
+    pralds (PT only) ----------------------------------------+--> command
+    command --> servo --> theta, velocity, acceleration        (stiff: torque does not
+                                                                 deflect the servo)
+    intrinsic_torque = I*acc + B*vel + E(theta)
+    reflex_torque    = LP_2nd( G(theta) * max(vel(t - delay) - th(theta), 0) )
+    torque           = intrinsic + reflex + coloured_noise
+
+Effects the base LPV-PC model does not contain (fatigue drift, friction, direction-
+dependent stiffness, background activation, position-dependent reflex dynamics) are
+switchable by name through the :data:`EFFECTS` registry.
+
+Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
+:func:`write_dataset`, :data:`EFFECTS`, and the element functions
+:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`servo`,
+:func:`intrinsic_torque`, :func:`reflex_torque`, :func:`coloured_noise`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from scipy import signal
+
+from lpvpc.data import Trial, write_trial_csv
+
+FS_SIM = 1000.0  # Hz: the rate of the continuous-time physics (and of the lab's A/D)
+
+# The identification range of the paper's multilevel trajectory.
+THETA_PF = -0.4  # rad, most plantarflexed level
+THETA_DF = 0.2  # rad, most dorsiflexed level
+
+_EXP_MAX = 700.0  # keeps np.exp finite for absurd angles (no overflow warnings)
+
+
+def _exp(x):
+    return np.exp(np.clip(x, -_EXP_MAX, _EXP_MAX))
+
+
+# ---------------------------------------------------------------------------------------
+# Parameters
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class SubjectParams:
+    """Physical parameters of the virtual ankle, the actuator and the torque sensor.
+
+    Elastic stiffness (exponential-type, smooth, not a polynomial)::
+
+        K(theta) = k_base + k_df * exp(k_df_rate * (theta - theta_df))
+                          + k_pf * exp(-k_pf_rate * (theta - theta_pf))
+
+    rises steeply toward dorsiflexion (~165 N m/rad at +0.2 rad), has its minimum
+    (~29 N m/rad) near -0.22 rad, between neutral and full plantarflexion, and rises again
+    somewhat toward -0.4 rad (~40 N m/rad): passive tissue stretch of the plantarflexors
+    (dorsiflexion) and of the anterior structures (plantarflexion).
+    ``elastic_torque`` is its exact integral, zero at ``elastic_rest``.
+
+    Reflex nonlinearity: half-wave rectifier of delayed velocity with gain ``G(theta)``
+    (exponential from ``reflex_gain_pf`` at theta_pf to ``reflex_gain_df`` at theta_df)
+    and threshold ``th(theta)`` (linear from ``reflex_threshold_pf`` to
+    ``reflex_threshold_df``, floored at ``reflex_threshold_min``).
+    """
+
+    # intrinsic mechanics
+    inertia: float = 0.015  # kg m^2, foot + pedal moment of inertia
+    viscosity: float = 0.7  # N m s/rad, intrinsic viscosity B
+    k_base: float = 25.0  # N m/rad, constant part of K(theta)
+    k_df: float = 140.0  # N m/rad, dorsiflexion exponential's value at theta_df
+    k_df_rate: float = 10.0  # 1/rad, its growth rate toward dorsiflexion
+    k_pf: float = 15.0  # N m/rad, plantarflexion exponential's value at theta_pf
+    k_pf_rate: float = 12.0  # 1/rad, its growth rate toward plantarflexion
+    theta_df: float = THETA_DF  # rad, reference angle of the dorsiflexion end
+    theta_pf: float = THETA_PF  # rad, reference angle of the plantarflexion end
+    elastic_rest: float = -0.2  # rad, angle where the elastic torque is zero (passive rest)
+    # reflex pathway
+    reflex_delay: float = 0.040  # s, stretch-reflex loop delay
+    reflex_gain_pf: float = 2.0  # N m s/rad, rectifier slope at theta_pf
+    reflex_gain_df: float = 8.0  # N m s/rad, rectifier slope at theta_df
+    reflex_threshold_pf: float = 0.7  # rad/s, velocity threshold at theta_pf
+    reflex_threshold_df: float = 0.25  # rad/s, velocity threshold at theta_df
+    reflex_threshold_min: float = 0.05  # rad/s, floor when extrapolating far into DF
+    reflex_wn: float = 16.0  # rad/s, natural frequency of the reflex low-pass (activation dynamics)
+    reflex_zeta: float = 0.65  # 1, damping of the reflex low-pass (unit DC gain)
+    # actuator: a stiff hydraulic position servo
+    servo_wn: float = 2 * math.pi * 25.0  # rad/s (25 Hz): closed-loop natural frequency
+    servo_zeta: float = 0.7  # 1, closed-loop damping
+    # torque sensor / background noise
+    noise_cutoff: float = 20.0  # Hz, cut-off of the 2nd-order Butterworth that colours the noise
+    noise_order: int = 2  # order of that filter
+
+    # -- intrinsic --------------------------------------------------------------------
+    def K(self, theta):
+        """Elastic stiffness dE/dtheta (N m/rad) at joint angle ``theta`` (rad)."""
+        theta = np.asarray(theta, dtype=float)
+        return (
+            self.k_base
+            + self.k_df * _exp(self.k_df_rate * (theta - self.theta_df))
+            + self.k_pf * _exp(-self.k_pf_rate * (theta - self.theta_pf))
+        )
+
+    def _E_unshifted(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        return (
+            self.k_base * theta
+            + self.k_df / self.k_df_rate * _exp(self.k_df_rate * (theta - self.theta_df))
+            - self.k_pf / self.k_pf_rate * _exp(-self.k_pf_rate * (theta - self.theta_pf))
+        )
+
+    def elastic_torque(self, theta):
+        """Elastic torque E(theta) (N m): the exact integral of K, zero at ``elastic_rest``."""
+        return self._E_unshifted(theta) - self._E_unshifted(self.elastic_rest)
+
+    # -- reflex -----------------------------------------------------------------------
+    def _s(self, theta):
+        # 0 at theta_pf, 1 at theta_df (extrapolates linearly outside)
+        return (np.asarray(theta, dtype=float) - self.theta_pf) / (self.theta_df - self.theta_pf)
+
+    def reflex_gain(self, theta):
+        """Reflex rectifier slope G(theta) (N m s/rad): rises exponentially toward DF."""
+        ratio = self.reflex_gain_df / self.reflex_gain_pf
+        return self.reflex_gain_pf * _exp(np.log(ratio) * self._s(theta))
+
+    def reflex_threshold(self, theta):
+        """Reflex velocity threshold th(theta) (rad/s): falls linearly toward DF."""
+        s = self._s(theta)
+        th = self.reflex_threshold_pf + (self.reflex_threshold_df - self.reflex_threshold_pf) * s
+        return np.maximum(th, self.reflex_threshold_min)
+
+    def to_dict(self) -> dict:
+        """Plain-float dictionary of all fields (JSON-serialisable)."""
+        return {k: (float(v) if isinstance(v, float) else v) for k, v in asdict(self).items()}
+
+    def curves(self, theta=None) -> dict:
+        """K, elastic torque, reflex gain and threshold sampled on a theta grid (lists)."""
+        if theta is None:
+            theta = np.round(np.arange(-0.45, 0.2501, 0.01), 10)
+        theta = np.asarray(theta, dtype=float)
+        return {
+            "theta": theta.tolist(),
+            "K": self.K(theta).tolist(),
+            "elastic_torque": self.elastic_torque(theta).tolist(),
+            "reflex_gain": self.reflex_gain(theta).tolist(),
+            "reflex_threshold": self.reflex_threshold(theta).tolist(),
+        }
+
+
+# ---------------------------------------------------------------------------------------
+# Element 1: position trajectories (command signals at fs)
+# ---------------------------------------------------------------------------------------
+
+
+def _n_samples(duration: float, fs: float) -> int:
+    return int(round(duration * fs))
+
+
+def _butter_from_rest(x, cutoff, fs, order=2):
+    """Causal Butterworth low-pass of ``x``, starting at rest at ``x[0]``."""
+    b, a = signal.butter(order, cutoff, fs=fs)
+    return x[0] + signal.lfilter(b, a, x - x[0])
+
+
+def multilevel_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
+                          n_levels: int = 10, lo: float = THETA_PF, hi: float = THETA_DF,
+                          hold=(4.0, 7.0), cutoff: float = 2.5) -> np.ndarray:
+    """The paper's identification trajectory (rad) at ``fs`` (Hz).
+
+    Levels drawn at random from ``n_levels`` evenly spaced in [lo, hi] rad, consecutive
+    levels different, held for durations uniform in ``hold`` s; the step sequence is
+    smoothed by a causal 2nd-order Butterworth low-pass at ``cutoff`` Hz, from rest at the
+    first level (as the paper does, to avoid sharp transitions). The Butterworth step
+    response overshoots ~4 % of each step, so the trajectory can exceed [lo, hi] by up to
+    ~0.026 rad after a full-range step.
+    """
+    n = _n_samples(duration, fs)
+    levels = np.linspace(lo, hi, n_levels)
+    steps = np.empty(n)
+    i, k = 0, int(rng.integers(n_levels))
+    while i < n:
+        m = int(round(rng.uniform(*hold) * fs))
+        steps[i:i + m] = levels[k]
+        i += m
+        k = (k + int(rng.integers(1, n_levels))) % n_levels  # any level but the current one
+    return _butter_from_rest(steps, cutoff, fs)
+
+
+def _fold(x, lo, hi):
+    """Reflect ``x`` into [lo, hi] (a random walk bouncing off the range limits)."""
+    w = hi - lo
+    r = np.mod(x - lo, 2 * w)
+    return lo + w - np.abs(r - w)
+
+
+def _ramp_to(x0, x1, speed, fs):
+    m = max(1, int(round(abs(x1 - x0) / speed * fs)))
+    return x0 + (x1 - x0) * np.arange(1, m + 1) / m
+
+
+def _seg_ramps(x0, rng, fs, lo, hi):
+    """2-3 ramps (0.05-0.3 rad/s) between random targets, with short holds."""
+    out, x = [], x0
+    for _ in range(int(rng.integers(2, 4))):
+        target = x
+        while abs(target - x) < 0.1:
+            target = rng.uniform(lo, hi)
+        out.append(_ramp_to(x, target, rng.uniform(0.05, 0.3), fs))
+        out.append(np.full(int(rng.uniform(0.5, 2.0) * fs), target))
+        x = target
+    return np.concatenate(out)
+
+
+def _seg_sine(x0, rng, fs, lo, hi):
+    """Sinusoid 0.1-0.5 Hz through x0, amplitude limited so peak velocity <= 0.6 rad/s."""
+    f = rng.uniform(0.1, 0.5)
+    amp = min(rng.uniform(0.08, 0.25), 0.6 / (2 * np.pi * f), 0.5 * (hi - lo))
+    c = rng.uniform(max(lo + amp, x0 - amp), min(hi - amp, x0 + amp))
+    phi = np.arcsin(np.clip((x0 - c) / amp, -1.0, 1.0))
+    if rng.random() < 0.5:  # start moving down instead of up
+        phi = np.pi - phi
+    n_cyc = max(1, int(round(rng.uniform(6.0, 15.0) * f)))
+    tau = np.arange(1, int(round(n_cyc / f * fs)) + 1) / fs
+    return c + amp * np.sin(2 * np.pi * f * tau + phi)
+
+
+def _seg_walk(x0, rng, fs, lo, hi):
+    """Slow random walk: velocity = white noise low-passed at 0.3 Hz (RMS 0.1 rad/s),
+    integrated and reflected at the range limits."""
+    m = int(rng.uniform(8.0, 15.0) * fs)
+    b, a = signal.butter(2, 0.3, fs=fs)
+    v = signal.lfilter(b, a, rng.standard_normal(m))
+    v *= 0.1 / max(np.sqrt(np.mean(v ** 2)), 1e-12)
+    return _fold(x0 + np.cumsum(v) / fs, lo, hi)
+
+
+def _seg_excursion(x0, target, rng, fs, lo, hi):
+    """Brief excursion beyond the identification range: ramp out, hold 0.3-0.6 s, ramp back."""
+    speed = rng.uniform(0.15, 0.3)
+    back = rng.uniform(lo + 0.1, hi - 0.1)
+    return np.concatenate([
+        _ramp_to(x0, target, speed, fs),
+        np.full(int(rng.uniform(0.3, 0.6) * fs), target),
+        _ramp_to(target, back, speed, fs),
+    ])
+
+
+def novel_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
+                     lo: float = THETA_PF, hi: float = THETA_DF, overshoot: float = 0.035,
+                     cutoff: float = 2.5) -> np.ndarray:
+    """A held-out trajectory (rad) with shapes the multilevel trajectory never has.
+
+    Concatenated segments (each type once per round, in random order) of ramps
+    (0.05-0.3 rad/s), sines (0.1-0.5 Hz, peak velocity <= 0.6 rad/s) and slow random walks
+    within [lo, hi], plus two brief excursions (one to ``lo - overshoot``, one to
+    ``hi + overshoot``, each held 0.3-0.6 s) placed as the 2nd and 4th segments, because
+    held-out records in real labs always leave the identified range a little. The
+    default overshoot 0.035 rad exceeds the largest Butterworth overshoot of the
+    multilevel trajectory (0.026 rad), so the novel record always visits angles the
+    identification record did not. Smoothed like the multilevel trajectory (2nd-order
+    Butterworth, ``cutoff`` Hz, causal, from rest). Needs ~40 s to contain both excursions.
+    """
+    n = _n_samples(duration, fs)
+    gens = [_seg_ramps, _seg_sine, _seg_walk]
+    excursions = [lo - overshoot, hi + overshoot]
+    rng.shuffle(excursions)
+    x = rng.uniform(lo + 0.1, hi - 0.1)
+    parts, total, order = [np.array([x])], 1, []
+    while total < n:
+        if not order:
+            order = list(rng.permutation(len(gens)))
+        if len(parts) in (2, 4) and excursions:
+            seg = _seg_excursion(x, excursions.pop(), rng, fs, lo, hi)
+        else:
+            seg = gens[order.pop()](x, rng, fs, lo, hi)
+        parts.append(seg)
+        total += len(seg)
+        x = float(seg[-1])
+    traj = np.concatenate(parts)[:n]
+    return _butter_from_rest(traj, cutoff, fs)
+
+
+# ---------------------------------------------------------------------------------------
+# Element 2: PRALDS perturbation
+# ---------------------------------------------------------------------------------------
+
+
+def pralds(duration: float, fs: float, rng: np.random.Generator, *, amplitude: float = 0.04,
+           hold=(0.25, 0.35)) -> np.ndarray:
+    """Pseudo-random arbitrary-level distributed signal (rad) at ``fs`` (Hz).
+
+    Piecewise constant; levels uniform in [-amplitude, +amplitude] rad, hold durations
+    uniform in ``hold`` s (250-350 ms: wide-band yet slow enough not to suppress reflexes).
+    """
+    n = _n_samples(duration, fs)
+    out = np.empty(n)
+    i = 0
+    while i < n:
+        m = max(1, int(round(rng.uniform(*hold) * fs)))
+        out[i:i + m] = rng.uniform(-amplitude, amplitude)
+        i += m
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# Element 3: the actuator
+# ---------------------------------------------------------------------------------------
+
+
+def servo(command, fs: float, params: SubjectParams | None = None):
+    """Position servo: joint angle, velocity and acceleration for a command (rad).
+
+    A stiff hydraulic position servo, modelled as the closed-loop 2nd-order system
+    ``theta'' = wn^2 (command - theta) - 2 zeta wn theta'`` (wn = ``params.servo_wn``,
+    zeta = ``params.servo_zeta``). It is stiff: the ankle torque does NOT deflect it
+    (no torque input), so the position is the same whatever the subject does -- the
+    assumption the PT-UT subtraction relies on.
+
+    The command is held constant between samples (the controller's DAC), so the
+    zero-order-hold discretisation is exact. Velocity is the second state and the
+    acceleration the state-space output equation, so all three are exact at the sample
+    instants (no finite differences). The servo starts at rest at ``command[0]``.
+
+    Returns ``(theta, velocity, acceleration)`` in rad, rad/s, rad/s^2.
+    """
+    p = params or SubjectParams()
+    u = np.asarray(command, dtype=float)
+    wn, z = p.servo_wn, p.servo_zeta
+    A = np.array([[0.0, 1.0], [-wn ** 2, -2 * z * wn]])
+    B = np.array([[0.0], [wn ** 2]])
+    Ad, Bd, *_ = signal.cont2discrete((A, B, np.eye(2), np.zeros((2, 1))), 1.0 / fs, method="zoh")
+    du = u - u[0]  # deviation from the initial rest position: zero initial state
+    bp, ap = signal.ss2tf(Ad, Bd, np.array([[1.0, 0.0]]), np.zeros((1, 1)))
+    bv, av = signal.ss2tf(Ad, Bd, np.array([[0.0, 1.0]]), np.zeros((1, 1)))
+    dtheta = signal.lfilter(bp[0], ap, du)
+    vel = signal.lfilter(bv[0], av, du)
+    acc = wn ** 2 * (du - dtheta) - 2 * z * wn * vel
+    return u[0] + dtheta, vel, acc
+
+
+# ---------------------------------------------------------------------------------------
+# Element 4: intrinsic mechanics
+# ---------------------------------------------------------------------------------------
+
+
+def intrinsic_torque(theta, vel, acc, params: SubjectParams | None = None, *,
+                     stiffness_scale=1.0, viscosity_scale=1.0, extra=0.0):
+    """Intrinsic torque (N m) = I*acc + B*vel + E(theta).
+
+    Inertia of foot and pedal, viscosity and the nonlinear elastic curve of passive
+    tissue (slope K(theta)). ``stiffness_scale`` multiplies E (hence K),
+    ``viscosity_scale`` multiplies B and ``extra`` is added (N m): hooks for effects.
+    """
+    p = params or SubjectParams()
+    return (p.inertia * np.asarray(acc) + p.viscosity * viscosity_scale * np.asarray(vel)
+            + stiffness_scale * p.elastic_torque(theta) + extra)
+
+
+# ---------------------------------------------------------------------------------------
+# Element 5: stretch reflex
+# ---------------------------------------------------------------------------------------
+
+
+def delay_signal(x, delay: float, fs: float) -> np.ndarray:
+    """``x(t - delay)``: exact sample shift when ``delay*fs`` is an integer, linear
+    interpolation otherwise; the signal is taken as ``x[0]`` before it starts."""
+    x = np.asarray(x, dtype=float)
+    d = delay * fs
+    n0 = int(np.floor(d + 1e-9))
+    frac = d - n0 if d - n0 > 1e-9 else 0.0
+
+    def shift(k):
+        if k <= 0:
+            return x.copy()
+        k = min(k, len(x))
+        return np.concatenate([np.full(k, x[0]), x[:len(x) - k]])
+
+    out = shift(n0)
+    if frac:
+        out = (1 - frac) * out + frac * shift(n0 + 1)
+    return out
+
+
+def reflex_lowpass_coefficients(wn: float, zeta: float, fs: float):
+    """Discrete (b, a) of the unit-DC-gain reflex low-pass wn^2/(s^2 + 2 zeta wn s + wn^2),
+    first-order-hold discretised (the rectifier output is continuous, not a staircase)."""
+    num, den, _ = signal.cont2discrete(([wn ** 2], [1.0, 2 * zeta * wn, wn ** 2]), 1.0 / fs,
+                                       method="foh")
+    return np.ravel(num), np.ravel(den)
+
+
+def _tv_lowpass(z, wn, zeta: float, fs: float) -> np.ndarray:
+    """Reflex low-pass with a time-varying natural frequency ``wn[k]`` (rad/s).
+
+    y'' = wn(t)^2 (z - y) - 2 zeta wn(t) y', integrated with the trapezoidal rule (A-stable;
+    for constant wn it is the bilinear transform). A plain loop: ~0.1 s per 100k samples.
+    """
+    h = 1.0 / fs
+    w = np.asarray(wn, dtype=float)
+    w2 = w ** 2
+    det = 1.0 + h * zeta * w + 0.25 * h * h * w2
+    zz = np.asarray(z, dtype=float)
+    out = np.empty(len(zz))
+    y = yd = 0.0
+    out[0] = 0.0
+    w2l, wl, detl, zl = w2.tolist(), w.tolist(), det.tolist(), zz.tolist()
+    hh = 0.5 * h
+    for k in range(len(zl) - 1):
+        # right-hand side (I + h/2 A_k) x_k + h/2 (b_k z_k + b_{k+1} z_{k+1})
+        r0 = y + hh * yd
+        r1 = yd + hh * (-w2l[k] * y - 2 * zeta * wl[k] * yd
+                        + w2l[k] * zl[k] + w2l[k + 1] * zl[k + 1])
+        # solve (I - h/2 A_{k+1}) x_{k+1} = r in closed form
+        a11 = 1.0 + h * zeta * wl[k + 1]
+        y, yd = (a11 * r0 + hh * r1) / detl[k + 1], (-hh * w2l[k + 1] * r0 + r1) / detl[k + 1]
+        out[k + 1] = y
+    return out
+
+
+def reflex_torque(theta, vel, fs: float, params: SubjectParams | None = None, *,
+                  gain_scale=1.0, wn=None):
+    """Stretch-reflex torque (N m) of a joint moving with ``vel`` (rad/s) at ``theta`` (rad).
+
+    Velocity delayed by ``reflex_delay`` (the stretch-reflex loop), half-wave rectified
+    with position-dependent threshold and gain, z = G(theta) * max(v(t - d) - th(theta), 0)
+    (theta is the current angle; the reflex responds to the TOTAL joint velocity, so fast
+    trajectory transitions fire it too), then the unit-DC-gain 2nd-order low-pass
+    (``reflex_wn``, ``reflex_zeta``: muscle activation/contraction dynamics). ``gain_scale``
+    multiplies G; ``wn`` (array, rad/s) replaces the constant natural frequency with a
+    time-varying one (an effect the LPV-PC model does not contain).
+
+    Returns ``(torque, z)``.
+    """
+    p = params or SubjectParams()
+    dvel = delay_signal(vel, p.reflex_delay, fs)
+    z = gain_scale * p.reflex_gain(theta) * np.maximum(dvel - p.reflex_threshold(theta), 0.0)
+    if wn is None:
+        b, a = reflex_lowpass_coefficients(p.reflex_wn, p.reflex_zeta, fs)
+        tq = signal.lfilter(b, a, z)
+    else:
+        tq = _tv_lowpass(z, np.broadcast_to(np.asarray(wn, dtype=float), z.shape), p.reflex_zeta, fs)
+    return tq, z
+
+
+# ---------------------------------------------------------------------------------------
+# Element 6: torque noise
+# ---------------------------------------------------------------------------------------
+
+
+def coloured_noise(n: int, fs: float, rng: np.random.Generator,
+                   params: SubjectParams | None = None) -> np.ndarray:
+    """Unit-variance-input white noise through a Butterworth low-pass (``noise_cutoff`` Hz,
+    ``noise_order``): the sensor/background torque noise (before scaling to the SNR)."""
+    p = params or SubjectParams()
+    b, a = signal.butter(p.noise_order, p.noise_cutoff, fs=fs)
+    return signal.lfilter(b, a, rng.standard_normal(n))
+
+
+# ---------------------------------------------------------------------------------------
+# Effects the base LPV-PC model does not contain
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class TrialState:
+    """What an effect may read and modify for one trial (arrays at the simulation rate).
+
+    Read: ``t`` (s), ``theta`` (rad), ``vel`` (rad/s), ``acc`` (rad/s^2), ``command``
+    (rad), ``slow_velocity`` (rad/s) and ``slow_theta`` (rad): velocity and angle of the
+    unperturbed trial (the slow operating point, the same for PT and UT), ``perturbed``
+    (True for PT), ``fs`` (Hz), ``params``, ``rng`` (this trial's own random stream).
+    Modify: ``stiffness_scale`` (multiplies E and K), ``viscosity_scale`` (multiplies B), ``reflex_gain_scale`` (multiplies G),
+    ``extra_torque`` (N m, added to the intrinsic torque), ``reflex_wn`` (None or array
+    rad/s: time-varying reflex natural frequency), ``channels`` (extra recorded channels,
+    e.g. 'emg').
+    """
+
+    t: np.ndarray
+    theta: np.ndarray
+    vel: np.ndarray
+    acc: np.ndarray
+    command: np.ndarray
+    slow_velocity: np.ndarray
+    slow_theta: np.ndarray
+    perturbed: bool
+    fs: float
+    params: SubjectParams
+    rng: np.random.Generator
+    stiffness_scale: np.ndarray = None
+    viscosity_scale: np.ndarray = None
+    reflex_gain_scale: np.ndarray = None
+    extra_torque: np.ndarray = None
+    reflex_wn: np.ndarray | None = None
+    channels: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n = len(self.t)
+        for name in ("stiffness_scale", "viscosity_scale", "reflex_gain_scale"):
+            if getattr(self, name) is None:
+                setattr(self, name, np.ones(n))
+        if self.extra_torque is None:
+            self.extra_torque = np.zeros(n)
+
+
+def _effect_drift(s: TrialState) -> dict:
+    """Fatigue / habituation: stiffness and reflex gain decay linearly in time,
+    -30 % over 120 s (floored at 10 % of the initial value)."""
+    rate = 0.30 / 120.0  # 1/s
+    scale = np.maximum(1.0 - rate * s.t, 0.1)
+    s.stiffness_scale *= scale
+    s.reflex_gain_scale *= scale
+    return {"rate_per_s": rate, "floor": 0.1, "applies_to": ["K", "reflex_gain"]}
+
+
+def _effect_nonlinear_viscosity(s: TrialState) -> dict:
+    """Coulomb-like friction on the undelayed velocity, F_c * tanh(v / v_c): a smoothed
+    sign term the linear viscosity B cannot represent."""
+    fc, vc = 0.4, 0.02  # N m, rad/s
+    s.extra_torque += fc * np.tanh(s.vel / vc)
+    return {"coulomb_torque": fc, "velocity_scale": vc}
+
+
+def _effect_direction_dependent_stiffness(s: TrialState) -> dict:
+    """History-dependent stiffness: K is 25 % higher after the slow trajectory has moved
+    toward dorsiflexion than after it has moved toward plantarflexion (the hysteresis of
+    passive joint torque-angle loops; muscle thixotropy). The direction is that of the
+    last slow movement faster than 0.05 rad/s, latched through holds, and the stiffness
+    follows it with a 0.2 s time constant (no torque jumps). It acts the same in PT and
+    UT (it reads the unperturbed trajectory's velocity)."""
+    gain, v_min, tau = 0.25, 0.05, 0.2  # 1, rad/s, s
+    v = s.slow_velocity
+    moving = np.abs(v) > v_min
+    last = np.maximum.accumulate(np.where(moving, np.arange(len(v)), 0))
+    toward_df = (moving[last] & (v[last] > 0)).astype(float)  # 0 before any movement
+    alpha = 1.0 - math.exp(-1.0 / (tau * s.fs))
+    smooth = signal.lfilter([alpha], [1.0, alpha - 1.0], toward_df)
+    s.stiffness_scale *= 1.0 + gain * smooth
+    return {"increase_after_moving_toward_df": gain, "velocity_threshold": v_min, "time_constant": tau}
+
+
+def _effect_background_activation(s: TrialState) -> dict:
+    """Slowly varying background activation a(t) in [0, 1], recorded as channel 'emg'
+    (normalised EMG envelope), mostly low (~0.1) with bursts toward 0.9.
+
+    Physiology: active fibres add short-range stiffness proportional to activation, acting
+    on fast length changes about the slowly moving operating point (cross-bridges
+    re-attach during slow movement, so the slow trajectory is not resisted). Hence the
+    elastic torque of perturbations is scaled by (1 + a): a(t) * [E(theta) - E(theta_slow)]
+    is added, i.e. K_eff = (1 + a) K for the perturbation. Viscosity is scaled by (1 + a)
+    too, and a tonic active (plantarflexing, resists dorsiflexion: positive) torque
+    ``tonic * a`` is added. Each trial has its own a(t): activation is not reproducible
+    between trials, so PT - UT also keeps a slow residual ``tonic * (a_PT - a_UT)``."""
+    cutoff, tonic = 0.05, 2.0  # Hz (slow), N m at full activation
+    b, a = signal.butter(2, cutoff, fs=s.fs)
+    lead = int(20 * s.fs)  # discard the filter's start-up so a(t) is stationary from t = 0
+    x = signal.lfilter(b, a, s.rng.standard_normal(len(s.t) + lead))[lead:]
+    x /= max(np.std(x), 1e-12)
+    act = 0.5 * (1.0 + np.tanh(x - 1.0))
+    pr = s.params
+    s.extra_torque += act * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta)) + tonic * act
+    s.viscosity_scale *= 1.0 + act
+    s.channels["emg"] = act
+    return {"cutoff_hz": cutoff, "tonic_torque": tonic,
+            "mapping": "a = 0.5*(1+tanh(x-1)), x unit-variance noise low-passed at cutoff_hz",
+            "perturbation_stiffness_scale": "1 + a", "viscosity_scale": "1 + a",
+            "independent_per_trial": True}
+
+
+def _effect_position_dependent_reflex_dynamics(s: TrialState) -> dict:
+    """Reflex low-pass natural frequency varies with position (faster toward DF):
+    wn(theta) = reflex_wn * 1.5**((theta + 0.1) / 0.3), ~10.7 rad/s at -0.4, 24 rad/s at +0.2.
+    The LPV-PC model assumes LTI reflex dynamics."""
+    ratio = 1.5
+    s.reflex_wn = s.params.reflex_wn * ratio ** ((s.theta + 0.1) / 0.3)
+    return {"wn_formula": "reflex_wn * 1.5**((theta + 0.1)/0.3)",
+            "wn_at_-0.4": float(s.params.reflex_wn / ratio),
+            "wn_at_+0.2": float(s.params.reflex_wn * ratio)}
+
+
+#: name -> (description, apply function). An apply function takes a :class:`TrialState`,
+#: modifies its modulation fields in place and returns a JSON-serialisable dict of its
+#: parameters (recorded in ``truth['effects']``). To add an effect: write such a function
+#: and add one line here.
+EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
+    "drift": ("stiffness and reflex gain decay linearly, -30 % over 2 min (fatigue/habituation)",
+              _effect_drift),
+    "nonlinear_viscosity": ("Coulomb-like friction 0.4*tanh(v/0.02) N m on undelayed velocity",
+                            _effect_nonlinear_viscosity),
+    "direction_dependent_stiffness": ("K +25 % after the slow trajectory moved toward "
+                                      "dorsiflexion (torque-angle hysteresis)",
+                                      _effect_direction_dependent_stiffness),
+    "background_activation": ("slow background activation a(t) (channel 'emg'), own per trial: "
+                              "K of perturbations and B scaled by 1+a, tonic torque 2a N m",
+                              _effect_background_activation),
+    "position_dependent_reflex_dynamics": ("reflex low-pass wn varies with position (10.7-24 rad/s)",
+                                           _effect_position_dependent_reflex_dynamics),
+}
+
+
+def _check_effects(effects) -> tuple:
+    if isinstance(effects, str):
+        effects = (effects,)
+    effects = tuple(effects)
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(EFFECTS)}")
+    return effects
+
+
+# ---------------------------------------------------------------------------------------
+# The pair
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class SimulatedPair:
+    """A simulated PT/UT pair at the output rate.
+
+    ``pt``, ``ut``: noisy trials (channel 'command', plus 'emg' with background
+    activation); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
+    ``truth``: JSON-serialisable parameters, curves and measured quantities;
+    ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
+    'ut_intrinsic', 'ut_reflex'.
+    """
+
+    pt: Trial
+    ut: Trial
+    pt_clean: Trial
+    ut_clean: Trial
+    truth: dict
+    components: dict
+
+
+_TRAJECTORIES = {"multilevel": (0, multilevel_trajectory), "novel": (1, novel_trajectory)}
+
+
+def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
+    """Physics of one trial at the simulation rate: returns kinematics, torques, channels.
+    ``slow`` is the unperturbed trial's result (None when simulating the UT itself)."""
+    theta, vel, acc = servo(command, fs, params)
+    t = np.arange(len(command)) / fs
+    st = TrialState(t=t, theta=theta, vel=vel, acc=acc, command=command,
+                    slow_velocity=vel if slow is None else slow["vel"],
+                    slow_theta=theta if slow is None else slow["theta"],
+                    perturbed=perturbed, fs=fs, params=params, rng=rng)
+    info = {name: EFFECTS[name][1](st) for name in effects}
+    tq_i = intrinsic_torque(theta, vel, acc, params, stiffness_scale=st.stiffness_scale,
+                            viscosity_scale=st.viscosity_scale, extra=st.extra_torque)
+    tq_r, _ = reflex_torque(theta, vel, fs, params, gain_scale=st.reflex_gain_scale, wn=st.reflex_wn)
+    return {"theta": theta, "vel": vel, "intrinsic": tq_i, "reflex": tq_r,
+            "channels": st.channels, "effects": info}
+
+
+def _decimate(x, q: int) -> np.ndarray:
+    """``scipy.signal.decimate(x, q, ftype="fir", zero_phase=True)`` without its edge droop.
+
+    scipy pads with zeros, which pulls the first and last ~10 output samples of a signal
+    far from zero (an angle of -0.4 rad, a torque of 20 N m) toward zero. The line through
+    the end points is removed before and added back after: still linear, so decimating
+    PT - UT equals the difference of the decimated trials, and noise can be scaled after.
+    """
+    x = np.asarray(x, dtype=float)
+    if q == 1:
+        return x.copy()
+    ramp = np.linspace(x[0], x[-1], len(x))
+    return signal.decimate(x - ramp, q, ftype="fir", zero_phase=True) + ramp[::q]
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _vaf(measured, predicted) -> float:
+    """Variance accounted for (%): 100 * (1 - var(measured - predicted) / var(measured))."""
+    measured = np.asarray(measured)
+    return float(100.0 * (1.0 - np.var(measured - np.asarray(predicted)) / np.var(measured)))
+
+
+def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: float = 120.0,
+                  fs_out: float = 1000.0, snr_db: float = 18.0,
+                  perturbation_amplitude: float = 0.04, params: SubjectParams | None = None,
+                  effects=()) -> SimulatedPair:
+    """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
+
+    ``trajectory``: "multilevel" (identification) or "novel" (held-out shapes that also
+    leave the identified range briefly). ``seed`` selects all random streams (trajectory,
+    PRALDS, noise, effects); the novel trajectory uses a different stream than the
+    multilevel one for the same seed. ``duration`` s; ``fs_out`` Hz must divide 1000
+    (1000: no decimation; 100: ``scipy.signal.decimate(q=10, ftype='fir', zero_phase=True)``).
+    ``snr_db``: SNR of the PERTURBATION torque, 10 log10(var(PT-UT clean) / var(PT-UT
+    noise)), exact at the output rate (``inf`` or ``None``: no noise).
+    ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``effects``:
+    names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
+    quantisation is negligible next to the torque noise).
+    """
+    if trajectory not in _TRAJECTORIES:
+        raise ValueError(f"unknown trajectory {trajectory!r}; use one of {sorted(_TRAJECTORIES)}")
+    effects = _check_effects(effects)
+    params = params or SubjectParams()
+    fs = FS_SIM
+    q = fs / fs_out
+    if fs_out <= 0 or abs(q - round(q)) > 1e-9:
+        raise ValueError(f"fs_out={fs_out} Hz must divide the simulation rate {fs} Hz")
+    q = int(round(q))
+    if duration * fs_out < 100:
+        raise ValueError(f"duration {duration} s is too short (need >= 100 output samples)")
+
+    code, make_traj = _TRAJECTORIES[trajectory]
+    ss = np.random.SeedSequence([int(seed), code])
+    r_traj, r_pert, r_npt, r_nut, r_ept, r_eut = (np.random.default_rng(s) for s in ss.spawn(6))
+
+    traj = make_traj(duration, fs, r_traj)
+    pert = pralds(duration, fs, r_pert, amplitude=perturbation_amplitude)
+    cmd = {"UT": traj, "PT": traj + pert}
+    ut = _simulate_trial(cmd["UT"], None, False, fs, params, effects, r_eut)
+    pt = _simulate_trial(cmd["PT"], ut, True, fs, params, effects, r_ept)
+
+    def out(x):  # to the output rate
+        return _decimate(x, q)
+
+    n = len(traj)
+    t_out = (np.arange(n) / fs)[::q]
+    comp = {"pt_intrinsic": out(pt["intrinsic"]), "pt_reflex": out(pt["reflex"]),
+            "ut_intrinsic": out(ut["intrinsic"]), "ut_reflex": out(ut["reflex"])}
+    clean = {"PT": comp["pt_intrinsic"] + comp["pt_reflex"],
+             "UT": comp["ut_intrinsic"] + comp["ut_reflex"]}
+    pos = {"PT": out(pt["theta"]), "UT": out(ut["theta"])}
+
+    # Noise: independent coloured noise in each trial, one common scale chosen so the
+    # perturbation torque (PT - UT) has exactly the requested SNR at the output rate
+    # (decimation is linear, so scaling after decimating is the same as before).
+    noise_pt = out(coloured_noise(n, fs, r_npt, params))
+    noise_ut = out(coloured_noise(n, fs, r_nut, params))
+    d_clean = clean["PT"] - clean["UT"]
+    if snr_db is None or np.isinf(snr_db):
+        scale = 0.0
+    else:
+        scale = float(np.sqrt(np.var(d_clean) / (np.var(noise_pt - noise_ut) * 10 ** (snr_db / 10))))
+    noisy = {"PT": clean["PT"] + scale * noise_pt, "UT": clean["UT"] + scale * noise_ut}
+    d_noisy = noisy["PT"] - noisy["UT"]
+
+    def trial(key, torque, sim):
+        ch = {"command": out(cmd[key])}
+        ch.update({k: out(v) for k, v in sim["channels"].items()})
+        return Trial(time=t_out.copy(), position=pos[key].copy(), torque=torque, channels=ch,
+                     name=f"{trajectory}_{key}")
+
+    eff_truth = [{"name": e, "description": EFFECTS[e][0], "parameters": pt["effects"][e]}
+                 for e in effects]
+    d_vel = out(pt["vel"] - ut["vel"])
+    d_int = comp["pt_intrinsic"] - comp["ut_intrinsic"]
+    d_ref = comp["pt_reflex"] - comp["ut_reflex"]
+    truth = {
+        "trajectory": trajectory,
+        "seed": int(seed),
+        "duration": float(duration),
+        "fs_sim": fs,
+        "fs_out": float(fs_out),
+        "snr_db": None if snr_db is None else float(snr_db),
+        "perturbation_amplitude": float(perturbation_amplitude),
+        "params": params.to_dict(),
+        "curves": params.curves(),
+        "reflex_delay": params.reflex_delay,
+        "reflex_wn": params.reflex_wn,
+        "reflex_zeta": params.reflex_zeta,
+        "effects": eff_truth,
+        "noise_scale": scale,
+        "position_noise": 0.0,
+        "units": {"time": "s", "position": "rad", "torque": "N m", "command": "rad",
+                  "emg": "1 (normalised activation)"},
+        # measured on this record at the output rate; RMS values are about zero
+        "measured": {
+            "snr_db": float(10 * np.log10(np.var(d_clean) / np.var(d_noisy - d_clean)))
+            if scale > 0 else float("inf"),
+            "vaf_ceiling": _vaf(d_noisy, d_clean),
+            "perturbation_torque_rms": _rms(d_clean - d_clean.mean()),
+            "perturbation_intrinsic_rms": _rms(d_int - d_int.mean()),
+            "perturbation_reflex_rms": _rms(d_ref),
+            "ut_reflex_rms": _rms(comp["ut_reflex"]),
+            "pt_reflex_rms": _rms(comp["pt_reflex"]),
+            "ut_to_perturbation_reflex_rms_ratio": _rms(comp["ut_reflex"]) / max(_rms(d_ref), 1e-12),
+            "ut_reflex_active_fraction": float(np.mean(np.abs(comp["ut_reflex"]) > 0.01)),
+            "noise_rms": _rms(d_noisy - d_clean),
+            "peak_perturbation_velocity": float(np.max(np.abs(d_vel))),
+            "peak_ut_velocity": float(np.max(np.abs(out(ut["vel"])))),
+            "scheduling_range": [float(pos["UT"].min()), float(pos["UT"].max())],
+            "pt_position_range": [float(pos["PT"].min()), float(pos["PT"].max())],
+        },
+    }
+    if truth["measured"]["snr_db"] == float("inf"):
+        truth["measured"]["snr_db"] = None  # JSON has no infinity
+    pair = SimulatedPair(
+        pt=trial("PT", noisy["PT"], pt), ut=trial("UT", noisy["UT"], ut),
+        pt_clean=trial("PT", clean["PT"], pt), ut_clean=trial("UT", clean["UT"], ut),
+        truth=truth, components=comp)
+    return pair
+
+
+def _save_truth_npz(path, pair: SimulatedPair):
+    c = pair.components
+    np.savez_compressed(
+        path, time=pair.pt.time,
+        pt_position=pair.pt.position, ut_position=pair.ut.position,
+        pt_torque_clean=pair.pt_clean.torque, ut_torque_clean=pair.ut_clean.torque,
+        perturbation_intrinsic=c["pt_intrinsic"] - c["ut_intrinsic"],
+        perturbation_reflex=c["pt_reflex"] - c["ut_reflex"],
+        **c)
+
+
+def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: float = 18.0,
+                  effects=(), duration: float = 120.0, params: SubjectParams | None = None) -> dict:
+    """Write an identification pair and a novel (held-out) pair with their truth.
+
+    Files in ``out_dir``: ident_PT.csv, ident_UT.csv, novel_PT.csv, novel_UT.csv
+    (header ``time,position,torque[,emg],command``; s, rad, N m, rad), truth.json
+    (parameters, curves, per-pair truth) and truth_ident.npz / truth_novel.npz (time,
+    positions, clean PT/UT torques, the four components and the perturbation intrinsic
+    and reflex torques, all at the output rate). Returns {stem: Path}.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    params = params or SubjectParams()
+    paths, truth = {}, {"params": params.to_dict(), "curves": params.curves(),
+                        "units": {"time": "s", "position": "rad", "torque": "N m",
+                                  "command": "rad", "emg": "1 (normalised activation)"}}
+    for key, kind in (("ident", "multilevel"), ("novel", "novel")):
+        pair = simulate_pair(kind, seed=seed, duration=duration, fs_out=fs_out, snr_db=snr_db,
+                             params=params, effects=effects)
+        for which, tr in (("PT", pair.pt), ("UT", pair.ut)):
+            p = out_dir / f"{key}_{which}.csv"
+            write_trial_csv(tr, p)
+            paths[f"{key}_{which}"] = p
+        p = out_dir / f"truth_{key}.npz"
+        _save_truth_npz(p, pair)
+        paths[f"truth_{key}"] = p
+        truth[key] = pair.truth
+    p = out_dir / "truth.json"
+    p.write_text(json.dumps(truth, indent=1))
+    paths["truth"] = p
+    return paths

@@ -1,0 +1,264 @@
+"""Tests of the virtual subject (lpvpc.simulate)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from lpvpc.simulate import (
+    EFFECTS,
+    SimulatedPair,
+    SubjectParams,
+    pralds,
+    reflex_torque,
+    servo,
+    simulate_pair,
+    write_dataset,
+)
+
+FS = 1000.0
+
+
+@pytest.fixture(scope="module")
+def base100():
+    return simulate_pair("multilevel", seed=0, fs_out=100.0)
+
+
+def _snr_db(pair):
+    d_clean = pair.pt_clean.torque - pair.ut_clean.torque
+    d_noise = (pair.pt.torque - pair.pt_clean.torque) - (pair.ut.torque - pair.ut_clean.torque)
+    return 10 * np.log10(np.var(d_clean) / np.var(d_noise))
+
+
+# ---- parameters and curves --------------------------------------------------------------
+
+
+def test_K_curve_shape_and_values():
+    p = SubjectParams()
+    th = np.linspace(-0.4, 0.2, 1201)
+    K = p.K(th)
+    i = int(np.argmin(K))
+    assert -0.4 < th[i] < 0.0, "minimum between plantarflexion and neutral"
+    assert 25.0 <= K[i] <= 35.0
+    assert 150.0 <= p.K(0.2) <= 180.0
+    assert np.all(np.diff(K[i:]) > 0), "rises monotonically toward dorsiflexion"
+    assert p.K(-0.4) > K[i] * 1.1, "rises somewhat again toward -0.4"
+    assert np.all(np.isfinite(p.K([-50.0, 50.0])))  # no overflow for absurd angles
+
+
+def test_elastic_torque_is_exact_integral_of_K():
+    p = SubjectParams()
+    th = np.linspace(-0.5, 0.3, 81)
+    h = 1e-6
+    dE = (p.elastic_torque(th + h) - p.elastic_torque(th - h)) / (2 * h)
+    np.testing.assert_allclose(dE, p.K(th), rtol=1e-6)
+    assert abs(p.elastic_torque(p.elastic_rest)) < 1e-12
+
+
+def test_reflex_gain_rises_and_threshold_falls_toward_dorsiflexion():
+    p = SubjectParams()
+    th = np.linspace(-0.4, 0.2, 61)
+    assert np.all(np.diff(p.reflex_gain(th)) > 0)
+    assert np.all(np.diff(p.reflex_threshold(th)) < 0)
+    assert p.reflex_gain(-0.4) == pytest.approx(2.0) and p.reflex_gain(0.2) == pytest.approx(8.0)
+    assert p.reflex_threshold(-0.4) == pytest.approx(0.7)
+    assert p.reflex_threshold(0.2) == pytest.approx(0.25)
+    assert 0.4 < p.reflex_threshold(-0.1) < 0.6
+
+
+# ---- physical elements ------------------------------------------------------------------
+
+
+def test_servo_matches_analytic_step_response():
+    p = SubjectParams()
+    n, k0, step = 400, 50, 0.03
+    cmd = np.full(n, -0.1)
+    cmd[k0:] += step
+    theta, vel, acc = servo(cmd, FS, p)
+    wn, z = p.servo_wn, p.servo_zeta
+    wd = wn * math.sqrt(1 - z * z)
+    t = np.maximum(np.arange(n) - k0, 0) / FS
+    env = np.exp(-z * wn * t) * (np.arange(n) >= k0)
+    theta_ref = -0.1 + step * (np.arange(n) >= k0) * (1 - np.exp(-z * wn * t) * (np.cos(wd * t) + z / math.sqrt(1 - z * z) * np.sin(wd * t)))
+    vel_ref = step * wn / math.sqrt(1 - z * z) * env * np.sin(wd * t)
+    acc_ref = step * wn ** 2 * env * (np.cos(wd * t) - z / math.sqrt(1 - z * z) * np.sin(wd * t))
+    np.testing.assert_allclose(theta, theta_ref, atol=1e-12)
+    np.testing.assert_allclose(vel, vel_ref, atol=1e-9 * wn)
+    np.testing.assert_allclose(acc, acc_ref, atol=1e-9 * wn ** 2)
+
+
+def test_reflex_does_not_respond_before_the_delay():
+    p = SubjectParams()
+    n, k0 = 600, 100
+    vel = np.zeros(n)
+    vel[k0:] = 2.0  # rad/s, well above every threshold
+    theta = np.zeros(n)
+    tq, z = reflex_torque(theta, vel, FS, p)
+    kd = k0 + int(round(p.reflex_delay * FS))
+    assert np.all(tq[:kd] == 0.0) and np.all(z[:kd] == 0.0)
+    assert np.all(z[kd:] > 0)
+    assert tq[kd + 5] > 0 and tq[-1] > 0.5 * z[-1]  # responds right after, toward unit DC gain
+    # a delay that is not a whole number of samples is honoured too
+    p2 = SubjectParams(reflex_delay=0.0425)
+    tq2, _ = reflex_torque(theta, vel, FS, p2)
+    assert np.all(tq2[: k0 + 42] == 0.0) and tq2[k0 + 45] > 0
+
+
+def test_reflex_is_a_half_wave_rectifier_with_unit_dc_gain():
+    p = SubjectParams()
+    n = 20000
+    theta = np.full(n, 0.2)
+    tq_up, _ = reflex_torque(theta, np.full(n, 1.25), FS, p)
+    tq_dn, _ = reflex_torque(theta, np.full(n, -1.25), FS, p)
+    assert tq_up[-1] == pytest.approx(p.reflex_gain(0.2) * (1.25 - p.reflex_threshold(0.2)), rel=1e-6)
+    assert np.all(tq_dn == 0.0)
+
+
+def test_time_varying_reflex_filter_matches_lti_for_constant_wn():
+    p = SubjectParams()
+    rng = np.random.default_rng(3)
+    vel = np.cumsum(rng.standard_normal(5000)) * 0.05
+    theta = np.zeros(5000)
+    lti, _ = reflex_torque(theta, vel, FS, p)
+    tv, _ = reflex_torque(theta, vel, FS, p, wn=np.full(5000, p.reflex_wn))
+    assert np.max(np.abs(lti - tv)) < 1e-3 * np.max(np.abs(lti))
+
+
+def test_pralds_levels_and_holds():
+    x = pralds(60.0, FS, np.random.default_rng(1), amplitude=0.04)
+    assert np.max(np.abs(x)) <= 0.04
+    edges = np.flatnonzero(np.diff(x) != 0) + 1
+    holds = np.diff(edges) / FS
+    assert holds.min() >= 0.25 - 1e-9 and holds.max() <= 0.35 + 1e-9
+
+
+# ---- the pair ---------------------------------------------------------------------------
+
+
+def test_pair_structure_and_trajectory(base100):
+    pr = base100
+    assert isinstance(pr, SimulatedPair)
+    assert set(pr.components) == {"pt_intrinsic", "pt_reflex", "ut_intrinsic", "ut_reflex"}
+    np.testing.assert_allclose(pr.components["pt_intrinsic"] + pr.components["pt_reflex"], pr.pt_clean.torque)
+    for tr in (pr.pt, pr.ut, pr.pt_clean, pr.ut_clean):
+        assert "command" in tr.channels and len(tr.time) == 12000
+    np.testing.assert_array_equal(pr.pt.position, pr.pt_clean.position)
+    # UT follows the multilevel range; the perturbation is the PRALDS on top
+    lo, hi = pr.truth["measured"]["scheduling_range"]
+    assert -0.43 < lo < -0.35 and 0.15 < hi < 0.23
+    d = pr.pt.channels["command"] - pr.ut.channels["command"]
+    assert np.max(np.abs(d)) < 0.05  # FIR decimation rings ~9 % at steps
+    json.dumps(pr.truth)  # JSON-serialisable
+    m = pr.truth["measured"]
+    assert m["ut_reflex_rms"] > 0 and m["perturbation_reflex_rms"] > 0
+    assert pr.truth["reflex_delay"] == 0.040
+
+
+def test_decimated_output_has_100_hz_step(base100):
+    t = base100.pt.time
+    np.testing.assert_allclose(np.diff(t), 0.01, atol=1e-12)
+    assert base100.pt.fs == pytest.approx(100.0)
+    # no edge droop toward zero at either end (the angle starts at rest at its first level)
+    ut = base100.ut
+    assert abs(ut.position[0] - ut.channels["command"][0]) < 1e-3
+    assert np.all(np.abs(np.diff(ut.position[:20])) < 1e-3)
+
+
+@pytest.mark.parametrize("fs_out,snr", [(100.0, 18.0), (1000.0, 18.0), (100.0, 10.0)])
+def test_perturbation_snr_matches_request(fs_out, snr):
+    pr = simulate_pair(seed=2, duration=40.0, fs_out=fs_out, snr_db=snr)
+    assert abs(_snr_db(pr) - snr) < 0.5
+    assert abs(pr.truth["measured"]["snr_db"] - snr) < 0.5
+    # independent noise in the two trials
+    n_pt = pr.pt.torque - pr.pt_clean.torque
+    n_ut = pr.ut.torque - pr.ut_clean.torque
+    assert abs(np.corrcoef(n_pt, n_ut)[0, 1]) < 0.2
+
+
+def test_seeds_reproduce_and_differ():
+    a = simulate_pair(seed=5, duration=20.0, fs_out=100.0)
+    b = simulate_pair(seed=5, duration=20.0, fs_out=100.0)
+    c = simulate_pair(seed=6, duration=20.0, fs_out=100.0)
+    for x, y in ((a.pt, b.pt), (a.ut, b.ut)):
+        np.testing.assert_array_equal(x.torque, y.torque)
+        np.testing.assert_array_equal(x.position, y.position)
+    assert not np.allclose(a.ut.position, c.ut.position)  # trajectory
+    assert not np.allclose(a.pt.torque - a.pt_clean.torque, c.pt.torque - c.pt_clean.torque)  # noise
+
+
+@pytest.mark.parametrize("name", sorted(EFFECTS))
+def test_each_effect_changes_the_torque(name, base100):
+    pr = simulate_pair("multilevel", seed=0, fs_out=100.0, effects=(name,))
+    assert [e["name"] for e in pr.truth["effects"]] == [name]
+    json.dumps(pr.truth)
+    np.testing.assert_array_equal(pr.pt.position, base100.pt.position)  # same kinematics
+    d_base = base100.pt_clean.torque - base100.ut_clean.torque
+    d_eff = pr.pt_clean.torque - pr.ut_clean.torque
+    change = np.sqrt(np.mean((d_eff - d_base) ** 2)) / np.std(d_base)
+    assert change > 0.05, f"{name} changes the perturbation torque by only {100 * change:.1f} %"
+    if name == "background_activation":
+        for tr in (pr.pt, pr.ut):
+            assert "emg" in tr.channels
+            assert tr.channels["emg"].min() > -0.05 and tr.channels["emg"].max() < 1.05
+
+
+def test_unknown_effect_and_bad_rate_are_rejected():
+    with pytest.raises(ValueError, match="unknown effect"):
+        simulate_pair(duration=5.0, effects=("nope",))
+    with pytest.raises(ValueError, match="fs_out"):
+        simulate_pair(duration=5.0, fs_out=300.0)
+    with pytest.raises(ValueError, match="trajectory"):
+        simulate_pair("zigzag", duration=5.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_novel_trajectory_leaves_the_identified_range(seed):
+    ident = simulate_pair("multilevel", seed=seed, fs_out=100.0, snr_db=None)
+    novel = simulate_pair("novel", seed=seed, fs_out=100.0, snr_db=None)
+    lo_i, hi_i = ident.truth["measured"]["scheduling_range"]
+    lo_n, hi_n = novel.truth["measured"]["scheduling_range"]
+    assert lo_n < min(lo_i, -0.4) and hi_n > max(hi_i, 0.2)
+    # only briefly: less than 5 % of the time outside [-0.4, 0.2]
+    outside = np.mean((novel.ut.position < -0.4) | (novel.ut.position > 0.2))
+    assert 0 < outside < 0.05
+    assert not np.allclose(novel.ut.position[:500], ident.ut.position[:500])
+
+
+def test_larger_perturbation_gives_faster_perturbation_velocity():
+    small = simulate_pair("novel", seed=4, duration=40.0, fs_out=100.0, perturbation_amplitude=0.04)
+    big = simulate_pair("novel", seed=4, duration=40.0, fs_out=100.0, perturbation_amplitude=0.06)
+    np.testing.assert_array_equal(small.ut.position, big.ut.position)  # same trajectory
+    assert big.truth["measured"]["peak_perturbation_velocity"] > 1.2 * small.truth["measured"]["peak_perturbation_velocity"]
+
+
+def test_write_dataset_roundtrip(tmp_path):
+    paths = write_dataset(tmp_path, seed=1, duration=30.0, fs_out=100.0)
+    for stem in ("ident_PT", "ident_UT", "novel_PT", "novel_UT"):
+        p = paths[stem]
+        assert p.name == f"{stem}.csv"
+        assert p.read_text().splitlines()[0] == "time,position,torque,command"
+        data = np.loadtxt(p, delimiter=",", skiprows=1)
+        assert data.shape == (3000, 4)
+        np.testing.assert_allclose(np.diff(data[:, 0]), 0.01, atol=1e-9)
+    truth = json.loads(paths["truth"].read_text())
+    assert {"params", "curves", "ident", "novel"} <= set(truth)
+    assert truth["ident"]["trajectory"] == "multilevel" and truth["novel"]["trajectory"] == "novel"
+    with np.load(paths["truth_ident"]) as z:
+        for key in ("time", "pt_torque_clean", "ut_torque_clean", "pt_intrinsic", "pt_reflex",
+                    "ut_intrinsic", "ut_reflex", "perturbation_intrinsic", "perturbation_reflex"):
+            assert len(z[key]) == 3000
+    ident = np.loadtxt(paths["ident_UT"], delimiter=",", skiprows=1)
+    novel = np.loadtxt(paths["novel_UT"], delimiter=",", skiprows=1)
+    assert not np.allclose(ident[:, 1], novel[:, 1])
+
+
+def test_pair_trials_reproduces_the_simulated_perturbation(base100):
+    from lpvpc.data import pair_trials
+
+    pr = simulate_pair("multilevel", seed=0, fs_out=1000.0)
+    d = pair_trials(pr.pt_clean, pr.ut_clean, target_fs=100.0)
+    assert d.fs == pytest.approx(100.0) and d.n == 12000
+    ref = base100.pt_clean.torque - base100.ut_clean.torque
+    assert np.corrcoef(d.torque, ref)[0, 1] > 0.999
+    np.testing.assert_allclose(d.scheduling, base100.ut.position, atol=1e-3)
