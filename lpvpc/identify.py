@@ -5,7 +5,9 @@ Steps (equation numbers of the seed paper):
 1. regressors: intrinsic Psi_i (9-11) and reflex inputs U_r (17) from the bases;
 2. MOESP on the MISO form (21)-(23) gives A_r, C_r; the state order is chosen from the
    singular values (the orders at the two largest gaps, plus order 2) and settled by BIC
-   of the complete fit, unless ``state_order`` is given;
+   of the complete fit, unless ``state_order`` is given; the MOESP poles are then refined
+   by variable projection on the complete fit (``refine_poles``; MOESP with ~70 inputs
+   leaves a bias in the poles that leaks reflex torque into the intrinsic estimate);
 3. reflex regressor Psi_r (25) by filtering U_r through C_r (zI - A_r)^-1;
 4. orthogonal projection (27)-(28): the intrinsic parameters by least squares after
    projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y
@@ -29,7 +31,7 @@ from .errors import DataError, IdentificationError, InsufficientExcitationError
 from .intrinsic import intrinsic_regressor, two_sided_lags
 from .model import LPVPCModel, vaf
 from .reflex import fit_hammerstein, reflex_input_regressor, reflex_regressor
-from .subspace import candidate_orders, po_moesp
+from .subspace import candidate_orders, po_moesp, refine_poles
 
 RANK_TOL = 1e-9  # relative to the largest |R_ii| of a pivoted QR
 
@@ -51,6 +53,7 @@ class LPVPCEstimator:
     max_state_order : largest order considered when choosing.
     horizon : block rows s of the MOESP Hankel matrices.
     causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
+    refine : refine the MOESP poles by variable projection (see module docstring).
     tol, max_iter : stopping rule of the separable least squares.
     """
 
@@ -59,15 +62,16 @@ class LPVPCEstimator:
         irf_lags: int = 3,
         basis: str = "chebyshev",
         intrinsic_order: int = 5,
-        reflex_order: int = 3,
-        velocity_order: int = 6,
+        reflex_order: int = 2,
+        velocity_order: int = 4,
         reflex_delay: float = 0.040,
         state_order: int | None = None,
         max_state_order: int = 4,
-        horizon: int = 8,
+        horizon: int = 10,
         causal_lags: int | None = None,
         tol: float = 1e-6,
         max_iter: int = 100,
+        refine: bool = True,
     ):
         self.irf_lags = irf_lags
         self.basis = basis
@@ -81,11 +85,12 @@ class LPVPCEstimator:
         self.causal_lags = causal_lags
         self.tol = tol
         self.max_iter = max_iter
+        self.refine = refine
 
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "reflex_delay",
-            "state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter")}
+            "state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine")}
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
@@ -153,6 +158,8 @@ class LPVPCEstimator:
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
             "singular_values": sub.singular_values.tolist(),
+            "moesp_poles": [[float(z.real), float(z.imag)] for z in best["moesp_poles"]],
+            "poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(best["A"])],
             "hammerstein_iterations": int(hf.iterations),
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
@@ -165,6 +172,9 @@ class LPVPCEstimator:
     # ------------------------------------------------------------------------------------
     def _fit_given_order(self, sub, m, U_r, Psi_i, y, orientation):
         A, C = sub.system(m)
+        moesp_poles = np.linalg.eigvals(A)
+        if self.refine:
+            A, C, _ = refine_poles(A, U_r, Psi_i, y, orthonormal_range)
         blocks = reflex_regressor(U_r, A, C)
         Psi_r = np.hstack(blocks)
         theta_i = project_out_and_solve(Psi_r, Psi_i, y)
@@ -173,7 +183,7 @@ class LPVPCEstimator:
         fitted_r = sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks))
         resid = tq_r - fitted_r
         n_params = Psi_i.shape[1] + U_r.shape[1] + m + 1 + 2 * m
-        return {"A": A, "C": C, "theta_i": theta_i, "hammerstein": hf, "rss": float(resid @ resid), "n_params": n_params}
+        return {"A": A, "C": C, "moesp_poles": moesp_poles, "theta_i": theta_i, "hammerstein": hf, "rss": float(resid @ resid), "n_params": n_params}
 
     def _checked(self, data):
         p = np.asarray(data.position, dtype=float)

@@ -70,8 +70,8 @@ class SubjectParams:
         K(theta) = k_base + k_df * exp(k_df_rate * (theta - theta_df))
                           + k_pf * exp(-k_pf_rate * (theta - theta_pf))
 
-    rises steeply toward dorsiflexion (~165 N m/rad at +0.2 rad), has its minimum
-    (~29 N m/rad) near -0.22 rad, between neutral and full plantarflexion, and rises again
+    rises steeply toward dorsiflexion (~150 N m/rad at +0.2 rad), has its minimum
+    (~33 N m/rad) near -0.26 rad, between neutral and full plantarflexion, and rises again
     somewhat toward -0.4 rad (~40 N m/rad): passive tissue stretch of the plantarflexors
     (dorsiflexion) and of the anterior structures (plantarflexion).
     ``elastic_torque`` is its exact integral, zero at ``elastic_rest``.
@@ -86,8 +86,8 @@ class SubjectParams:
     inertia: float = 0.015  # kg m^2, foot + pedal moment of inertia
     viscosity: float = 0.7  # N m s/rad, intrinsic viscosity B
     k_base: float = 25.0  # N m/rad, constant part of K(theta)
-    k_df: float = 140.0  # N m/rad, dorsiflexion exponential's value at theta_df
-    k_df_rate: float = 10.0  # 1/rad, its growth rate toward dorsiflexion
+    k_df: float = 125.0  # N m/rad, dorsiflexion exponential's value at theta_df
+    k_df_rate: float = 7.0  # 1/rad, its growth rate toward dorsiflexion
     k_pf: float = 15.0  # N m/rad, plantarflexion exponential's value at theta_pf
     k_pf_rate: float = 12.0  # 1/rad, its growth rate toward plantarflexion
     theta_df: float = THETA_DF  # rad, reference angle of the dorsiflexion end

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
+import scipy.signal
 
 from .errors import IdentificationError, InsufficientExcitationError
 
@@ -110,3 +112,43 @@ def candidate_orders(singular_values, max_order: int = 4, n_gaps: int = 2):
     gaps = np.log(sv[:k] + 1e-300) - np.log(sv[1 : k + 1] + 1e-300)
     orders = [int(i) + 1 for i in np.argsort(gaps)[::-1][:n_gaps]]
     return sorted(set(orders))
+
+
+def companion_form(den):
+    """(A, C) in observable canonical form for the monic denominator z^m + den[0] z^(m-1) + ..."""
+    m = len(den)
+    A = np.zeros((m, m))
+    A[:, 0] = -np.asarray(den, dtype=float)
+    A[:-1, 1:] = np.eye(m - 1)
+    C = np.zeros((1, m))
+    C[0, 0] = 1.0
+    return A, C
+
+
+def refine_poles(A0, u_state, fixed_regressor, y, orthonormal_range, max_nfev: int = 60):
+    """Refine the poles of (A, C) by variable projection on the complete fit.
+
+    The column space of the reflex regressor (25) depends on A only through its
+    characteristic polynomial, so the residual of the unconstrained least-squares fit of
+    y on [Psi_i, Psi_r(den)] is a function of the m denominator coefficients alone. Its
+    minimum, started from the MOESP poles, corrects the bias that MOESP's many
+    instruments leave in the poles at the price of a few dozen cheap projections.
+    Returns (A, C) in observable canonical form and the optimiser result.
+    """
+    m = A0.shape[0]
+    den0 = np.poly(np.linalg.eigvals(A0)).real[1:]
+    Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
+    y_perp = y - Q0 @ (Q0.T @ y)
+
+    def residual(den):
+        if np.any(np.abs(np.roots(np.r_[1.0, den])) >= 0.999):  # keep the reflex stable
+            return 10.0 * y_perp
+        W = scipy.signal.lfilter([1.0], np.r_[1.0, den], u_state, axis=0)
+        X = np.hstack([np.vstack([np.zeros((j, W.shape[1])), W[:-j]]) for j in range(1, m + 1)])
+        X -= Q0 @ (Q0.T @ X)
+        Q = orthonormal_range(X)
+        return y_perp - Q @ (Q.T @ y_perp)
+
+    result = scipy.optimize.least_squares(residual, den0, method="lm", max_nfev=max_nfev, x_scale="jac")
+    A, C = companion_form(result.x)
+    return A, C, result
