@@ -112,6 +112,8 @@ class LPVPCEstimator:
         Psi_i = intrinsic_regressor(p, Gi_val, lags)
         U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
+        check_full_rank(Psi_i, "intrinsic")  # fail before the expensive subspace step
+        check_full_rank(U_r, "reflex input")
         timings["regressors"] = time.perf_counter() - t0
 
         t = time.perf_counter()
@@ -242,6 +244,19 @@ def project_out_and_solve(Psi_r, Psi_i, y):
     theta = np.empty(Psi_i.shape[1])
     theta[piv] = scipy.linalg.solve_triangular(R, Q.T @ y_perp, check_finite=False)
     return theta
+
+
+def check_full_rank(M, name):
+    """Raise InsufficientExcitationError naming the dependent columns if M is rank-deficient."""
+    _, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
+    diag = np.abs(np.diag(R))
+    rank = int(np.sum(diag > RANK_TOL * diag[0])) if diag.size and diag[0] > 0 else 0
+    if rank < M.shape[1]:
+        raise InsufficientExcitationError(
+            f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns (columns "
+            f"{sorted(piv[rank:].tolist())[:10]} are dependent); reduce the basis order, keep IRF lags "
+            f"below the reflex delay, or check that the scheduling variable varies"
+        )
 
 
 def orthonormal_range(M):

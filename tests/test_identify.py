@@ -1,0 +1,197 @@
+"""Identification on the virtual subject (known truth) and its failure modes."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from lpvpc.basis import Basis
+from lpvpc.data import PerturbationData, Trial, pair_trials
+from lpvpc.errors import DataError, InsufficientExcitationError, ModelFileError, OutOfRangeWarning
+from lpvpc.identify import LPVPCEstimator, identify, project_out_and_solve
+from lpvpc.model import LPVPCModel, vaf
+from lpvpc.simulate import SubjectParams, simulate_pair
+
+TRUTH = SubjectParams()
+
+
+def true_component(pair, key):
+    c, t = pair.components, pair.pt.time
+    return pair_trials(Trial(t, pair.pt.position, c["pt_" + key]), Trial(t, pair.ut.position, c["ut_" + key])).torque
+
+
+def central_rho(model, n=25):
+    lo, hi = model.scheduling_range
+    return np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n)
+
+
+def predict_quiet(model, data, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        return model.predict(data.position, data.scheduling, **kw)
+
+
+# -- accuracy ---------------------------------------------------------------------------
+def test_novel_vaf_within_one_point_of_noise_ceiling(subject, model):
+    ceiling = vaf(subject["novel"].torque, subject["novel_clean"].torque)
+    got = vaf(subject["novel"].torque, predict_quiet(model, subject["novel"]).total)
+    assert got > ceiling - 1.0, f"novel VAF {got:.2f} % vs noise ceiling {ceiling:.2f} %"
+
+
+def test_elastic_stiffness_within_ten_percent_over_central_range(model):
+    rho = central_rho(model)
+    err = 100 * (model.elastic_stiffness(rho) / TRUTH.K(rho) - 1)
+    assert np.max(np.abs(err)) < 10.0, f"K error {np.round(err, 1)} %"
+
+
+def test_predicted_intrinsic_torque_matches_true_intrinsic(subject, model):
+    pred = predict_quiet(model, subject["novel"])
+    got = vaf(true_component(subject["novel_pair"], "intrinsic"), pred.intrinsic)
+    assert got >= 95.0, f"intrinsic VAF {got:.2f} %"
+
+
+def test_reflex_gain_rises_and_threshold_falls_toward_dorsiflexion(model):
+    rho = central_rho(model)
+    gain, threshold = model.reflex_gain_threshold(rho)
+    assert np.polyfit(rho, gain, 1)[0] > 0, f"gain {np.round(gain, 2)}"
+    assert np.polyfit(rho, threshold, 1)[0] < 0, f"threshold {np.round(threshold, 2)}"
+    assert np.all(gain > 0)
+
+
+def test_reflex_dynamics_are_second_order_low_pass_near_truth(model):
+    # Truth: wn = 16 rad/s, zeta = 0.65 (continuous) at fs = 100 Hz.
+    assert model.state_order >= 2
+    poles = np.linalg.eigvals(model.A)
+    s = np.log(poles.astype(complex)) * model.fs
+    dominant = s[np.argsort(np.abs(s))[:2]]
+    wn = float(np.sqrt(np.prod(np.abs(dominant))))
+    assert 10.0 < wn < 24.0, f"dominant poles {dominant}"
+    t, irf = model.reflex_impulse_response()
+    assert np.all(np.isfinite(irf)) and abs(irf[-1]) < 0.05 * np.max(np.abs(irf))
+
+
+def test_held_out_faster_than_identification_gives_no_spikes(subject, model):
+    """A held-out record whose peak velocity exceeds the identified range must not turn
+    the velocity polynomial into torque spikes (the failure of the lab's MATLAB code)."""
+    pair = simulate_pair("novel", seed=7, perturbation_amplitude=0.06)
+    data = pair_trials(pair.pt, pair.ut)
+    clean = pair_trials(pair.pt_clean, pair.ut_clean)
+    from lpvpc import equations as eq
+
+    dvel = eq.delayed_velocity(data.position, data.fs, model.delay)
+    assert dvel.max() > model.velocity_range[1] * 1.1, "test record must exceed the identified velocity range"
+    pred = predict_quiet(model, data)
+    assert np.max(np.abs(pred.total)) < 1.5 * np.max(np.abs(clean.torque))
+    assert vaf(data.torque, pred.total) > vaf(data.torque, clean.torque) - 3.0
+
+
+# -- algorithm pieces --------------------------------------------------------------------
+def test_projection_equals_literal_pseudo_inverse_formula():
+    rng = np.random.default_rng(3)
+    n = 400
+    Psi_r, Psi_i = rng.standard_normal((n, 6)), rng.standard_normal((n, 5))
+    y = Psi_i @ rng.standard_normal(5) + Psi_r @ rng.standard_normal(6) + 0.1 * rng.standard_normal(n)
+    pr, pi = np.linalg.pinv(Psi_r), np.linalg.pinv(Psi_i)
+    C = np.eye(5) - pi @ Psi_r @ pr @ Psi_i
+    literal = np.linalg.pinv(C) @ pi @ (np.eye(n) - Psi_r @ pr) @ y
+    np.testing.assert_allclose(project_out_and_solve(Psi_r, Psi_i, y), literal, rtol=1e-9, atol=1e-12)
+
+
+def test_chebyshev_linear_extension_is_continuous_and_tangent():
+    b = Basis("chebyshev", 6, -2.0, 3.0, extrapolation="linear")
+    eps = 1e-6
+    for edge in (-2.0, 3.0):
+        inside, outside = b.evaluate([edge - np.sign(edge) * eps]), b.evaluate([edge + np.sign(edge) * eps])
+        np.testing.assert_allclose(inside, outside, atol=1e-3)
+    far = b.evaluate([3.0 + 10.0])[0]
+    edge_val, edge_slope = b.evaluate([3.0])[0], (b.evaluate([3.0])[0] - b.evaluate([3.0 - 1e-6])[0]) / 1e-6
+    np.testing.assert_allclose(far, edge_val + 10.0 * edge_slope, rtol=1e-4)
+    clipped = Basis("chebyshev", 6, -2.0, 3.0)
+    np.testing.assert_array_equal(clipped.evaluate([50.0]), clipped.evaluate([3.0]))
+
+
+def test_out_of_range_scheduling_warns_and_holds_the_boundary(model):
+    lo, hi = model.scheduling_range
+    n = 300
+    pos = 0.01 * np.sin(np.arange(n) / 5.0)
+    with pytest.warns(OutOfRangeWarning, match="outside the identified range"):
+        beyond = model.predict(pos, np.full(n, hi + 0.2))
+    at_edge = model.predict(pos, np.full(n, hi))
+    np.testing.assert_array_equal(beyond.total, at_edge.total)
+    assert beyond.out_of_range_fraction == 1.0
+
+
+# -- persistence -------------------------------------------------------------------------
+def test_save_load_round_trips_exactly(model, model_file, subject):
+    loaded = LPVPCModel.load(model_file)
+    assert loaded.to_dict() == json.loads(json.dumps(model.to_dict()))
+    a, b = predict_quiet(model, subject["novel"]), predict_quiet(loaded, subject["novel"])
+    np.testing.assert_array_equal(a.total, b.total)
+    assert loaded.model_hash == model.model_hash
+    d = loaded.to_dict()
+    assert d["provenance"]["data_hash"] == subject["ident"].data_hash
+    assert d["settings"]["irf_lags"] == 3 and d["fs"] == 100.0
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda text: text[: len(text) // 2], "corrupt model file"),
+        (lambda text: text.replace('"lpvpc-model"', '"something-else"'), "not an lpvpc model"),
+        (lambda text: json.dumps({**json.loads(text), "format_version": 99}), "format_version"),
+        (lambda text: json.dumps({k: v for k, v in json.loads(text).items() if k != "reflex"}), "corrupt model file"),
+    ],
+)
+def test_corrupt_model_file_names_the_problem(model_file, tmp_path, mutate, message):
+    bad = tmp_path / "bad.json"
+    bad.write_text(mutate(model_file.read_text()))
+    with pytest.raises(ModelFileError, match=message):
+        LPVPCModel.load(bad)
+
+
+def test_model_with_wrong_coefficient_shape_is_rejected(model_file, tmp_path):
+    d = json.loads(model_file.read_text())
+    d["reflex"]["Omega"] = d["reflex"]["Omega"][:-1]
+    bad = tmp_path / "shape.json"
+    bad.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match="Omega has shape"):
+        LPVPCModel.load(bad)
+
+
+# -- bad input ---------------------------------------------------------------------------
+def _data(n=3000, seed=0, **over):
+    rng = np.random.default_rng(seed)
+    fields = dict(position=0.02 * rng.standard_normal(n), torque=rng.standard_normal(n),
+                  scheduling=np.linspace(-0.4, 0.2, n), fs=100.0)
+    fields.update(over)
+    return PerturbationData(**fields) if all(np.all(np.isfinite(np.atleast_1d(v))) for v in fields.values()) else type("D", (), fields)
+
+
+def test_too_few_samples_names_the_counts():
+    with pytest.raises(InsufficientExcitationError, match=r"too few samples.*300 samples for \d+ parameters"):
+        identify(_data(300))
+
+
+def test_zero_perturbation_is_insufficient_excitation():
+    with pytest.raises(InsufficientExcitationError, match="no perturbation"):
+        identify(_data(position=np.zeros(3000)))
+
+
+def test_constant_scheduling_makes_the_regressor_rank_deficient(subject):
+    d = subject["ident"]
+    const = PerturbationData(position=d.position, torque=d.torque, scheduling=np.full(d.n, -0.1), fs=d.fs)
+    with pytest.raises(InsufficientExcitationError, match="rank-deficient intrinsic regressor: rank"):
+        identify(const, state_order=2)
+
+
+def test_non_finite_identification_data_names_channel_and_index():
+    pos = 0.02 * np.random.default_rng(0).standard_normal(3000)
+    pos[17] = np.nan
+    with pytest.raises(DataError, match="channel position: 1 non-finite values, first at index 17"):
+        LPVPCEstimator().fit(_data(position=pos))
+
+
+def test_prediction_rejects_unequal_lengths(model):
+    with pytest.raises(DataError, match="equal length"):
+        model.predict(np.zeros(10), np.zeros(9))
