@@ -1,0 +1,385 @@
+"""The ``lpvpc`` command line.
+
+::
+
+    lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
+    lpvpc identify (--pt PT.csv --ut UT.csv | DATA.csv) -o model.json [estimator settings]
+                   [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
+    lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
+                  [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
+    lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact]
+
+Errors of the package (bad data, corrupt model file, ...) and unreadable or unwritable
+paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit status 2
+for bad input (1 for other failures); out-of-range and unit warnings as one line
+``lpvpc: warning: <message>`` each. Command-line usage errors exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from . import __version__
+from .errors import LpvpcError, OutOfRangeWarning, UnitWarning
+
+PROG = "lpvpc"
+# Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
+OSERROR_STATUS = 2
+
+
+class _UsageError(LpvpcError):
+    """A combination of options argparse cannot check (printed like any other error)."""
+
+    exit_status = 2
+
+
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _err(message) -> None:
+    print(f"{PROG}: error: {_one_line(message)}", file=sys.stderr)
+
+
+def _os_message(exc: OSError) -> str:
+    what = exc.strerror or str(exc)
+    return f"{exc.filename}: {what}" if exc.filename else what
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _load_data(args, *, target_fs, position_unit, torque_sign):
+    """PerturbationData from either DATA or --pt/--ut (SI units after the loader)."""
+    from .data import load_identification_data
+
+    pair = (args.pt is not None, args.ut is not None)
+    if args.data is not None and any(pair):
+        raise _UsageError("give either DATA or --pt and --ut, not both")
+    if args.data is None and pair != (True, True):
+        missing = "--ut" if pair[0] else "--pt" if pair[1] else "DATA or --pt and --ut"
+        raise _UsageError(f"missing {missing}")
+    if args.data is not None:
+        return load_identification_data(data=args.data, position_unit=position_unit,
+                                        torque_sign=torque_sign, target_fs=target_fs)
+    return load_identification_data(pt=args.pt, ut=args.ut, position_unit=position_unit,
+                                    torque_sign=torque_sign, target_fs=target_fs)
+
+
+def _estimator_defaults() -> dict:
+    from .identify import LPVPCEstimator
+
+    return {k: p.default for k, p in inspect.signature(LPVPCEstimator.__init__).parameters.items()
+            if k != "self"}
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def cmd_simulate(args) -> int:
+    from .simulate import EFFECTS, FS_SIM, write_dataset
+
+    unknown = [e for e in args.effect if e not in EFFECTS]
+    if unknown:
+        raise _UsageError(f"unknown effect {', '.join(map(repr, unknown))} (known: {', '.join(sorted(EFFECTS))})")
+    q = FS_SIM / args.fs
+    if args.fs <= 0 or abs(q - round(q)) > 1e-9:
+        raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
+    if args.duration * args.fs < 100:
+        raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
+    paths = write_dataset(args.out, seed=args.seed, fs_out=args.fs, snr_db=args.snr,
+                          effects=tuple(args.effect), duration=args.duration)
+    effects = f", effects: {', '.join(args.effect)}" if args.effect else ""
+    print(f"virtual subject, seed {args.seed}, {args.duration:g} s at {args.fs:g} Hz, SNR {args.snr:g} dB{effects}")
+    for path in paths.values():
+        print(path)
+    return 0
+
+
+def cmd_identify(args) -> int:
+    from .identify import LPVPCEstimator
+
+    defaults = _estimator_defaults()
+    settings = {k: getattr(args, k) for k in defaults if getattr(args, k, None) is not None}
+    if args.state_order == "auto":
+        settings.pop("state_order")
+    elif "state_order" in settings:
+        settings["state_order"] = int(settings["state_order"])
+    target_fs = None if args.fs == 0 else args.fs
+    data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
+                      torque_sign=args.torque_sign)
+    t0 = time.perf_counter()
+    est = LPVPCEstimator(**settings).fit(data)
+    elapsed = time.perf_counter() - t0
+    model = est.model_
+    for key in ("position_unit", "torque_sign"):  # the file conventions, for predict to reuse
+        model.conventions.setdefault(key, data.meta.get(key, getattr(args, key)))
+    model.save(args.output)
+
+    fit = model.fit
+    lo, hi = model.scheduling_range
+    q = data.meta.get("decimation", 1)
+    rate = f"{data.fs:g} Hz" + (f" (decimated from {data.meta['fs_original']:g} Hz)" if q > 1 else "")
+    print(f"data:        {data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
+          f"position range {lo:+.3f}..{hi:+.3f} rad")
+    vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
+    print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
+    print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
+    print(f"time:        {elapsed:.2f} s")
+    print(f"model:       {args.output} (hash {model.model_hash[:12]})")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    import numpy as np
+
+    from .data import RATE_TOLERANCE
+    from .errors import DataError
+    from .model import LPVPCModel, vaf
+
+    model = LPVPCModel.load(args.model)
+    conv = model.conventions or {}
+    position_unit = args.position_unit or conv.get("position_unit", "rad")
+    torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
+        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
+                        source=data.source or None)
+    pred = model.predict(data.position, data.scheduling, causal=args.causal)
+    measured = data.torque
+    metrics = {
+        "vaf": vaf(measured, pred.total),
+        "rmse": float(np.sqrt(np.mean((measured - pred.total) ** 2))),
+        "n_samples": int(data.n),
+        "fs": float(data.fs),
+        "out_of_range_fraction": float(pred.out_of_range_fraction),
+        "causal": bool(args.causal),
+        "model_hash": model.model_hash,
+        "data_hash": data.data_hash,
+        "model": str(args.model),
+        "data": data.source,
+        "data_files": {"data": str(args.data)} if args.data is not None else {"pt": str(args.pt), "ut": str(args.ut)},
+        "units": {"vaf": "%", "rmse": "N m", "fs": "Hz"},
+        "lpvpc_version": __version__,
+    }
+    form = "causal" if args.causal else "two-sided"
+    print(f"VAF {metrics['vaf']:.2f} %  RMSE {metrics['rmse']:.3g} N m  ({data.n} samples at {data.fs:g} Hz, "
+          f"{form} intrinsic IRF)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(metrics, indent=1) + "\n")
+        print(f"metrics:   {args.json}")
+    if args.out:
+        cols = [data.time, measured, pred.total, pred.intrinsic, pred.reflex, data.position, data.scheduling]
+        np.savetxt(args.out, np.column_stack(cols), delimiter=",", fmt="%.10g", comments="",
+                   header="time,measured,predicted,intrinsic,reflex,position,scheduling")
+        print(f"predicted: {args.out} (time s; torques N m; position, scheduling rad)")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from .model import LPVPCModel
+
+    if not (args.casadi or args.fmu):
+        raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
+    model = LPVPCModel.load(args.model)
+    try:
+        from . import export
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__package__}.export":
+            raise
+        raise LpvpcError("export is not available in this installation (module lpvpc.export missing)") from None
+    variant = "exact" if args.exact else "causal"
+    if args.casadi:
+        t0 = time.perf_counter()
+        path = export.export_casadi(model, args.casadi, variant=variant)
+        print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
+    if args.fmu:
+        t0 = time.perf_counter()
+        path = export.export_fmu(model, args.fmu, fmi_version=args.fmi, variant=variant)
+        print(f"FMU (FMI {args.fmi}.0 co-simulation, {variant}): {path or args.fmu}  "
+              f"[{time.perf_counter() - t0:.2f} s]")
+    return 0
+
+
+# --------------------------------------------------------------------------- parser
+
+
+def _positive_float(text):
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not x > 0:
+        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
+    return x
+
+
+def _sign(text):
+    try:
+        x = float(text)
+    except ValueError:
+        x = None
+    if x not in (1.0, -1.0):
+        raise argparse.ArgumentTypeError(f"must be 1 or -1: {text!r}")
+    return x
+
+
+def _state_order(text):
+    if text == "auto":
+        return text
+    try:
+        m = int(text)
+    except ValueError:
+        m = 0
+    if m < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer or 'auto': {text!r}")
+    return m
+
+
+def _add_data_args(p, what):
+    p.add_argument("data", nargs="?", metavar="DATA",
+                   help=f"{what}: one CSV/.mat file with perturbation position, torque and a scheduling column")
+    p.add_argument("--pt", metavar="PT", help="perturbed trial (CSV or .mat: time, position, torque)")
+    p.add_argument("--ut", metavar="UT", help="unperturbed trial on the same trajectory")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Identify position-dependent (LPV parallel-cascade) models of ankle stiffness "
+                    "from a perturbed (PT) and an unperturbed (UT) trial; predict, and export them.",
+        epilog="Units: time s, position rad, torque N m. Exit status 2 for bad input.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("simulate", help="write a virtual-subject data set with its truth",
+                       description="Simulate the virtual subject: identification and novel PT/UT trials, "
+                                   "truth.json and truth_*.npz.")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--snr", type=float, default=18.0, metavar="DB",
+                   help="SNR of the perturbation torque in dB (default 18; inf: no noise)")
+    p.add_argument("--fs", type=_positive_float, default=1000.0, metavar="HZ",
+                   help="output sampling rate, 1000 or 100 Hz (default 1000)")
+    p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
+                   help="switch on a physical effect the LPV-PC model lacks (repeatable)")
+    p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
+                   help="length of each trial in s (default 120)")
+    p.set_defaults(func=cmd_simulate)
+
+    d = _estimator_defaults()
+    p = sub.add_parser("identify", help="identify an LPV-PC model and save it as JSON",
+                       description="Identify an LPV-PC model (subspace method) and save it as JSON.")
+    _add_data_args(p, "instead of --pt/--ut")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
+                   help=f"intrinsic IRF spans lags -L..L samples (default {d['irf_lags']})")
+    p.add_argument("--basis", choices=("chebyshev", "legendre", "gaussian"),
+                   help=f"basis family in the scheduling variable (default {d['basis']})")
+    p.add_argument("--intrinsic-order", type=int, metavar="N",
+                   help=f"basis order of the IRF weights (default {d['intrinsic_order']})")
+    p.add_argument("--reflex-order", type=int, metavar="N",
+                   help=f"basis order of the reflex nonlinearity in position (default {d['reflex_order']})")
+    p.add_argument("--velocity-order", type=int, metavar="N",
+                   help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']})")
+    p.add_argument("--reflex-delay", type=_positive_float, metavar="S",
+                   help=f"reflex delay in s (default {d['reflex_delay']})")
+    p.add_argument("--state-order", type=_state_order, metavar="M|auto",
+                   help="order of the reflex dynamics (default auto: from the singular values and BIC)")
+    p.add_argument("--max-state-order", type=int, metavar="M",
+                   help=f"largest order tried by auto (default {d['max_state_order']})")
+    p.add_argument("--horizon", type=int, metavar="S",
+                   help=f"block rows of the MOESP Hankel matrices (default {d['horizon']})")
+    p.add_argument("--causal-lags", type=int, metavar="LC",
+                   help="lags 0..LC of the causal intrinsic IRF used by the FMU (default L + 2)")
+    p.add_argument("--tol", type=_positive_float, help=f"separable least-squares tolerance (default {d['tol']:g})")
+    p.add_argument("--max-iter", type=int, metavar="N",
+                   help=f"separable least-squares iterations (default {d['max_iter']})")
+    p.add_argument("--position-unit", choices=("rad", "deg"), default="rad",
+                   help="unit of positions in the files (default rad)")
+    p.add_argument("--torque-sign", type=_sign, default=1.0, metavar="1|-1",
+                   help="multiplies the files' torque into the package's convention (default 1)")
+    p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
+                   help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("predict", help="predict torque with a saved model and report the VAF",
+                       description="Predict the perturbation torque of a record with a saved model. Data are "
+                                   "decimated to the model's rate; units and sign default to the model's.")
+    p.add_argument("model", metavar="MODEL.json")
+    _add_data_args(p, "instead of --pt/--ut")
+    p.add_argument("--json", metavar="METRICS.json",
+                   help="write vaf (%%), rmse (N m), n_samples, out_of_range_fraction, model_hash, data_hash")
+    p.add_argument("--out", metavar="PREDICTED.csv",
+                   help="write time, measured, predicted, intrinsic, reflex torques (and position, scheduling)")
+    p.add_argument("--causal", action="store_true",
+                   help="use the causal intrinsic IRF (what the default FMU runs)")
+    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
+                   help="unit of positions in the files (default: as at identification)")
+    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
+                   help="torque sign convention of the files (default: as at identification)")
+    p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("export", help="export a saved model as a CasADi function and/or an FMU",
+                       description="Export a saved model as a CasADi step function and/or an FMI "
+                                   "co-simulation FMU.")
+    p.add_argument("model", metavar="MODEL.json")
+    p.add_argument("--casadi", metavar="FILE.casadi", help="write the CasADi step function")
+    p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
+    p.add_argument("--exact", action="store_true",
+                   help="exact two-sided IRF, output delayed by L+1 samples (default: causal, no latency)")
+    p.set_defaults(func=cmd_export)
+    return parser
+
+
+# --------------------------------------------------------------------------- main
+
+
+def _show_warning(original):
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, (OutOfRangeWarning, UnitWarning)):
+            print(f"{PROG}: warning: {_one_line(message)}", file=sys.stderr)
+        else:
+            original(message, category, filename, lineno, file, line)
+
+    return show
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (argparse usage errors: SystemExit 2)."""
+    if "numpy" not in sys.modules:
+        # As a program: one BLAS thread unless the user sets otherwise. The identification's
+        # tall QR and least squares gain little from threads, and on a busy machine OpenBLAS
+        # threads oversubscribe the cores (a 2-minute record on a loaded 2-core machine:
+        # 51 s with threads, 2.6 s without). Only effective before numpy is imported.
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", OutOfRangeWarning)
+        warnings.simplefilter("always", UnitWarning)
+        warnings.showwarning = _show_warning(warnings.showwarning)
+        try:
+            return args.func(args)
+        except LpvpcError as exc:
+            _err(exc)
+            return exc.exit_status
+        except OSError as exc:
+            _err(_os_message(exc))
+            return OSERROR_STATUS
+        except KeyboardInterrupt:
+            _err("interrupted")
+            return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,360 @@
+"""The command line: simulate -> identify -> predict -> export round trip, every bad-input
+case exiting 2 with one line naming the problem, and the plotting functions.
+
+Runs the CLI in-process through ``lpvpc.cli.main`` and, for the exit-status and one-line
+stderr contract, as a subprocess (``python -m lpvpc.cli``). One short (40 s) simulated
+data set and one identified model are shared by the module.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from lpvpc.cli import main  # noqa: E402
+from lpvpc.model import LPVPCModel  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DURATION = "40"  # s: enough for the default estimator, quick to identify
+
+
+def _run(argv, capsys):
+    """main(argv) in-process: (status, stdout, stderr)."""
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def _one_error_line(err):
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, f"expected one stderr line, got {lines!r}"
+    assert lines[0].startswith("lpvpc: error: "), lines[0]
+    return lines[0]
+
+
+def _subprocess(*argv, cwd=None):
+    """``python -m lpvpc.cli ARGV`` as a separate process (one BLAS thread: the machines are shared)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "lpvpc.cli", *map(str, argv)], capture_output=True, text=True,
+                          cwd=cwd, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """simulate (40 s, 1 kHz) in-process and identify as a subprocess; returns the folder."""
+    d = tmp_path_factory.mktemp("cli")
+    assert main(["simulate", "--out", str(d / "data"), "--seed", "0", "--duration", DURATION]) == 0
+    r = _subprocess("identify", "--pt", d / "data" / "ident_PT.csv", "--ut", d / "data" / "ident_UT.csv",
+                    "-o", d / "model.json")
+    assert r.returncode == 0, r.stderr
+    assert "VAF" in r.stdout and r.stderr == ""
+    return d
+
+
+@pytest.fixture
+def model_file(run_dir):
+    return run_dir / "model.json"
+
+
+def _write_csv(path, time, position, torque, scheduling=None):
+    cols, names = [time, position, torque], "time,position,torque"
+    if scheduling is not None:
+        cols.append(scheduling)
+        names += ",scheduling"
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.10g")
+    return path
+
+
+@pytest.fixture
+def small_pair(tmp_path):
+    """A small valid PT/UT pair at 100 Hz (arrays and a writer for variants of it)."""
+    rng = np.random.default_rng(7)
+    n = 600
+    t = np.arange(n) / 100.0
+    ut_pos = 0.2 * np.sin(0.5 * t) - 0.1
+    pt_pos = ut_pos + 0.04 * np.sign(rng.standard_normal(n))
+    ut_tq, pt_tq = 40 * ut_pos, 40 * pt_pos + rng.standard_normal(n)
+
+    def write(name_pt="PT.csv", name_ut="UT.csv", **changes):
+        arrays = {"t": t.copy(), "pt_pos": pt_pos.copy(), "pt_tq": pt_tq.copy(), "ut_pos": ut_pos.copy(),
+                  "ut_tq": ut_tq.copy()}
+        arrays.update(changes)
+        pt = _write_csv(tmp_path / name_pt, arrays.get("pt_t", arrays["t"]), arrays["pt_pos"], arrays["pt_tq"])
+        ut = _write_csv(tmp_path / name_ut, arrays["t"], arrays["ut_pos"], arrays["ut_tq"])
+        return pt, ut
+
+    return write
+
+
+# --------------------------------------------------------------------------- round trip
+
+
+def test_simulate_identify_predict_round_trip(run_dir, model_file, capsys):
+    data = run_dir / "data"
+    for name in ("ident_PT.csv", "ident_UT.csv", "novel_PT.csv", "novel_UT.csv", "truth.json"):
+        assert (data / name).is_file()
+    metrics_path, out_path = run_dir / "metrics.json", run_dir / "predicted.csv"
+    status, out, err = _run(["predict", model_file, "--pt", data / "novel_PT.csv", "--ut", data / "novel_UT.csv",
+                             "--json", metrics_path, "--out", out_path], capsys)
+    assert status == 0
+    assert "VAF" in out
+    # The novel trajectory leaves the identified range briefly: one warning line, our format.
+    for line in err.strip().splitlines():
+        assert line.startswith("lpvpc: warning: ") and "outside the identified range" in line
+
+    metrics = json.loads(metrics_path.read_text())
+    assert metrics["vaf"] > 80
+    assert f"{metrics['vaf']:.2f}" in out
+    model = LPVPCModel.load(model_file)
+    assert metrics["model_hash"] == model.model_hash
+    assert metrics["n_samples"] == int(float(DURATION) * model.fs)
+    assert metrics["rmse"] > 0 and 0 <= metrics["out_of_range_fraction"] < 0.2
+    assert len(metrics["data_hash"]) == 64
+    assert model.conventions["torque_sign"] == 1.0 and model.conventions["position_unit"] == "rad"
+
+    table = np.loadtxt(out_path, delimiter=",", skiprows=1)
+    header = out_path.read_text().splitlines()[0].split(",")
+    assert header[:5] == ["time", "measured", "predicted", "intrinsic", "reflex"]
+    assert table.shape == (metrics["n_samples"], len(header))
+    np.testing.assert_allclose(table[:, 2], table[:, 3] + table[:, 4], atol=1e-8)
+
+
+def test_single_file_forms_and_settings(run_dir, model_file, capsys, tmp_path):
+    """identify DATA.csv / predict model DATA.csv with a perturbation file; estimator
+    options reach the model; the single-file prediction equals the PT/UT one."""
+    from lpvpc.data import load_identification_data, write_perturbation_csv
+
+    data = run_dir / "data"
+    ident = load_identification_data(pt=data / "ident_PT.csv", ut=data / "ident_UT.csv")
+    novel = load_identification_data(pt=data / "novel_PT.csv", ut=data / "novel_UT.csv")
+    write_perturbation_csv(ident, tmp_path / "ident.csv")
+    write_perturbation_csv(novel, tmp_path / "novel.csv")
+
+    status, out, _ = _run(["identify", tmp_path / "ident.csv", "-o", tmp_path / "m.json", "--irf-lags", "2",
+                           "--basis", "legendre", "--intrinsic-order", "4", "--reflex-order", "2",
+                           "--velocity-order", "5", "--reflex-delay", "0.04", "--state-order", "2",
+                           "--horizon", "6"], capsys)
+    assert status == 0 and "VAF" in out and "state order 2" in out
+    settings = LPVPCModel.load(tmp_path / "m.json").settings
+    assert (settings["irf_lags"], settings["basis"], settings["intrinsic_order"], settings["reflex_order"],
+            settings["velocity_order"], settings["state_order"], settings["horizon"]) == (2, "legendre", 4, 2, 5, 2, 6)
+
+    status, _, _ = _run(["predict", model_file, tmp_path / "novel.csv", "--json", tmp_path / "a.json"], capsys)
+    assert status == 0
+    status, _, _ = _run(["predict", model_file, "--pt", data / "novel_PT.csv", "--ut", data / "novel_UT.csv",
+                         "--json", tmp_path / "b.json"], capsys)
+    assert status == 0
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("a.json", "b.json"))
+    assert a["vaf"] == pytest.approx(b["vaf"], abs=1e-9)
+    assert a["data_hash"] == b["data_hash"]
+
+    status, out, _ = _run(["predict", model_file, tmp_path / "novel.csv", "--causal"], capsys)
+    assert status == 0 and "causal" in out
+
+
+def test_export(model_file, tmp_path, capsys):
+    pytest.importorskip("lpvpc.export")
+    status, out, err = _run(["export", model_file, "--casadi", tmp_path / "m.casadi", "--fmu", tmp_path / "m.fmu"],
+                            capsys)
+    assert status == 0, err
+    assert (tmp_path / "m.casadi").stat().st_size > 0 and (tmp_path / "m.fmu").stat().st_size > 0
+
+
+# --------------------------------------------------------------------------- bad input: exit 2, one line
+
+
+def test_nan_in_csv_names_channel_and_index(small_pair, capsys, tmp_path):
+    tq = np.full(600, 1.0)
+    tq[123] = np.nan
+    pt, ut = small_pair(pt_tq=tq)
+    status, _, err = _run(["identify", "--pt", pt, "--ut", ut, "-o", tmp_path / "m.json"], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "'torque'" in line and "NaN" in line and "index 123" in line
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_pt_ut_different_length(small_pair, capsys, tmp_path):
+    t = np.arange(600) / 100.0
+    pt, ut = small_pair(pt_t=t[:500], pt_pos=np.linspace(-0.1, 0.1, 500), pt_tq=np.ones(500))
+    status, _, err = _run(["identify", "--pt", pt, "--ut", ut, "-o", tmp_path / "m.json"], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "differ in length" in line and "500" in line and "600" in line
+
+
+def test_ragged_csv_row(small_pair, capsys, tmp_path):
+    pt, ut = small_pair()
+    lines = pt.read_text().splitlines()
+    lines[11] = ",".join(lines[11].split(",")[:2])  # a row without its torque field
+    pt.write_text("\n".join(lines) + "\n")
+    status, _, err = _run(["identify", "--pt", pt, "--ut", ut, "-o", tmp_path / "m.json"], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "without 3 fields" in line and "line 12" in line
+
+
+def test_missing_file(small_pair, capsys, tmp_path):
+    _, ut = small_pair()
+    status, _, err = _run(["identify", "--pt", tmp_path / "nowhere.csv", "--ut", ut, "-o", tmp_path / "m.json"],
+                          capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "nowhere.csv" in line and "no such file" in line
+
+
+def test_decreasing_time(small_pair, capsys, tmp_path):
+    t = np.arange(600) / 100.0
+    t[300], t[301] = t[301], t[300]
+    pt, ut = small_pair(t=t)
+    status, _, err = _run(["identify", "--pt", pt, "--ut", ut, "-o", tmp_path / "m.json"], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "'time'" in line and "not strictly increasing" in line and "index 301" in line
+
+
+def test_zero_perturbation(small_pair, capsys, tmp_path):
+    _, ut = small_pair()
+    status, _, err = _run(["identify", "--pt", ut, "--ut", ut, "-o", tmp_path / "m.json"], capsys)
+    assert status == 2
+    assert "no perturbation" in _one_error_line(err)
+
+
+@pytest.mark.parametrize("content", [
+    b'{"format": "lpvpc-model", "format_version": 1, "fs": 100.0, "intrinsic": {"lags": [-3, -2',
+    b"\x00\xff\xfe garbage \x89PNG\r\n",
+    b'{"format": "lpvpc-model", "format_version": 1, "fs": 100.0}',
+    b'{"format": "something-else"}',
+    b"",
+], ids=["truncated", "garbage", "missing-keys", "other-format", "empty"])
+def test_corrupt_model_file(content, small_pair, capsys, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_bytes(content)
+    pt, ut = small_pair()
+    status, _, err = _run(["predict", bad, "--pt", pt, "--ut", ut], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "bad.json" in line and ("corrupt" in line or "not an lpvpc model" in line)
+
+
+def test_truncated_real_model_file(model_file, small_pair, capsys, tmp_path):
+    text = model_file.read_text()
+    bad = tmp_path / "half.json"
+    bad.write_text(text[: len(text) // 2])
+    pt, ut = small_pair()
+    status, _, err = _run(["predict", bad, "--pt", pt, "--ut", ut], capsys)
+    assert status == 2 and "corrupt model file" in _one_error_line(err)
+
+
+def test_predict_rate_differs_from_model(model_file, capsys, tmp_path):
+    n = 400
+    t = np.arange(n) / 50.0  # 50 Hz data, the model runs at 100 Hz
+    rng = np.random.default_rng(1)
+    data = _write_csv(tmp_path / "d50.csv", t, 0.03 * rng.standard_normal(n), rng.standard_normal(n),
+                      np.full(n, -0.1))
+    status, _, err = _run(["predict", model_file, data], capsys)
+    assert status == 2
+    line = _one_error_line(err)
+    assert "sampling rate" in line and "50" in line
+
+
+def test_unwritable_output_path(model_file, small_pair, capsys, tmp_path):
+    pt, ut = small_pair()
+    status, _, err = _run(["predict", model_file, "--pt", pt, "--ut", ut, "--json",
+                           tmp_path / "no" / "such" / "dir" / "m.json"], capsys)
+    assert status == 2
+    assert "m.json" in _one_error_line(err)
+
+
+def test_usage_errors(model_file, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "--pt", "a.csv", "--ut", "b.csv"])  # no -o
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "x.csv", "-o", "m.json", "--torque-sign", "2"])
+    assert exc.value.code == 2
+    capsys.readouterr()
+    status, _, err = _run(["identify", "--pt", "a.csv", "-o", tmp_path / "m.json"], capsys)
+    assert status == 2 and "missing --ut" in _one_error_line(err)
+    status, _, err = _run(["identify", "d.csv", "--pt", "a.csv", "--ut", "b.csv", "-o", tmp_path / "m.json"], capsys)
+    assert status == 2 and "not both" in _one_error_line(err)
+    status, _, err = _run(["simulate", "--out", tmp_path / "s", "--effect", "no_such_effect"], capsys)
+    assert status == 2 and "no_such_effect" in _one_error_line(err)
+    status, _, err = _run(["export", model_file], capsys)
+    assert status == 2 and "nothing to export" in _one_error_line(err)
+
+
+def test_subprocess_exit_status_and_one_line(model_file, small_pair, tmp_path):
+    """As a real process: exit status 2 and exactly one stderr line, no traceback."""
+    tq = np.ones(600)
+    tq[42] = np.nan
+    pt, ut = small_pair(pt_tq=tq)
+
+    def run(*argv):
+        return _subprocess(*argv, cwd=tmp_path)
+
+    r = run("predict", model_file, "--pt", pt, "--ut", ut)
+    assert r.returncode == 2
+    line = _one_error_line(r.stderr)
+    assert "Traceback" not in r.stderr and "'torque'" in line and "index 42" in line
+    assert r.stdout == ""
+
+    r = run("predict", model_file)  # neither DATA nor --pt/--ut
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+    r = run("identify")  # argparse usage error
+    assert r.returncode == 2 and "usage:" in r.stderr and "Traceback" not in r.stderr
+
+
+# --------------------------------------------------------------------------- plotting
+
+
+def _has_data(ax):
+    return bool(ax.lines or ax.images or ax.collections)
+
+
+def test_plotting_functions_draw(run_dir, model_file):
+    from lpvpc import plotting
+    from lpvpc.data import load_identification_data
+    from lpvpc.simulate import SubjectParams
+
+    model = LPVPCModel.load(model_file)
+    params = SubjectParams()
+    data = load_identification_data(pt=run_dir / "data" / "ident_PT.csv", ut=run_dir / "data" / "ident_UT.csv")
+    pred = model.predict(data.position, data.scheduling)
+    try:
+        axes = plotting.plot_torque_fit(data.time, data.torque, pred, window=(5, 15))
+        assert len(axes) == 3 and all(_has_data(a) for a in axes)
+        _, ax = plt.subplots()
+        assert plotting.plot_torque_fit(data.time, data.torque, pred, ax=ax) is ax and len(ax.lines) == 4
+        ax = plotting.plot_torque_fit(data.time, data.torque, pred.total, ax=plt.figure().gca())
+        assert len(ax.lines) == 2
+
+        for kind in ("image", "curves", "surface"):
+            ax = plotting.plot_intrinsic_gain(model, kind=kind)
+            assert _has_data(ax), kind
+        ax = plotting.plot_intrinsic_gain(model)
+        mesh = ax.collections[0].get_array()
+        assert np.all(np.isfinite(mesh)) and np.min(mesh) > 0
+
+        ax = plotting.plot_reflex_nonlinearity(model, truth=params)
+        assert len(ax.lines) >= 14 and _has_data(ax)
+        ax = plotting.plot_reflex_irf(model, truth=params)
+        assert _has_data(ax) and np.all(np.isfinite(ax.lines[0].get_ydata()))
+
+        curves = params.curves()
+        _, ax = plt.subplots()
+        assert plotting.plot_stiffness_vs_truth(model, curves["theta"], curves["K"], ax=ax) is ax
+        assert len(ax.lines) == 2 and "worst central error" in ax.lines[1].get_label()
+    finally:
+        plt.close("all")
