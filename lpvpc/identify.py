@@ -149,7 +149,7 @@ class LPVPCEstimator:
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d,
             settings=self.get_params(),
             provenance=_provenance(data),
-            conventions=dict(getattr(data, "conventions", {}) or {}),
+            conventions=_conventions(data),
         )
         pred = model.predict(p, rho, warn=False)
         timings["total"] = time.perf_counter() - t0
@@ -266,6 +266,13 @@ def orthonormal_range(M):
     if diag.size == 0 or diag[0] == 0:
         return Q[:, :0]
     return Q[:, : int(np.sum(diag > RANK_TOL * diag[0]))]
+
+
+def _conventions(data) -> dict:
+    """Units and torque sign the data were loaded with (recorded so predict can reuse them)."""
+    meta = dict(getattr(data, "meta", {}) or {})
+    return {"position_unit": meta.get("position_unit", "rad"), "torque_sign": float(meta.get("torque_sign", 1.0)),
+            "fs_original": meta.get("fs_original"), "decimation": meta.get("decimation")}
 
 
 def _provenance(data) -> dict:
