@@ -1,0 +1,584 @@
+"""Export a fitted LPV-PC model as a CasADi step function and as an FMU.
+
+Units: position and scheduling in rad, velocity rad/s, acceleration rad/s^2, torque N m,
+time s.
+
+One symbolic definition
+-----------------------
+:func:`step_function` builds the model's discrete-time step symbolically from the same
+code as the numpy prediction (:mod:`lpvpc.equations` and :meth:`lpvpc.basis.Basis.evaluate`
+with :class:`lpvpc.basis.CasadiOps`). The ``.casadi`` export saves that step; the FMU's C
+code is generated from it by CasADi's ``CodeGenerator``. Nothing here re-writes an equation.
+
+Step, at sample k (period T = 1/fs)::
+
+    (next_state, torque, torque_intrinsic, torque_reflex) =
+        step(state, position(k), scheduling(k)[, velocity(k), acceleration(k)][, params])
+
+Outputs have direct feedthrough: they use the inputs of the same sample.
+
+Variants
+--------
+``"causal"`` (default; latency-free, meant for closed loop)
+    tq_i(k) = sum_{l=0..Lc} h_l(rho(k)) pos(k-l) + h_v(rho(k)) vel(k) + h_a(rho(k)) acc(k)
+    with the model's causal IRF ``H_causal``. ``velocity``/``acceleration`` are the
+    current perturbation velocity (rad/s) and acceleration (rad/s^2): the actuator's
+    outputs in closed loop, central differences (:func:`lpvpc.equations.velocity`,
+    :func:`lpvpc.equations.acceleration`) when replaying a record. Equals
+    ``model.predict(..., causal=True, velocity=v, acceleration=a)`` sample by sample.
+``"exact"``
+    The identified two-sided IRF (lags -L..L) needs L future positions, so the step
+    that receives position(k) returns the torque of sample k - L: the output is delayed
+    by exactly ``latency_samples(model, "exact")`` = L samples (L/fs s; with the
+    direct-feedthrough I/O above it is L, not L + 1). For k < L the outputs are 0 (no
+    torque is defined before the record starts). Equals ``model.predict(...)`` shifted
+    by L samples.
+
+Reflex pathway (both variants): dvel(k) = vel(k - d) with vel the central difference of
+position and d = ``model.delay`` >= 1 samples; the velocity is zero outside the record
+(as in :func:`lpvpc.equations.delayed_velocity`), then z = f(dvel, rho) and the reflex
+state x(k+1) = A x + B z, tq_r = C x + D z, x(0) = 0.
+
+State layout (a column vector, initial value all zeros)::
+
+    [ pos(k-1), ..., pos(k-P)            position history, P samples
+      rho(k-1), ..., rho(k-L)            scheduling history (exact variant only)
+      x_1, ..., x_m                      reflex state
+      n ]                                samples seen, saturating at L + d: marks the
+                                         start of the record (velocity before it is 0)
+
+Scheduling outside the identified range is clamped by the scheduling bases (the model is
+held at its boundary); velocities beyond the identified range continue the reflex
+nonlinearity linearly. The CasADi function and the FMU inherit this from the basis code.
+
+Closed loop
+-----------
+The causal FMU's torque depends directly (same sample) on its ``acceleration`` input (the
+inertial term), and the actuator FMU's ``acceleration`` output depends directly on its
+``load_torque`` input: connected both ways they form an algebraic loop. The model
+description declares these dependencies exactly (computed from the CasADi expressions),
+so a master can see the loop and either iterate or break it with a one-step delay.
+
+Parameters
+----------
+``parametric=True`` takes every identified coefficient the variant uses as one input
+vector ``params`` (:func:`parameter_vector`, :func:`parameter_names`): the intrinsic IRF
+(``H_causal`` or ``H``), ``Omega``, ``A``, ``B``, ``C``, ``D``, each flattened row-major.
+Structure (lags, delay, basis families, orders and ranges, fs) is fixed at export.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import equations as eq
+from .basis import CasadiOps
+from .errors import ExportError
+
+__all__ = [
+    "VARIANTS",
+    "OUTPUT_NAMES",
+    "StateLayout",
+    "step_function",
+    "input_names",
+    "state_layout",
+    "latency_samples",
+    "parameter_vector",
+    "parameter_names",
+    "parameter_info",
+    "export_casadi",
+    "trajectory_function",
+    "replay_inputs",
+    "export_fmu",
+    "fmu_variables",
+    "fmu_parameter_name",
+    "fmu_description",
+    "system_functions",
+    "generate_c",
+    "model_source_dir",
+]
+
+VARIANTS = ("causal", "exact")
+
+STATE_INPUT = "state"
+OUTPUT_NAMES = ("next_state", "torque", "torque_intrinsic", "torque_reflex")
+
+
+def _check_variant(variant):
+    if variant not in VARIANTS:
+        raise ExportError(f"unknown export variant {variant!r}; choose one of {VARIANTS}")
+
+
+def input_names(variant="causal", parametric=False):
+    """Names of the step function's inputs, in order."""
+    _check_variant(variant)
+    names = [STATE_INPUT, "position", "scheduling"]
+    if variant == "causal":
+        names += ["velocity", "acceleration"]
+    if parametric:
+        names.append("params")
+    return names
+
+
+# ---------------------------------------------------------------------------------------
+# Layout of the state
+@dataclass(frozen=True)
+class StateLayout:
+    """Where things live in the step's state vector (see the module docstring)."""
+
+    latency: int  # output delay in samples (0 for causal)
+    n_pos: int  # position history length P
+    n_sched: int  # scheduling history length
+    m: int  # reflex state order
+    start: int  # saturation value of the sample counter (latency + delay)
+
+    @property
+    def size(self) -> int:
+        return self.n_pos + self.n_sched + self.m + 1
+
+    def describe(self) -> list:
+        names = [f"position(k-{i + 1})" for i in range(self.n_pos)]
+        names += [f"scheduling(k-{i + 1})" for i in range(self.n_sched)]
+        names += [f"reflex_state[{i}]" for i in range(self.m)]
+        names.append(f"samples_seen (saturates at {self.start})")
+        return names
+
+
+def latency_samples(model, variant="causal") -> int:
+    """Output delay of the exported step in samples: 0 for causal, L for exact."""
+    _check_variant(variant)
+    return 0 if variant == "causal" else max(0, -min(model.lags))
+
+
+def state_layout(model, variant="causal") -> StateLayout:
+    _check_variant(variant)
+    d = int(model.delay)
+    lat = latency_samples(model, variant)
+    lags = model.causal_lags if variant == "causal" else model.lags
+    # history index i means pos(k - i); i = 0 is the current input.
+    needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
+    return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d)
+
+
+# ---------------------------------------------------------------------------------------
+# Parameters
+def _coefficient_blocks(model, variant):
+    """(name, array) for each identified coefficient block the variant uses."""
+    _check_variant(variant)
+    H_name = "H_causal" if variant == "causal" else "H"
+    H = model.H_causal if variant == "causal" else model.H
+    return [
+        (H_name, np.atleast_2d(np.asarray(H, dtype=float))),
+        ("Omega", np.atleast_2d(np.asarray(model.Omega, dtype=float))),
+        ("A", np.atleast_2d(np.asarray(model.A, dtype=float))),
+        ("B", np.asarray(model.B, dtype=float).reshape(-1)),
+        ("C", np.asarray(model.C, dtype=float).reshape(-1)),
+        ("D", np.array([float(model.D)])),
+    ]
+
+
+def parameter_vector(model, variant="causal") -> np.ndarray:
+    """The identified coefficients the variant uses, as one vector (row-major blocks
+    H_causal or H, Omega, A, B, C, D), the ``params`` input of the parametric step."""
+    return np.concatenate([a.ravel() for _, a in _coefficient_blocks(model, variant)])
+
+
+def parameter_names(model, variant="causal") -> list:
+    """Names matching :func:`parameter_vector`: ``"H_causal[2,1]"``, ``"Omega[0,3]"``,
+    ``"A[0,1]"``, ``"B[0]"``, ``"C[0]"``, ``"D"``."""
+    names = []
+    for name, a in _coefficient_blocks(model, variant):
+        if name == "D":
+            names.append("D")
+        elif a.ndim == 1:
+            names += [f"{name}[{i}]" for i in range(a.shape[0])]
+        else:
+            names += [f"{name}[{i},{j}]" for i in range(a.shape[0]) for j in range(a.shape[1])]
+    return names
+
+
+def parameter_info(model, variant="causal") -> list:
+    """(description, unit) of each parameter, matching :func:`parameter_names`. Units are
+    FMI unit names ("" where a coefficient has no physical unit of its own, e.g. the
+    reflex nonlinearity scale, which is shared between Omega and B, C, D)."""
+    out = []
+    lags = model.causal_lags if variant == "causal" else model.lags
+    for name, a in _coefficient_blocks(model, variant):
+        if name in ("H", "H_causal"):
+            rows = [f"lag {l}" for l in lags]
+            units = ["N.m/rad"] * len(lags)
+            if name == "H_causal":
+                rows += ["velocity", "acceleration"]
+                units += ["N.m.s/rad", "N.m.s2/rad"]
+            out += [(f"intrinsic IRF coefficient ({rows[i]}, scheduling basis function {j})", units[i])
+                    for i in range(a.shape[0]) for j in range(a.shape[1])]
+        elif name == "Omega":
+            out += [(f"reflex nonlinearity coefficient (velocity basis function {i}, scheduling basis "
+                     f"function {j})", "") for i in range(a.shape[0]) for j in range(a.shape[1])]
+        elif name == "A":
+            out += [(f"reflex dynamics A[{i},{j}] (state matrix, per sample)", "")
+                    for i in range(a.shape[0]) for j in range(a.shape[1])]
+        elif name in ("B", "C"):
+            out += [(f"reflex dynamics {name}[{i}]", "") for i in range(a.shape[0])]
+        else:
+            out.append(("reflex dynamics feedthrough D", ""))
+    return out
+
+
+def _split_parameters(model, variant, p):
+    """Coefficient blocks as CasADi matrices: from the symbol ``p`` or baked-in values."""
+    import casadi as ca
+
+    blocks = {}
+    offset = 0
+    for name, a in _coefficient_blocks(model, variant):
+        if p is None:
+            value = ca.DM(a)
+        else:
+            flat = p[offset: offset + a.size]
+            # p is row-major; casadi.reshape is column-major.
+            value = ca.reshape(flat, a.shape[1], a.shape[0]).T if a.ndim == 2 else flat
+        offset += a.size
+        blocks[name] = value
+    return blocks
+
+
+# ---------------------------------------------------------------------------------------
+# The step
+def step_function(model, variant="causal", parametric=False, name=None):
+    """The model's discrete-time step as a ``casadi.Function`` (SX).
+
+    Inputs (all column vectors, in this order): ``state`` (``state_layout(model,
+    variant).size``), ``position`` (rad), ``scheduling`` (rad), and for ``"causal"``
+    ``velocity`` (rad/s) and ``acceleration`` (rad/s^2); ``params`` when ``parametric``.
+    Outputs: ``next_state``, ``torque``, ``torque_intrinsic``, ``torque_reflex`` (N m) of
+    sample k (causal) or k - L (exact). Start from ``state = 0``.
+    """
+    import casadi as ca
+
+    _check_variant(variant)
+    ops = CasadiOps()
+    lay = state_layout(model, variant)
+    fs = float(model.fs)
+
+    state = ca.SX.sym("state", lay.size)
+    pos = ca.SX.sym("position")
+    rho_in = ca.SX.sym("scheduling")
+    inputs = [state, pos, rho_in]
+    if variant == "causal":
+        vel = ca.SX.sym("velocity")
+        acc = ca.SX.sym("acceleration")
+        inputs += [vel, acc]
+    p = None
+    if parametric:
+        p = ca.SX.sym("params", len(parameter_vector(model, variant)))
+        inputs.append(p)
+    c = _split_parameters(model, variant, p)
+
+    i0 = 0
+    pos_hist = state[i0: i0 + lay.n_pos]
+    i0 += lay.n_pos
+    rho_hist = state[i0: i0 + lay.n_sched]
+    i0 += lay.n_sched
+    x = state[i0: i0 + lay.m]
+    i0 += lay.m
+    seen = state[i0]
+
+    def p_at(i):  # pos(k - i)
+        return pos if i == 0 else pos_hist[i - 1]
+
+    lat = lay.latency
+    rho = rho_in if lat == 0 else rho_hist[lat - 1]  # rho(j), j = k - latency
+
+    # Intrinsic pathway at sample j.
+    if variant == "causal":
+        signals = ops.hcat([p_at(int(l)) for l in model.causal_lags] + [vel, acc])
+        H = c["H_causal"]
+    else:
+        signals = ops.hcat([p_at(lat + int(l)) for l in model.lags])
+        H = c["H"]
+    tq_i = eq.intrinsic_torque(signals, model.intrinsic_basis.evaluate(rho, ops), H, ops)
+
+    # Reflex pathway at sample j: dvel(j) = vel(j - d), zero before the record starts.
+    d = int(model.delay)
+    dvel = eq.central_velocity(p_at(lat + d - 1), p_at(lat + d + 1), fs)
+    dvel = ca.if_else(seen >= lay.start, dvel, 0.0)
+    z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), model.reflex_rho_basis.evaluate(rho, ops),
+                        c["Omega"], ops)
+    x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
+
+    if lat > 0:  # nothing is defined before the record starts: hold x = 0, output 0
+        started = seen >= lat
+        x_next = ca.if_else(started, x_next, x)
+        tq_i = ca.if_else(started, tq_i, 0.0)
+        tq_r = ca.if_else(started, tq_r, 0.0)
+
+    next_state = ca.vertcat(
+        pos,
+        pos_hist[: lay.n_pos - 1],
+        *([rho_in, rho_hist[: lay.n_sched - 1]] if lay.n_sched else []),
+        x_next,
+        ca.fmin(seen + 1.0, float(lay.start)),
+    )
+    if name is None:
+        name = f"lpvpc_step_{variant}" + (f"_latency{lat}" if lat else "")
+    return ca.Function(
+        name,
+        inputs,
+        [next_state, tq_i + tq_r, tq_i, tq_r],
+        input_names(variant, parametric),
+        list(OUTPUT_NAMES),
+    )
+
+
+# ---------------------------------------------------------------------------------------
+# CasADi export
+def export_casadi(model, path, variant="causal") -> Path:
+    """Save the (non-parametric) step function to ``path`` with ``Function.save``.
+
+    A user with only casadi installed runs a whole record with::
+
+        import casadi, numpy as np
+        step = casadi.Function.load("model.casadi")
+        n = len(position)
+        traj = step.mapaccum(n)            # or lpvpc.export.trajectory_function(step, n)
+        out = traj(state=np.zeros(step.size1_in("state")), position=position[None, :],
+                   scheduling=scheduling[None, :],
+                   velocity=velocity[None, :], acceleration=acceleration[None, :])  # causal
+        torque = np.asarray(out["torque"]).ravel()
+
+    A sidecar ``<path>.json`` records the variant, latency (samples and s), sampling
+    rate, state layout, model hash and lpvpc version.
+    """
+    from . import __version__
+
+    path = Path(path)
+    step = step_function(model, variant)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        step.save(str(path))
+    except (OSError, RuntimeError) as exc:
+        raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
+    lay = state_layout(model, variant)
+    meta = {
+        "format": "lpvpc-casadi-step",
+        "function": step.name(),
+        "variant": variant,
+        "fs": model.fs,
+        "latency_samples": lay.latency,
+        "latency_s": lay.latency / model.fs,
+        "inputs": input_names(variant),
+        "outputs": list(OUTPUT_NAMES),
+        "state_size": lay.size,
+        "state_layout": lay.describe(),
+        "initial_state": "zeros",
+        "units": {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
+                  "torque": "N m"},
+        "identified_ranges": {"scheduling": list(model.scheduling_range), "velocity": list(model.velocity_range)},
+        "model_hash": model.model_hash,
+        "lpvpc_version": __version__,
+    }
+    Path(str(path) + ".json").write_text(json.dumps(meta, indent=1))
+    return path
+
+
+def trajectory_function(step_or_path, n: int):
+    """Whole-record function: ``step.mapaccum(n)``.
+
+    ``step_or_path`` is a step ``casadi.Function`` or the path of a ``.casadi`` file.
+    Call it with named arguments: ``state`` = the initial state (column, zeros at the
+    start of a record), every other input as a 1 x n row (``params`` may be given once,
+    as a column, and is repeated). Outputs: ``next_state`` (state_size x n, column k is
+    the state after sample k; the last column continues a record), ``torque``,
+    ``torque_intrinsic``, ``torque_reflex`` (1 x n rows, N m; for the exact variant
+    column k is the torque of sample k - L).
+    """
+    import casadi as ca
+
+    step = ca.Function.load(str(step_or_path)) if isinstance(step_or_path, (str, Path)) else step_or_path
+    n = int(n)
+    if n < 1:
+        raise ExportError(f"trajectory length must be at least 1, got {n}")
+    return step.mapaccum(f"{step.name()}_trajectory", n)
+
+
+def replay_inputs(model, position, scheduling, variant="causal") -> dict:
+    """Named rows for :func:`trajectory_function` from a record (velocity/acceleration as
+    central differences for the causal variant, as in ``model.predict(causal=True)``)."""
+    position = np.asarray(position, dtype=float)
+    scheduling = np.asarray(scheduling, dtype=float)
+    args = {"position": position[None, :], "scheduling": scheduling[None, :]}
+    if variant == "causal":
+        args["velocity"] = eq.velocity(position, model.fs)[None, :]
+        args["acceleration"] = eq.acceleration(position, model.fs)[None, :]
+    return args
+
+
+# ---------------------------------------------------------------------------------------
+# FMU export
+CASADI_C_NAME = "lpvpc_model_casadi"  # generated C file (name fixed: the adapter includes it)
+
+_INPUT_INFO = {
+    "position": ("rad", "perturbation position (joint angle minus the operating position)"),
+    "scheduling": ("rad", "operating position: the scheduling variable rho (clamped to the identified range)"),
+    "velocity": ("rad/s", "current perturbation velocity (from the actuator in closed loop; central "
+                          "difference when replaying a record)"),
+    "acceleration": ("rad/s2", "current perturbation acceleration (from the actuator in closed loop; central "
+                               "second difference when replaying a record)"),
+}
+_OUTPUT_INFO = {
+    "torque": "joint torque: intrinsic + reflex",
+    "torque_intrinsic": "intrinsic pathway torque",
+    "torque_reflex": "reflex pathway torque",
+}
+
+
+def model_source_dir() -> Path:
+    """Folder with the generic C adapter ``model_system.c`` (next to the FMU wrapper)."""
+    from .fmu_build import wrapper_dir
+
+    return wrapper_dir().parent / "model"
+
+
+def fmu_parameter_name(name: str) -> str:
+    """FMU variable name of a parameter (C identifier): ``"H_causal[2,1]"`` -> ``"H_causal_2_1"``."""
+    return name.replace("[", "_").replace("]", "").replace(",", "_")
+
+
+def system_functions(model, variant="causal"):
+    """The three CasADi functions the FMU's C code is generated from, all of (x, u, p):
+    ``lpvpc_model_initial(p) -> x0``, ``lpvpc_model_output(x, u, p) -> y``,
+    ``lpvpc_model_update(x, u, p) -> x_next``, with u = (position, scheduling[, velocity,
+    acceleration]) and y = (torque, torque_intrinsic, torque_reflex). They call the
+    parametric :func:`step_function`. Returns (initial, output, update, output_dependencies)
+    where ``output_dependencies[name]`` lists the inputs an output depends on directly."""
+    import casadi as ca
+
+    step = step_function(model, variant, parametric=True)
+    u_names = input_names(variant)[1:]
+    x = ca.SX.sym("x", step.size1_in(STATE_INPUT))
+    u = ca.SX.sym("u", len(u_names))
+    p = ca.SX.sym("p", step.size1_in("params"))
+    res = step(x, *[u[i] for i in range(len(u_names))], p)
+    y = ca.vertcat(*res[1:])
+    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(x.shape[0])], ["p"], ["x0"])
+    output = ca.Function("lpvpc_model_output", [x, u, p], [y], ["x", "u", "p"], ["y"])
+    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
+    deps = {name: [u_names[i] for i in range(len(u_names)) if ca.depends_on(res[1 + k], u[i])]
+            for k, name in enumerate(OUTPUT_NAMES[1:])}
+    return init, output, update, deps
+
+
+def generate_c(model, folder, variant="causal") -> list:
+    """Write the CasADi-generated C code (``lpvpc_model_casadi.c`` and ``.h``) into
+    ``folder``; returns the paths."""
+    import casadi as ca
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    init, output, update, _ = system_functions(model, variant)
+    cg = ca.CodeGenerator(f"{CASADI_C_NAME}.c", {"with_header": True, "casadi_real": "double"})
+    for f in (init, output, update):
+        cg.add(f)
+    cg.generate(str(folder) + "/")
+    paths = [folder / f"{CASADI_C_NAME}.c", folder / f"{CASADI_C_NAME}.h"]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise ExportError(f"CasADi code generation did not write {', '.join(missing)}")
+    # CasADi's generic entry points leave work arguments unused: keep the build log for
+    # real warnings.
+    paths[0].write_text('#if defined(__GNUC__)\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n#endif\n'
+                        + paths[0].read_text())
+    return paths
+
+
+def fmu_variables(model, variant="causal"):
+    """(outputs, inputs, parameters) as :class:`lpvpc.fmu_build.FmuVariable` lists."""
+    from .fmu_build import FmuVariable
+
+    _, _, _, deps = system_functions(model, variant)
+    outputs = [FmuVariable(name, "output", "N.m", text, dependencies=deps[name])
+               for name, text in _OUTPUT_INFO.items()]
+    inputs = [FmuVariable(name, "input", _INPUT_INFO[name][0], _INPUT_INFO[name][1], 0.0)
+              for name in input_names(variant)[1:]]
+    parameters = [FmuVariable(fmu_parameter_name(n), "parameter", unit, f"{n}: {text}", float(v))
+                  for n, v, (text, unit) in zip(parameter_names(model, variant), parameter_vector(model, variant),
+                                                parameter_info(model, variant))]
+    return outputs, inputs, parameters
+
+
+def fmu_description(model, variant="causal") -> str:
+    from . import __version__
+
+    lo, hi = model.scheduling_range
+    lat = latency_samples(model, variant)
+    text = (f"LPV parallel-cascade ankle stiffness model exported by lpvpc {__version__}; "
+            f"model sha256 {model.model_hash}; variant {variant}; sample rate {model.fs!r} Hz. ")
+    if variant == "causal":
+        text += ("Causal intrinsic IRF with current velocity and acceleration inputs: no added latency. ")
+    else:
+        text += (f"Exact two-sided intrinsic IRF: outputs are the torque of {lat} samples earlier "
+                 f"(latency {lat / model.fs!r} s); 0 before that. ")
+    text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad is clamped to it. "
+             "Parameters: identified coefficients (row-major, see variable descriptions).")
+    return text
+
+
+def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, timings: dict | None = None,
+               reuse_existing: bool = False) -> Path:
+    """Export the model as an FMI 2.0 (default) or 3.0 co-simulation FMU; returns its path.
+
+    C code is generated by CasADi from the parametric :func:`step_function`, joined to
+    the generic adapter ``fmu_models/model/model_system.c`` and the project's FMI wrapper,
+    and compiled with the system C compiler (:func:`lpvpc.fmu_build.build_fmu`).
+
+    Variables: inputs ``position``, ``scheduling`` (rad) and, for ``"causal"``,
+    ``velocity`` (rad/s), ``acceleration`` (rad/s2); outputs ``torque``,
+    ``torque_intrinsic``, ``torque_reflex`` (N.m); the identified coefficients as fixed
+    parameters (:func:`fmu_parameter_name` of :func:`parameter_names`). Step size 1/fs;
+    communication steps must be multiples of it (inputs held over a longer step).
+    ``timings`` (a dict) receives ``codegen``, ``compile`` and ``total`` seconds.
+    """
+    import tempfile
+    import time
+
+    from . import __version__
+    from .fmu_build import build_fmu
+
+    _check_variant(variant)
+    t0 = time.perf_counter()
+    outputs, inputs, parameters = fmu_variables(model, variant)
+    lat = latency_samples(model, variant)
+    with tempfile.TemporaryDirectory(prefix="lpvpc-export-") as tmp:
+        generated = generate_c(model, tmp, variant)
+        t1 = time.perf_counter()
+        build_timings = {}
+        try:
+            out = build_fmu(
+                path,
+                model_identifier="lpvpc_model" if variant == "causal" else "lpvpc_model_exact",
+                system_sources=[model_source_dir() / "model_system.c", *generated],
+                nx=state_layout(model, variant).size,
+                step_size=1.0 / float(model.fs),
+                outputs=outputs,
+                inputs=inputs,
+                parameters=parameters,
+                fmi_version=fmi_version,
+                description=fmu_description(model, variant),
+                version=f"lpvpc {__version__} model {model.model_hash[:12]}",
+                latency=lat / float(model.fs),
+                reuse_existing=reuse_existing,
+                timings=build_timings,
+            )
+        except ExportError:
+            raise
+        except OSError as exc:
+            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    if timings is not None:
+        timings.update(codegen=t1 - t0, compile=build_timings.get("compile", 0.0), total=time.perf_counter() - t0,
+                       build=build_timings)
+    return Path(out)
