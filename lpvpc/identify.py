@@ -50,7 +50,7 @@ class LPVPCEstimator:
     velocity_order : Chebyshev order in delayed velocity of the reflex nonlinearity.
     reflex_delay : reflex delay in s (rounded to samples).
     state_order : order m of the reflex dynamics; None chooses it from the data.
-    max_state_order : largest order considered when choosing.
+    min_state_order, max_state_order : range of orders considered when choosing.
     horizon : block rows s of the MOESP Hankel matrices.
     causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
     refine : refine the MOESP poles by variable projection (see module docstring).
@@ -66,6 +66,7 @@ class LPVPCEstimator:
         velocity_order: int = 4,
         reflex_delay: float = 0.040,
         state_order: int | None = None,
+        min_state_order: int = 1,
         max_state_order: int = 4,
         horizon: int = 10,
         causal_lags: int | None = None,
@@ -80,6 +81,7 @@ class LPVPCEstimator:
         self.velocity_order = velocity_order
         self.reflex_delay = reflex_delay
         self.state_order = state_order
+        self.min_state_order = min_state_order
         self.max_state_order = max_state_order
         self.horizon = horizon
         self.causal_lags = causal_lags
@@ -90,7 +92,7 @@ class LPVPCEstimator:
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "reflex_delay",
-            "state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine")}
+            "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine")}
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
@@ -125,7 +127,9 @@ class LPVPCEstimator:
             orders = [int(self.state_order)]
         else:
             orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2})
-            orders = [m for m in orders if m <= self.max_state_order]
+            # Forcing order >= 2 was tried: on 5 of 20 seeds where BIC prefers 1, the order-2
+            # refinement lands in a worse minimum (3.6-5.6 VAF points lost instead of 1.2-1.8).
+            orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
         orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity
         fits = {}
         for m in orders:

@@ -1,0 +1,121 @@
+"""Identification speed and memory.
+
+- 2-minute 100 Hz record: wall time per stage (median of 3 runs);
+- cost versus record length (2, 7.5, 15, 30 minutes), each length in a fresh subprocess
+  so that its peak resident memory (ru_maxrss) is its own;
+- the projection (27)-(28) computed as lpvpc does (least squares after projecting out
+  range(Psi_r)) versus the literal formula with explicit pseudo-inverses and the N x N
+  projector, at N = 12,000: time ratio and largest difference.
+
+Run: python benchmarks/bench_identify.py   (writes benchmarks/results/identify.txt)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def subject_data(duration, seed=0):
+    from lpvpc.data import pair_trials
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=seed, duration=duration, fs_out=100.0)
+    return pair_trials(pair.pt, pair.ut)
+
+
+def one_length(duration):
+    """Child process: identify one record, print JSON with time and peak memory."""
+    import resource
+
+    from lpvpc.identify import identify
+
+    data = subject_data(duration)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t = time.perf_counter()
+    model = identify(data)
+    elapsed = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    print(json.dumps({"duration_s": duration, "n": data.n, "time_s": elapsed, "peak_rss_mb": peak / 1024,
+                      "rss_before_identify_mb": rss0 / 1024, "vaf": model.fit["vaf"], "timings": model.fit["timings_s"]}))
+
+
+def projection_comparison():
+    from lpvpc.basis import basis_from_data
+    from lpvpc import equations as eq
+    from lpvpc.identify import LPVPCEstimator, project_out_and_solve
+    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.reflex import reflex_input_regressor, reflex_regressor
+
+    data = subject_data(120.0)
+    est = LPVPCEstimator()
+    p, y, rho = data.position, data.torque, data.scheduling
+    dvel = eq.delayed_velocity(p, data.fs, 4)
+    Psi_i = intrinsic_regressor(p, basis_from_data(rho, "chebyshev", est.intrinsic_order).evaluate(rho), two_sided_lags(est.irf_lags))
+    U_r = reflex_input_regressor(basis_from_data(dvel, "chebyshev", est.velocity_order, "linear").evaluate(dvel),
+                                 basis_from_data(rho, "chebyshev", est.reflex_order).evaluate(rho))
+    A = np.array([[1.8, 1.0], [-0.82, 0.0]])
+    C = np.array([[1.0, 0.0]])
+    Psi_r = np.hstack(reflex_regressor(U_r, A, C))
+    t = time.perf_counter()
+    fast = project_out_and_solve(Psi_r, Psi_i, y)
+    t_fast = time.perf_counter() - t
+    t = time.perf_counter()
+    pinv_r, pinv_i = np.linalg.pinv(Psi_r), np.linalg.pinv(Psi_i)
+    projector = np.eye(len(y)) - Psi_r @ pinv_r  # N x N, as written in (27)
+    Cmat = np.eye(Psi_i.shape[1]) - pinv_i @ Psi_r @ pinv_r @ Psi_i  # (28)
+    direct = np.linalg.pinv(Cmat) @ pinv_i @ projector @ y
+    t_direct = time.perf_counter() - t
+    return {"n": len(y), "t_lpvpc_s": t_fast, "t_pinv_s": t_direct, "ratio": t_direct / t_fast,
+            "max_rel_diff": float(np.max(np.abs(fast - direct)) / np.max(np.abs(direct)))}
+
+
+def main():
+    if len(sys.argv) > 2 and sys.argv[1] == "--one":
+        one_length(float(sys.argv[2]))
+        return
+    from lpvpc.identify import identify
+
+    lines = ["# Identification speed and memory (python benchmarks/bench_identify.py)", ""]
+    data = subject_data(120.0)
+    runs = []
+    for _ in range(3):
+        t = time.perf_counter()
+        m = identify(data)
+        runs.append((time.perf_counter() - t, m.fit["timings_s"]))
+    runs.sort(key=lambda r: r[0])
+    med, timings = runs[1]
+    lines.append(f"2-minute record (N = {data.n}, 100 Hz): median {med:.2f} s of 3 runs; stages of that run: "
+                 + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
+    lines.append("")
+    lines.append("| record | samples | identify time (s) | time per 1k samples (ms) | peak RSS (MB) |")
+    lines.append("|---|---|---|---|---|")
+    for minutes in (2, 7.5, 15, 30):
+        out = subprocess.run([sys.executable, __file__, "--one", str(60 * minutes)], capture_output=True, text=True,
+                             env={**os.environ, "PYTHONWARNINGS": "ignore"})
+        if out.returncode != 0:
+            lines.append(f"| {minutes} min | failed: {out.stderr.strip().splitlines()[-1]} |")
+            continue
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        lines.append(f"| {minutes} min | {r['n']} | {r['time_s']:.2f} | {1000 * r['time_s'] / (r['n'] / 1000):.1f} | {r['peak_rss_mb']:.0f} |")
+    lines.append("")
+    pc = projection_comparison()
+    lines.append(f"Projection (27)-(28) at N = {pc['n']}: lpvpc {1000 * pc['t_lpvpc_s']:.1f} ms, literal pinv formula "
+                 f"{pc['t_pinv_s']:.2f} s, ratio {pc['ratio']:.0f}x, max relative difference {pc['max_rel_diff']:.1e}")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    out = ROOT / "benchmarks" / "results" / "identify.txt"
+    out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
