@@ -236,40 +236,37 @@ def project_out_and_solve(Psi_r, Psi_i, y):
     Q_r = orthonormal_range(Psi_r)
     Pi_perp = Psi_i - Q_r @ (Q_r.T @ Psi_i)
     y_perp = y - Q_r @ (Q_r.T @ y)
-    Q, R, piv = scipy.linalg.qr(Pi_perp, mode="economic", pivoting=True, check_finite=False)
-    diag = np.abs(np.diag(R))
-    rank = int(np.sum(diag > RANK_TOL * diag[0])) if diag.size and diag[0] > 0 else 0
-    if rank < Psi_i.shape[1]:
-        raise InsufficientExcitationError(
-            f"rank-deficient intrinsic regressor: rank {rank} of {Psi_i.shape[1]} columns after removing "
-            f"the reflex part (columns {sorted(piv[rank:].tolist())[:10]} are dependent); reduce the basis "
-            f"order, keep IRF lags below the reflex delay, or check that the scheduling variable varies"
-        )
+    Q, R, piv = check_full_rank(Pi_perp, "intrinsic", "after removing the reflex part ")
     theta = np.empty(Psi_i.shape[1])
     theta[piv] = scipy.linalg.solve_triangular(R, Q.T @ y_perp, check_finite=False)
     return theta
 
 
-def check_full_rank(M, name):
-    """Raise InsufficientExcitationError naming the dependent columns if M is rank-deficient."""
-    _, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
+def _pivoted_qr(M):
+    """Pivoted QR of M and its numerical rank."""
+    Q, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
     diag = np.abs(np.diag(R))
     rank = int(np.sum(diag > RANK_TOL * diag[0])) if diag.size and diag[0] > 0 else 0
+    return Q, R, piv, rank
+
+
+def check_full_rank(M, name, context=""):
+    """Pivoted QR (Q, R, piv) of M; raises InsufficientExcitationError naming the
+    dependent columns if M is rank-deficient."""
+    Q, R, piv, rank = _pivoted_qr(M)
     if rank < M.shape[1]:
         raise InsufficientExcitationError(
-            f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns (columns "
+            f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns {context}(columns "
             f"{sorted(piv[rank:].tolist())[:10]} are dependent); reduce the basis order, keep IRF lags "
             f"below the reflex delay, or check that the scheduling variable varies"
         )
+    return Q, R, piv
 
 
 def orthonormal_range(M):
     """Orthonormal basis of range(M) (pivoted QR, rank-revealing)."""
-    Q, R, _ = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
-    diag = np.abs(np.diag(R))
-    if diag.size == 0 or diag[0] == 0:
-        return Q[:, :0]
-    return Q[:, : int(np.sum(diag > RANK_TOL * diag[0]))]
+    Q, _, _, rank = _pivoted_qr(M)
+    return Q[:, :rank]
 
 
 def _conventions(data) -> dict:
