@@ -410,7 +410,7 @@ def _antialias_fir(q: int) -> np.ndarray:
     )
 
 
-def _decimate(x: np.ndarray, q: int) -> np.ndarray:
+def decimate_signal(x, q: int) -> np.ndarray:
     """Anti-aliased zero-phase FIR decimation by ``q``; output sample k is input sample k*q.
 
     Same polyphase zero-phase path as ``scipy.signal.decimate(x, q, ftype="fir",
@@ -446,9 +446,9 @@ def decimate_trial(trial: Trial, target_fs) -> Trial:
         )
     return Trial(
         time=np.asarray(trial.time, dtype=float)[::q].copy(),
-        position=_decimate(trial.position, q),
-        torque=_decimate(trial.torque, q),
-        channels={k: _decimate(v, q) for k, v in trial.channels.items()},
+        position=decimate_signal(trial.position, q),
+        torque=decimate_signal(trial.torque, q),
+        channels={k: decimate_signal(v, q) for k, v in trial.channels.items()},
         name=trial.name,
     )
 

@@ -343,8 +343,9 @@ def _model_description(guid, *, model_identifier, fmi_version, step_size, output
         latency_annotation()
 
     mv = ET.SubElement(root, "ModelVariables")
-    vr = {}
-    index = {}  # FMI 2: 1-based position in ModelVariables
+    # ModelStructure refers to variables by 1-based position in ModelVariables (FMI 2) or by
+    # value reference (FMI 3); the layout makes both k + 1 (FMI 3's time is vr 0, not listed there).
+    ref = {}
     ordered = [("output", v) for v in outputs] + [("input", v) for v in inputs] + \
               [("parameter", v) for v in parameters]
     if not fmi2:
@@ -356,41 +357,25 @@ def _model_description(guid, *, model_identifier, fmi_version, step_size, output
         t.set("description", "Simulation time")
         t.set("unit", "s")
     for k, (causality, v) in enumerate(ordered):
-        vr[v.name] = k + 1
-        index[v.name] = k + 1
+        ref[v.name] = k + 1
         variability = "fixed" if causality == "parameter" else "continuous"
-        if fmi2:
-            sv = ET.SubElement(mv, "ScalarVariable")
-            sv.set("name", v.name)
-            sv.set("valueReference", str(k + 1))
-            if v.description:
-                sv.set("description", v.description)
-            sv.set("causality", causality)
-            sv.set("variability", variability)
-            if causality == "output":
-                sv.set("initial", "calculated")
-            real = ET.SubElement(sv, "Real")
-            if causality != "output":
-                real.set("start", _fmt(v.start))
-            if v.unit:
-                real.set("unit", v.unit)
-        else:
-            fv = ET.SubElement(mv, "Float64")
-            fv.set("name", v.name)
-            fv.set("valueReference", str(k + 1))
-            if v.description:
-                fv.set("description", v.description)
-            fv.set("causality", causality)
-            fv.set("variability", variability)
-            if causality == "output":
-                fv.set("initial", "calculated")
-            else:
-                fv.set("start", _fmt(v.start))
-            if v.unit:
-                fv.set("unit", v.unit)
+        # FMI 2 puts start/unit on a <Real> child of <ScalarVariable>; FMI 3 on <Float64> itself.
+        el = ET.SubElement(mv, "ScalarVariable" if fmi2 else "Float64")
+        el.set("name", v.name)
+        el.set("valueReference", str(k + 1))
+        if v.description:
+            el.set("description", v.description)
+        el.set("causality", causality)
+        el.set("variability", variability)
+        if causality == "output":
+            el.set("initial", "calculated")
+        typed = ET.SubElement(el, "Real") if fmi2 else el
+        if causality != "output":
+            typed.set("start", _fmt(v.start))
+        if v.unit:
+            typed.set("unit", v.unit)
 
     ms = ET.SubElement(root, "ModelStructure")
-    ref = index if fmi2 else vr
 
     def unknown(parent, tag, v, with_deps):
         e = ET.SubElement(parent, tag)

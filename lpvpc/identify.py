@@ -28,13 +28,11 @@ from . import __version__
 from . import equations as eq
 from .basis import basis_from_data
 from .errors import DataError, IdentificationError, InsufficientExcitationError
+from .linalg import orthonormal_range, pivoted_qr
 from .intrinsic import intrinsic_regressor, two_sided_lags
 from .model import LPVPCModel, vaf
 from .reflex import fit_hammerstein, reflex_input_regressor, reflex_regressor
 from .subspace import candidate_orders, po_moesp, refine_poles
-
-RANK_TOL = 1e-9  # relative to the largest |R_ii| of a pivoted QR
-
 
 class LPVPCEstimator:
     """Estimator of an LPV-PC ankle stiffness model (scikit-learn style).
@@ -180,7 +178,7 @@ class LPVPCEstimator:
         A, C = sub.system(m)
         moesp_poles = np.linalg.eigvals(A)
         if self.refine:
-            A, C, _ = refine_poles(A, U_r, Psi_i, y, orthonormal_range)
+            A, C, _ = refine_poles(A, U_r, Psi_i, y)
         blocks = reflex_regressor(U_r, A, C)
         Psi_r = np.hstack(blocks)
         theta_i = project_out_and_solve(Psi_r, Psi_i, y)
@@ -242,18 +240,10 @@ def project_out_and_solve(Psi_r, Psi_i, y):
     return theta
 
 
-def _pivoted_qr(M):
-    """Pivoted QR of M and its numerical rank."""
-    Q, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
-    diag = np.abs(np.diag(R))
-    rank = int(np.sum(diag > RANK_TOL * diag[0])) if diag.size and diag[0] > 0 else 0
-    return Q, R, piv, rank
-
-
 def check_full_rank(M, name, context=""):
     """Pivoted QR (Q, R, piv) of M; raises InsufficientExcitationError naming the
     dependent columns if M is rank-deficient."""
-    Q, R, piv, rank = _pivoted_qr(M)
+    Q, R, piv, rank = pivoted_qr(M)
     if rank < M.shape[1]:
         raise InsufficientExcitationError(
             f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns {context}(columns "
@@ -261,12 +251,6 @@ def check_full_rank(M, name, context=""):
             f"below the reflex delay, or check that the scheduling variable varies"
         )
     return Q, R, piv
-
-
-def orthonormal_range(M):
-    """Orthonormal basis of range(M) (pivoted QR, rank-revealing)."""
-    Q, _, _, rank = _pivoted_qr(M)
-    return Q[:, :rank]
 
 
 def _conventions(data) -> dict:

@@ -41,7 +41,8 @@ from typing import Callable
 import numpy as np
 from scipy import signal
 
-from lpvpc.data import Trial, write_trial_csv
+from lpvpc.data import Trial, decimate_signal, write_trial_csv
+from lpvpc.model import vaf
 
 FS_SIM = 1000.0  # Hz: the rate of the continuous-time physics (and of the lab's A/D)
 
@@ -669,29 +670,8 @@ def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
             "channels": st.channels, "effects": info}
 
 
-def _decimate(x, q: int) -> np.ndarray:
-    """``scipy.signal.decimate(x, q, ftype="fir", zero_phase=True)`` without its edge droop.
-
-    scipy pads with zeros, which pulls the first and last ~10 output samples of a signal
-    far from zero (an angle of -0.4 rad, a torque of 20 N m) toward zero. The line through
-    the end points is removed before and added back after: still linear, so decimating
-    PT - UT equals the difference of the decimated trials, and noise can be scaled after.
-    """
-    x = np.asarray(x, dtype=float)
-    if q == 1:
-        return x.copy()
-    ramp = np.linspace(x[0], x[-1], len(x))
-    return signal.decimate(x - ramp, q, ftype="fir", zero_phase=True) + ramp[::q]
-
-
 def _rms(x):
     return float(np.sqrt(np.mean(np.square(x))))
-
-
-def _vaf(measured, predicted) -> float:
-    """Variance accounted for (%): 100 * (1 - var(measured - predicted) / var(measured))."""
-    measured = np.asarray(measured)
-    return float(100.0 * (1.0 - np.var(measured - np.asarray(predicted)) / np.var(measured)))
 
 
 def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: float = 120.0,
@@ -734,7 +714,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     pt = _simulate_trial(cmd["PT"], ut, True, fs, params, effects, r_ept)
 
     def out(x):  # to the output rate
-        return _decimate(x, q)
+        return decimate_signal(x, q)
 
     n = len(traj)
     t_out = (np.arange(n) / fs)[::q]
@@ -790,7 +770,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         "measured": {
             "snr_db": float(10 * np.log10(np.var(d_clean) / np.var(d_noisy - d_clean)))
             if scale > 0 else float("inf"),
-            "vaf_ceiling": _vaf(d_noisy, d_clean),
+            "vaf_ceiling": vaf(d_noisy, d_clean),
             "perturbation_torque_rms": _rms(d_clean - d_clean.mean()),
             "perturbation_intrinsic_rms": _rms(d_int - d_int.mean()),
             "perturbation_reflex_rms": _rms(d_ref),

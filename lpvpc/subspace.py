@@ -24,6 +24,7 @@ import scipy.optimize
 import scipy.signal
 
 from .errors import IdentificationError, InsufficientExcitationError
+from .linalg import orthonormal_range
 
 
 @dataclass
@@ -125,7 +126,7 @@ def companion_form(den):
     return A, C
 
 
-def refine_poles(A0, u_state, fixed_regressor, y, orthonormal_range, max_nfev: int = 60):
+def refine_poles(A0, u_state, fixed_regressor, y, max_nfev: int = 60):
     """Refine the poles of (A, C) by variable projection on the complete fit.
 
     The column space of the reflex regressor (25) depends on A only through its

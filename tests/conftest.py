@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 
 import pytest  # noqa: E402
 
-from lpvpc.data import load_identification_data, write_trial_csv  # noqa: E402
+from lpvpc.data import load_identification_data, pair_trials, write_trial_csv  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
 
@@ -29,8 +29,6 @@ def subject(tmp_path_factory):
     folder = tmp_path_factory.mktemp("subject")
     ident = simulate_pair("multilevel", seed=0)
     novel = simulate_pair("novel", seed=1)
-    from lpvpc.data import pair_trials
-
     return {
         "ident_pair": ident,
         "novel_pair": novel,

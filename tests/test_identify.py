@@ -82,8 +82,10 @@ def test_held_out_faster_than_identification_gives_no_spikes(subject, model):
     dvel = eq.delayed_velocity(data.position, data.fs, model.delay)
     assert dvel.max() > model.velocity_range[1] * 1.1, "test record must exceed the identified velocity range"
     pred = predict_quiet(model, data)
-    assert np.max(np.abs(pred.total)) < 1.5 * np.max(np.abs(clean.torque))
-    assert vaf(data.torque, pred.total) > vaf(data.torque, clean.torque) - 3.0
+    assert np.max(np.abs(pred.total)) < 1.1 * np.max(np.abs(clean.torque))
+    # 1.5 points measured: larger perturbations than identified also carry more elastic
+    # nonlinearity; a polynomial spike would cost tens of points.
+    assert vaf(data.torque, pred.total) > vaf(data.torque, clean.torque) - 2.0
 
 
 # -- algorithm pieces --------------------------------------------------------------------

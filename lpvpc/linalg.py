@@ -1,0 +1,22 @@
+"""Rank-revealing least-squares helpers shared by the identification steps."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+RANK_TOL = 1e-9  # relative to the largest |R_ii| of a pivoted QR
+
+
+def pivoted_qr(M):
+    """Economic pivoted QR of M: (Q, R, piv, numerical rank)."""
+    Q, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True, check_finite=False)
+    diag = np.abs(np.diag(R))
+    rank = int(np.sum(diag > RANK_TOL * diag[0])) if diag.size and diag[0] > 0 else 0
+    return Q, R, piv, rank
+
+
+def orthonormal_range(M):
+    """Orthonormal basis of range(M)."""
+    Q, _, _, rank = pivoted_qr(M)
+    return Q[:, :rank]
