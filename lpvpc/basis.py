@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-FAMILIES = ("chebyshev", "legendre", "gaussian")
+FAMILIES = ("chebyshev", "legendre", "gaussian", "hinge")
 EXTRAPOLATIONS = ("clip", "linear")
 
 
@@ -88,6 +88,9 @@ class Basis:
 
     chebyshev/legendre: polynomials T_0..T_order of the variable mapped to [-1, 1].
     gaussian: a constant plus ``order`` Gaussian bumps evenly spaced over the range.
+    hinge: 1, s and ``order - 1`` ramps max(s - knot, 0), knots denser near s = 0
+    (continuous piecewise-linear functions: a rectifier's kink is representable, and
+    the functions are linear beyond the range).
     """
 
     family: str
@@ -145,6 +148,8 @@ class Basis:
 
     def _functions(self, s, ops):
         n = self.order
+        if self.family == "hinge":
+            return [s * 0.0 + 1.0] + ([s] if n >= 1 else []) + [ops.fmax(s - k, 0.0) for k in self.knots()]
         if self.family == "gaussian":
             centres = np.linspace(-1.0, 1.0, n) if n > 1 else np.array([0.0])
             width = 2.0 / max(n - 1, 1)
@@ -159,8 +164,18 @@ class Basis:
                 values.append(((2 * k + 1) * s * values[k] - k * values[k - 1]) / (k + 1))
         return values
 
+    def knots(self):
+        """Hinge knots in normalised units: sign(u) u^2 for u evenly spaced inside (-1, 1)."""
+        u = np.linspace(-1.0, 1.0, self.order + 1)[1:-1]
+        return np.sign(u) * u**2
+
     def _edge_slopes(self):
         """Derivatives of each function (in normalised units) at s = +1 and s = -1."""
+        if self.family == "hinge":
+            ramps = max(self.order - 1, 0)
+            d_hi = np.array([0.0] + [1.0] * (self.order >= 1) + [1.0] * ramps)
+            d_lo = np.array([0.0] + [1.0] * (self.order >= 1) + [0.0] * ramps)
+            return d_hi, d_lo
         k = np.arange(self.order + 1, dtype=float)
         if self.family == "chebyshev":
             d_hi = k**2

@@ -45,7 +45,9 @@ class LPVPCEstimator:
     intrinsic_order : basis order in rho of each IRF weight (order 5 follows an
         exponential K(theta); 3 does not).
     reflex_order : basis order in rho of the reflex nonlinearity coefficients.
-    velocity_order : Chebyshev order in delayed velocity of the reflex nonlinearity.
+    velocity_order : basis order in delayed velocity of the reflex nonlinearity.
+    velocity_basis : its family ("chebyshev" polynomials or "hinge" piecewise-linear);
+        both continue linearly beyond the identified velocity range.
     reflex_delay : reflex delay in s (rounded to samples).
     state_order : order m of the reflex dynamics; None chooses it from the data.
     min_state_order, max_state_order : range of orders considered when choosing.
@@ -62,6 +64,7 @@ class LPVPCEstimator:
         intrinsic_order: int = 5,
         reflex_order: int = 2,
         velocity_order: int = 4,
+        velocity_basis: str = "chebyshev",
         reflex_delay: float = 0.040,
         state_order: int | None = None,
         min_state_order: int = 1,
@@ -77,6 +80,7 @@ class LPVPCEstimator:
         self.intrinsic_order = intrinsic_order
         self.reflex_order = reflex_order
         self.velocity_order = velocity_order
+        self.velocity_basis = velocity_basis
         self.reflex_delay = reflex_delay
         self.state_order = state_order
         self.min_state_order = min_state_order
@@ -89,7 +93,7 @@ class LPVPCEstimator:
 
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in (
-            "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "reflex_delay",
+            "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine")}
 
     # ------------------------------------------------------------------------------------
@@ -107,7 +111,7 @@ class LPVPCEstimator:
 
         G_i = basis_from_data(rho, self.basis, self.intrinsic_order)
         G_r = basis_from_data(rho, self.basis, self.reflex_order)
-        V_b = basis_from_data(dvel, "chebyshev", self.velocity_order, extrapolation="linear")
+        V_b = basis_from_data(dvel, self.velocity_basis, self.velocity_order, extrapolation="linear")
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
         Psi_i = intrinsic_regressor(p, Gi_val, lags)
         U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
