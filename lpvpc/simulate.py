@@ -186,8 +186,8 @@ def multilevel_trajectory(duration: float, fs: float, rng: np.random.Generator, 
                           hold=(4.0, 7.0), cutoff: float = 2.5) -> np.ndarray:
     """The paper's identification trajectory (rad) at ``fs`` (Hz).
 
-    Levels drawn at random from ``n_levels`` evenly spaced in [lo, hi] rad, consecutive
-    levels different, held for durations uniform in ``hold`` s; the step sequence is
+    Levels drawn at random from ``n_levels`` evenly spaced in [lo, hi] rad (every level
+    once per round of ``n_levels`` holds, consecutive levels different), held for durations uniform in ``hold`` s; the step sequence is
     smoothed by a causal 2nd-order Butterworth low-pass at ``cutoff`` Hz, from rest at the
     first level (as the paper does, to avoid sharp transitions). The Butterworth step
     response overshoots ~4 % of each step, so the trajectory can exceed [lo, hi] by up to
@@ -196,13 +196,26 @@ def multilevel_trajectory(duration: float, fs: float, rng: np.random.Generator, 
     n = _n_samples(duration, fs)
     levels = np.linspace(lo, hi, n_levels)
     steps = np.empty(n)
-    i, k = 0, int(rng.integers(n_levels))
+    order = _level_sequence(rng, n_levels)
+    i = 0
     while i < n:
         m = int(round(rng.uniform(*hold) * fs))
-        steps[i:i + m] = levels[k]
+        steps[i:i + m] = levels[next(order)]
         i += m
-        k = (k + int(rng.integers(1, n_levels))) % n_levels  # any level but the current one
     return _butter_from_rest(steps, cutoff, fs)
+
+
+def _level_sequence(rng: np.random.Generator, n_levels: int):
+    """Level indices in random order, each level once per round (a protocol covers the
+    whole range: with independent draws a 2-minute trial missed the two most dorsiflexed
+    levels on 1 of 20 seeds), consecutive levels different."""
+    last = -1
+    while True:
+        perm = rng.permutation(n_levels)
+        if perm[0] == last:
+            perm[[0, -1]] = perm[[-1, 0]]
+        yield from (int(k) for k in perm)
+        last = int(perm[-1])
 
 
 def _fold(x, lo, hi):
