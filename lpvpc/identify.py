@@ -69,7 +69,7 @@ class LPVPCEstimator:
         state_order: int | None = None,
         min_state_order: int = 1,
         max_state_order: int = 4,
-        horizon: int = 10,
+        horizon: int = 6,
         causal_lags: int | None = None,
         tol: float = 1e-6,
         max_iter: int = 100,

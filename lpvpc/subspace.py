@@ -147,9 +147,19 @@ def refine_poles(A0, u_state, fixed_regressor, y, max_nfev: int = 60):
         W = scipy.signal.lfilter([1.0], np.r_[1.0, den], u_state, axis=0)
         X = np.hstack([np.vstack([np.zeros((j, W.shape[1])), W[:-j]]) for j in range(1, m + 1)])
         X -= Q0 @ (Q0.T @ X)
-        Q = orthonormal_range(X)
-        return y_perp - Q @ (Q.T @ y_perp)
+        # Normal equations on column-scaled X: ~3x cheaper than a pivoted QR per evaluation,
+        # and the residual only steers the optimiser (the final fit is redone by QR).
+        scale = np.sqrt(np.einsum("ij,ij->j", X, X))
+        scale[scale == 0] = 1.0
+        X /= scale
+        try:
+            coef = scipy.linalg.cho_solve(scipy.linalg.cho_factor(X.T @ X), X.T @ y_perp)
+        except np.linalg.LinAlgError:
+            Q = orthonormal_range(X)
+            return y_perp - Q @ (Q.T @ y_perp)
+        return y_perp - X @ coef
 
-    result = scipy.optimize.least_squares(residual, den0, method="lm", max_nfev=max_nfev, x_scale="jac")
+    result = scipy.optimize.least_squares(residual, den0, method="lm", max_nfev=max_nfev, x_scale="jac",
+                                          ftol=1e-6, xtol=1e-6)
     A, C = companion_form(result.x)
     return A, C, result
