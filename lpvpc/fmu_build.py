@@ -7,7 +7,8 @@ A system provides the three C functions of ``fmu_models/wrapper/system.h``::
     int sys_update(const double *x, const double *u, const double *p, double *x_next);  /* x+ = f(x, u, p) */
 
 :func:`build_fmu` generates ``system_config.h`` and ``modelDescription.xml``, compiles the
-generic wrapper (``fmi2_cs.c`` or ``fmi3_cs.c``) with the system sources into
+generic wrapper (``fmi2_cs.c`` or ``fmi3_cs.c``, both including the shared core ``cs_core.h``)
+with the system sources into
 ``binaries/linux64/<id>.so`` (FMI 2) or ``binaries/x86_64-linux/<id>.so`` (FMI 3), ships all C
 sources and headers in ``sources/`` (FMI 2: ``<SourceFiles>``; FMI 3:
 ``sources/buildDescription.xml``) so that ``fmpy compile`` can rebuild the binary, and zips
@@ -104,7 +105,7 @@ class FmuVariable:
 
 
 def wrapper_dir() -> Path:
-    """Folder with ``system.h``, ``fmi2_cs.c`` and ``fmi3_cs.c``.
+    """Folder with ``system.h``, ``cs_core.h``, ``fmi2_cs.c`` and ``fmi3_cs.c``.
 
     ``$LPVPC_FMU_MODELS/wrapper`` if that variable is set, else ``fmu_models/wrapper`` next to
     the package (source checkout or editable install).
@@ -453,6 +454,7 @@ def _collect_sources(fmi_version, system_sources, include_dirs) -> dict[str, Pat
 
     add(wdir / ("fmi2_cs.c" if fmi_version == 2 else "fmi3_cs.c"), "wrapper")
     add(wdir / "system.h", "wrapper")
+    add(wdir / "cs_core.h", "wrapper")  # included by the wrapper: shipped, not listed as a source file
     for h in _FMI2_HEADERS if fmi_version == 2 else _FMI3_HEADERS:
         add(hdir / h, "FMI header")
     for src in system_sources:
