@@ -206,3 +206,23 @@ def test_non_finite_identification_data_names_channel_and_index():
 def test_prediction_rejects_unequal_lengths(model):
     with pytest.raises(DataError, match="equal length"):
         model.predict(np.zeros(10), np.zeros(9))
+
+
+def test_hinge_basis_is_piecewise_linear_and_extends_linearly():
+    b = Basis("hinge", 6, -3.0, 4.0, extrapolation="linear")
+    x = np.linspace(-6.0, 8.0, 1401)
+    values = b.evaluate(x)
+    second_diff = np.abs(np.diff(values, 2, axis=0))
+    # piecewise linear: curvature only at the knots (at most one grid cell each side)
+    knots = (b.knots() * (b.hi - b.lo) + (b.hi + b.lo)) / 2
+    near_knot = np.min(np.abs(x[1:-1, None] - knots[None, :]), axis=1) < 0.02
+    assert np.all(second_diff[~near_knot] < 1e-9)
+    assert values.shape == (len(x), 7)
+
+
+def test_identify_with_hinge_velocity_basis(subject):
+    model = identify(subject["ident"], velocity_basis="hinge", velocity_order=6)
+    ceiling = vaf(subject["novel"].torque, subject["novel_clean"].torque)
+    got = vaf(subject["novel"].torque, predict_quiet(model, subject["novel"]).total)
+    assert got > ceiling - 1.0, f"hinge basis: novel VAF {got:.2f} % vs ceiling {ceiling:.2f} %"
+    assert LPVPCModel.from_dict(json.loads(json.dumps(model.to_dict()))).velocity_basis.family == "hinge"
