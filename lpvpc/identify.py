@@ -165,6 +165,7 @@ class LPVPCEstimator:
             "vaf": vaf(y, pred.total),
             "vaf_causal": vaf(y, model.predict(p, rho, causal=True, warn=False).total),
             "n_samples": int(n),
+            "velocity_p99": float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else V_b.hi,
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
             "singular_values": sub.singular_values.tolist(),

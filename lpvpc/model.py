@@ -176,11 +176,13 @@ class LPVPCModel:
     def reflex_gain_threshold(self, rho, n_velocity: int = 200):
         """Fit a half-wave rectifier G * max(v - th, 0) + c to the identified nonlinearity.
 
-        Returns (gain in N m s/rad, threshold in rad/s) for each rho, fitted over the
-        non-negative part of the identified velocity range.
+        Returns (gain in N m s/rad, threshold in rad/s) for each rho, fitted from zero to
+        the 99th percentile of the positive delayed velocities seen at identification
+        (where the data determine the curve; the sparse extreme tail bends polynomials).
         """
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
-        v = np.linspace(0.0, self.velocity_range[1], n_velocity)
+        v_top = self.fit.get("velocity_p99", self.velocity_range[1])
+        v = np.linspace(0.0, v_top, n_velocity)
         curves = self.reflex_nonlinearity(v, rho)
         gains, thresholds = [], []
         for f in curves:
