@@ -95,3 +95,98 @@ def causal_signals(position, fs, lags, vel=None, acc=None):
 def delayed_velocity(position, fs, delay):
     """dvel(k) = vel(k - delay) for a whole record, delay in samples (>= 1 keeps it causal)."""
     return lagged(velocity(position, fs), [delay])[:, 0]
+
+
+# ---------------------------------------------------------------------------------------
+# Extension terms of the extended model (lpvpc.effects). Same conventions: numpy arrays
+# (one row per sample) or CasADi rows (one sample), through an ``ops`` backend.
+
+
+class ScalarOps:
+    """The ops backend for plain Python floats (per-sample recurrences run in numpy)."""
+
+    name = "scalar"
+
+    @staticmethod
+    def fmin(a, b):
+        return a if a < b else b
+
+    @staticmethod
+    def fmax(a, b):
+        return a if a > b else b
+
+    @staticmethod
+    def exp(a):
+        import math
+
+        return math.exp(a)
+
+
+SCALAR = ScalarOps()
+
+
+def scheduled_term(features, scheduling_functions, coefficients, ops=NUMPY):
+    """Torque (N m) sum_ij coefficients[i, j] * features[:, i] * scheduling_functions[:, j].
+
+    features: (N, n_f); scheduling_functions: (N, n_s) (basis functions of rho, possibly
+    times further channels); coefficients: (n_f, n_s). The intrinsic IRF (with lagged
+    positions as features) and the reflex nonlinearity are instances of this form.
+    """
+    return ops.row_sum(ops.mtimes(features, coefficients) * scheduling_functions)
+
+
+def smooth_sign(x, scale, ops=NUMPY):
+    """tanh(x / scale), written with exp (argument clipped to +-30: no overflow)."""
+    u = ops.fmin(ops.fmax(x * (1.0 / scale), -30.0), 30.0)
+    return 2.0 / (1.0 + ops.exp(-2.0 * u)) - 1.0
+
+
+def friction_difference(velocity, slow_velocity, scale, ops=NUMPY):
+    """tanh((v_slow + v) / scale) - tanh(v_slow / scale): the change a perturbation velocity
+    v (rad/s) makes to a smoothed Coulomb friction acting on the total joint velocity."""
+    return smooth_sign(slow_velocity + velocity, scale, ops) - smooth_sign(slow_velocity, scale, ops)
+
+
+def direction_memory_step(latched, smoothed, slow_velocity, v_min, v_width, alpha, ops=SCALAR):
+    """One sample of the slow-movement direction memory; returns (latched, smoothed) at k.
+
+    ``latched`` jumps to sign(v) while |v| > v_min (rad/s; a ramp of width v_width
+    rad/s instead of a jump) and holds its value through holds; ``smoothed`` follows it
+    with the first-order factor alpha = 1 - exp(-T / tau). +1 after moving toward
+    dorsiflexion (positive rho), -1 after moving toward plantarflexion, 0 before any movement.
+    """
+    speed = ops.fmax(slow_velocity, -slow_velocity)
+    moving = ops.fmin(ops.fmax((speed - v_min) * (1.0 / v_width), 0.0), 1.0)
+    sign = ops.fmin(ops.fmax(slow_velocity * (1.0 / v_width), -1.0), 1.0)
+    latched = latched + moving * (sign - latched)
+    smoothed = smoothed + alpha * (latched - smoothed)
+    return latched, smoothed
+
+
+def direction_memory(slow_velocity, v_min, v_width, alpha):
+    """:func:`direction_memory_step` over a whole record (state zero before it): (N,) array."""
+    latched = smoothed = 0.0
+    out = np.empty(len(slow_velocity))
+    for k, v in enumerate(np.asarray(slow_velocity, dtype=float).tolist()):
+        latched, smoothed = direction_memory_step(latched, smoothed, v, v_min, v_width, alpha, SCALAR)
+        out[k] = smoothed
+    return out
+
+
+def state_trajectory(A, B, u):
+    """States x(k) of x(k+1) = A x(k) + B u(k), x(0) = 0, for a whole record: (N, m).
+
+    The recurrence of :func:`reflex_step`, run by linear filtering (one filter per state).
+    """
+    import scipy.signal
+
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    B = np.asarray(B, dtype=float).reshape(-1, 1)
+    m = A.shape[0]
+    out = np.empty((len(u), m))
+    for i in range(m):
+        e_i = np.zeros((1, m))
+        e_i[0, i] = 1.0
+        num, den = scipy.signal.ss2tf(A, B, e_i, np.zeros((1, 1)))
+        out[:, i] = scipy.signal.lfilter(num[0], den, u)
+    return out
