@@ -55,6 +55,10 @@ class LPVPCEstimator:
     causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
     refine : refine the MOESP poles by variable projection (see module docstring).
     tol, max_iter : stopping rule of the separable least squares.
+    effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
+        model; default none). Intrinsic-pathway effects are estimated jointly with the
+        intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
+        after the reflex is identified. The data must carry the signals the effects need.
     """
 
     def __init__(
@@ -74,6 +78,7 @@ class LPVPCEstimator:
         tol: float = 1e-6,
         max_iter: int = 100,
         refine: bool = True,
+        effects: tuple = (),
     ):
         self.irf_lags = irf_lags
         self.basis = basis
@@ -90,11 +95,13 @@ class LPVPCEstimator:
         self.tol = tol
         self.max_iter = max_iter
         self.refine = refine
+        self.effects = effects
 
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
-            "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine")}
+            "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
+            "effects")}
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
@@ -115,6 +122,13 @@ class LPVPCEstimator:
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
         Psi_i = intrinsic_regressor(p, Gi_val, lags)
         U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
+        design = None
+        if self.effects:  # extended model: the effects' columns join the intrinsic regressor
+            from .effects import EffectDesign, signals_from_data
+
+            design = EffectDesign(self.effects, p, rho, fs, lags, G_i, signals_from_data(data),
+                                  source=getattr(data, "source", "") or "data")
+            Psi_i = np.hstack([Psi_i, design.columns])
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
         check_full_rank(Psi_i, "intrinsic")  # fail before the expensive subspace step
         check_full_rank(U_r, "reflex input")
@@ -144,11 +158,12 @@ class LPVPCEstimator:
         best = fits[m_best]
         timings["projection_and_reflex"] = time.perf_counter() - t
 
-        H = best["theta_i"].reshape(len(lags), G_i.size)
+        n_base = len(lags) * G_i.size  # the rest of theta_i belongs to effects
+        H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
         causal = list(range(0, (self.causal_lags if self.causal_lags is not None else self.irf_lags + 2) + 1))
         S_c = eq.causal_signals(p, fs, causal)
         Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
-        H_causal = np.linalg.lstsq(Psi_c, Psi_i @ best["theta_i"], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
+        H_causal = np.linalg.lstsq(Psi_c, Psi_i[:, :n_base] @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
 
         hf = best["hammerstein"]
         model = LPVPCModel(
@@ -159,11 +174,17 @@ class LPVPCEstimator:
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
-        pred = model.predict(p, rho, warn=False)
+        sig = {}
+        if design is not None:
+            from .effects import finish_extended_fit
+
+            finish_extended_fit(design, model, best["theta_i"][n_base:], Psi_i[:, :n_base], y)
+            sig = {"signals": design.signals}
+        pred = model.predict(p, rho, warn=False, **sig)
         timings["total"] = time.perf_counter() - t0
         model.fit = {
             "vaf": vaf(y, pred.total),
-            "vaf_causal": vaf(y, model.predict(p, rho, causal=True, warn=False).total),
+            "vaf_causal": vaf(y, model.predict(p, rho, causal=True, warn=False, **sig).total),
             "n_samples": int(n),
             "velocity_p99": float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else V_b.hi,
             "state_order": int(m_best),
