@@ -16,6 +16,9 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
     provenance          {"data_hash", "lpvpc_version", "numpy_version", ...}
     units, conventions  {"position": "rad", "torque": "N m", "torque_sign": +1|-1, ...}
     fit                 identification diagnostics (VAF, singular values, order, iterations)
+    effects             (extended models only, ``format_version: 2``) list of effect terms
+                        {"name", "options", "H", "H_causal", "Theta", "basis"}: see
+                        :mod:`lpvpc.effects`; they need the extra input signals named there
 
 Floats are written with Python's shortest round-trip representation, so save/load is exact.
 
@@ -42,16 +45,19 @@ from .errors import DataError, ModelFileError, OutOfRangeWarning
 
 FORMAT = "lpvpc-model"
 FORMAT_VERSION = 1
+FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
 
 
 @dataclass
 class Prediction:
-    """Predicted torques (N m): total = intrinsic + reflex."""
+    """Predicted torques (N m): total = intrinsic + reflex. In an extended model the
+    effect terms are included in the pathway they belong to and listed in ``effects``."""
 
     total: np.ndarray
     intrinsic: np.ndarray
     reflex: np.ndarray
     out_of_range_fraction: float = 0.0
+    effects: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -74,6 +80,7 @@ class LPVPCModel:
     provenance: dict = field(default_factory=dict)
     conventions: dict = field(default_factory=dict)
     fit: dict = field(default_factory=dict)
+    effects: list = field(default_factory=list)  # lpvpc.effects.FittedEffect terms (extended models)
 
     # -- prediction ---------------------------------------------------------------------
     @property
@@ -88,15 +95,28 @@ class LPVPCModel:
     def state_order(self) -> int:
         return self.A.shape[0]
 
+    @property
+    def signals(self) -> tuple:
+        """Extra input signals the model's effects need (see :data:`lpvpc.effects.SIGNALS`)."""
+        if not self.effects:
+            return ()
+        from .effects import model_signals
+
+        return model_signals(self)
+
     def predict(self, position, scheduling, *, causal: bool = False, velocity=None, acceleration=None,
-                warn: bool = True) -> Prediction:
+                warn: bool = True, signals: dict | None = None) -> Prediction:
         """Torque for a perturbation position record (rad) and its scheduling record (rad).
 
         ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
         velocity and acceleration) that the default FMU runs without latency; velocity
         (rad/s) and acceleration (rad/s^2) default to central differences of ``position``.
-        The default uses the identified two-sided IRF.
+        The default uses the identified two-sided IRF. ``signals``: the extra channels an
+        extended model needs (``self.signals``; e.g. ``{"emg": ...}``), N samples each;
+        ``trial_time`` defaults to k / fs and ``scheduling_velocity`` to the gradient of
+        ``scheduling``.
         """
+        extra_signals = signals  # (the name ``signals`` is reused below for the IRF inputs)
         position = np.asarray(position, dtype=float)
         scheduling = np.asarray(scheduling, dtype=float)
         problems = []
@@ -125,7 +145,19 @@ class LPVPCModel:
         tq_i = eq.intrinsic_torque(signals, self.intrinsic_basis.evaluate(scheduling), H)
         z = self.reflex_drive(position, scheduling)
         tq_r = self._reflex_filter(z)
-        return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside)
+        parts = {}
+        if self.effects:
+            from .effects import predict_effects
+
+            parts = predict_effects(self, position, scheduling, extra_signals, causal=causal, velocity=velocity,
+                                    acceleration=acceleration, z=z)
+            for pathway, tq in parts.values():
+                if pathway == "reflex":
+                    tq_r = tq_r + tq
+                else:
+                    tq_i = tq_i + tq
+        return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside,
+                          effects={k: v[1] for k, v in parts.items()})
 
     def reflex_drive(self, position, scheduling):
         """Output z(k) of the reflex static nonlinearity for a whole record."""
@@ -199,9 +231,9 @@ class LPVPCModel:
 
     # -- persistence ---------------------------------------------------------------------
     def to_dict(self) -> dict:
-        return {
+        d = {
             "format": FORMAT,
-            "format_version": FORMAT_VERSION,
+            "format_version": FORMAT_VERSION_EFFECTS if self.effects else FORMAT_VERSION,
             "fs": self.fs,
             "intrinsic": {
                 "lags": list(map(int, self.lags)),
@@ -227,13 +259,17 @@ class LPVPCModel:
             "conventions": self.conventions,
             "fit": self.fit,
         }
+        if self.effects:
+            d["effects"] = [fe.to_dict() for fe in self.effects]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "model") -> "LPVPCModel":
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
-        if d.get("format_version") != FORMAT_VERSION:
-            raise ModelFileError(f"{source}: unsupported model format_version {d.get('format_version')!r} (expected {FORMAT_VERSION})")
+        if d.get("format_version") not in (FORMAT_VERSION, FORMAT_VERSION_EFFECTS):
+            raise ModelFileError(f"{source}: unsupported model format_version {d.get('format_version')!r} "
+                                 f"(expected {FORMAT_VERSION} or {FORMAT_VERSION_EFFECTS})")
         try:
             intr, refl = d["intrinsic"], d["reflex"]
             model = cls(
@@ -256,6 +292,10 @@ class LPVPCModel:
                 conventions=d.get("conventions", {}),
                 fit=d.get("fit", {}),
             )
+            if d.get("effects"):
+                from .effects import FittedEffect
+
+                model.effects = [FittedEffect.from_dict(e) for e in d["effects"]]
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelFileError(f"{source}: corrupt model file ({type(exc).__name__}: {exc})") from None
         model._check_shapes(source)
@@ -277,6 +317,14 @@ class LPVPCModel:
         if self.delay < 1:
             problems.append(f"reflex delay must be at least 1 sample, got {self.delay}")
         arrays = [self.H, self.H_causal, self.Omega, self.A, self.B, self.C, np.array([self.D, self.fs])]
+        for fe in self.effects:
+            arrays += [a for a in (fe.H, fe.H_causal, fe.Theta) if a is not None]
+            if fe.H is not None and (fe.H.shape[0] != len(self.lags) or fe.H.shape[1] % n_i):
+                problems.append(f"effect {fe.name}: H has shape {fe.H.shape}, expected ({len(self.lags)}, k * {n_i})")
+            if fe.H_causal is not None and fe.H_causal.shape[0] != len(self.causal_lags) + 2:
+                problems.append(f"effect {fe.name}: H_causal has {fe.H_causal.shape[0]} rows, expected {len(self.causal_lags) + 2}")
+            if fe.Theta is not None and (fe.basis is None or fe.Theta.shape[1] != fe.basis.size):
+                problems.append(f"effect {fe.name}: Theta has shape {fe.Theta.shape}, inconsistent with its basis")
         if not problems and not all(np.all(np.isfinite(a)) for a in arrays):
             problems.append("non-finite coefficients")
         if problems:
@@ -302,7 +350,7 @@ class LPVPCModel:
         import hashlib
 
         d = self.to_dict()
-        core = {k: d[k] for k in ("fs", "intrinsic", "reflex")}
+        core = {k: d[k] for k in ("fs", "intrinsic", "reflex", "effects") if k in d}
         return hashlib.sha256(json.dumps(core, sort_keys=True).encode()).hexdigest()
 
 
