@@ -1,0 +1,607 @@
+"""The catalog of physical effects the base LPV-PC model lacks, and the extended model's terms.
+
+Units: position and scheduling rad, velocities rad/s, time s, EMG normalised (1),
+torque N m.
+
+An *effect* is a physically named, linear-in-parameters term added to the LPV-PC torque.
+Two forms cover the catalog, both written once with :mod:`lpvpc.equations` and an ``ops``
+backend, so the numpy prediction, the identification regressors and the exported CasADi
+step / FMU evaluate the same expressions:
+
+* channel-scheduled IRF (intrinsic pathway): the IRF weights get further scheduling
+  functions ``c(k) * G_i(rho(k))`` for each channel c (time, movement direction, EMG):
+
+      tq_e(k) = sum_l  [c(k) G_i(rho(k))] . H_e[l]  pos(k - l)      (eq.intrinsic_torque)
+
+  with its causal counterpart (lags 0..Lc plus velocity and acceleration) for the FMU,
+  fitted like the base model's ``H_causal``;
+* static features f(k) scheduled by a basis G_e(rho) (friction, tonic torque, rho-weighted
+  reflex states):
+
+      tq_e(k) = sum_ij Theta_e[i, j] f_i(k) G_e(rho(k))_j               (eq.scheduled_term)
+
+Signals an effect may need: the extra input channels of :data:`SIGNALS` (they become
+extra inputs of the model's ``predict``, of the CasADi step and of the FMU) and derived
+signals computed inside the model: the perturbation ``velocity``, the slow-movement
+``direction`` memory (:func:`lpvpc.equations.direction_memory_step`, two states) and the
+reflex pathway's states ``x``, drive ``z`` and a second cascade ``w`` (m states) that
+rho-weighted copies of the reflex dynamics need.
+
+Joint estimation: intrinsic-pathway effects are extra columns of the intrinsic
+regressor (appended to Psi_i), so MOESP, the pole refinement, the projection (27)-(28) and
+the separable least squares all see them: the extended model is a real refit, not a
+residual patch. Reflex-pathway effects need the reflex drive z, known only after the
+separable least squares; they are then estimated jointly with the intrinsic part (all
+intrinsic coefficients re-solved) with the identified reflex held.
+
+Settings candidates (:data:`SETTINGS`) are not terms: they name an estimator setting that
+is probably wrong (reflex delay, IRF length, basis orders) and the variants to try.
+
+Adding an effect to the catalog: write one :class:`Effect` (name, pathway, one-sentence
+explanation, the signals it needs and a ``channels`` and/or ``features`` function of a
+:class:`Context`) and add it to :data:`CATALOG`. Example (the drift entry)::
+
+    Effect("drift", "intrinsic", "Stiffness changes during the trial ...",
+           signals=("trial_time",), channels=lambda c, o: [c.trial_time * (1 / 60.0)])
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from . import equations as eq
+from .basis import NUMPY, Basis
+from .errors import DataError
+
+# --------------------------------------------------------------------------- signals
+
+#: Extra input channels an effect may need: name -> (unit, meaning).
+SIGNALS = {
+    "trial_time": ("s", "time since the start of the trial"),
+    "scheduling_velocity": ("rad/s", "velocity of the slow (unperturbed) movement, d rho / dt"),
+    "emg": ("1", "normalised EMG envelope (background activation) in the perturbed trial"),
+    "emg_ut": ("1", "normalised EMG envelope in the unperturbed reference trial"),
+}
+#: Order of the extra inputs in the CasADi step and the FMU.
+SIGNAL_ORDER = tuple(SIGNALS)
+
+DRIFT_TIME_SCALE = 60.0  # s: drift channel is time in minutes
+FRICTION_SCALES = (0.01, 0.03, 0.1)  # rad/s: velocity scales of the smoothed friction sign
+DIRECTION_V_MIN = 0.05  # rad/s: slower movement does not change the remembered direction
+DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the latch
+DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
+
+
+class Context:
+    """Signals available to effect terms at a sample (CasADi) or over a record (numpy
+    (N, 1) columns). Attributes: ``rho``, ``velocity`` (perturbation, rad/s), the extra
+    inputs of :data:`SIGNALS` that were given, ``direction`` (slow-movement memory, -1..1),
+    ``x`` (list of m reflex states), ``z`` (reflex drive), ``w`` (list of m second-cascade
+    states)."""
+
+    def __init__(self, **signals):
+        self.__dict__.update(signals)
+
+    def has(self, name) -> bool:
+        return getattr(self, name, None) is not None
+
+
+# --------------------------------------------------------------------------- catalog
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A catalog entry.
+
+    ``channels(ctx, ops)`` returns the channels that schedule an extra intrinsic IRF;
+    ``features(ctx, ops, options)`` returns static features scheduled by a rho basis of
+    order ``feature_order``. ``signals`` are required inputs, ``optional_signals`` are
+    used when the data have them (recorded in the fitted effect's options), ``derived``
+    names derived signals ("direction", "reflex").
+    """
+
+    name: str
+    pathway: str
+    explanation: str
+    signals: tuple = ()
+    optional_signals: tuple = ()
+    derived: tuple = ()
+    channels: Callable | None = None
+    features: Callable | None = None
+    feature_order: int = 0
+    feature_names: Callable | None = None
+    kind: str = "effect"
+
+    @property
+    def uses_reflex(self) -> bool:
+        return "reflex" in self.derived
+
+
+def _background_features(c, ops, options):
+    out = [c.emg]
+    if options.get("emg_ut"):
+        out.append(c.emg_ut)
+    return out
+
+
+def _reflex_dynamics_features(c, ops, options):
+    return list(c.x) + [c.z] + list(c.w)
+
+
+CATALOG: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        Effect(
+            "drift", "intrinsic",
+            "Joint stiffness changes slowly during the trial (fatigue, habituation, thixotropy): "
+            "the intrinsic impulse response drifts with the time since the trial started.",
+            signals=("trial_time",),
+            channels=lambda c, o: [c.trial_time * (1.0 / DRIFT_TIME_SCALE)],
+        ),
+        Effect(
+            "nonlinear_viscosity", "intrinsic",
+            "Part of the joint's damping is friction-like (Coulomb friction of tissue and "
+            "joint surfaces): a torque that saturates with the undelayed joint velocity "
+            "instead of growing in proportion to it.",
+            signals=("scheduling_velocity",),
+            features=lambda c, o, opt: [eq.friction_difference(c.velocity, c.scheduling_velocity, s, o)
+                                        for s in FRICTION_SCALES],
+            feature_order=1,
+            feature_names=lambda opt: [f"tanh friction, scale {s:g} rad/s" for s in FRICTION_SCALES],
+        ),
+        Effect(
+            "direction_dependent_stiffness", "intrinsic",
+            "Stiffness depends on the direction of the last slow movement (torque-angle "
+            "hysteresis, muscle thixotropy): the joint is stiffer after moving one way than "
+            "after moving the other way to the same position.",
+            signals=("scheduling_velocity",),
+            derived=("direction",),
+            channels=lambda c, o: [c.direction],
+        ),
+        Effect(
+            "background_activation", "intrinsic",
+            "Background muscle activation (measured as EMG) adds short-range stiffness and "
+            "tonic torque: the activation is a further scheduling variable of the intrinsic "
+            "impulse response.",
+            signals=("emg",),
+            optional_signals=("emg_ut",),
+            channels=lambda c, o: [c.emg],
+            features=_background_features,
+            feature_order=0,
+            feature_names=lambda opt: ["tonic torque (emg)"] + (["tonic torque (emg_ut)"] if opt.get("emg_ut") else []),
+        ),
+        Effect(
+            "position_dependent_reflex_dynamics", "reflex",
+            "The reflex loop's linear dynamics (muscle activation and contraction speed) "
+            "change with joint position: the reflex states and their second cascade are "
+            "weighted by functions of position.",
+            derived=("reflex",),
+            features=_reflex_dynamics_features,
+            feature_order=2,
+            feature_names=lambda opt: ([f"reflex state x{i}" for i in range(opt["m"])] + ["reflex drive z"]
+                                       + [f"reflex cascade w{i}" for i in range(opt["m"])]),
+        ),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A settings candidate: an estimator setting that may be wrong, with the variants to
+    try (``variants(settings, fs)`` -> list of dicts of changed settings)."""
+
+    name: str
+    pathway: str
+    explanation: str
+    variants: Callable
+    kind: str = "setting"
+    signals: tuple = ()
+
+
+def _delay_variants(s, fs):
+    d0 = int(round(s["reflex_delay"] * fs))
+    lo, hi = max(1, int(round(0.020 * fs)), s["irf_lags"]), int(round(0.080 * fs))
+    return [{"reflex_delay": d / fs} for d in range(lo, hi + 1) if d != d0]
+
+
+def _irf_variants(s, fs):
+    d = int(round(s["reflex_delay"] * fs))
+    return [{"irf_lags": L} for L in range(s["irf_lags"] + 1, min(s["irf_lags"] + 3, d) + 1)]
+
+
+SETTINGS: dict[str, Setting] = {
+    c.name: c
+    for c in (
+        Setting("reflex_delay", "reflex",
+                "The reflex loop delay differs from the assumed one: the delayed velocity that "
+                "drives the reflex is taken at the wrong time.",
+                _delay_variants),
+        Setting("irf_length", "intrinsic",
+                "The intrinsic impulse response is longer than the IRF lags allow (tissue "
+                "viscoelasticity, actuator or sensor dynamics).",
+                _irf_variants),
+        Setting("intrinsic_basis_order", "intrinsic",
+                "Stiffness varies with position more sharply than the intrinsic basis order "
+                "can follow.",
+                lambda s, fs: [{"intrinsic_order": s["intrinsic_order"] + k} for k in (1, 2)]),
+        Setting("reflex_basis_order", "reflex",
+                "The reflex nonlinearity (gain, threshold, their position dependence) is "
+                "sharper than its basis orders can follow.",
+                lambda s, fs: [{"reflex_order": s["reflex_order"] + 2},
+                               {"velocity_order": s["velocity_order"] + 2}]),
+    )
+}
+
+
+def describe(name) -> str:
+    """The one-sentence explanation of a catalog effect or settings candidate."""
+    entry = CATALOG.get(name) or SETTINGS.get(name)
+    if entry is None:
+        raise KeyError(name)
+    return entry.explanation
+
+
+def check_effects(effects) -> tuple:
+    """Effect names as a tuple; raises ValueError naming unknown ones."""
+    if isinstance(effects, str):
+        effects = (effects,)
+    effects = tuple(effects or ())
+    unknown = [e for e in effects if e not in CATALOG]
+    if unknown:
+        hint = [e for e in unknown if e in SETTINGS]
+        extra = (f" ({', '.join(hint)} is an estimator setting, not an effect: change the setting instead)"
+                 if hint else "")
+        raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(CATALOG)}{extra}")
+    if len(set(effects)) != len(effects):
+        raise ValueError(f"effect listed twice: {list(effects)}")
+    return effects
+
+
+# --------------------------------------------------------------------------- fitted terms
+
+
+@dataclass
+class FittedEffect:
+    """An identified effect term of an extended model.
+
+    ``H``: (n_lags, n_channels * n_i) two-sided IRF coefficients of the channel-scheduled
+    IRF (N m/rad per channel unit), ``H_causal``: (Lc + 3, n_channels * n_i) its causal
+    form; ``Theta``: (n_features, n_b) static coefficients for ``basis`` (a Basis in rho);
+    ``options``: what the term was built with (e.g. whether ``emg_ut`` was used, m).
+    """
+
+    name: str
+    H: np.ndarray | None = None
+    H_causal: np.ndarray | None = None
+    Theta: np.ndarray | None = None
+    basis: Basis | None = None
+    options: dict = field(default_factory=dict)
+
+    @property
+    def effect(self) -> Effect:
+        return CATALOG[self.name]
+
+    @property
+    def signals(self) -> tuple:
+        e = self.effect
+        return tuple(e.signals) + tuple(s for s in e.optional_signals if self.options.get(s))
+
+    def to_dict(self) -> dict:
+        d = {"name": self.name, "options": self.options}
+        for key in ("H", "H_causal", "Theta"):
+            a = getattr(self, key)
+            if a is not None:
+                d[key] = np.asarray(a).tolist()
+        if self.basis is not None:
+            d["basis"] = self.basis.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d) -> "FittedEffect":
+        if d["name"] not in CATALOG:
+            raise ValueError(f"unknown effect {d['name']!r}")
+        arr = {k: (np.array(d[k], dtype=float) if k in d else None) for k in ("H", "H_causal", "Theta")}
+        return cls(name=d["name"], basis=Basis.from_dict(d["basis"]) if "basis" in d else None,
+                   options=dict(d.get("options", {})), **arr)
+
+    def coefficient_blocks(self, variant) -> list:
+        """(name, array) of the coefficients the export variant uses."""
+        out = []
+        H = self.H_causal if variant == "causal" else self.H
+        if H is not None:
+            out.append((f"{self.name}.{'H_causal' if variant == 'causal' else 'H'}", np.atleast_2d(H)))
+        if self.Theta is not None:
+            out.append((f"{self.name}.Theta", np.atleast_2d(self.Theta)))
+        return out
+
+
+def model_signals(model) -> tuple:
+    """Extra input signals an (extended) model needs, in :data:`SIGNAL_ORDER`."""
+    need = {s for fe in getattr(model, "effects", ()) for s in fe.signals}
+    return tuple(s for s in SIGNAL_ORDER if s in need)
+
+
+def model_derived(model) -> set:
+    return {d for fe in getattr(model, "effects", ()) for d in fe.effect.derived}
+
+
+def effect_term(fe: FittedEffect, ctx: Context, position_signals, rho_basis, variant, ops=NUMPY):
+    """Torque of one fitted effect (N m) from a context; the one definition used by numpy
+    prediction and the CasADi step. ``position_signals``: lagged positions (two-sided) or
+    causal signals, matching ``variant`` ("exact"/"two_sided" or "causal")."""
+    e = fe.effect
+    tq = 0.0
+    if e.channels is not None:
+        H = fe.H_causal if variant == "causal" else fe.H
+        sched = ops.hcat([c * rho_basis for c in e.channels(ctx, ops)])
+        tq = tq + eq.intrinsic_torque(position_signals, sched, H, ops)
+    if e.features is not None:
+        F = ops.hcat(e.features(ctx, ops, fe.options))
+        tq = tq + eq.scheduled_term(F, fe.basis.evaluate(ctx.rho, ops), fe.Theta, ops)
+    return tq
+
+
+# --------------------------------------------------------------------------- numpy records
+
+
+def default_signals(scheduling, fs, signals=None) -> dict:
+    """Signals with the derivable defaults filled in: ``trial_time`` = k / fs and
+    ``scheduling_velocity`` = numpy.gradient(rho) * fs (as :func:`lpvpc.data.pair_trials`)."""
+    n = len(scheduling)
+    out = {k: np.asarray(v, dtype=float) for k, v in (signals or {}).items() if v is not None}
+    out.setdefault("trial_time", np.arange(n) / fs)
+    out.setdefault("scheduling_velocity", np.gradient(np.asarray(scheduling, dtype=float)) * fs if n > 1 else np.zeros(n))
+    return out
+
+
+def signals_from_data(data) -> dict:
+    """Extra signals of :class:`lpvpc.data.PerturbationData` under the names of
+    :data:`SIGNALS` (trial_time from its time column, starting at 0)."""
+    extra = getattr(data, "extra", {}) or {}
+    out = {}
+    if "time" in extra:
+        t = np.asarray(extra["time"], dtype=float)
+        out["trial_time"] = t - t[0]
+    if "ut_velocity" in extra:
+        out["scheduling_velocity"] = np.asarray(extra["ut_velocity"], dtype=float)
+    for k in ("emg", "emg_ut"):
+        if k in extra:
+            out[k] = np.asarray(extra[k], dtype=float)
+    return default_signals(data.scheduling, data.fs, out)
+
+
+def check_signals(signals: dict, needed, n: int, source="data"):
+    problems = []
+    for name in needed:
+        if name not in signals:
+            problems.append(f"channel '{name}' ({SIGNALS[name][1]}, {SIGNALS[name][0]}) is missing: the model's effects need it")
+            continue
+        x = np.asarray(signals[name])
+        if x.shape != (n,):
+            problems.append(f"channel '{name}': expected {n} samples, got shape {x.shape}")
+        elif not np.all(np.isfinite(x)):
+            bad = ~np.isfinite(x)
+            problems.append(f"channel {name}: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}")
+    if problems:
+        raise DataError(problems, source=source)
+
+
+def record_context(position, scheduling, fs, signals, *, velocity=None, derived=(), reflex=None) -> Context:
+    """numpy Context for a record: (N, 1) columns. ``reflex`` = (A, B, C, z) when the
+    reflex-derived signals are needed."""
+    col = lambda a: np.asarray(a, dtype=float).reshape(-1, 1)  # noqa: E731
+    vel = eq.velocity(position, fs) if velocity is None else velocity
+    ctx = {"rho": col(scheduling), "velocity": col(vel)}
+    for k, v in signals.items():
+        ctx[k] = col(v)
+    if "direction" in derived:
+        alpha = 1.0 - math.exp(-1.0 / (DIRECTION_TAU * fs))
+        ctx["direction"] = col(eq.direction_memory(signals["scheduling_velocity"], DIRECTION_V_MIN,
+                                                   DIRECTION_V_WIDTH, alpha))
+    if "reflex" in derived:
+        A, B, C, z = reflex
+        X = eq.state_trajectory(A, B, z)
+        W = eq.state_trajectory(A, B, X @ np.asarray(C, dtype=float))
+        ctx["x"] = [X[:, [i]] for i in range(X.shape[1])]
+        ctx["z"] = col(z)
+        ctx["w"] = [W[:, [i]] for i in range(W.shape[1])]
+    return Context(**ctx)
+
+
+def direction_alpha(fs) -> float:
+    return 1.0 - math.exp(-1.0 / (DIRECTION_TAU * fs))
+
+
+def predict_effects(model, position, scheduling, signals=None, *, causal=False, velocity=None,
+                    acceleration=None, z=None) -> dict:
+    """Torques (N m) of the model's effect terms over a record: {name: (pathway, torque)}."""
+    if not model.effects:
+        return {}
+    n = len(position)
+    sig = default_signals(scheduling, model.fs, signals)
+    check_signals(sig, model_signals(model), n)
+    derived = model_derived(model)
+    reflex = None
+    if "reflex" in derived:
+        if z is None:
+            z = model.reflex_drive(position, scheduling)
+        reflex = (model.A, model.B, model.C, z)
+    ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex)
+    if causal:
+        S = eq.causal_signals(position, model.fs, model.causal_lags, velocity, acceleration)
+    else:
+        S = eq.lagged(position, model.lags)
+    Gi = model.intrinsic_basis.evaluate(scheduling)
+    out = {}
+    for fe in model.effects:
+        tq = effect_term(fe, ctx, S, Gi, "causal" if causal else "two_sided")
+        out[fe.name] = (fe.effect.pathway, np.asarray(tq, dtype=float).reshape(-1) * np.ones(n))
+    return out
+
+
+# --------------------------------------------------------------------------- regressors
+
+
+def _kron_rows(a, b):
+    """Row-wise Kronecker product: row k is a[k] kron b[k]."""
+    return (a[:, :, None] * b[:, None, :]).reshape(len(a), -1)
+
+
+def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, Gi_val, basis: Basis | None):
+    """Regressor columns of one effect over a record: (irf_columns or None, static or None).
+
+    IRF columns are ordered ``l * n_s + j`` (H.ravel()), static ones ``i * n_b + j``
+    (Theta.ravel()), so the coefficients reshape directly."""
+    irf = static = None
+    if effect.channels is not None:
+        sched = np.column_stack([c * Gi_val for c in effect.channels(ctx, NUMPY)])
+        irf = _kron_rows(eq.lagged(position, lags), sched)
+    if effect.features is not None:
+        F = np.column_stack(effect.features(ctx, NUMPY, options))
+        static = _kron_rows(F, basis.evaluate(ctx.rho[:, 0]))
+    return irf, static
+
+
+def effect_options(effect: Effect, signals: dict, model_like=None) -> dict:
+    opts = {s: True for s in effect.optional_signals if s in signals}
+    if effect.uses_reflex and model_like is not None:
+        opts["m"] = int(np.atleast_2d(model_like.A).shape[0])
+    return opts
+
+
+def effect_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
+    """The rho basis of an effect's static features (same family and range as the
+    intrinsic basis, the effect's own order)."""
+    if effect.features is None:
+        return None
+    family = rho_basis.family
+    return Basis(family=family, order=effect.feature_order, lo=rho_basis.lo, hi=rho_basis.hi)
+
+
+def causal_irf(position, fs, causal_lags, sched_values, two_sided_torque):
+    """Causal IRF coefficients (Lc + 3, n_s) fitted to a two-sided IRF torque (as the
+    base model's H_causal)."""
+    S_c = eq.causal_signals(position, fs, causal_lags)
+    Psi_c = _kron_rows(S_c, sched_values)
+    return np.linalg.lstsq(Psi_c, two_sided_torque, rcond=None)[0].reshape(S_c.shape[1], sched_values.shape[1])
+
+
+class EffectDesign:
+    """Regressor columns of a list of effects on one record, and the bookkeeping that turns
+    estimated coefficients into :class:`FittedEffect` terms.
+
+    ``model_like`` supplies fs, lags, causal_lags, intrinsic_basis (and A, B, C, Omega
+    bases for reflex-pathway effects, via ``reflex_drive``).
+    """
+
+    def __init__(self, effects, position, scheduling, fs, lags, intrinsic_basis: Basis, signals: dict,
+                 *, source="data"):
+        self.names = check_effects(effects)
+        self.position = np.asarray(position, dtype=float)
+        self.scheduling = np.asarray(scheduling, dtype=float)
+        self.fs = float(fs)
+        self.lags = list(lags)
+        self.intrinsic_basis = intrinsic_basis
+        self.signals = default_signals(self.scheduling, self.fs, signals)
+        self.effects = [CATALOG[n] for n in self.names]
+        needed = sorted({s for e in self.effects for s in e.signals})
+        check_signals(self.signals, needed, len(self.position), source)
+        self.Gi_val = intrinsic_basis.evaluate(self.scheduling)
+        self.intrinsic_effects = [e for e in self.effects if not e.uses_reflex]
+        self.reflex_effects = [e for e in self.effects if e.uses_reflex]
+        derived = {d for e in self.intrinsic_effects for d in e.derived}
+        self._ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=derived)
+        self.options = {e.name: effect_options(e, self.signals) for e in self.intrinsic_effects}
+        self.bases = {e.name: effect_basis(e, intrinsic_basis) for e in self.effects}
+        self.blocks = []  # (effect name, "irf"|"static", n columns)
+        cols = []
+        for e in self.intrinsic_effects:
+            irf, static = effect_columns(e, self.options[e.name], self._ctx, self.position, self.lags, self.Gi_val,
+                                         self.bases[e.name])
+            for kind, c in (("irf", irf), ("static", static)):
+                if c is not None:
+                    self.blocks.append((e.name, kind, c.shape[1]))
+                    cols.append(c)
+        n = len(self.position)
+        self.columns = np.hstack(cols) if cols else np.zeros((n, 0))
+
+    def reflex_columns(self, model):
+        """Columns of the reflex-pathway effects given an identified (base) model."""
+        if not self.reflex_effects:
+            return np.zeros((len(self.position), 0)), []
+        z = model.reflex_drive(self.position, self.scheduling)
+        ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=("reflex",),
+                             reflex=(model.A, model.B, model.C, z))
+        cols, blocks = [], []
+        for e in self.reflex_effects:
+            self.options[e.name] = effect_options(e, self.signals, model)
+            _, static = effect_columns(e, self.options[e.name], ctx, self.position, self.lags, self.Gi_val,
+                                       self.bases[e.name])
+            cols.append(static)
+            blocks.append((e.name, "static", static.shape[1]))
+        return np.hstack(cols), blocks
+
+    def fitted(self, theta, blocks, causal_lags) -> list:
+        """FittedEffect terms from the coefficients of ``blocks`` (in column order)."""
+        n_i = self.intrinsic_basis.size
+        out, offset = {}, 0
+        for name, kind, width in blocks:
+            coef = np.asarray(theta[offset: offset + width], dtype=float)
+            offset += width
+            e = CATALOG[name]
+            fe = out.setdefault(name, FittedEffect(name=name, basis=self.bases[name], options=dict(self.options[name])))
+            if kind == "irf":
+                H = coef.reshape(len(self.lags), -1)
+                fe.H = H
+                sched = np.column_stack([c * self.Gi_val for c in e.channels(self._ctx, NUMPY)])
+                two_sided = eq.intrinsic_torque(eq.lagged(self.position, self.lags), sched, H)
+                fe.H_causal = causal_irf(self.position, self.fs, causal_lags, sched, two_sided)
+                assert H.shape[1] % n_i == 0
+            else:
+                fe.Theta = coef.reshape(-1, self.bases[name].size)
+        return [out[n] for n in self.names if n in out]
+
+
+def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, y):
+    """Complete an extended fit: attach the intrinsic-pathway effects estimated with the
+    base model (``theta_effects``, the effect part of the projection's solution), then,
+    if there are reflex-pathway effects, re-solve the intrinsic part, the intrinsic effects
+    and the reflex effects jointly with the identified reflex held. Updates ``model``
+    (H, H_causal, effects) in place."""
+    effects = design.fitted(theta_effects, design.blocks, model.causal_lags)
+    if design.reflex_effects:
+        model.effects = []
+        X_r, blocks_r = design.reflex_columns(model)
+        tq_r = model.predict(design.position, design.scheduling, warn=False).reflex
+        X = np.hstack([Psi_i_base, design.columns, X_r])
+        scale = np.sqrt(np.mean(X**2, axis=0))
+        scale[scale == 0] = 1.0
+        theta = np.linalg.lstsq(X / scale, y - tq_r, rcond=None)[0] / scale
+        n_b = Psi_i_base.shape[1]
+        model.H = theta[:n_b].reshape(model.H.shape)
+        model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val, Psi_i_base @ theta[:n_b])
+        n_e = design.columns.shape[1]
+        effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
+                                design.blocks + blocks_r, model.causal_lags)
+    model.effects = effects
+    return model
+
+
+def reference_emg(ut_trial, data):
+    """Attach the unperturbed trial's EMG as ``data.extra['emg_ut']`` (decimated like the
+    perturbation data). ``ut_trial``: a :class:`lpvpc.data.Trial` or a path. Returns data."""
+    from .data import Trial, decimate_signal, decimation_factor, load_trial
+
+    ut = ut_trial if isinstance(ut_trial, Trial) else load_trial(ut_trial)
+    if "emg" not in ut.channels:
+        return data
+    q = decimation_factor(ut.fs, data.fs)
+    emg = np.asarray(ut.channels["emg"], dtype=float)
+    emg = decimate_signal(emg, q) if q > 1 else emg
+    if len(emg) == data.n:
+        data.extra["emg_ut"] = emg
+    return data
