@@ -263,3 +263,95 @@ def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None):
     ax.set_ylim(bottom=0)
     ax.legend(fontsize="small", loc="upper left")
     return ax
+
+
+# --------------------------------------------------------------------------- diagnosis
+
+
+def plot_residual_diagnosis(diag, data, fig=None):
+    """Where a model fails (:class:`lpvpc.diagnose.Diagnosis` on ``data``): residual over
+    time, residual RMS by position and by perturbation velocity, unexplained share per
+    frequency band, and cross-correlation of the residual with the perturbation velocity
+    and the delayed velocity (negative lags: residual leads). Returns the axes (2 x 3)."""
+    import matplotlib.pyplot as plt
+
+    fig = fig or plt.figure(figsize=(13, 7))
+    axes = fig.subplots(2, 3)
+    t = np.asarray(data.time) - np.asarray(data.time)[0]
+    y, r = np.asarray(data.torque), np.asarray(diag.residual)
+    ax = axes[0, 0]
+    ax.plot(t, y, color="0.75", lw=0.6, label="measured")
+    ax.plot(t, r, color="C3", lw=0.6, label="residual")
+    ax.set(xlabel="time (s)", ylabel="torque (N m)", title=f"VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.3g} N m")
+    ax.legend(loc="upper right", fontsize=8)
+    for ax, key in ((axes[0, 1], "position"), (axes[0, 2], "velocity")):
+        bins = diag.where[key]["bins"]
+        ax.bar(range(len(bins)), [b["residual_rms"] for b in bins], color="C3")
+        ax.set_xticks(range(len(bins)))
+        ax.set_xticklabels([b["bin"] for b in bins], rotation=35, ha="right", fontsize=7)
+        ax.set(ylabel="residual RMS (N m)", title=f"by {diag.where[key]['by']}")
+    ax = axes[1, 0]
+    fb = diag.where["frequency"]
+    ax.bar(range(len(fb)), [100 * b["unexplained_fraction"] for b in fb], color="C0")
+    ax.set_xticks(range(len(fb)))
+    ax.set_xticklabels([f"{b['band_hz'][0]:g}-{b['band_hz'][1]:g}" for b in fb], fontsize=7)
+    ax.set(xlabel="band (Hz)", ylabel="unexplained power (%)", title="by frequency band")
+    ax = axes[1, 1]
+    for name, c in diag.where["cross_correlation"].items():
+        if name in ("velocity", "delayed_velocity", "position"):
+            lags = np.linspace(c["lags_s"][0], c["lags_s"][1], len(c["ccf"]))
+            ax.plot(lags, c["ccf"], label=name)
+            ax.axhspan(-c["band_99"], c["band_99"], color="0.9")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.set(xlabel="lag (s)", ylabel="correlation", title="residual vs input")
+    ax.legend(fontsize=7)
+    ax = axes[1, 2]
+    cands = [c for c in diag.candidates if c.available][:8]
+    ax.barh(range(len(cands))[::-1], [c.vaf_gain for c in cands],
+            color=["C2" if c.significant else "0.6" for c in cands])
+    ax.set_yticks(range(len(cands))[::-1])
+    ax.set_yticklabels([c.effect for c in cands], fontsize=7)
+    ax.axvline(diag.settings.get("min_gain", 0.0), color="k", ls=":", lw=0.8)
+    ax.set(xlabel="held-out VAF gain (pp)", title="candidates (green: significant)")
+    fig.tight_layout()
+    return axes
+
+
+def plot_ladder(steps, ax=None):
+    """Held-out VAF (%) and RMSE (N m) of each model on the improve ladder. ``steps``: list
+    of dicts with ``label``, ``heldout_vaf``, ``heldout_rmse``. Returns (ax, twin ax)."""
+    ax = _new_axes(ax)
+    x = np.arange(len(steps))
+    ax.plot(x, [s["heldout_vaf"] for s in steps], "o-", color="C0")
+    ax.set_ylabel("held-out VAF (%)", color="C0")
+    ax2 = ax.twinx()
+    ax2.plot(x, [s["heldout_rmse"] for s in steps], "s--", color="C3")
+    ax2.set_ylabel("held-out RMSE (N m)", color="C3")
+    ax.set_xticks(x)
+    ax.set_xticklabels([s["label"] for s in steps], rotation=20, ha="right", fontsize=8)
+    ax.set_title("improve: the error falls as effects are added")
+    return ax, ax2
+
+
+def plot_residual_change(time, measured, before, after, labels=("before", "after"), fs=None, axes=None):
+    """Residuals (N m) before and after a step of the improve loop: over time and as power
+    spectra. Returns the two axes."""
+    import matplotlib.pyplot as plt
+    import scipy.signal
+
+    if axes is None:
+        _, axes = plt.subplots(1, 2, figsize=(11, 3.5))
+    t = np.asarray(time) - np.asarray(time)[0]
+    ax = axes[0]
+    ax.plot(t, before, lw=0.6, color="C3", label=f"residual {labels[0]}")
+    ax.plot(t, after, lw=0.6, color="C2", label=f"residual {labels[1]}", alpha=0.8)
+    ax.set(xlabel="time (s)", ylabel="torque (N m)")
+    ax.legend(fontsize=8, loc="upper right")
+    ax = axes[1]
+    fs = fs or 1.0 / np.median(np.diff(t))
+    for x, lab, c in ((measured, "measured", "0.6"), (before, labels[0], "C3"), (after, labels[1], "C2")):
+        f, P = scipy.signal.welch(np.asarray(x), fs, nperseg=min(len(x), int(8 * fs)))
+        ax.semilogy(f[1:], P[1:], color=c, label=lab)
+    ax.set(xlabel="frequency (Hz)", ylabel="PSD (N^2 m^2/Hz)")
+    ax.legend(fontsize=8)
+    return axes
