@@ -1,0 +1,746 @@
+"""Diagnosis: where a model fails on data it was not fitted to, and which physical effect
+is missing.
+
+Units: torque N m, position rad, velocity rad/s, time s, frequency Hz; VAF and VAF gains
+in percent / percentage points (pp).
+
+Two questions (see :func:`diagnose`):
+
+1. *Where does it fail?* (:func:`where_it_fails`) The residual (measured minus predicted
+   torque) of the model as it is, binned by position, perturbation velocity and its sign,
+   slow-movement direction, time in the trial, frequency band, around perturbation steps
+   and trajectory transitions; its whiteness; its cross-correlation with the perturbation
+   position, velocity and delayed velocity at negative and positive lags.
+
+2. *Which physical effect is missing?* Every candidate of the catalog
+   (:mod:`lpvpc.effects`: effects and settings) is fitted and scored on held-out data.
+   Scoring uses the model's linear surrogate: with the model's structure held (IRF lags,
+   bases and their ranges, reflex delay and poles), the torque is linear in the intrinsic
+   IRF coefficients, in an unstructured reflex nonlinearity (the blocks of eq. 25) and in
+   the coefficients of the model's effects. Each candidate adds columns to it (an effect)
+   or replaces some (a setting: its variants are selected inside each training fold by
+   training error). Base and candidate are fitted on K - 1 contiguous folds of the record
+   and predict the held-out fold (blocked cross-validation, K = 10): the held-out VAF gain
+   pools all folds. Significance: the paired, one-sided test of the mean of
+   d(k) = r_base(k)^2 - r_candidate(k)^2 over held-out samples, with the variance from
+   means over 2-s blocks (the residual is coloured, samples are not independent); extra
+   parameters are accounted for because every residual is held out. A candidate is
+   significant when its p-value is below alpha / n_candidates (Bonferroni, alpha = 0.1) AND
+   its gain is at least ``min_gain`` (0.15) pp: a real but negligible improvement is not an
+   alarm. (The thresholds were set on the virtual subject; benchmarks/bench_diagnose.py
+   records the false-alarm and detection rates they give.)
+
+   When no candidate is significant, :func:`signal_dependence` says which measured or
+   derived signal the residual depends on most, and through which pathway: the same
+   cross-validated test for probes "static function of s", "intrinsic IRF modulated by
+   s" and "reflex modulated by s" for each signal s.
+
+:class:`Diagnosis` holds the answer; ``to_dict()`` is the ``diagnosis.json`` format
+(candidates in rank order with ``effect``, ``vaf_gain``, ``significant``,
+``explanation``, ...), :func:`write_report` writes a markdown report with plots.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+import scipy.stats
+
+from . import equations as eq
+from .basis import Basis
+from .effects import CATALOG, SETTINGS, EffectDesign, signals_from_data
+from .intrinsic import two_sided_lags
+from .model import vaf
+from .reflex import reflex_input_regressor, reflex_regressor
+
+FOLDS = 10
+BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
+MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains are never called significant
+ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
+
+
+# --------------------------------------------------------------------------- cross-validation
+
+
+def _kron_rows(a, b):
+    return (a[:, :, None] * b[:, None, :]).reshape(len(a), -1)
+
+
+class BlockCV:
+    """Blocked K-fold cross-validation of least-squares fits built from named column blocks.
+
+    Gram products of every pair of blocks are computed once per fold, so fitting any
+    combination of blocks on K - 1 folds costs only a small solve per fold. Columns are
+    scaled to unit RMS; solves use an eigenvalue pseudo-inverse (rank-deficient
+    combinations are handled, not refused).
+    """
+
+    def __init__(self, y, folds=FOLDS):
+        self.y = np.asarray(y, dtype=float)
+        n = len(self.y)
+        self.edges = np.linspace(0, n, folds + 1).astype(int)
+        self.K = folds
+        self.blocks = {}
+        self._cross = {}
+        self._yb = {}
+        self.yy = np.array([self.y[a:b] @ self.y[a:b] for a, b in self._slices()])
+
+    def _slices(self):
+        return list(zip(self.edges[:-1], self.edges[1:]))
+
+    def add(self, name, X):
+        X = np.asarray(X, dtype=float)
+        if X.ndim == 1:
+            X = X[:, None]
+        s = np.sqrt(np.mean(X**2, axis=0))
+        s[s == 0] = 1.0
+        self.blocks[name] = X / s
+        return name
+
+    def _pair(self, a, b):
+        """Per-fold products A_f^T B_f, shape (K, p_a, p_b) (cached, either order)."""
+        if (a, b) in self._cross:
+            return self._cross[(a, b)]
+        if (b, a) in self._cross:
+            return np.transpose(self._cross[(b, a)], (0, 2, 1))
+        A, B = self.blocks[a], self.blocks[b]
+        self._cross[(a, b)] = np.stack([A[i:j].T @ B[i:j] for i, j in self._slices()])
+        return self._cross[(a, b)]
+
+    def _ycross(self, a):
+        if a not in self._yb:
+            A = self.blocks[a]
+            self._yb[a] = np.stack([A[i:j].T @ self.y[i:j] for i, j in self._slices()])
+        return self._yb[a]
+
+    def fold_systems(self, names):
+        """Per fold: (G_f, b_f) of the held-out fold for the blocks ``names``."""
+        G = np.concatenate([np.concatenate([self._pair(a, b) for b in names], axis=2) for a in names], axis=1)
+        b = np.concatenate([self._ycross(a) for a in names], axis=1)
+        return G, b
+
+    def fit(self, names):
+        """Held-out residual (N,) and training RSS per fold for the blocks ``names``."""
+        G_f, b_f = self.fold_systems(names)
+        G_all, b_all, yy_all = G_f.sum(0), b_f.sum(0), self.yy.sum()
+        resid = np.empty_like(self.y)
+        rss_train = np.empty(self.K)
+        X = np.hstack([self.blocks[a] for a in names])
+        for f, (i, j) in enumerate(self._slices()):
+            G, b = G_all - G_f[f], b_all - b_f[f]
+            beta = _solve_psd(G, b)
+            resid[i:j] = self.y[i:j] - X[i:j] @ beta
+            rss_train[f] = (yy_all - self.yy[f]) - 2 * beta @ b + beta @ G @ beta
+        return resid, rss_train
+
+
+RIDGE = 1e-8  # relative to the largest eigenvalue of the (column-scaled) Gram matrix
+
+
+def _solve_psd(G, b, ridge=RIDGE):
+    """Least-squares coefficients from normal equations with a tiny relative ridge.
+
+    The unstructured reflex blocks (eq. 25) are nearly collinear (their filters differ
+    little); without the ridge, directions with eigenvalues ~1e-12 of the largest turn
+    fold-to-fold noise into large held-out errors. The intrinsic block's smallest
+    eigenvalues (~1e-5) are untouched."""
+    w, V = scipy.linalg.eigh(G, check_finite=False)
+    w = np.maximum(w, 0.0)
+    return V @ ((V.T @ b) / (w + ridge * max(w[-1], 1e-300)))
+
+
+def paired_test(r0, r1, fs, block_s=BLOCK_S):
+    """One-sided test that the squared held-out residual r1 is smaller than r0 on average.
+
+    Returns (t, p). The variance of the mean of d = r0^2 - r1^2 comes from means over
+    blocks of ``block_s`` seconds (batch means), which absorbs the residual's colour.
+    """
+    d = r0**2 - r1**2
+    b = max(1, int(round(block_s * fs)))
+    nb = len(d) // b
+    if nb < 3:
+        return 0.0, 1.0
+    means = d[: nb * b].reshape(nb, b).mean(axis=1)
+    sd = means.std(ddof=1)
+    if sd == 0:
+        return (np.inf, 0.0) if means.mean() > 0 else (0.0, 1.0)
+    t = float(means.mean() / (sd / np.sqrt(nb)))
+    return t, float(scipy.stats.t.sf(t, nb - 1))
+
+
+# --------------------------------------------------------------------------- the surrogate
+
+
+class Surrogate:
+    """The model's structure on a record as blocks of a linear least-squares problem.
+
+    Base blocks: ``intrinsic`` (the IRF, model lags and basis), ``effects`` (the model's
+    own effect terms, if any) and ``reflex`` (eq. 25 blocks of an unstructured reflex
+    nonlinearity through the model's reflex poles, at the model's delay).
+    """
+
+    def __init__(self, model, data, folds=FOLDS):
+        self.model = model
+        self.data = data
+        self.p = np.asarray(data.position, dtype=float)
+        self.rho = np.asarray(data.scheduling, dtype=float)
+        self.fs = float(data.fs)
+        self.signals = signals_from_data(data)
+        self.cv = BlockCV(data.torque, folds)
+        self.L = -min(model.lags)
+        self.base = ["intrinsic", "reflex"]
+        self.cv.add("intrinsic", self.intrinsic_block(model.lags, model.intrinsic_basis))
+        self.cv.add("reflex", self.reflex_block(model.delay, model.velocity_basis, model.reflex_rho_basis))
+        names = [fe.name for fe in model.effects]
+        if names:
+            design = EffectDesign(names, self.p, self.rho, self.fs, model.lags, model.intrinsic_basis, self.signals,
+                                  source=data.source or "data")
+            X_r, _ = design.reflex_columns(model)
+            self.cv.add("effects", np.hstack([design.columns, X_r]))
+            self.base.insert(1, "effects")
+        self.z = None
+
+    def intrinsic_block(self, lags, basis: Basis):
+        return _kron_rows(eq.lagged(self.p, lags), basis.evaluate(self.rho))
+
+    def reflex_block(self, delay, velocity_basis: Basis, rho_basis: Basis):
+        dvel = eq.delayed_velocity(self.p, self.fs, delay)
+        U = reflex_input_regressor(velocity_basis.evaluate(dvel), rho_basis.evaluate(self.rho))
+        return np.hstack(reflex_regressor(U, self.model.A, self.model.C[None, :]))
+
+    def reflex_drive(self):
+        if self.z is None:
+            self.z = self.model.reflex_drive(self.p, self.rho)
+        return self.z
+
+
+# --------------------------------------------------------------------------- candidates
+
+
+@dataclass
+class CandidateResult:
+    effect: str
+    kind: str  # "effect" or "setting"
+    pathway: str
+    explanation: str
+    vaf_gain: float = float("nan")  # pp, held-out (cross-validated)
+    t: float = float("nan")
+    p_value: float = float("nan")
+    significant: bool = False
+    n_params: int = 0
+    variant: dict | None = None  # settings: the chosen change
+    available: bool = True
+    reason: str = ""
+    signals: tuple = ()
+
+    def to_dict(self) -> dict:
+        d = {"effect": self.effect, "kind": self.kind, "pathway": self.pathway,
+             "vaf_gain": _r(self.vaf_gain), "significant": bool(self.significant),
+             "p_value": _r(self.p_value, 6), "t": _r(self.t, 3), "n_params": int(self.n_params),
+             "explanation": self.explanation, "available": bool(self.available)}
+        if self.variant is not None:
+            d["variant"] = self.variant
+        if self.signals:
+            d["signals"] = list(self.signals)
+        if self.reason:
+            d["reason"] = self.reason
+        return d
+
+
+def _r(x, nd=4):
+    x = float(x)
+    return None if not np.isfinite(x) else round(x, nd)
+
+
+def _effect_candidate(sur: Surrogate, name):
+    """Column block of a catalog effect on the surrogate's record, or a reason it can't be."""
+    e = CATALOG[name]
+    missing = [s for s in e.signals if s not in sur.signals]
+    if missing:
+        return None, f"needs channel(s) {', '.join(missing)}, not in the data"
+    design = EffectDesign([name], sur.p, sur.rho, sur.fs, sur.model.lags, sur.model.intrinsic_basis, sur.signals)
+    X = design.columns
+    if e.uses_reflex:
+        X, _ = design.reflex_columns(sur.model)
+    return X, ""
+
+
+def _setting_variants(sur: Surrogate, name):
+    """[(variant dict, {base block name: replacement block name})] for a settings candidate."""
+    m = sur.model
+    st = dict(m.settings or {})
+    st.setdefault("reflex_delay", m.delay / m.fs)
+    st.setdefault("irf_lags", sur.L)
+    st.setdefault("intrinsic_order", m.intrinsic_basis.order)
+    st.setdefault("reflex_order", m.reflex_rho_basis.order)
+    st.setdefault("velocity_order", m.velocity_basis.order)
+    out = []
+    for k, v in enumerate(SETTINGS[name].variants(st, m.fs)):
+        key = f"{name}:{k}"
+        if "reflex_delay" in v:
+            d = int(round(v["reflex_delay"] * m.fs))
+            if d < 1 or d <= sur.L:
+                continue
+            sur.cv.add(key, sur.reflex_block(d, m.velocity_basis, m.reflex_rho_basis))
+            out.append((v, {"reflex": key}))
+        elif "irf_lags" in v:
+            if v["irf_lags"] >= m.delay + 1:
+                continue
+            sur.cv.add(key, sur.intrinsic_block(two_sided_lags(v["irf_lags"]), m.intrinsic_basis))
+            out.append((v, {"intrinsic": key}))
+        elif "intrinsic_order" in v:
+            b = m.intrinsic_basis
+            sur.cv.add(key, sur.intrinsic_block(m.lags, Basis(b.family, v["intrinsic_order"], b.lo, b.hi, b.extrapolation)))
+            out.append((v, {"intrinsic": key}))
+        elif "reflex_order" in v or "velocity_order" in v:
+            rb, vb = m.reflex_rho_basis, m.velocity_basis
+            if "reflex_order" in v:
+                rb = Basis(rb.family, v["reflex_order"], rb.lo, rb.hi, rb.extrapolation)
+            else:
+                vb = Basis(vb.family, v["velocity_order"], vb.lo, vb.hi, vb.extrapolation)
+            sur.cv.add(key, sur.reflex_block(m.delay, vb, rb))
+            out.append((v, {"reflex": key}))
+    return out
+
+
+def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S):
+    """Fit and score every candidate on the surrogate; returns (results in rank order,
+    base held-out residual)."""
+    cv = sur.cv
+    y = cv.y
+    sst = float(np.sum((y - y.mean()) ** 2))
+    r0, rss0 = cv.fit(sur.base)
+    have = {fe.name for fe in sur.model.effects}
+    names = candidates if candidates is not None else [n for n in CATALOG if n not in have] + list(SETTINGS)
+    results = []
+    for name in names:
+        if name in CATALOG:
+            e = CATALOG[name]
+            res = CandidateResult(name, "effect", e.pathway, e.explanation, signals=tuple(e.signals))
+            X, reason = _effect_candidate(sur, name)
+            if X is None:
+                res.available, res.reason = False, reason
+                results.append(res)
+                continue
+            cv.add(name, X)
+            r1, _ = cv.fit(sur.base + [name])
+            res.n_params = X.shape[1]
+        else:
+            s = SETTINGS[name]
+            res = CandidateResult(name, "setting", s.pathway, s.explanation)
+            variants = _setting_variants(sur, name)
+            if not variants:
+                res.available, res.reason = False, "no admissible variant (e.g. IRF lags must stay below the reflex delay)"
+                results.append(res)
+                continue
+            fits = []
+            for v, repl in variants:
+                blocks = [repl.get(b, b) for b in sur.base]
+                r, rss = cv.fit(blocks)
+                n_par = sum(cv.blocks[b].shape[1] for b in blocks)
+                fits.append((v, r, rss, n_par))
+            # Nested selection: in each fold the variant with the least training error
+            # predicts the held-out fold (no held-out data are used to choose).
+            r1 = np.empty_like(y)
+            chosen = []
+            for f, (i, j) in enumerate(cv._slices()):
+                k = int(np.argmin([ft[2][f] for ft in fits]))
+                chosen.append(k)
+                r1[i:j] = fits[k][1][i:j]
+            k_best = max(set(chosen), key=chosen.count)
+            res.variant = fits[k_best][0]
+            res.n_params = fits[k_best][3] - sum(cv.blocks[b].shape[1] for b in sur.base)
+        res.vaf_gain = 100.0 * float(r0 @ r0 - r1 @ r1) / sst
+        res.t, res.p_value = paired_test(r0, r1, sur.fs, block_s)
+        results.append(res)
+    n_tested = max(1, sum(r.available for r in results))
+    for r in results:
+        r.significant = bool(r.available and r.vaf_gain >= min_gain and r.p_value <= alpha / n_tested)
+    results.sort(key=lambda r: (not r.available, -(r.vaf_gain if np.isfinite(r.vaf_gain) else -1e9)))
+    return results, r0
+
+
+# --------------------------------------------------------------------------- signal dependence
+
+
+def _cheb(x, order):
+    """Chebyshev T1..T_order of x mapped from its 1st-99th percentile range to [-1, 1] (clipped)."""
+    lo, hi = np.percentile(x, [1, 99])
+    if hi - lo < 1e-12:
+        return None
+    s = np.clip((2 * x - (hi + lo)) / (hi - lo), -1, 1)
+    T = [np.ones_like(s), s]
+    for _ in range(1, order):
+        T.append(2 * s * T[-1] - T[-2])
+    return np.column_stack(T[1:order + 1])
+
+
+def candidate_signals(sur: Surrogate) -> dict:
+    """Measured and derived signals the residual may depend on: name -> (values, description)."""
+    m = sur.model
+    p, fs = sur.p, sur.fs
+    v = eq.velocity(p, fs)
+    dv = eq.delayed_velocity(p, fs, m.delay)
+    out = {
+        "position": (p, "perturbation position (rad)"),
+        "velocity": (v, "perturbation velocity, undelayed (rad/s)"),
+        "speed": (np.abs(v), "|perturbation velocity| (rad/s)"),
+        "acceleration": (eq.acceleration(p, fs), "perturbation acceleration (rad/s^2)"),
+        "delayed_velocity": (dv, f"perturbation velocity delayed by the reflex delay {1000 * m.delay / fs:.0f} ms (rad/s)"),
+        "scheduling": (sur.rho, "operating position rho (rad)"),
+        "scheduling_velocity": (sur.signals["scheduling_velocity"], "slow-movement velocity (rad/s)"),
+        "trial_time": (sur.signals["trial_time"], "time in the trial (s)"),
+    }
+    for k in ("emg", "emg_ut"):
+        if k in sur.signals:
+            out[k] = (sur.signals[k], f"{k} channel (normalised activation)")
+    return out
+
+
+FORMS = {
+    "static": "a static function of the signal adds torque",
+    "intrinsic": "the intrinsic impulse response is modulated by the signal",
+    "reflex": "the reflex torque is modulated by the signal",
+}
+
+
+def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None) -> list:
+    """Cross-validated VAF gain of probes (signal x form) over the surrogate base, in
+    descending order: [{signal, form, pathway, vaf_gain, t, p_value, description}]."""
+    cv = sur.cv
+    y = cv.y
+    sst = float(np.sum((y - y.mean()) ** 2))
+    if r0 is None:
+        r0, _ = cv.fit(sur.base)
+    m = sur.model
+    P = eq.lagged(sur.p, m.lags)
+    reflex_parts = eq.state_trajectory(m.A, m.B, sur.reflex_drive())
+    R = np.column_stack([reflex_parts, sur.reflex_drive()])
+    out = []
+    for name, (x, desc) in candidate_signals(sur).items():
+        T = _cheb(x, 3)
+        if T is None:
+            continue
+        delayed = name == "delayed_velocity"
+        probes = {
+            "static": T,
+            "intrinsic": _kron_rows(P, T[:, :2]),
+            "reflex": _kron_rows(R, T[:, :2]),
+        }
+        for form, X in probes.items():
+            key = cv.add(f"probe:{name}:{form}", X)
+            r1, _ = cv.fit(sur.base + [key])
+            t, pv = paired_test(r0, r1, sur.fs, block_s)
+            pathway = form if form != "static" else ("reflex" if delayed else
+                                                     "neither (tonic)" if name in ("emg", "emg_ut", "trial_time") else
+                                                     "intrinsic")
+            out.append({"signal": name, "form": form, "pathway": pathway, "description": desc,
+                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _r(pv, 6)})
+    out.sort(key=lambda d: -d["vaf_gain"])
+    return out[:top] if top else out
+
+
+# --------------------------------------------------------------------------- where it fails
+
+
+def _binned(name, x, r, y, edges, labels):
+    rows = []
+    total = float(np.sqrt(np.mean(r**2)))
+    for lo, hi, lab in zip(edges[:-1], edges[1:], labels):
+        sel = (x >= lo) & (x < hi)
+        if sel.sum() < 10:
+            continue
+        rr = r[sel]
+        rows.append({"bin": lab, "n": int(sel.sum()), "residual_rms": _r(np.sqrt(np.mean(rr**2)), 5),
+                     "relative_rms": _r(np.sqrt(np.mean(rr**2)) / total if total > 0 else np.nan, 3),
+                     "residual_mean": _r(np.mean(rr), 5),
+                     "vaf": _r(100 * (1 - np.var(rr) / np.var(y[sel])) if np.var(y[sel]) > 0 else np.nan, 2)})
+    return {"by": name, "bins": rows}
+
+
+def _acf(x, nlags):
+    x = x - x.mean()
+    n = len(x)
+    f = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: nlags + 1]
+    return ac / ac[0]
+
+
+def _ccf(r, u, maxlag):
+    """Normalised cross-correlation c(k) = corr(r(t), u(t - k)) for k = -maxlag..maxlag."""
+    r = r - r.mean()
+    u = u - u.mean()
+    n = len(r)
+    denom = np.sqrt((r @ r) * (u @ u))
+    out = []
+    for k in range(-maxlag, maxlag + 1):
+        if k >= 0:
+            out.append(r[k:] @ u[: n - k])
+        else:
+            out.append(r[: n + k] @ u[-k:])
+    return np.array(out) / denom
+
+
+def where_it_fails(model, data, residual, *, signals=None) -> dict:
+    """The residual's structure: bins, frequency bands, events, whiteness, cross-correlations."""
+    r = np.asarray(residual, dtype=float)
+    y = np.asarray(data.torque, dtype=float)
+    p, rho, fs = np.asarray(data.position, dtype=float), np.asarray(data.scheduling, dtype=float), float(data.fs)
+    sig = signals or signals_from_data(data)
+    n = len(r)
+    out = {}
+    lo, hi = model.scheduling_range
+    e = np.linspace(min(rho.min(), lo), max(rho.max(), hi) + 1e-9, 7)
+    out["position"] = _binned("operating position rho (rad)", rho, r, y, e,
+                              [f"{a:+.3f}..{b:+.3f}" for a, b in zip(e[:-1], e[1:])])
+    v = eq.velocity(p, fs)
+    v50, v90 = np.percentile(np.abs(v), [50, 90])
+    ev = [-np.inf, -v90, -v50, v50, v90, np.inf]
+    out["velocity"] = _binned("perturbation velocity (rad/s)", v, r, y, ev,
+                              [f"fast shortening (< -{v90:.3g})", "slow shortening", f"near zero (|v| < {v50:.3g})",
+                               "slow stretch", f"fast stretch (> {v90:.3g})"])
+    vs = sig["scheduling_velocity"]
+    out["slow_movement"] = _binned("slow movement (rad/s)", vs, r, y, [-np.inf, -0.02, 0.02, np.inf],
+                                   ["toward plantarflexion (< -0.02)", "holding", "toward dorsiflexion (> 0.02)"])
+    t = sig["trial_time"]
+    et = np.linspace(t[0], t[-1] + 1e-9, 7)
+    out["time"] = _binned("time in the trial (s)", t, r, y, et, [f"{a:.0f}..{b:.0f} s" for a, b in zip(et[:-1], et[1:])])
+    if "emg" in sig:
+        ee = np.percentile(sig["emg"], [0, 33, 67, 100])
+        ee[-1] += 1e-9
+        out["emg"] = _binned("emg (normalised)", sig["emg"], r, y, ee, ["low", "middle", "high"])
+    # frequency bands: share of the measured power left unexplained
+    nper = int(min(n, 4 * fs * 4))
+    f, Pr = scipy.signal.welch(r, fs, nperseg=nper)
+    _, Py = scipy.signal.welch(y, fs, nperseg=nper)
+    bands = [(0, 0.5), (0.5, 2), (2, 5), (5, 10), (10, 20), (20, fs / 2 + 1e-9)]
+    rows = []
+    for a, b in bands:
+        sel = (f >= a) & (f < b)
+        if sel.any() and Py[sel].sum() > 0:
+            rows.append({"band_hz": [a, round(min(b, fs / 2), 3)], "unexplained_fraction": _r(Pr[sel].sum() / Py[sel].sum(), 4),
+                         "residual_power_share": _r(Pr[sel].sum() / Pr.sum(), 4)})
+    out["frequency"] = rows
+    # events: perturbation steps (velocity peaks) and trajectory transitions
+    near_step = _dilate(np.abs(v) > v90, int(round(0.1 * fs)))
+    moving = np.abs(vs) > 0.05
+    total = float(np.sqrt(np.mean(r**2)))
+    ev_rows = {}
+    for key, sel, text in (("perturbation_steps", near_step, "within 100 ms of a fast perturbation movement"),
+                           ("trajectory_transitions", moving, "while the slow trajectory moves faster than 0.05 rad/s")):
+        if sel.any() and (~sel).any():
+            ev_rows[key] = {"description": text, "fraction_of_samples": _r(sel.mean(), 3),
+                            "residual_rms_inside": _r(np.sqrt(np.mean(r[sel] ** 2)), 5),
+                            "residual_rms_outside": _r(np.sqrt(np.mean(r[~sel] ** 2)), 5),
+                            "ratio": _r(np.sqrt(np.mean(r[sel] ** 2)) / max(np.sqrt(np.mean(r[~sel] ** 2)), 1e-300), 3)}
+    out["events"] = ev_rows
+    # whiteness
+    nl = int(min(25, n // 10))
+    ac = _acf(r, nl)
+    band = 2.0 / np.sqrt(n)
+    lb = n * (n + 2) * np.sum(ac[1:] ** 2 / (n - np.arange(1, nl + 1)))
+    out["whiteness"] = {"lags": nl, "acf": [_r(a, 4) for a in ac[1:]],
+                        "fraction_outside_2_over_sqrt_n": _r(np.mean(np.abs(ac[1:]) > band), 3),
+                        "ljung_box_q": _r(lb, 2), "ljung_box_p": _r(scipy.stats.chi2.sf(lb, nl), 6),
+                        "note": "torque sensor noise is coloured, so even a perfect model leaves a non-white residual"}
+    # cross-correlations with the input, incl. negative lags; band from Bartlett's formula
+    maxlag = int(round(0.25 * fs))
+    cc = {}
+    ar = _acf(r, min(n - 1, 4 * maxlag))
+    for name, u in (("position", p), ("velocity", v), ("delayed_velocity", eq.delayed_velocity(p, fs, model.delay)),
+                    ("rectified_delayed_velocity", np.maximum(eq.delayed_velocity(p, fs, model.delay), 0.0))):
+        c = _ccf(r, u, maxlag)
+        au = _acf(u, len(ar) - 1)
+        se = np.sqrt((1 + 2 * np.sum(ar[1:] * au[1:])) / n)
+        k = int(np.argmax(np.abs(c)))
+        cc[name] = {"max_abs": _r(np.abs(c[k]), 4), "at_lag_s": _r((k - maxlag) / fs, 3),
+                    "band_99": _r(2.576 * se, 4), "outside_band": bool(np.abs(c[k]) > 2.576 * se),
+                    "lags_s": [-maxlag / fs, maxlag / fs], "ccf": [_r(x, 4) for x in c]}
+    out["cross_correlation"] = cc
+    out["cross_correlation_note"] = ("c(k) = corr(residual(t), input(t - k)); negative lags: the residual leads "
+                                     "the input (future input, non-causal structure)")
+    return out
+
+
+def _dilate(mask, half):
+    """True within ``half`` samples of a True sample."""
+    if half <= 0:
+        return mask
+    return np.convolve(mask.astype(float), np.ones(2 * half + 1), mode="same") > 0
+
+
+# --------------------------------------------------------------------------- the diagnosis
+
+
+@dataclass
+class Diagnosis:
+    model_hash: str
+    data_source: str
+    n_samples: int
+    fs: float
+    vaf: float  # % of the model as it is on these data
+    rmse: float  # N m
+    surrogate_vaf: float  # % cross-validated, model structure refitted on these data
+    candidates: list
+    dependence: list
+    where: dict
+    settings: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    residual: np.ndarray | None = None
+    prediction: np.ndarray | None = None
+
+    @property
+    def significant(self) -> list:
+        return [c for c in self.candidates if c.significant]
+
+    @property
+    def top(self):
+        sig = self.significant
+        return sig[0] if sig else None
+
+    def answer(self) -> str:
+        """One paragraph: the missing effect, or the signal and pathway the residual depends on."""
+        top = self.top
+        if top is not None:
+            extra = f" ({', '.join(f'{k}={v:g}' for k, v in top.variant.items())})" if top.variant else ""
+            return (f"Missing: {top.effect}{extra}, {top.pathway} pathway: held-out VAF +{top.vaf_gain:.2f} pp "
+                    f"(p = {top.p_value:.1e}). {top.explanation}")
+        if self.dependence:
+            d = self.dependence[0]
+            if d["vaf_gain"] is not None and d["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN) \
+                    and d["p_value"] is not None and d["p_value"] <= self.settings.get("alpha", ALPHA):
+                return (f"No catalog effect explains the residual. It depends most on {d['signal']} "
+                        f"({d['description']}): {FORMS[d['form']]}, {d['pathway']} pathway "
+                        f"(held-out VAF +{d['vaf_gain']:.2f} pp, p = {d['p_value']:.1e}).")
+        return "Nothing significant: no candidate effect or signal explains a meaningful part of the residual."
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "lpvpc-diagnosis",
+            "model_hash": self.model_hash,
+            "data": self.data_source,
+            "n_samples": self.n_samples,
+            "fs": self.fs,
+            "vaf": _r(self.vaf, 3),
+            "rmse": _r(self.rmse, 6),
+            "surrogate_cv_vaf": _r(self.surrogate_vaf, 3),
+            "answer": self.answer(),
+            "candidates": [c.to_dict() for c in self.candidates],
+            "signal_dependence": self.dependence,
+            "where": self.where,
+            "settings": self.settings,
+            "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
+            "units": {"vaf": "%", "vaf_gain": "percentage points of held-out VAF", "rmse": "N m", "fs": "Hz"},
+        }
+
+    def save(self, path):
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+
+
+def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
+             candidates=None, dependence=True) -> Diagnosis:
+    """Diagnose ``model`` on ``data`` (:class:`lpvpc.data.PerturbationData`, ideally not used
+    to fit the model). ``candidates``: names to score (default: the whole catalog and all
+    settings candidates, minus effects the model already has)."""
+    t0 = time.perf_counter()
+    timings = {}
+    if abs(float(data.fs) - float(model.fs)) > 1e-6 * model.fs:
+        from .errors import DataError
+
+        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
+                        source=getattr(data, "source", None) or None)
+    sig = signals_from_data(data)
+    pred = model.predict(data.position, data.scheduling, warn=False, signals=sig)
+    y = np.asarray(data.torque, dtype=float)
+    resid = y - pred.total
+    timings["predict"] = time.perf_counter() - t0
+    t = time.perf_counter()
+    sur = Surrogate(model, data, folds)
+    results, r0 = score_candidates(sur, candidates=candidates, min_gain=min_gain, alpha=alpha, block_s=block_s)
+    timings["candidates"] = time.perf_counter() - t
+    t = time.perf_counter()
+    dep = signal_dependence(sur, r0, block_s=block_s) if dependence else []
+    timings["dependence"] = time.perf_counter() - t
+    t = time.perf_counter()
+    where = where_it_fails(model, data, resid, signals=sig)
+    timings["where"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t0
+    sst = float(np.sum((y - y.mean()) ** 2))
+    return Diagnosis(
+        model_hash=model.model_hash, data_source=getattr(data, "source", "") or "", n_samples=len(y), fs=float(data.fs),
+        vaf=vaf(y, pred.total), rmse=float(np.sqrt(np.mean(resid**2))), surrogate_vaf=100 * (1 - float(r0 @ r0) / sst),
+        candidates=results, dependence=dep, where=where,
+        settings={"folds": folds, "min_gain": min_gain, "alpha": alpha, "block_s": block_s,
+                  "test": "paired one-sided t on held-out squared residuals, 2-s batch means, Bonferroni over candidates"},
+        timings=timings, residual=resid, prediction=pred.total)
+
+
+# --------------------------------------------------------------------------- report
+
+
+def format_table(diag: Diagnosis, n=None) -> str:
+    """Plain-text ranking table of the candidates."""
+    lines = [f"{'rank':>4}  {'candidate':36} {'kind':8} {'pathway':9} {'gain (pp)':>9} {'p':>9}  significant"]
+    for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
+        if not c.available:
+            lines.append(f"{i:>4}  {c.effect:36} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {c.reason}")
+            continue
+        name = c.effect + (" (" + ", ".join(f"{k}={v:g}" for k, v in c.variant.items()) + ")" if c.variant else "")
+        lines.append(f"{i:>4}  {name:36} {c.kind:8} {c.pathway:9} {c.vaf_gain:>+9.3f} {c.p_value:>9.1e}  "
+                     f"{'YES' if c.significant else 'no'}")
+    return "\n".join(lines)
+
+
+def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
+    """Markdown report with the ranking, where the model fails, and residual plots."""
+    from . import plotting
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    diag.save(folder / "diagnosis.json")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(13, 7))
+    plotting.plot_residual_diagnosis(diag, data, fig=fig)
+    figs = folder / "residual.png"
+    fig.savefig(figs, dpi=100)
+    plt.close(fig)
+    w = diag.where
+    lines = [f"# {title}", "", f"Model `{diag.model_hash[:12]}` on `{diag.data_source}` ({diag.n_samples} samples at "
+             f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; model structure refitted with "
+             f"{diag.settings['folds']}-fold blocked cross-validation: {diag.surrogate_vaf:.2f} %.", "",
+             "## Answer", "", diag.answer(), "", "## Candidates (held-out VAF gain)", "", "```", format_table(diag), "```", "",
+             "Significant: p below alpha / number of candidates (alpha = "
+             f"{diag.settings['alpha']}) and a gain of at least {diag.settings['min_gain']} pp.", "",
+             "## Signal dependence (top 8)", "", "| signal | form | pathway | gain (pp) | p |", "|---|---|---|---|---|"]
+    for d in diag.dependence[:8]:
+        lines.append(f"| {d['signal']} | {FORMS[d['form']]} | {d['pathway']} | {d['vaf_gain']:+.3f} | {d['p_value']:.1e} |")
+    lines += ["", "## Where the model fails", ""]
+    for key in ("position", "velocity", "slow_movement", "time", "emg"):
+        if key in w:
+            lines += [f"### by {w[key]['by']}", "", "| bin | n | residual RMS (N m) | relative | VAF % |", "|---|---|---|---|---|"]
+            lines += [f"| {b['bin']} | {b['n']} | {b['residual_rms']} | {b['relative_rms']} | {b['vaf']} |" for b in w[key]["bins"]]
+            lines.append("")
+    lines += ["### frequency bands", "", "| band (Hz) | unexplained fraction | share of residual power |", "|---|---|---|"]
+    lines += [f"| {b['band_hz'][0]}-{b['band_hz'][1]} | {b['unexplained_fraction']} | {b['residual_power_share']} |" for b in w["frequency"]]
+    lines += ["", "### events", ""]
+    for k, e in w["events"].items():
+        lines.append(f"- {e['description']} ({100 * e['fraction_of_samples']:.0f} % of samples): residual RMS "
+                     f"{e['residual_rms_inside']} vs {e['residual_rms_outside']} N m elsewhere (ratio {e['ratio']})")
+    wh = w["whiteness"]
+    lines += ["", "### whiteness and cross-correlation", "",
+              f"- residual autocorrelation outside +-2/sqrt(N) at {100 * wh['fraction_outside_2_over_sqrt_n']:.0f} % of lags "
+              f"1..{wh['lags']} (Ljung-Box Q = {wh['ljung_box_q']}); {wh['note']}"]
+    for k, c in w["cross_correlation"].items():
+        lines.append(f"- with {k}: max |c| = {c['max_abs']} at lag {c['at_lag_s']:+.3f} s "
+                     f"(99 % band +-{c['band_99']}{', OUTSIDE' if c['outside_band'] else ''})")
+    lines += ["", f"![residual]({Path(figs).name})", ""]
+    path = folder / "diagnosis.md"
+    path.write_text("\n".join(lines))
+    return path
