@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench clean chromium
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,3 +23,11 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) demo_out build
+
+# Headless Chromium (Debian's package) for the test that opens the validation report
+# (tests/test_validation.py). CI runs this before `make test` (.ci/run); the test fails
+# without /usr/bin/chromium unless LPVPC_ALLOW_NO_CHROMIUM is set.
+chromium:
+	@if [ -x /usr/bin/chromium ]; then echo "chromium: $$(/usr/bin/chromium --version 2>/dev/null)"; else \
+	  SUDO=; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; fi

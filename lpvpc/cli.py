@@ -8,7 +8,11 @@
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact]
+    lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
+                   [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
+                   [--coupling iterate|delay] [--band-limit-command] [--route-tolerance TOL]
 
+``validate`` exits with status 1 when a threshold fails (``--min-vaf``, route agreement).
 Errors of the package (bad data, corrupt model file, ...) and unreadable or unwritable
 paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit status 2
 for bad input (1 for other failures); out-of-range and unit warnings as one line
@@ -208,6 +212,59 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _actuator_param(text):
+    name, sep, value = text.partition("=")
+    try:
+        x = float(value)
+    except ValueError:
+        x = None
+    if not sep or not name.strip() or x is None:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with a number, got {text!r}")
+    return name.strip(), x
+
+
+def cmd_validate(args) -> int:
+    try:
+        from validation import CosimSettings, validate
+    except ModuleNotFoundError as exc:
+        if exc.name != "validation":
+            raise
+        raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
+                         "missing)") from None
+    settings = CosimSettings(coupling=args.coupling)
+    result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,
+                      actuator_fmu=args.actuator_fmu, actuator_parameters=dict(args.actuator_param),
+                      calibrate=not args.no_calibrate, settings=settings, min_vaf=args.min_vaf,
+                      band_limit_command=args.band_limit_command,
+                      route_tolerance=args.route_tolerance, position_unit=args.position_unit,
+                      torque_sign=args.torque_sign, command_line=" ".join([PROG, *sys.argv[1:]]))
+    m = result.metrics
+    ag = m["route_agreement"]
+    sched = m["scheduling"]
+    cos = m["cosim"]
+    print(f"VAF offline {m['vaf']:.2f} %, FMU replay {m['vaf_fmu']:.2f} %, co-simulation {m['vaf_cosim']:.2f} %  "
+          f"(RMSE {m['rmse']:.3g} / {m['rmse_fmu']:.3g} / {m['rmse_cosim']:.3g} N m; {m['n_samples']} samples at "
+          f"{m['fs']:g} Hz)")
+    worst = max(ag[k]["max_relative_difference"] for k in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal",
+                                                          "casadi_exact_vs_numpy"))
+    print(f"routes:      CasADi and FMU vs numpy agree to {worst:.1e} (tolerance {ag['tolerance']:.0e}); "
+          f"co-simulation {m['vaf_cosim'] - m['vaf_fmu']:+.2f} VAF points vs FMU replay")
+    print(f"co-sim:      {cos['real_time_factor']:.0f}x real time; perturbation tracking VAF "
+          f"{cos['tracking']['perturbation_position_vaf']:.3f} %")
+    if sched["flagged"]:
+        o = sched["out_of_range"]["numpy"]
+        print(f"range:       {100 * sched['out_of_range_fraction']:.2f} % of the record outside the identified "
+              f"scheduling range [{sched['identified_range'][0]:+.3f}, {sched['identified_range'][1]:+.3f}] rad "
+              f"(offline RMSE there {o['rmse']:.3g} N m)")
+    for check in m["checks"]:
+        if not check["pass"]:
+            print(f"FAILED:      {check['name']}: {check['value']:.4g} (threshold {check['threshold']:.4g})")
+    print(f"report:      {Path(result.files['report']).resolve()}")
+    print(f"metrics:     {Path(result.files['metrics']).resolve()}")
+    print(f"result:      {'pass' if result.passed else 'FAIL'}")
+    return 0 if result.passed else 1
+
+
 # --------------------------------------------------------------------------- parser
 
 
@@ -337,6 +394,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact", action="store_true",
                    help="exact two-sided IRF, output delayed by L+1 samples (default: causal, no latency)")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("validate", help="validate a model on a held-out record: routes, co-simulation, report",
+                       description="Validate a saved model on a held-out PT/UT record: predict it offline, through "
+                                   "CasADi and the model FMU, co-simulate the model FMU with the actuator FMU, and "
+                                   "write DIR/report.html, DIR/metrics.json and DIR/figures. Exit status 1 when a "
+                                   "threshold fails, 2 for bad input.")
+    p.add_argument("model", metavar="MODEL.json")
+    p.add_argument("--pt", required=True, metavar="PT", help="held-out perturbed trial (CSV or .mat)")
+    p.add_argument("--ut", required=True, metavar="UT", help="held-out unperturbed trial on the same trajectory")
+    p.add_argument("--report", required=True, metavar="DIR", help="folder for report.html, metrics.json, figures/")
+    p.add_argument("--min-vaf", type=float, metavar="X",
+                   help="fail (exit 1) when vaf, vaf_fmu or vaf_cosim is below X percent")
+    p.add_argument("--fmu", metavar="F.fmu", help="validate this model FMU (default: export the causal FMU)")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the exported FMUs (default 2)")
+    p.add_argument("--actuator-fmu", metavar="F.fmu", help="actuator FMU (default: the project's actuator)")
+    p.add_argument("--actuator-param", type=_actuator_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="fix an actuator parameter (repeatable); fixed servo parameters are not calibrated")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="do not fit the servo bandwidth and damping to the record's command and position")
+    p.add_argument("--band-limit-command", action="store_true",
+                   help="low-pass the record's command (zero-phase) to the model's band before it drives the actuators")
+    p.add_argument("--coupling", choices=("iterate", "delay"), default="iterate",
+                   help="load-torque coupling: iterate to convergence (default) or a one-step delay")
+    p.add_argument("--route-tolerance", type=_positive_float, default=1e-9, metavar="TOL",
+                   help="largest max|a-b|/max|b| of the CasADi and FMU routes vs numpy (default 1e-9)")
+    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
+                   help="unit of positions in the files (default: as at identification)")
+    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
+                   help="torque sign convention of the files (default: as at identification)")
+    p.set_defaults(func=cmd_validate)
     return parser
 
 

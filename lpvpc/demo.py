@@ -9,7 +9,10 @@
 4. prints the recovered elastic stiffness K(theta) and the reflex gain and threshold
    against the truth;
 5. saves the paper's figures in OUTDIR/figures;
-6. exports OUTDIR/model.casadi and OUTDIR/model.fmu and runs the FMU on the novel record.
+6. exports OUTDIR/model.casadi and OUTDIR/model.fmu and runs the FMU on the novel record;
+7. validates the model on the novel record (package ``validation``: numpy, CasADi and FMU
+   routes, co-simulation of the model FMU with the actuator FMU) and writes the report
+   OUTDIR/validation/report.html with metrics.json and the figures.
 
 Units: rad, rad/s, N m, N m/rad, s.
 """
@@ -217,6 +220,7 @@ def run(outdir) -> int:
     _say(f"{', '.join(figures)} in {figdir} [{time.perf_counter() - t0:.1f} s]")
 
     _section("6. Export")
+    fmu_path = None
     try:
         from . import export
     except ModuleNotFoundError as exc:
@@ -239,9 +243,55 @@ def run(outdir) -> int:
         _say(f"  VAF {vaf(novel.torque, y['torque']):.2f} % (offline two-sided prediction {v_novel:.2f} %); "
              f"max |FMU - causal numpy| / max |torque| = {diff:.1e}")
 
+    report = _validate(outdir, paths, fmu_path, v_ceiling)
+
     _say()
     _say(f"done in {time.perf_counter() - t_start:.1f} s; outputs in {outdir}")
+    if report is not None:
+        _say(f"validation report: {report.resolve()} (open it in a browser)")
     return 0
+
+
+def _validate(outdir, paths, fmu_path, v_ceiling):
+    """Step 7: the validation harness on the novel record; returns the report's path."""
+    _section("7. Validation on the novel trajectory (prediction routes, co-simulation with the actuator)")
+    try:
+        from validation import validate
+    except ModuleNotFoundError as exc:
+        if exc.name != "validation":
+            raise
+        _say("the validation package is not available in this installation: skipped")
+        return None
+    if fmu_path is None:
+        _say("no model FMU was exported: skipped")
+        return None
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        res = validate(outdir / "model.json", paths["novel_PT"], paths["novel_UT"], outdir / "validation",
+                       fmu=fmu_path, command_line=f"python -m lpvpc.demo {outdir}")
+    m = res.metrics
+    c = m["cosim"]
+    ag = m["route_agreement"]
+    _say(f"VAF offline {m['vaf']:.2f} %, FMU replay {m['vaf_fmu']:.2f} %, co-simulation {m['vaf_cosim']:.2f} %  "
+         f"(noise ceiling {v_ceiling:.2f} %)")
+    worst = max(ag[k]["max_relative_difference"] for k in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal",
+                                                          "casadi_exact_vs_numpy"))
+    _say(f"CasADi and FMU routes agree with numpy to {worst:.1e} of the torque scale")
+    cal = c["calibration"]
+    if cal.get("done"):
+        _say(f"actuator servo calibrated on the record: {cal['servo_bandwidth']:.2f} Hz, damping "
+             f"{cal['servo_damping']:.3f} (position fit VAF {cal['vaf']:.3f} %)")
+    le = c["load_effect"] or {}
+    _say(f"co-simulation: {c['actuator_steps_per_model_step']} actuator steps of {1e3 * c['step_actuator_s']:g} ms per "
+         f"{1e3 * c['step_model_s']:g} ms model step, load torque coupled by '{c['settings']['coupling']}' "
+         f"(mean {c['iterations']['mean']:.1f} iterations); {c['real_time_factor']:.0f}x real time; the load moves the "
+         f"perturbation by at most {le.get('perturbation_position_max_mrad', float('nan')):.2f} mrad")
+    s = m["scheduling"]
+    _say(f"{100 * s['out_of_range_fraction']:.1f} % of the record lies outside the identified range (offline RMSE "
+         f"there {s['out_of_range']['numpy']['rmse']:.3f} N m vs {s['in_range']['numpy']['rmse']:.3f} N m inside)")
+    _say(f"report, metrics.json and figures in {res.report_dir} [{time.perf_counter() - t0:.1f} s]")
+    return res.files["report"]
 
 
 def main(argv=None) -> int:

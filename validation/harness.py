@@ -1,0 +1,510 @@
+"""Validate a fitted model on a held-out PT/UT record: every prediction route, the
+co-simulation with the actuator, the comparison, and the report.
+
+Units: time s, angles rad, torque N m, rates Hz, VAF percent.
+
+:func:`validate` checks its inputs first (model file, both records, sampling rates, the
+FMUs) so that bad input fails in well under a second with one :class:`lpvpc.errors.LpvpcError`
+(exit status 2 on the command line), then runs:
+
+1. the offline routes (numpy two-sided and causal, CasADi causal and exact) and the model
+   FMU replaying the measured positions (:mod:`validation.routes`);
+2. the co-simulation of the lab experiment (:mod:`validation.cosim`): calibrated actuator
+   runs driven by the record's commands, the model FMU closing the loop; once more
+   without load to measure what the load changes;
+3. the comparison (:mod:`validation.compare`) and the report (:mod:`validation.report`):
+   ``report.html``, ``metrics.json`` and the figures as PNG in the report folder.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import platform
+import sys
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lpvpc import equations as eq
+from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials
+from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
+from lpvpc.model import LPVPCModel
+
+from . import compare as cmp
+from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_INPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
+                    band_limit, calibrate_servo, feedforward_command, run_cosimulation, to_rate)
+from .fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
+from .routes import casadi_routes, fmu_replay, offline_routes
+
+__all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROUTE_TOLERANCE"]
+
+#: Largest max|a - b| / max|b| allowed between the numpy causal prediction and the CasADi
+#: and FMU routes (they evaluate the same equations; measured ~1e-15).
+DEFAULT_ROUTE_TOLERANCE = 1e-9
+#: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
+CALIBRATION_WARN_VAF = 99.0
+
+
+@dataclass
+class Record:
+    """The held-out record: the two trials in SI units and their pairing at the model rate."""
+
+    pt: Trial
+    ut: Trial
+    measured: object  # lpvpc.data.PerturbationData at the model rate
+    files: dict  # role -> {"path", "sha256"}
+
+    @property
+    def fs(self) -> float:
+        return self.pt.fs
+
+    @property
+    def has_command(self) -> bool:
+        return "command" in self.pt.channels and "command" in self.ut.channels
+
+
+@dataclass
+class ValidationResult:
+    metrics: dict
+    report_dir: Path
+    files: dict = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.metrics["pass"])
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None) -> Record:
+    """Load the held-out PT and UT trials (with the model's file conventions unless given)
+    and pair them at the model's rate. DataError for unequal lengths, a rate that is not
+    an integer multiple of the model's, and any bad sample."""
+    conv = model.conventions or {}
+    position_unit = position_unit or conv.get("position_unit", "rad")
+    torque_sign = float(torque_sign if torque_sign is not None else conv.get("torque_sign", 1.0))
+    files = {}
+    trials = []
+    for role, src in (("pt", pt), ("ut", ut)):
+        if isinstance(src, Trial):
+            trials.append(src)
+            files[role] = {"path": src.name or role, "sha256": None}
+        else:
+            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign))
+            files[role] = {"path": str(src), "sha256": file_sha256(src)}
+    pt_t, ut_t = trials
+    measured = pair_trials(pt_t, ut_t, target_fs=model.fs)
+    if abs(measured.fs - model.fs) > RATE_TOLERANCE * model.fs:
+        raise DataError(f"sampling rate {measured.fs:g} Hz of the record differs from the model's {model.fs:g} Hz",
+                        source=measured.source or None)
+    measured.meta.update(position_unit=position_unit, torque_sign=torque_sign)
+    return Record(pt_t, ut_t, measured, files)
+
+
+def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
+    """The model FMU must be a causal lpvpc export of this model at its sample period."""
+    missing_in = [n for n in MODEL_INPUTS if info.variables.get(n, (None, None))[1] != "input"]
+    missing_out = [n for n in MODEL_OUTPUTS if info.variables.get(n, (None, None))[1] != "output"]
+    if missing_in or missing_out:
+        hint = (" (is it the exact variant? co-simulation needs the default causal FMU)"
+                if set(missing_in) <= {"velocity", "acceleration"} and missing_in else "")
+        what = ", ".join([f"input '{n}'" for n in missing_in] + [f"output '{n}'" for n in missing_out])
+        raise FMUError(f"model FMU {info.path}: lacks {what}{hint}")
+    declared = fmu_model_hash(info)
+    if declared is not None and declared != model.model_hash:
+        raise FMUError(f"model FMU {info.path}: exported from model {declared[:12]}, not from this model "
+                       f"({model.model_hash[:12]}); export it again or pass the matching model file")
+    h = 1.0 / model.fs
+    if info.step_size is not None and abs(info.step_size - h) > 1e-9 * h:
+        raise FMUError(f"model FMU {info.path}: step size {info.step_size:g} s differs from the model's sample "
+                       f"period {h:g} s")
+
+
+def check_actuator_fmu(info: FMUInfo, model: LPVPCModel, parameters: dict) -> int:
+    """Variables, parameters and step of the actuator FMU; returns actuator steps per model step."""
+    missing = [n for n in ACTUATOR_INPUTS if info.variables.get(n, (None, None))[1] != "input"]
+    missing += [n for n in ACTUATOR_OUTPUTS if info.variables.get(n, (None, None))[1] != "output"]
+    if missing:
+        raise FMUError(f"actuator FMU {info.path}: lacks variable(s) {', '.join(missing)}")
+    params = info.names("parameter")
+    unknown = [n for n in parameters if n not in params]
+    if unknown:
+        raise FMUError(f"actuator FMU {info.path}: no parameter named {', '.join(map(repr, unknown))} "
+                       f"(parameters: {', '.join(params)})")
+    if info.step_size is None or not info.step_size > 0:
+        raise FMUError(f"actuator FMU {info.path}: no DefaultExperiment stepSize (its fixed internal step)")
+    ratio = (1.0 / model.fs) / info.step_size
+    if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        raise FMUError(f"actuator FMU {info.path}: its step {info.step_size:g} s does not divide the model's "
+                       f"sample period {1.0 / model.fs:g} s")
+    return int(round(ratio))
+
+
+def _start_values(info: FMUInfo) -> dict:
+    out = {}
+    for v in info.model_description.modelVariables:
+        if v.causality == "parameter" and v.start is not None:
+            try:
+                out[v.name] = float(v.start)
+            except (TypeError, ValueError):
+                pass
+    return out
+
+
+def _pad(x, n):
+    x = np.asarray(x, dtype=float)
+    if len(x) >= n:
+        return x[:n].copy()
+    return np.concatenate([x, np.full(n - len(x), x[-1])])
+
+
+def actuator_drive(record: Record, info: FMUInfo, ratio: int, n_model: int, parameters: dict,
+                   calibrate: bool, band_limit_to: float | None = None) -> tuple[ActuatorDrive, dict, dict]:
+    """Commands and UT load at the actuator rate, the servo calibration and the actuator
+    parameters to use. ``band_limit_to`` (Hz): low-pass the commands (zero-phase) to the band
+    of that sampling rate after calibrating. Returns (drive, parameters, calibration info)."""
+    h = info.step_size
+    fs_a = 1.0 / h
+    n_a = n_model * ratio
+    defaults = _start_values(info)
+    params = dict(parameters)
+    servo_params = {"servo_bandwidth", "servo_damping"} <= set(defaults)
+    cal = {"done": False}
+    if record.has_command:
+        cmd_u = to_rate(record.ut.channels["command"], record.fs, fs_a, "UT command")
+        cmd_p = to_rate(record.pt.channels["command"], record.fs, fs_a, "PT command")
+        source = "the record's command channel"
+        if calibrate and servo_params and not ({"servo_bandwidth", "servo_damping"} & set(params)):
+            t0 = time.perf_counter()
+            fit = calibrate_servo(cmd_p - cmd_u, record.pt.position - record.ut.position, h, record.fs,
+                                  start=(defaults["servo_bandwidth"], defaults["servo_damping"]))
+            params.update(servo_bandwidth=fit["servo_bandwidth"], servo_damping=fit["servo_damping"])
+            cal = {"done": True, **fit, "seconds": time.perf_counter() - t0,
+                   "what": "servo_bandwidth and servo_damping fitted by least squares to the record's perturbation "
+                           "command (PT - UT) and measured perturbation position",
+                   "defaults": {k: defaults[k] for k in ("servo_bandwidth", "servo_damping")},
+                   "poor": bool(fit["vaf"] < CALIBRATION_WARN_VAF)}
+        elif not calibrate:
+            cal["reason"] = "calibration switched off"
+        elif not servo_params:
+            cal["reason"] = "the actuator FMU has no servo_bandwidth/servo_damping parameters"
+        else:
+            cal["reason"] = "servo parameters given by the user"
+    else:
+        pos_u = to_rate(record.ut.position, record.fs, fs_a, "UT position")
+        pos_p = to_rate(record.pt.position, record.fs, fs_a, "PT position")
+        if servo_params:
+            bw = params.get("servo_bandwidth", defaults["servo_bandwidth"])
+            zeta = params.get("servo_damping", defaults["servo_damping"])
+            cmd_u = feedforward_command(pos_u, h, bw, zeta)
+            cmd_p = feedforward_command(pos_p, h, bw, zeta)
+            source = (f"the record's measured positions through the inverse servo loop (feedforward, "
+                      f"{bw:g} Hz, damping {zeta:g}); the record has no command channel")
+        else:
+            cmd_u, cmd_p = pos_u, pos_p
+            source = "the record's measured positions (no command channel)"
+        cal["reason"] = "the record has no command channel"
+    if band_limit_to is not None:
+        cmd_u, cmd_p = band_limit(cmd_u, fs_a, band_limit_to), band_limit(cmd_p, fs_a, band_limit_to)
+        source += f", band-limited (zero-phase) to the band of {band_limit_to:g} Hz sampling"
+    load = to_rate(record.ut.torque, record.fs, fs_a, "UT torque")
+    drive = ActuatorDrive(_pad(cmd_u, n_a), _pad(cmd_p, n_a), _pad(load, n_a), h, ratio, n_model, source)
+    return drive, params, cal
+
+
+# --------------------------------------------------------------------------- provenance
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for pkg in ("lpvpc", "numpy", "scipy", "casadi", "fmpy", "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            mod = sys.modules.get(pkg)
+            out[pkg] = getattr(mod, "__version__", "unknown") if mod else "not installed"
+    return out
+
+
+# --------------------------------------------------------------------------- validate
+
+
+def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actuator_fmu=None,
+             actuator_parameters: dict | None = None, calibrate: bool = True, settings: CosimSettings | None = None,
+             min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
+             measure_load_effect: bool = True, band_limit_command: bool = False, position_unit=None,
+             torque_sign=None, command_line=None, write_report: bool = True) -> ValidationResult:
+    """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
+    (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
+
+    ``fmu``: an existing model FMU to validate (default: export the causal FMU, FMI
+    ``fmi_version``, into ``report_dir/fmus``); ``actuator_fmu``: default the project's
+    actuator FMU built into the same folder; ``actuator_parameters``: fixed actuator
+    parameter values (servo parameters given here are not calibrated); ``min_vaf``
+    (percent): threshold for ``vaf``, ``vaf_fmu`` and ``vaf_cosim``; ``route_tolerance``:
+    for the CasADi and FMU routes against numpy; ``band_limit_command``: low-pass the
+    record's commands to the model's band before they drive the actuators
+    (:func:`validation.cosim.band_limit`). Returns a :class:`ValidationResult`
+    whose ``passed`` is False when a threshold fails.
+    """
+    t_all = time.perf_counter()
+    timing = {}
+    settings = (settings or CosimSettings()).check()
+    report_dir = Path(report_dir)
+    actuator_parameters = dict(actuator_parameters or {})
+
+    # -- inputs, checked before any work ------------------------------------------------
+    t0 = time.perf_counter()
+    model_path = None
+    if not isinstance(model, LPVPCModel):
+        model_path = Path(model)
+        model = LPVPCModel.load(model_path)
+    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign)
+    meas = record.measured
+    given_fmu = None
+    if fmu is not None:
+        given_fmu = inspect_fmu(fmu, "model FMU")
+        check_model_fmu(given_fmu, model)
+    given_act = inspect_fmu(actuator_fmu, "actuator FMU") if actuator_fmu is not None else None
+    if given_act is not None:
+        check_actuator_fmu(given_act, model, actuator_parameters)
+    timing["load_and_check"] = time.perf_counter() - t0
+
+    # -- FMUs ---------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    fmu_dir = report_dir / "fmus"
+    fmu_dir.mkdir(parents=True, exist_ok=True)
+    if given_fmu is None:
+        from lpvpc.export import export_fmu
+
+        model_fmu = inspect_fmu(export_fmu(model, fmu_dir / f"model_fmi{fmi_version}.fmu", fmi_version=fmi_version),
+                                "model FMU")
+        check_model_fmu(model_fmu, model)
+    else:
+        model_fmu = given_fmu
+    if given_act is None:
+        from lpvpc.actuator import build_actuator_fmu
+
+        act_fmu = inspect_fmu(build_actuator_fmu(fmu_dir / f"actuator_fmi{model_fmu.fmi_version}.fmu",
+                                                 fmi_version=model_fmu.fmi_version), "actuator FMU")
+    else:
+        act_fmu = given_act
+    ratio = check_actuator_fmu(act_fmu, model, actuator_parameters)
+    timing["fmus"] = time.perf_counter() - t0
+
+    # -- offline routes -----------------------------------------------------------------
+    t0 = time.perf_counter()
+    off = offline_routes(model, meas.position, meas.scheduling)
+    cas = casadi_routes(model, meas.position, meas.scheduling)
+    timing["offline_and_casadi"] = time.perf_counter() - t0
+    rep = fmu_replay(model_fmu, model, meas.position, meas.scheduling)
+    timing["fmu_replay"] = rep["seconds"]
+
+    # -- co-simulation ------------------------------------------------------------------
+    t0 = time.perf_counter()
+    drive, params, calibration = actuator_drive(record, act_fmu, ratio, meas.n, actuator_parameters, calibrate,
+                                                band_limit_to=model.fs if band_limit_command else None)
+    timing["calibration"] = calibration.get("seconds", 0.0)
+    cos = run_cosimulation(model_fmu, act_fmu, drive, settings=settings, actuator_parameters=params)
+    timing["cosim"] = time.perf_counter() - t0
+    unloaded = None
+    if measure_load_effect and settings.load != "none":
+        t0 = time.perf_counter()
+        unloaded = run_cosimulation(model_fmu, act_fmu, drive, settings=CosimSettings(**{**asdict(settings),
+                                                                                         "load": "none"}),
+                                    actuator_parameters=params)
+        timing["cosim_unloaded"] = time.perf_counter() - t0
+    # the lab pipeline on the co-simulated actuator: its 1 kHz positions recorded,
+    # decimated like the measured data, replayed through the model FMU
+    q_a = int(round((1.0 / drive.step) / model.fs))
+    rec_pos = decimate_signal(cos.pt[:, 0] - cos.ut[:, 0], q_a)[: meas.n]
+    rec_rho = decimate_signal(cos.ut[:, 0], q_a)[: meas.n]
+    rec = fmu_replay(model_fmu, model, rec_pos, rec_rho)
+
+    # -- comparison ---------------------------------------------------------------------
+    y = meas.torque
+    preds = {"numpy": off["numpy"].total, "fmu": rep["torque"], "cosim": cos.torque}
+    routes = {
+        "numpy": ("offline numpy prediction, two-sided intrinsic IRF (the identified model)", off["numpy"].total),
+        "numpy_causal": ("offline numpy prediction, causal intrinsic IRF (what the default FMU runs)",
+                         off["numpy_causal"].total),
+        "casadi": ("CasADi step function (causal) over the record, trajectory_function", cas["torque"]["casadi"]),
+        "casadi_exact": ("CasADi step function (exact two-sided, latency removed)", cas["torque"]["casadi_exact"]),
+        "fmu": ("model FMU replaying the measured positions (causal, no actuator)", rep["torque"]),
+        "actuator_replay": ("model FMU replaying the co-simulated actuator positions recorded at the actuator "
+                            "rate and decimated like the measured data", rec["torque"]),
+        "cosim": ("co-simulation: actuator FMUs driven by the record's commands, model FMU in the loop",
+                  cos.torque),
+    }
+    if unloaded is not None:
+        routes["cosim_unloaded"] = ("the same co-simulation without load torque on the actuators", unloaded.torque)
+    route_table = {}
+    for name, (desc, p) in routes.items():
+        ok = np.isfinite(p)
+        route_table[name] = {"description": desc, "vaf": cmp.vaf(y[ok], p[ok]), "rmse": cmp.rmse(y[ok], p[ok]),
+                             "n": int(ok.sum())}
+    ex_ok = np.isfinite(cas["torque"]["casadi_exact"])
+    agreement = cmp.route_agreement(off["numpy_causal"].total, {"casadi_vs_numpy_causal": cas["torque"]["casadi"],
+                                                                "fmu_vs_numpy_causal": rep["torque"]},
+                                    route_tolerance)
+    agreement.update(cmp.route_agreement(off["numpy"].total[ex_ok], {
+        "casadi_exact_vs_numpy": cas["torque"]["casadi_exact"][ex_ok]}, route_tolerance))
+    agreement["tolerance"] = route_tolerance
+    agreement["pass"] = all(v["pass"] for v in agreement.values() if isinstance(v, dict))
+    vaf_fmu, vaf_cos = route_table["fmu"]["vaf"], route_table["cosim"]["vaf"]
+    agreement["cosim_vs_fmu_replay"] = {
+        "vaf_difference": vaf_fmu - vaf_cos,
+        "max_relative_difference": cmp.relative_difference(cos.torque, rep["torque"]),
+        "rmse_difference": cmp.rmse(cos.torque, rep["torque"]),
+        "note": "physical difference (actuator dynamics, load, sampling), not a numerical tolerance"}
+    agreement["numpy_causal_vs_numpy"] = {
+        "vaf_difference": route_table["numpy"]["vaf"] - route_table["numpy_causal"]["vaf"],
+        "max_relative_difference": cmp.relative_difference(off["numpy_causal"].total, off["numpy"].total),
+        "note": "the causal form the FMU runs against the identified two-sided model"}
+
+    sched = cmp.scheduling_summary(meas.scheduling, model.scheduling_range, y, preds)
+    sched["flagged"] = bool(sched["out_of_range_fraction"] > 0)
+
+    pert_pos_meas = meas.position
+    track = {
+        "perturbation_position_vaf": cmp.vaf(pert_pos_meas, cos.model_inputs["position"]),
+        "perturbation_position_rmse_mrad": 1e3 * cmp.rmse(pert_pos_meas, cos.model_inputs["position"]),
+        "scheduling_rmse_mrad": 1e3 * cmp.rmse(meas.scheduling, cos.model_inputs["scheduling"]),
+        "what": "co-simulated actuator (model rate, sampled) against the measured record (decimated)"}
+    load_effect = None
+    if unloaded is not None:
+        dp = (cos.pt[:, 0] - cos.ut[:, 0]) - (unloaded.pt[:, 0] - unloaded.ut[:, 0])
+        du = cos.ut[:, 0] - unloaded.ut[:, 0]
+        load_effect = {
+            "vaf_cosim_unloaded": route_table["cosim_unloaded"]["vaf"],
+            "vaf_change": vaf_cos - route_table["cosim_unloaded"]["vaf"],
+            "perturbation_position_max_mrad": float(1e3 * np.max(np.abs(dp))),
+            "perturbation_position_rms_mrad": float(1e3 * np.sqrt(np.mean(dp ** 2))),
+            "perturbation_position_rms_relative": float(np.sqrt(np.mean(dp ** 2)) / np.std(pert_pos_meas)),
+            "ut_position_max_mrad": float(1e3 * np.max(np.abs(du))),
+            "model_torque_rms": float(np.sqrt(np.mean(cos.load_pt_model ** 2))),
+        }
+
+    # -- where the model fails ----------------------------------------------------------
+    lo, hi = model.scheduling_range
+    inner = np.linspace(lo, hi, 9)
+    edges = inner.copy()
+    if meas.scheduling.min() < lo:
+        edges = np.concatenate([[meas.scheduling.min()], edges])
+    if meas.scheduling.max() > hi:
+        edges = np.concatenate([edges, [meas.scheduling.max()]])
+    ut_vel = np.asarray(meas.extra.get("ut_velocity", np.gradient(meas.scheduling) * meas.fs))
+    pert_vel = eq.velocity(meas.position, meas.fs)
+    t_rec = np.arange(meas.n) / meas.fs
+    failure = {
+        "by_position": cmp.binned_errors(meas.scheduling, y, preds, edges),
+        "by_ut_velocity": cmp.binned_errors(ut_vel, y, preds, cmp.quantile_edges(ut_vel, 8)),
+        "by_perturbation_velocity": cmp.binned_errors(pert_vel, y, preds, cmp.symmetric_edges(pert_vel)),
+        "over_time": cmp.errors_over_time(t_rec, y, preds, window=5.0),
+        "by_frequency": cmp.band_errors(y, preds, meas.fs),
+        "worst_segments": cmp.worst_segments(t_rec, y, off["numpy"].total, length=2.0, n=3),
+    }
+
+    # -- thresholds ---------------------------------------------------------------------
+    checks = []
+    if min_vaf is not None:
+        for key, name in (("vaf", "numpy"), ("vaf_fmu", "fmu"), ("vaf_cosim", "cosim")):
+            v = route_table[name]["vaf"]
+            checks.append({"name": f"{key} >= min_vaf", "value": v, "threshold": float(min_vaf),
+                           "pass": bool(v >= min_vaf)})
+    for key in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal", "casadi_exact_vs_numpy"):
+        checks.append({"name": f"route agreement {key} <= tolerance",
+                       "value": agreement[key]["max_relative_difference"], "threshold": route_tolerance,
+                       "pass": agreement[key]["pass"]})
+
+    metrics = {
+        "format": "lpvpc-validation",
+        "format_version": 1,
+        "vaf": route_table["numpy"]["vaf"],
+        "vaf_causal": route_table["numpy_causal"]["vaf"],
+        "vaf_casadi": route_table["casadi"]["vaf"],
+        "vaf_fmu": vaf_fmu,
+        "vaf_cosim": vaf_cos,
+        "vaf_actuator_replay": route_table["actuator_replay"]["vaf"],
+        "rmse": route_table["numpy"]["rmse"],
+        "rmse_fmu": route_table["fmu"]["rmse"],
+        "rmse_cosim": route_table["cosim"]["rmse"],
+        "n_samples": int(meas.n),
+        "fs": float(model.fs),
+        "duration_s": float(meas.n / meas.fs),
+        "units": {"vaf": "%", "rmse": "N m", "fs": "Hz", "time": "s", "position": "rad", "torque": "N m"},
+        "routes": route_table,
+        "route_agreement": agreement,
+        "scheduling": sched,
+        "out_of_range_fraction": sched["out_of_range_fraction"],
+        "cosim": {
+            "settings": {**asdict(settings), "band_limit_command": bool(band_limit_command)},
+            "connections": [{"to": a, "from": b} for a, b in cos.connections],
+            "command_source": drive.source,
+            "actuator_parameters": params,
+            "calibration": calibration,
+            "tracking": track,
+            "load_effect": load_effect,
+            "iterations": {"mean": float(cos.iterations.mean()), "max": int(cos.iterations.max())},
+            "step_model_s": cos.step_model,
+            "step_actuator_s": cos.step_actuator,
+            "communication_step_s": cos.step_model,
+            "actuator_steps_per_model_step": ratio,
+            "model_steps": int(meas.n),
+            "actuator_steps_per_run": int(meas.n * ratio),
+            "stepping_seconds": cos.elapsed,
+            "real_time_factor": cos.real_time_factor,
+        },
+        "failure_analysis": failure,
+        "thresholds": {"min_vaf": None if min_vaf is None else float(min_vaf), "route_tolerance": route_tolerance},
+        "checks": checks,
+        "pass": all(c["pass"] for c in checks),
+        "provenance": {
+            "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "model_file": None if model_path is None else str(model_path),
+            "model_hash": model.model_hash,
+            "model_data_hash": (model.provenance or {}).get("data_hash"),
+            "data_files": record.files,
+            "data_hash": meas.data_hash,
+            "record_fs": float(record.fs),
+            "record_samples": int(len(record.pt.time)),
+            "position_unit": meas.meta.get("position_unit"),
+            "torque_sign": meas.meta.get("torque_sign"),
+            "model_fmu": {"path": str(model_fmu.path), "sha256": model_fmu.sha256, "fmi_version": model_fmu.fmi_version,
+                          "given": given_fmu is not None, "declared_model_hash": fmu_model_hash(model_fmu)},
+            "actuator_fmu": {"path": str(act_fmu.path), "sha256": act_fmu.sha256, "fmi_version": act_fmu.fmi_version,
+                             "given": given_act is not None},
+            "step_sizes": {"model_s": 1.0 / model.fs, "actuator_s": act_fmu.step_size,
+                           "communication_s": cos.step_model},
+            "tolerances": {"route_agreement": route_tolerance, "iterate_tol_Nm": settings.iterate_tol,
+                           "max_iterations": settings.max_iterations,
+                           "calibration": "scipy least_squares xtol 1e-10, ftol 1e-12"},
+            "versions": _versions(),
+            "platform": platform.platform(),
+            "command_line": command_line,
+        },
+        "timing_s": timing,
+    }
+    result = ValidationResult(metrics=metrics, report_dir=report_dir)
+    if write_report:
+        from .report import write_report as _write
+
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            result.files = _write(result, model=model, record=record, predictions={
+                "numpy": off["numpy"], "numpy_causal": off["numpy_causal"], "fmu": rep, "cosim": cos,
+                "unloaded": unloaded, "actuator_replay": rec})
+        timing["report"] = time.perf_counter() - t0
+    timing["total"] = time.perf_counter() - t_all
+    if write_report:
+        from .report import write_metrics
+
+        write_metrics(result)
+    return result

@@ -1,0 +1,556 @@
+"""The validation report: figures (PNG), ``report.html`` (one self-contained file, the PNGs
+embedded as base64, no external resources, opens offline) and ``metrics.json``.
+
+Units in every figure and table: time s, position rad, velocity rad/s, torque N m,
+frequency Hz, VAF percent.
+
+The page carries a small script that, once the page has loaded, marks every ``<img>``
+with ``data-rendered="yes"|"no"`` (decoded with a non-zero natural width) and writes the
+count into ``<p id="render-check" data-ok=.. data-total=..>``, so that a headless browser
+can check that every figure rendered.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_report", "write_metrics", "FIGURES"]
+
+#: file name -> (section, caption); the order of the report.
+FIGURES = {
+    "fig3_torque.png": "Measured and predicted perturbation torque with the intrinsic and reflex parts (Fig. 3)",
+    "routes.png": "The prediction routes and the co-simulated actuator against the record",
+    "fig4_intrinsic_gain.png": "Identified intrinsic gain over frequency and position, with K(rho) (Fig. 4)",
+    "fig5a_reflex_nonlinearity.png": "Identified reflex static nonlinearity at several positions (Fig. 5A)",
+    "fig5b_reflex_irf.png": "Impulse response of the identified reflex dynamics (Fig. 5B)",
+    "scheduling_range.png": "Held-out scheduling variable against the identified range",
+    "error_by_position.png": "Error by position bin",
+    "error_by_velocity.png": "Error by velocity bin",
+    "error_over_time.png": "Error over time",
+    "error_by_frequency.png": "Error by frequency",
+    "worst_segments.png": "The worst segments of the record",
+}
+
+_ROUTE_STYLE = {"numpy": ("C0", "offline (numpy)"), "fmu": ("C2", "FMU replay"), "cosim": ("C3", "co-simulation")}
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def _clean(o):
+    """NaN/inf -> None (JSON has neither)."""
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, (float, np.floating)) and not math.isfinite(float(o)):
+        return None
+    return o
+
+
+def write_metrics(result) -> Path:
+    path = Path(result.report_dir) / "metrics.json"
+    path.write_text(json.dumps(_clean(result.metrics), indent=1, default=_json_default) + "\n")
+    result.files["metrics"] = path
+    return path
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def _fig(*size):
+    """A figure outside pyplot (no global state, no GUI backend: renders with Agg)."""
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=size)
+
+
+def _save(fig, path):
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def _window(n, fs, length=10.0, at=0.25):
+    t0 = at * n / fs
+    return (t0, min(t0 + length, n / fs))
+
+
+def _shade_out_of_range(ax, t, outside, label=True):
+    if not np.any(outside):
+        return
+    d = np.diff(np.concatenate([[0], outside.astype(int), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    for j, (a, b) in enumerate(zip(starts, stops)):
+        ax.axvspan(t[a], t[min(b, len(t) - 1)], color="red", alpha=0.12, lw=0,
+                   label="outside identified range" if (label and j == 0) else None)
+
+
+def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
+    from lpvpc import plotting
+
+    meas = record.measured
+    fs, n = meas.fs, meas.n
+    t = np.arange(n) / fs
+    y = meas.torque
+    lo, hi = model.scheduling_range
+    outside = (meas.scheduling < lo) | (meas.scheduling > hi)
+    cos = pred["cosim"]
+    series = {"numpy": pred["numpy"].total, "fmu": pred["fmu"]["torque"], "cosim": cos.torque}
+    paths = {}
+
+    def out(name):
+        p = folder / name
+        paths[name] = p
+        return p
+
+    # Fig. 3
+    fig = _fig(9, 6.5)
+    win = _window(n, fs)
+    axes = plotting.plot_torque_fit(t, y, pred["numpy"], fig=fig, window=win)
+    sel = (t >= win[0]) & (t <= win[1])
+    axes[0].plot(t[sel], cos.torque[sel], color="C3", lw=0.9, ls="--", label="co-simulation")
+    axes[0].legend(loc="upper right", fontsize="small", ncol=3)
+    axes[0].set_title(f"perturbation torque, {win[0]:.0f}-{win[1]:.0f} s of the held-out record "
+                      f"(offline VAF {m['vaf']:.1f} %, co-simulation {m['vaf_cosim']:.1f} %)")
+    _save(fig, out("fig3_torque.png"))
+
+    # routes and actuator tracking
+    fig = _fig(9, 6.5)
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
+    win = _window(n, fs, length=4.0, at=0.4)
+    sel = (t >= win[0]) & (t <= win[1])
+    ax1.plot(t[sel], y[sel], color="0.6", lw=1.2, label="measured")
+    for name, (c, label) in _ROUTE_STYLE.items():
+        ax1.plot(t[sel], series[name][sel], color=c, lw=1.0, ls="-" if name != "cosim" else "--", label=label)
+    ax1.set_ylabel("torque (N m)")
+    ax1.legend(fontsize="small", ncol=4, loc="upper right")
+    ax1.set_title("prediction routes")
+    ax2.plot(t[sel], 1e3 * meas.position[sel], color="0.6", lw=1.2, label="measured (decimated)")
+    ax2.plot(t[sel], 1e3 * cos.model_inputs["position"][sel], color="C3", lw=1.0, ls="--",
+             label="co-simulated actuators PT - UT (sampled)")
+    ax2.set_ylabel("perturbation (mrad)")
+    ax2.legend(fontsize="small", loc="upper right")
+    ax3.plot(t[sel], series["cosim"][sel] - series["fmu"][sel], color="C3", lw=1.0, label="co-simulation - FMU replay")
+    ax3.plot(t[sel], series["fmu"][sel] - pred["numpy_causal"].total[sel], color="C2", lw=1.0,
+             label="FMU replay - numpy causal")
+    ax3.set_ylabel("difference (N m)")
+    ax3.set_xlabel("time (s)")
+    ax3.legend(fontsize="small", loc="upper right")
+    _save(fig, out("routes.png"))
+
+    # Figs. 4 and 5
+    fig = _fig(7, 5)
+    plotting.plot_intrinsic_gain(model, fig.gca())
+    _save(fig, out("fig4_intrinsic_gain.png"))
+    fig = _fig(7, 5)
+    plotting.plot_reflex_nonlinearity(model, fig.gca())
+    _save(fig, out("fig5a_reflex_nonlinearity.png"))
+    fig = _fig(7, 5)
+    plotting.plot_reflex_irf(model, fig.gca())
+    _save(fig, out("fig5b_reflex_irf.png"))
+
+    # scheduling range
+    fig = _fig(9, 5)
+    ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 1]})
+    ax1.plot(t, meas.scheduling, color="C0", lw=0.8, label="held-out scheduling (UT position)")
+    ax1.axhspan(lo, hi, color="C2", alpha=0.1, label="identified range")
+    ax1.plot(np.where(outside, t, np.nan), np.where(outside, meas.scheduling, np.nan), color="red", lw=1.6,
+             label=f"outside ({100 * m['out_of_range_fraction']:.1f} %)")
+    ax1.set_xlabel("time (s)")
+    ax1.set_ylabel("position rho (rad)")
+    ax1.legend(fontsize="small", loc="lower right")
+    s = m["scheduling"]
+    names = ["numpy", "fmu", "cosim"]
+    inside_r = [s["in_range"][k]["rmse"] or 0.0 for k in names]
+    out_r = [(s["out_of_range"][k]["rmse"] or 0.0) for k in names]
+    xs = np.arange(len(names))
+    ax2.bar(xs - 0.2, inside_r, 0.4, color="C2", label="inside")
+    ax2.bar(xs + 0.2, out_r, 0.4, color="red", alpha=0.7, label="outside")
+    ax2.set_xticks(xs, ["offline", "FMU", "cosim"])
+    ax2.set_ylabel("RMSE (N m)")
+    ax2.legend(fontsize="small")
+    ax2.set_title("error in / out of range")
+    _save(fig, out("scheduling_range.png"))
+
+    # error by position bin
+    fa = m["failure_analysis"]
+
+    def bars(ax, rows, xlabel, fmt="{:+.2f}", mark_outside=False):
+        xs = np.arange(len(rows))
+        w = 0.8 / len(_ROUTE_STYLE)
+        for j, (name, (c, label)) in enumerate(_ROUTE_STYLE.items()):
+            ax.bar(xs + (j - 1) * w, [r[f"rmse_{name}"] or 0.0 for r in rows], w, color=c, label=label)
+        twin = ax.twinx()
+        twin.plot(xs, [r["rms_measured"] or 0.0 for r in rows], "k.:", lw=0.8, label="RMS measured torque (right)")
+        twin.set_ylabel("RMS measured torque (N m)")
+        twin.set_ylim(bottom=0)
+        twin.legend(fontsize="x-small", loc="upper right")
+        if mark_outside:
+            for x, r in zip(xs, rows):
+                if r["hi"] <= lo + 1e-12 or r["lo"] >= hi - 1e-12:
+                    ax.axvspan(x - 0.5, x + 0.5, color="red", alpha=0.12, lw=0)
+        ax.set_xticks(xs, [fmt.format(r["lo"]) + "\n" + fmt.format(r["hi"]) for r in rows], fontsize="x-small")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("RMSE (N m)")
+        ax.legend(fontsize="x-small", ncol=3, loc="upper left")
+
+    fig = _fig(9, 4.5)
+    bars(fig.gca(), fa["by_position"], "position bin rho (rad); shaded: outside the identified range",
+         mark_outside=True)
+    fig.gca().set_title("error by position (scheduling) bin")
+    _save(fig, out("error_by_position.png"))
+
+    fig = _fig(9, 7)
+    a1, a2 = fig.subplots(2, 1)
+    bars(a1, fa["by_ut_velocity"], "movement velocity bin (UT velocity, rad/s; equal-count bins)")
+    a1.set_title("error by velocity bin")
+    bars(a2, fa["by_perturbation_velocity"], "perturbation (stretch) velocity bin (rad/s; edges at the 50, 80 and "
+                                             "95th percentiles of |velocity|)")
+    _save(fig, out("error_by_velocity.png"))
+
+    ot = fa["over_time"]
+    fig = _fig(9, 4)
+    ax = fig.gca()
+    for name, (c, label) in _ROUTE_STYLE.items():
+        ax.plot(ot["t_centre"], ot[f"rmse_{name}"], color=c, marker=".", lw=1.0, label=label)
+    ax.plot(ot["t_centre"], ot["rms_measured"], "k:", lw=0.8, label="RMS measured torque")
+    _shade_out_of_range(ax, t, outside)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"RMSE per {ot['window']:g} s (N m)")
+    ax.set_yscale("log")
+    ax.legend(fontsize="small", ncol=3)
+    ax.set_title("error over time")
+    _save(fig, out("error_over_time.png"))
+
+    from .compare import error_spectrum
+
+    spec = error_spectrum(y, series, fs)
+    fig = _fig(9, 4.5)
+    ax = fig.gca()
+    f = spec["f"]
+    ax.semilogy(f[1:], spec["measured"][1:], color="0.5", lw=1.2, label="measured torque")
+    for name, (c, label) in _ROUTE_STYLE.items():
+        ax.semilogy(f[1:], spec[name][1:], color=c, lw=1.0, label=f"error, {label}")
+    for r in fa["by_frequency"][1:]:
+        ax.axvline(r["lo"], color="0.8", lw=0.6)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("power spectral density (N² m²/Hz)")
+    ax.set_xlim(0, fs / 2)
+    ax.legend(fontsize="small")
+    ax.set_title("error by frequency (band edges as vertical lines)")
+    _save(fig, out("error_by_frequency.png"))
+
+    segs = fa["worst_segments"]
+    fig = _fig(9, 2.4 * len(segs) + 0.5)
+    axes = np.atleast_1d(fig.subplots(len(segs), 1))
+    for ax, sgm in zip(axes, segs):
+        sl = slice(sgm["i0"], sgm["i1"])
+        tt = t[sl]
+        ax.plot(tt, y[sl], color="0.55", lw=1.3, label="measured")
+        for name, (c, label) in _ROUTE_STYLE.items():
+            ax.plot(tt, series[name][sl], color=c, lw=1.0, ls="--" if name == "cosim" else "-", label=label)
+        rho = meas.scheduling[sl]
+        flag = " - OUTSIDE the identified range" if np.any((rho < lo) | (rho > hi)) else ""
+        ax.set_title(f"{sgm['start']:.1f}-{sgm['stop']:.1f} s: offline RMSE {sgm['rmse']:.2f} N m, "
+                     f"rho {rho.min():+.3f}..{rho.max():+.3f} rad{flag}", fontsize="small")
+        ax.set_ylabel("torque (N m)")
+    axes[0].legend(fontsize="x-small", ncol=4, loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    _save(fig, out("worst_segments.png"))
+    return paths
+
+
+# --------------------------------------------------------------------------- HTML
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;margin:2em auto;max-width:980px;
+color:#222;line-height:1.45;padding:0 1em}
+h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.25em;margin-top:1.8em;border-bottom:1px solid #ddd}
+p.what{color:#333;font-style:italic} table{border-collapse:collapse;margin:.6em 0;font-size:.92em}
+td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right} th{background:#f3f3f3}
+td.l,th.l{text-align:left} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
+.flag{background:#fff3f3;border-left:4px solid #d33;padding:.5em 1em} figure{margin:1em 0}
+figure img{max-width:100%;height:auto;border:1px solid #eee} figcaption{font-size:.9em;color:#555}
+code{background:#f6f6f6;padding:0 .2em} .small{font-size:.85em;color:#555}
+"""
+
+_SCRIPT = """
+window.addEventListener('load', function () {
+  var imgs = document.images, ok = 0;
+  for (var i = 0; i < imgs.length; i++) {
+    var good = imgs[i].complete && imgs[i].naturalWidth > 0 && imgs[i].naturalHeight > 0;
+    imgs[i].setAttribute('data-rendered', good ? 'yes' : 'no');
+    if (good) { ok++; }
+  }
+  var el = document.getElementById('render-check');
+  el.setAttribute('data-ok', String(ok));
+  el.setAttribute('data-total', String(imgs.length));
+  el.textContent = ok + ' of ' + imgs.length + ' figures rendered in this browser.';
+});
+"""
+
+
+def _e(x) -> str:
+    return html.escape(str(x))
+
+
+def _num(x, fmt="{:.2f}") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return fmt.format(x)
+
+
+def _table(header, rows, left=(0,)) -> str:
+    """HTML table; ``left``: indices of left-aligned (text) columns, the others are numbers."""
+    h = "".join(f'<th class="{"l" if i in left else ""}">{_e(c)}</th>' for i, c in enumerate(header))
+    body = ""
+    for r in rows:
+        body += "<tr>" + "".join(f'<td class="{"l" if i in left else ""}">{c}</td>' for i, c in enumerate(r)) + "</tr>"
+    return f"<table><tr>{h}</tr>{body}</table>"
+
+
+def _img(path: Path, caption: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{_e(caption)}" data-file="{_e(path.name)}">'
+            f"<figcaption>{_e(caption)} (<code>figures/{_e(path.name)}</code>)</figcaption></figure>")
+
+
+def _worst_bin(rows, key="rmse_numpy"):
+    rows = [r for r in rows if r.get(key) is not None and r["n"] > 0]
+    return max(rows, key=lambda r: r[key]) if rows else None
+
+
+def _html(m: dict, figs: dict, model) -> str:
+    pf = lambda ok: '<span class="pass">pass</span>' if ok else '<span class="fail">FAIL</span>'  # noqa: E731
+    c = m["cosim"]
+    s = m["scheduling"]
+    fa = m["failure_analysis"]
+    prov = m["provenance"]
+    ag = m["route_agreement"]
+    parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+             f"<title>lpvpc validation report</title><style>{_CSS}</style></head><body>"]
+    parts.append("<h1>Validation report</h1>")
+    parts.append(f"<p class=\"small\">model <code>{_e(prov['model_hash'][:12])}</code> on "
+                 f"<code>{_e(prov['data_files']['pt']['path'])}</code> / <code>{_e(prov['data_files']['ut']['path'])}"
+                 f"</code>, {m['n_samples']} samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
+
+    # summary
+    overall = m["pass"]
+    parts.append("<h2>Summary</h2>")
+    parts.append(f"<p class=\"what\">The identified model explains {m['vaf']:.2f} % of the held-out torque variance "
+                 f"offline, {m['vaf_fmu']:.2f} % as an FMU replaying the measured positions and {m['vaf_cosim']:.2f} % "
+                 f"when co-simulated with the actuator; overall result: {'pass' if overall else 'FAIL'}.</p>")
+    rows = []
+    for name in ("numpy", "numpy_causal", "casadi", "casadi_exact", "fmu", "actuator_replay", "cosim", "cosim_unloaded"):
+        r = m["routes"].get(name)
+        if r:
+            rows.append([f"<code>{name}</code>", _num(r["vaf"]), _num(r["rmse"], "{:.3f}"), _e(r["description"])])
+    parts.append(_table(["route", "VAF (%)", "RMSE (N m)", "what"], rows, left=(0, 3)))
+    rows = [[_e(ch["name"]), _num(ch["value"], "{:.4g}"), _num(ch["threshold"], "{:.4g}"), pf(ch["pass"])]
+            for ch in m["checks"]]
+    parts.append(_table(["check", "value", "threshold", "result"], rows))
+    if s["flagged"]:
+        o, i = s["out_of_range"]["numpy"], s["in_range"]["numpy"]
+        parts.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
+                     f"of the held-out samples ({o['n']}) have a scheduling variable outside the identified range "
+                     f"[{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad (held-out range "
+                     f"[{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad); the model is held at its "
+                     f"boundary there. Offline RMSE there {_num(o['rmse'], '{:.3f}')} N m against "
+                     f"{_num(i['rmse'], '{:.3f}')} N m inside (VAF {_num(o['vaf'])} % vs {_num(i['vaf'])} %).</p>")
+
+    # Fig. 3
+    parts.append("<h2>Measured and predicted torque (Fig. 3)</h2>")
+    parts.append("<p class=\"what\">A 10-s window of the held-out perturbation torque with the offline prediction "
+                 "split into its intrinsic and reflex parts, and the co-simulated torque dashed.</p>")
+    parts.append(_img(figs["fig3_torque.png"], FIGURES["fig3_torque.png"]))
+
+    # routes
+    parts.append("<h2>Prediction routes and co-simulation</h2>")
+    d = ag["cosim_vs_fmu_replay"]
+    parts.append(f"<p class=\"what\">The CasADi and FMU routes reproduce the numpy prediction to "
+                 f"{max(ag['casadi_vs_numpy_causal']['max_relative_difference'], ag['fmu_vs_numpy_causal']['max_relative_difference']):.1e} "
+                 f"of the torque scale, while the co-simulation, which adds the actuator and the loop, is "
+                 f"{abs(d['vaf_difference']):.2f} VAF points {'below' if d['vaf_difference'] >= 0 else 'above'} "
+                 f"the FMU replay.</p>")
+    rows = []
+    for key in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal", "casadi_exact_vs_numpy"):
+        a = ag[key]
+        rows.append([f"<code>{key}</code>", _num(a["max_relative_difference"], "{:.2e}"),
+                     _num(a["rmse_difference"], "{:.2e}"), pf(a["pass"])])
+    rows.append(["<code>numpy_causal_vs_numpy</code> (causal form vs identified)",
+                 _num(ag["numpy_causal_vs_numpy"]["max_relative_difference"], "{:.2e}"), "–",
+                 f"VAF {ag['numpy_causal_vs_numpy']['vaf_difference']:+.2f} points"])
+    rows.append(["<code>cosim_vs_fmu_replay</code> (physical)", _num(d["max_relative_difference"], "{:.2e}"),
+                 _num(d["rmse_difference"], "{:.3f}"), f"VAF {-d['vaf_difference']:+.2f} points"])
+    parts.append(_table(["routes", "max |a-b| / max |b|", "RMS difference (N m)", f"tolerance {ag['tolerance']:.0e}"], rows))
+    tr = c["tracking"]
+    cal = c["calibration"]
+    le = c["load_effect"]
+    st = c["settings"]
+    txt = (f"The actuators were driven by {_e(c['command_source'])}. ")
+    if cal.get("done"):
+        txt += (f"The servo was calibrated on the record: bandwidth {cal['servo_bandwidth']:.2f} Hz, damping "
+                f"{cal['servo_damping']:.3f} (FMU defaults {cal['defaults']['servo_bandwidth']:g} Hz, "
+                f"{cal['defaults']['servo_damping']:g}); position fit VAF {cal['vaf']:.3f} %"
+                + (" — <b>poor: the co-simulation tests the actuator model as much as the ankle model</b>" if cal["poor"] else "")
+                + ". ")
+    else:
+        txt += f"No servo calibration ({_e(cal.get('reason', ''))}). "
+    txt += (f"The co-simulated perturbation position matches the measured one with VAF "
+            f"{tr['perturbation_position_vaf']:.3f} % (RMS difference {tr['perturbation_position_rmse_mrad']:.3f} mrad). ")
+    if le:
+        txt += (f"Load effect, measured by repeating the run unloaded: the load changes the perturbation position by "
+                f"at most {le['perturbation_position_max_mrad']:.3f} mrad (RMS {100 * le['perturbation_position_rms_relative']:.2f} % "
+                f"of the perturbation) and vaf_cosim by {le['vaf_change']:+.3f} points. ")
+    if st.get("band_limit_command"):
+        txt += (f"The commands were band-limited to the model's band before driving the actuators, so the model in "
+                f"the loop sees no aliasing (replaying the co-simulated actuator positions, decimated once more, "
+                f"gives {m['vaf_actuator_replay']:.2f} %).")
+    else:
+        txt += (f"The model FMU replaying the co-simulated actuator positions after recording them at the actuator "
+                f"rate and decimating them like the measured data gives {m['vaf_actuator_replay']:.2f} %: the "
+                f"difference to vaf_cosim ({m['vaf_actuator_replay'] - m['vaf_cosim']:+.2f} points) is what feeding "
+                f"the {m['fs']:g} Hz model sampled, not anti-aliased, positions in the loop costs.")
+    parts.append(f"<p>{txt}</p>")
+    parts.append(_img(figs["routes.png"], FIGURES["routes.png"]))
+    rows = [[f"<code>{_e(x['to'])}</code>", _e(x["from"])] for x in c["connections"]]
+    parts.append("<p>Connections (by variable name):</p>" + _table(["input", "connected from"], rows, left=(0, 1)))
+    rows = [["communication step (model sample period)", f"{c['communication_step_s'] * 1e3:g} ms"],
+            ["actuator step (command fed at every step)" if st["command_rate"] == "actuator"
+             else "actuator step (command held over each model step)", f"{c['step_actuator_s'] * 1e3:g} ms"],
+            ["coupling of the load torque",
+             "one-step delay (torque of the previous model step)" if st["coupling"] == "delay"
+             else f"iterated with FMU state rollback to {st['iterate_tol']:g} N m "
+                  f"(mean {c['iterations']['mean']:.2f}, max {c['iterations']['max']} iterations)"],
+            ["model velocity / acceleration", "central differences of the perturbation position at the model rate"
+             if st["derivatives"] == "central" else "the actuators' velocity and acceleration outputs"],
+            ["load torque", _e(st["load"])],
+            ["actuator parameters", _e(", ".join(f"{k} = {v:.6g}" for k, v in c["actuator_parameters"].items()) or "defaults")],
+            ["stepping time", f"{c['stepping_seconds']:.2f} s ({c['real_time_factor']:.0f}x real time)"]]
+    parts.append(_table(["co-simulation set-up", ""], rows, left=(0, 1)))
+
+    # physiology
+    parts.append("<h2>Identified intrinsic stiffness (Fig. 4)</h2>")
+    K = model.elastic_stiffness(np.array(model.scheduling_range))
+    parts.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; the "
+                 f"elastic stiffness K(rho) goes from {K[0]:.0f} N m/rad at {model.scheduling_range[0]:+.2f} rad to "
+                 f"{K[1]:.0f} N m/rad at {model.scheduling_range[1]:+.2f} rad.</p>")
+    parts.append(_img(figs["fig4_intrinsic_gain.png"], FIGURES["fig4_intrinsic_gain.png"]))
+    parts.append("<h2>Identified reflex pathway (Fig. 5)</h2>")
+    parts.append(f"<p class=\"what\">The reflex static nonlinearity (steady torque for a constant delayed stretch "
+                 f"velocity) at seven positions and the impulse response of the reflex dynamics (order "
+                 f"{model.state_order}, delay {1e3 * model.delay / model.fs:.0f} ms).</p>")
+    parts.append(_img(figs["fig5a_reflex_nonlinearity.png"], FIGURES["fig5a_reflex_nonlinearity.png"]))
+    parts.append(_img(figs["fig5b_reflex_irf.png"], FIGURES["fig5b_reflex_irf.png"]))
+
+    # scheduling range
+    parts.append("<h2>Scheduling range</h2>")
+    o = s["out_of_range"]
+    parts.append(f"<p class=\"what\">The held-out record spans [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
+                 f"against the identified [{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad; "
+                 f"{100 * s['out_of_range_fraction']:.2f} % of it lies outside, where the error is shown separately.</p>")
+    rows = []
+    for k, label in (("numpy", "offline"), ("fmu", "FMU replay"), ("cosim", "co-simulation")):
+        i_, o_ = s["in_range"][k], o[k]
+        rows.append([label, str(i_["n"]), _num(i_["vaf"]), _num(i_["rmse"], "{:.3f}"), str(o_["n"]), _num(o_["vaf"]),
+                     _num(o_["rmse"], "{:.3f}")])
+    parts.append(_table(["route", "n inside", "VAF inside (%)", "RMSE inside (N m)", "n outside", "VAF outside (%)",
+                         "RMSE outside (N m)"], rows))
+    parts.append(_img(figs["scheduling_range.png"], FIGURES["scheduling_range.png"]))
+
+    # where it fails
+    parts.append("<h2>Where the model fails</h2>")
+    wb = _worst_bin(fa["by_position"])
+    if wb:
+        parts.append(f"<p class=\"what\">By position: the offline error is largest between {wb['lo']:+.3f} and "
+                     f"{wb['hi']:+.3f} rad (RMSE {wb['rmse_numpy']:.3f} N m against an RMS torque of "
+                     f"{wb['rms_measured']:.2f} N m there).</p>")
+    parts.append(_img(figs["error_by_position.png"], FIGURES["error_by_position.png"]))
+    wv, wp = _worst_bin(fa["by_ut_velocity"]), _worst_bin(fa["by_perturbation_velocity"])
+    if wv and wp:
+        parts.append(f"<p class=\"what\">By velocity: the error is largest for movement velocities "
+                     f"{wv['lo']:+.2f}..{wv['hi']:+.2f} rad/s (RMSE {wv['rmse_numpy']:.3f} N m) and for perturbation "
+                     f"velocities {wp['lo']:+.2f}..{wp['hi']:+.2f} rad/s (RMSE {wp['rmse_numpy']:.3f} N m).</p>")
+    parts.append(_img(figs["error_by_velocity.png"], FIGURES["error_by_velocity.png"]))
+    ot = fa["over_time"]
+    j = int(np.argmax(ot["rmse_numpy"]))
+    parts.append(f"<p class=\"what\">Over time: the offline RMSE per {ot['window']:g} s window ranges from "
+                 f"{min(ot['rmse_numpy']):.3f} to {max(ot['rmse_numpy']):.3f} N m, worst around t = "
+                 f"{ot['t_centre'][j]:.1f} s (out-of-range periods shaded).</p>")
+    parts.append(_img(figs["error_over_time.png"], FIGURES["error_over_time.png"]))
+    bands = fa["by_frequency"]
+    worst_band = min((b for b in bands if b["power_measured"] > 0 and b["vaf_numpy"] is not None),
+                     key=lambda b: b["vaf_numpy"], default=None)
+    if worst_band:
+        parts.append(f"<p class=\"what\">By frequency: the model explains least of the torque between "
+                     f"{worst_band['lo']:g} and {worst_band['hi']:g} Hz (band VAF {worst_band['vaf_numpy']:.1f} % "
+                     f"offline, {_num(worst_band['vaf_cosim'], '{:.1f}')} % co-simulated).</p>")
+    total_p = sum(b["power_measured"] for b in bands) or 1.0
+    rows = [[f"{b['lo']:g}–{b['hi']:g}", f"{100 * b['power_measured'] / total_p:.1f}", _num(b["vaf_numpy"], "{:.1f}"),
+             _num(b["vaf_fmu"], "{:.1f}"), _num(b["vaf_cosim"], "{:.1f}")] for b in bands]
+    parts.append(_table(["band (Hz)", "share of torque power (%)", "band VAF offline (%)", "FMU (%)", "cosim (%)"], rows))
+    parts.append(_img(figs["error_by_frequency.png"], FIGURES["error_by_frequency.png"]))
+    segs = fa["worst_segments"]
+    parts.append(f"<p class=\"what\">The {len(segs)} two-second segments with the largest offline error, measured and "
+                 f"predicted torque overlaid; the worst starts at {segs[0]['start']:.1f} s "
+                 f"(RMSE {segs[0]['rmse']:.3f} N m).</p>")
+    parts.append(_img(figs["worst_segments.png"], FIGURES["worst_segments.png"]))
+
+    # provenance
+    parts.append("<h2>Provenance</h2>")
+    parts.append("<p class=\"what\">What was validated, with what, and when.</p>")
+    v = prov["versions"]
+    rows = [["date (UTC)", _e(prov["date"])],
+            ["model file", _e(prov["model_file"])],
+            ["model hash (sha256 of equations and coefficients)", f"<code>{_e(prov['model_hash'])}</code>"],
+            ["hash of the model's identification data", f"<code>{_e(prov['model_data_hash'])}</code>"],
+            ["PT file (sha256)", f"{_e(prov['data_files']['pt']['path'])}<br><code>{_e(prov['data_files']['pt']['sha256'])}</code>"],
+            ["UT file (sha256)", f"{_e(prov['data_files']['ut']['path'])}<br><code>{_e(prov['data_files']['ut']['sha256'])}</code>"],
+            ["held-out data hash (PT-UT at the model rate)", f"<code>{_e(prov['data_hash'])}</code>"],
+            ["record", f"{prov['record_samples']} samples at {prov['record_fs']:g} Hz; position unit "
+                       f"{_e(prov['position_unit'])}, torque sign {_e(prov['torque_sign'])}"],
+            ["model FMU (sha256)", f"{_e(prov['model_fmu']['path'])} (FMI {prov['model_fmu']['fmi_version']}.0"
+                                   f"{', given' if prov['model_fmu']['given'] else ', exported for this report'})"
+                                   f"<br><code>{_e(prov['model_fmu']['sha256'])}</code>"],
+            ["actuator FMU (sha256)", f"{_e(prov['actuator_fmu']['path'])} (FMI {prov['actuator_fmu']['fmi_version']}.0)"
+                                      f"<br><code>{_e(prov['actuator_fmu']['sha256'])}</code>"],
+            ["step sizes", f"model {prov['step_sizes']['model_s']:g} s, actuator {prov['step_sizes']['actuator_s']:g} s, "
+                           f"communication {prov['step_sizes']['communication_s']:g} s"],
+            ["tolerances", _e(", ".join(f"{k} {val}" for k, val in prov["tolerances"].items()))],
+            ["package versions", _e(", ".join(f"{k} {val}" for k, val in v.items()))],
+            ["platform", _e(prov["platform"])],
+            ["command line", f"<code>{_e(prov['command_line'] or '(library call)')}</code>"]]
+    parts.append(_table(["", ""], rows, left=(0, 1)))
+    parts.append('<p id="render-check" class="small" data-ok="" data-total="">figure check pending '
+                 '(needs JavaScript)</p>')
+    parts.append(f"<script>{_SCRIPT}</script></body></html>")
+    return "\n".join(parts)
+
+
+def write_report(result, *, model, record, predictions) -> dict:
+    """Draw the figures into ``report_dir/figures`` and write ``report_dir/report.html``;
+    returns {"report": path, "figures": {name: path}}."""
+    folder = Path(result.report_dir) / "figures"
+    folder.mkdir(parents=True, exist_ok=True)
+    figs = _draw_figures(folder, result.metrics, model, record, predictions)
+    page = _html(result.metrics, figs, model)
+    path = Path(result.report_dir) / "report.html"
+    path.write_text(page, encoding="utf-8")
+    result.metrics["files"] = {"report": "report.html", "metrics": "metrics.json",
+                               "figures": [f"figures/{n}" for n in figs]}
+    return {"report": path, "figures": figs}

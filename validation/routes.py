@@ -1,0 +1,75 @@
+"""The offline prediction routes of one held-out record (torque in N m, model rate):
+
+- ``numpy``: :meth:`lpvpc.model.LPVPCModel.predict`, two-sided IRF (the identified model);
+- ``numpy_causal``: the same with the causal IRF the default FMU runs;
+- ``casadi`` / ``casadi_exact``: the exported CasADi step run over the record with
+  :func:`lpvpc.export.trajectory_function` (causal; exact two-sided, output shifted back
+  by its latency of L samples so that it lines up with ``numpy``);
+- ``fmu``: the model FMU replaying the measured perturbation position, scheduling and
+  their central-difference velocity and acceleration (no actuator).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from math import isfinite
+
+import numpy as np
+
+from lpvpc import export as ex
+from lpvpc.errors import FMUError, OutOfRangeWarning
+
+from .cosim import MODEL_INPUTS, MODEL_OUTPUTS
+from .fmu import FMUInfo, FMUInstance
+
+__all__ = ["offline_routes", "casadi_routes", "fmu_replay"]
+
+
+def offline_routes(model, position, scheduling) -> dict:
+    """numpy predictions: {"numpy": Prediction (two-sided), "numpy_causal": Prediction}."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        return {"numpy": model.predict(position, scheduling),
+                "numpy_causal": model.predict(position, scheduling, causal=True)}
+
+
+def casadi_routes(model, position, scheduling) -> dict:
+    """CasADi predictions {"casadi": total, "casadi_exact": total} (N m) and build/run times."""
+    out, timing = {}, {}
+    n = len(position)
+    for name, variant in (("casadi", "causal"), ("casadi_exact", "exact")):
+        t0 = time.perf_counter()
+        step = ex.step_function(model, variant)
+        traj = ex.trajectory_function(step, n)
+        args = ex.replay_inputs(model, position, scheduling, variant)
+        res = traj(state=np.zeros(step.size1_in("state")), **args)
+        tq = np.asarray(res["torque"]).ravel()
+        lat = ex.latency_samples(model, variant)
+        if lat:  # output k is the torque of sample k - L: shift back, the last L samples are not computed
+            tq = np.concatenate([tq[lat:], np.full(lat, np.nan)])
+        out[name] = tq
+        timing[name] = time.perf_counter() - t0
+    return {"torque": out, "seconds": timing}
+
+
+def fmu_replay(model_fmu: FMUInfo, model, position, scheduling) -> dict:
+    """Replay a record through the (causal) model FMU at its sample period; every output
+    checked finite. Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
+    rows = ex.replay_inputs(model, position, scheduling, "causal")
+    U = np.column_stack([np.ravel(rows[name]) for name in MODEL_INPUTS])
+    h = 1.0 / model.fs
+    Y = np.empty((len(U), 3))
+    with FMUInstance(model_fmu, "model_replay") as inst:
+        inst.initialize(0.0)
+        pin, pout = inst.port(MODEL_INPUTS, "input"), inst.port(MODEL_OUTPUTS, "output")
+        t0 = time.perf_counter()
+        for k in range(len(U)):
+            pin.set(U[k])
+            y = Y[k] = pout.get()
+            if not (isfinite(y[0]) and isfinite(y[1]) and isfinite(y[2])):
+                raise FMUError(f"model_replay ({model_fmu.path.name}): output {MODEL_OUTPUTS} = {y} (not finite) at "
+                               f"t = {k * h:.6g} s although the FMU reported OK")
+            inst.do_step(k * h, h)
+        elapsed = time.perf_counter() - t0
+    return {"torque": Y[:, 0], "torque_intrinsic": Y[:, 1], "torque_reflex": Y[:, 2], "seconds": elapsed}
