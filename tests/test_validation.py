@@ -288,6 +288,25 @@ def test_fmu_of_another_model_exits_2(full, short, model, tmp_path):
     _one_line_error(rc, err, "exported from model")
 
 
+def test_exact_variant_fmu_is_refused_with_a_hint(short, model, model_file, tmp_path):
+    from lpvpc.export import export_fmu
+
+    exact = export_fmu(model, tmp_path / "exact.fmu", variant="exact")
+    rc, _, err = _run(["validate", model_file, "--pt", short["PT"], "--ut", short["UT"], "--report", tmp_path / "r",
+                       "--fmu", exact])
+    _one_line_error(rc, err, "lacks input 'velocity', input 'acceleration'", "exact variant")
+
+
+def test_missing_chromium_fails_unless_allowed(monkeypatch):
+    monkeypatch.setitem(globals(), "CHROMIUM", "/nonexistent/chromium")
+    monkeypatch.delenv("LPVPC_ALLOW_NO_CHROMIUM", raising=False)
+    with pytest.raises(pytest.fail.Exception, match="not installed"):
+        _chromium_or_skip()
+    monkeypatch.setenv("LPVPC_ALLOW_NO_CHROMIUM", "1")
+    with pytest.raises(pytest.skip.Exception, match="LPVPC_ALLOW_NO_CHROMIUM"):
+        _chromium_or_skip()
+
+
 def test_records_of_different_lengths_exit_2(short, model_file, tmp_path):
     ut = short["UT_raw"]
     n = len(ut.time) - 500
