@@ -17,6 +17,13 @@ Step, at sample k (period T = 1/fs)::
 
 Outputs have direct feedthrough: they use the inputs of the same sample.
 
+Extended models (:mod:`lpvpc.effects`) take the extra signals their effects need as
+further inputs after these, in the order of :data:`lpvpc.effects.SIGNAL_ORDER`
+(``trial_time`` s, ``scheduling_velocity`` rad/s, ``emg``, ``emg_ut``), and keep the
+effects' own states (slow-movement direction memory, reflex cascade) in the state; the
+effect terms are evaluated by :func:`lpvpc.effects.effect_term`, the same code as the
+numpy prediction, and added to the pathway they belong to.
+
 Variants
 --------
 ``"causal"`` (default; latency-free, meant for closed loop)
@@ -113,14 +120,39 @@ def _check_variant(variant):
         raise ExportError(f"unknown export variant {variant!r}; choose one of {VARIANTS}")
 
 
-def input_names(variant="causal", parametric=False):
-    """Names of the step function's inputs, in order."""
+def input_names(variant="causal", parametric=False, model=None):
+    """Names of the step function's inputs, in order (with ``model``: including the extra
+    signals of an extended model)."""
     _check_variant(variant)
     names = [STATE_INPUT, "position", "scheduling"]
     if variant == "causal":
         names += ["velocity", "acceleration"]
+    names += list(_effect_signals(model))
     if parametric:
         names.append("params")
+    return names
+
+
+def _effect_signals(model) -> tuple:
+    if model is None or not getattr(model, "effects", None):
+        return ()
+    from .effects import model_signals
+
+    return model_signals(model)
+
+
+def _effect_states(model) -> list:
+    """Names of the effect states of an extended model (direction memory, reflex cascade)."""
+    if model is None or not getattr(model, "effects", None):
+        return []
+    from .effects import model_derived
+
+    derived = model_derived(model)
+    names = []
+    if "direction" in derived:
+        names += ["direction_latched", "direction_smoothed"]
+    if "reflex" in derived:
+        names += [f"reflex_cascade[{i}]" for i in range(int(model.A.shape[0]))]
     return names
 
 
@@ -135,15 +167,19 @@ class StateLayout:
     n_sched: int  # scheduling history length
     m: int  # reflex state order
     start: int  # saturation value of the sample counter (latency + delay)
+    signals: tuple = ()  # extra input signals of an extended model (history kept for latency > 0)
+    effect_states: tuple = ()  # names of the effect states
 
     @property
     def size(self) -> int:
-        return self.n_pos + self.n_sched + self.m + 1
+        return self.n_pos + self.n_sched + self.m + self.latency * len(self.signals) + len(self.effect_states) + 1
 
     def describe(self) -> list:
         names = [f"position(k-{i + 1})" for i in range(self.n_pos)]
         names += [f"scheduling(k-{i + 1})" for i in range(self.n_sched)]
         names += [f"reflex_state[{i}]" for i in range(self.m)]
+        names += [f"{s}(k-{i + 1})" for s in self.signals for i in range(self.latency)]
+        names += list(self.effect_states)
         names.append(f"samples_seen (saturates at {self.start})")
         return names
 
@@ -161,7 +197,10 @@ def state_layout(model, variant="causal") -> StateLayout:
     lags = model.causal_lags if variant == "causal" else model.lags
     # history index i means pos(k - i); i = 0 is the current input.
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
-    return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d)
+    if _effect_signals(model) or _effect_states(model):
+        needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
+    return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d,
+                       signals=_effect_signals(model), effect_states=tuple(_effect_states(model)))
 
 
 # ---------------------------------------------------------------------------------------
@@ -178,7 +217,7 @@ def _coefficient_blocks(model, variant):
         ("B", np.asarray(model.B, dtype=float).reshape(-1)),
         ("C", np.asarray(model.C, dtype=float).reshape(-1)),
         ("D", np.array([float(model.D)])),
-    ]
+    ] + [blk for fe in getattr(model, "effects", ()) for blk in fe.coefficient_blocks(variant)]
 
 
 def parameter_vector(model, variant="causal") -> np.ndarray:
@@ -224,6 +263,12 @@ def parameter_info(model, variant="causal") -> list:
                     for i in range(a.shape[0]) for j in range(a.shape[1])]
         elif name in ("B", "C"):
             out += [(f"reflex dynamics {name}[{i}]", "") for i in range(a.shape[0])]
+        elif name != "D":  # an effect term of an extended model (lpvpc.effects)
+            effect, kind = name.rsplit("_", 1) if not name.endswith("H_causal") else (name[:-9], "H_causal")
+            what = {"H": "two-sided IRF", "H_causal": "causal IRF", "Theta": "static term"}[kind]
+            out += [(f"effect {effect}: {what} coefficient [{i},{j}]", "")
+                    for i in range(a.shape[0]) for j in range(a.shape[1])]
+            continue
         else:
             out.append(("reflex dynamics feedthrough D", ""))
     return out
@@ -273,12 +318,15 @@ def step_function(model, variant="causal", parametric=False, name=None):
         vel = ca.SX.sym("velocity")
         acc = ca.SX.sym("acceleration")
         inputs += [vel, acc]
+    sig_in = {name: ca.SX.sym(name) for name in lay.signals}  # extended models' extra inputs
+    inputs += list(sig_in.values())
     p = None
     if parametric:
         p = ca.SX.sym("params", len(parameter_vector(model, variant)))
         inputs.append(p)
     c = _split_parameters(model, variant, p)
 
+    lat_ = lay.latency
     i0 = 0
     pos_hist = state[i0: i0 + lay.n_pos]
     i0 += lay.n_pos
@@ -286,6 +334,12 @@ def step_function(model, variant="causal", parametric=False, name=None):
     i0 += lay.n_sched
     x = state[i0: i0 + lay.m]
     i0 += lay.m
+    sig_hist = {}
+    for name in lay.signals:
+        sig_hist[name] = state[i0: i0 + lat_]
+        i0 += lat_
+    eff_state = state[i0: i0 + len(lay.effect_states)]
+    i0 += len(lay.effect_states)
     seen = state[i0]
 
     def p_at(i):  # pos(k - i)
@@ -293,6 +347,7 @@ def step_function(model, variant="causal", parametric=False, name=None):
 
     lat = lay.latency
     rho = rho_in if lat == 0 else rho_hist[lat - 1]  # rho(j), j = k - latency
+    sig = {n: (v if lat == 0 else sig_hist[n][lat - 1]) for n, v in sig_in.items()}  # signals at j
 
     # Intrinsic pathway at sample j.
     if variant == "causal":
@@ -311,9 +366,18 @@ def step_function(model, variant="causal", parametric=False, name=None):
                         c["Omega"], ops)
     x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
 
+    eff_next = eff_state
+    if lay.signals or lay.effect_states:  # extended model: effect terms (lpvpc.effects)
+        v_j = vel if variant == "causal" else eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
+        tq_ei, tq_er, eff_next = _effect_torques(model, variant, c, lay, ops, signals, rho, v_j, sig, x, z,
+                                                 eff_state)
+        tq_i, tq_r = tq_i + tq_ei, tq_r + tq_er
+
     if lat > 0:  # nothing is defined before the record starts: hold x = 0, output 0
         started = seen >= lat
         x_next = ca.if_else(started, x_next, x)
+        if lay.effect_states:
+            eff_next = ca.if_else(started, eff_next, eff_state)
         tq_i = ca.if_else(started, tq_i, 0.0)
         tq_r = ca.if_else(started, tq_r, 0.0)
 
@@ -322,6 +386,8 @@ def step_function(model, variant="causal", parametric=False, name=None):
         pos_hist[: lay.n_pos - 1],
         *([rho_in, rho_hist[: lay.n_sched - 1]] if lay.n_sched else []),
         x_next,
+        *[v for n in lay.signals for v in ([sig_in[n], sig_hist[n][: lat - 1]] if lat else [])],
+        eff_next,
         ca.fmin(seen + 1.0, float(lay.start)),
     )
     if name is None:
@@ -330,9 +396,51 @@ def step_function(model, variant="causal", parametric=False, name=None):
         name,
         inputs,
         [next_state, tq_i + tq_r, tq_i, tq_r],
-        input_names(variant, parametric),
+        input_names(variant, parametric, model),
         list(OUTPUT_NAMES),
     )
+
+
+def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig, x, z, eff_state):
+    """Effect torques of an extended model at sample j (intrinsic, reflex) and the next
+    effect states; the terms come from :func:`lpvpc.effects.effect_term`."""
+    import casadi as ca
+
+    from . import effects as fx
+
+    ctx = {"rho": rho, "velocity": v_j, **sig}
+    nxt = []
+    k = 0
+    states = list(lay.effect_states)
+    if "direction_latched" in states:
+        latched, smoothed = fx.eq.direction_memory_step(
+            eff_state[k], eff_state[k + 1], sig["scheduling_velocity"], fx.DIRECTION_V_MIN, fx.DIRECTION_V_WIDTH,
+            fx.direction_alpha(model.fs), ops)
+        ctx["direction"] = smoothed
+        nxt += [latched, smoothed]
+        k += 2
+    if any(s.startswith("reflex_cascade") for s in states):
+        m = lay.m
+        w = eff_state[k: k + m]
+        C = c["C"].T
+        w_next, _ = eq.reflex_step(c["A"], c["B"], C, 0.0, w, ca.mtimes(C, x))
+        ctx.update(x=[x[i] for i in range(m)], z=z, w=[w[i] for i in range(m)])
+        nxt += [w_next[i] for i in range(m)]
+        k += m
+    context = fx.Context(**ctx)
+    Gi = model.intrinsic_basis.evaluate(rho, ops)
+    tq_i = tq_r = 0.0
+    for fe in model.effects:
+        coef = {}
+        for name, _ in fe.coefficient_blocks(variant):
+            coef["Theta" if name.endswith("_Theta") else "H"] = c[name]
+        tq = fx.effect_term(fe, context, position_signals, Gi, "causal" if variant == "causal" else "two_sided",
+                            ops, coef)
+        if fe.effect.pathway == "reflex":
+            tq_r = tq_r + tq
+        else:
+            tq_i = tq_i + tq
+    return tq_i, tq_r, (ca.vertcat(*nxt) if nxt else eff_state)
 
 
 # ---------------------------------------------------------------------------------------
@@ -371,13 +479,14 @@ def export_casadi(model, path, variant="causal") -> Path:
         "fs": model.fs,
         "latency_samples": lay.latency,
         "latency_s": lay.latency / model.fs,
-        "inputs": input_names(variant),
+        "inputs": input_names(variant, model=model),
         "outputs": list(OUTPUT_NAMES),
         "state_size": lay.size,
         "state_layout": lay.describe(),
         "initial_state": "zeros",
         "units": {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
-                  "torque": "N m"},
+                  "torque": "N m", **_signal_units(model)},
+        **({"effects": [fe.name for fe in model.effects]} if getattr(model, "effects", None) else {}),
         "identified_ranges": {"scheduling": list(model.scheduling_range), "velocity": list(model.velocity_range)},
         "model_hash": model.model_hash,
         "lpvpc_version": __version__,
@@ -406,16 +515,31 @@ def trajectory_function(step_or_path, n: int):
     return step.mapaccum(f"{step.name()}_trajectory", n)
 
 
-def replay_inputs(model, position, scheduling, variant="causal") -> dict:
+def replay_inputs(model, position, scheduling, variant="causal", signals=None) -> dict:
     """Named rows for :func:`trajectory_function` from a record (velocity/acceleration as
-    central differences for the causal variant, as in ``model.predict(causal=True)``)."""
+    central differences for the causal variant, as in ``model.predict(causal=True)``).
+    ``signals``: the extra channels of an extended model (as for ``model.predict``;
+    ``trial_time`` and ``scheduling_velocity`` default as there)."""
     position = np.asarray(position, dtype=float)
     scheduling = np.asarray(scheduling, dtype=float)
     args = {"position": position[None, :], "scheduling": scheduling[None, :]}
     if variant == "causal":
         args["velocity"] = eq.velocity(position, model.fs)[None, :]
         args["acceleration"] = eq.acceleration(position, model.fs)[None, :]
+    names = _effect_signals(model)
+    if names:
+        from .effects import check_signals, default_signals
+
+        sig = default_signals(scheduling, model.fs, signals)
+        check_signals(sig, names, len(position))
+        args.update({n: np.asarray(sig[n], dtype=float)[None, :] for n in names})
     return args
+
+
+def _signal_units(model) -> dict:
+    from .effects import SIGNALS
+
+    return {n: SIGNALS[n][0] for n in _effect_signals(model)}
 
 
 # ---------------------------------------------------------------------------------------
@@ -459,7 +583,7 @@ def system_functions(model, variant="causal"):
     import casadi as ca
 
     step = step_function(model, variant, parametric=True)
-    u_names = input_names(variant)[1:]
+    u_names = input_names(variant, model=model)[1:]
     x = ca.SX.sym("x", step.size1_in(STATE_INPUT))
     u = ca.SX.sym("u", len(u_names))
     p = ca.SX.sym("p", step.size1_in("params"))
@@ -503,8 +627,13 @@ def fmu_variables(model, variant="causal"):
     _, _, _, deps = system_functions(model, variant)
     outputs = [FmuVariable(name, "output", "N.m", text, dependencies=deps[name])
                for name, text in _OUTPUT_INFO.items()]
-    inputs = [FmuVariable(name, "input", _INPUT_INFO[name][0], _INPUT_INFO[name][1], 0.0)
-              for name in input_names(variant)[1:]]
+    info = dict(_INPUT_INFO)
+    if getattr(model, "effects", None):
+        from .effects import SIGNALS
+
+        info.update({n: (u, f"{text} (an input of the model's effects)") for n, (u, text) in SIGNALS.items()})
+    inputs = [FmuVariable(name, "input", info[name][0], info[name][1], 0.0)
+              for name in input_names(variant, model=model)[1:]]
     parameters = [FmuVariable(fmu_parameter_name(n), "parameter", unit, f"{n}: {text}", float(v))
                   for n, v, (text, unit) in zip(parameter_names(model, variant), parameter_vector(model, variant),
                                                 parameter_info(model, variant))]
@@ -525,6 +654,9 @@ def fmu_description(model, variant="causal") -> str:
                  f"(latency {lat / model.fs!r} s); 0 before that. ")
     text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad is clamped to it. "
              "Parameters: identified coefficients (row-major, see variable descriptions).")
+    if getattr(model, "effects", None):
+        text += (f" Extended model with effects {', '.join(fe.name for fe in model.effects)}; extra inputs "
+                 f"{', '.join(_effect_signals(model)) or 'none'}.")
     return text
 
 
