@@ -313,9 +313,9 @@ class FittedEffect:
         out = []
         H = self.H_causal if variant == "causal" else self.H
         if H is not None:
-            out.append((f"{self.name}.{'H_causal' if variant == 'causal' else 'H'}", np.atleast_2d(H)))
+            out.append((f"{self.name}_{'H_causal' if variant == 'causal' else 'H'}", np.atleast_2d(H)))
         if self.Theta is not None:
-            out.append((f"{self.name}.Theta", np.atleast_2d(self.Theta)))
+            out.append((f"{self.name}_Theta", np.atleast_2d(self.Theta)))
         return out
 
 
@@ -329,19 +329,22 @@ def model_derived(model) -> set:
     return {d for fe in getattr(model, "effects", ()) for d in fe.effect.derived}
 
 
-def effect_term(fe: FittedEffect, ctx: Context, position_signals, rho_basis, variant, ops=NUMPY):
+def effect_term(fe: FittedEffect, ctx: Context, position_signals, rho_basis, variant, ops=NUMPY, coef=None):
     """Torque of one fitted effect (N m) from a context; the one definition used by numpy
     prediction and the CasADi step. ``position_signals``: lagged positions (two-sided) or
-    causal signals, matching ``variant`` ("exact"/"two_sided" or "causal")."""
+    causal signals, matching ``variant`` ("exact"/"two_sided" or "causal"); ``rho_basis``:
+    the intrinsic basis at rho. ``coef``: {"H": ..., "Theta": ...} replacing the fitted
+    values (symbolic parameters of the exported step)."""
     e = fe.effect
+    coef = coef or {}
     tq = 0.0
     if e.channels is not None:
-        H = fe.H_causal if variant == "causal" else fe.H
+        H = coef.get("H", fe.H_causal if variant == "causal" else fe.H)
         sched = ops.hcat([c * rho_basis for c in e.channels(ctx, ops)])
         tq = tq + eq.intrinsic_torque(position_signals, sched, H, ops)
     if e.features is not None:
         F = ops.hcat(e.features(ctx, ops, fe.options))
-        tq = tq + eq.scheduled_term(F, fe.basis.evaluate(ctx.rho, ops), fe.Theta, ops)
+        tq = tq + eq.scheduled_term(F, fe.basis.evaluate(ctx.rho, ops), coef.get("Theta", fe.Theta), ops)
     return tq
 
 
