@@ -1,0 +1,215 @@
+"""The improve loop: fit, diagnose on held-out data, add the top significant effect (or
+change the setting the diagnosis names), refit, until nothing significant is left.
+
+Units: torque N m, VAF % (gains in percentage points).
+
+Each rung of the ladder is a real refit of the extended model on the identification
+record (:class:`lpvpc.identify.LPVPCEstimator` with ``effects=...``), evaluated on the
+held-out record, which is also the record the diagnosis cross-validates on. Because the
+held-out record guides the choice of effects, its final VAF is slightly optimistic as an
+estimate for a third record (the choice is among few candidates; the gains it reports
+are cross-validated within the record). A refit that does not improve the held-out VAF
+stops the loop and is reported, not kept.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .diagnose import Diagnosis, diagnose, format_table
+from .effects import CATALOG, signals_from_data
+from .identify import LPVPCEstimator
+from .model import vaf
+
+MAX_STEPS = 6
+NO_GAIN = 0.02  # pp: a refit that gains less than this on held-out data is not kept
+
+
+@dataclass
+class Rung:
+    """One model of the ladder."""
+
+    index: int
+    label: str
+    change: dict  # {} (base), {"effect": name} or {"setting": {name: value}}
+    settings: dict
+    effects: tuple
+    model: object
+    heldout_vaf: float
+    heldout_rmse: float
+    fit_vaf: float
+    residual: np.ndarray
+    diagnosis: Diagnosis | None = None
+    fit_time: float = 0.0
+    diagnosis_time: float = 0.0
+    kept: bool = True
+
+    def to_dict(self) -> dict:
+        top = self.diagnosis.top if self.diagnosis is not None else None
+        return {
+            "step": self.index, "label": self.label, "change": self.change, "kept": self.kept,
+            "effects": list(self.effects), "settings": {k: v for k, v in self.settings.items()},
+            "heldout_vaf": round(self.heldout_vaf, 3), "heldout_rmse": round(self.heldout_rmse, 6),
+            "fit_vaf": round(self.fit_vaf, 3), "fit_time_s": round(self.fit_time, 3),
+            "diagnosis_time_s": round(self.diagnosis_time, 3), "model_hash": self.model.model_hash,
+            "top_significant": None if top is None else {"effect": top.effect, "vaf_gain": round(top.vaf_gain, 3),
+                                                         "variant": top.variant},
+        }
+
+
+@dataclass
+class Ladder:
+    rungs: list = field(default_factory=list)
+    stopped: str = ""
+
+    @property
+    def kept(self) -> list:
+        return [r for r in self.rungs if r.kept]
+
+    @property
+    def final(self) -> Rung:
+        return self.kept[-1]
+
+    def table(self) -> str:
+        lines = [f"{'step':>4}  {'model':44} {'held-out VAF':>12} {'RMSE (N m)':>11}  next (top significant candidate)"]
+        for r in self.rungs:
+            top = r.diagnosis.top if r.diagnosis is not None else None
+            nxt = "-" if not r.kept else ("none" if top is None else
+                                         f"{top.effect}{_variant_text(top.variant)} (+{top.vaf_gain:.2f} pp)")
+            mark = "" if r.kept else "  [not kept: no held-out gain]"
+            lines.append(f"{r.index:>4}  {r.label[:44]:44} {r.heldout_vaf:>10.2f} % {r.heldout_rmse:>11.4f}  {nxt}{mark}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"format": "lpvpc-improve", "steps": [r.to_dict() for r in self.rungs], "stopped": self.stopped,
+                "final": {"effects": list(self.final.effects), "settings": self.final.settings,
+                          "heldout_vaf": round(self.final.heldout_vaf, 3)},
+                "units": {"heldout_vaf": "%", "heldout_rmse": "N m"}}
+
+
+def _variant_text(v) -> str:
+    return f" ({', '.join(f'{k}={x:g}' for k, x in v.items())})" if v else ""
+
+
+def _evaluate(model, data):
+    pred = model.predict(data.position, data.scheduling, warn=False, signals=signals_from_data(data))
+    r = np.asarray(data.torque) - pred.total
+    return vaf(data.torque, pred.total), float(np.sqrt(np.mean(r**2))), r
+
+
+def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=None, progress=None) -> Ladder:
+    """Run the loop. ``ident``, ``heldout``: :class:`lpvpc.data.PerturbationData`;
+    ``settings``: estimator settings of the base model (may include ``effects``);
+    ``progress``: optional callable receiving each :class:`Rung` as it is made."""
+    settings = dict(settings or {})
+    effects = tuple(settings.pop("effects", ()) or ())
+    diagnose_kw = dict(diagnose_kw or {})
+    ladder = Ladder()
+    applied = set()
+
+    def rung(index, label, change, st, eff):
+        t0 = time.perf_counter()
+        model = LPVPCEstimator(**st, effects=eff).fit(ident).model_
+        t_fit = time.perf_counter() - t0
+        v, rmse, r = _evaluate(model, heldout)
+        return Rung(index, label, change, dict(st), tuple(eff), model, v, rmse, model.fit["vaf"], r, fit_time=t_fit)
+
+    def diagnose_rung(r):
+        t0 = time.perf_counter()
+        r.diagnosis = diagnose(r.model, heldout, **diagnose_kw)
+        r.diagnosis_time = time.perf_counter() - t0
+
+    current = rung(0, "base model" + (f" + {', '.join(effects)}" if effects else ""), {}, settings, effects)
+    diagnose_rung(current)
+    ladder.rungs.append(current)
+    if progress:
+        progress(current)
+    while True:
+        if len(ladder.kept) > max_steps:
+            ladder.stopped = f"stopped after {max_steps} steps (max_steps)"
+            break
+        cands = [c for c in current.diagnosis.significant
+                 if (c.effect, json.dumps(c.variant, sort_keys=True)) not in applied]
+        if not cands:
+            ladder.stopped = "nothing significant left"
+            break
+        top = cands[0]
+        applied.add((top.effect, json.dumps(top.variant, sort_keys=True)))
+        st, eff = dict(current.settings), tuple(current.effects)
+        if top.kind == "effect":
+            eff = eff + (top.effect,)
+            change, label = {"effect": top.effect}, f"+ {top.effect}"
+        else:
+            st.update(top.variant)
+            change, label = {"setting": dict(top.variant)}, f"{top.effect}{_variant_text(top.variant)}"
+        new = rung(len(ladder.rungs), label, change, st, eff)
+        if new.heldout_vaf < current.heldout_vaf + NO_GAIN:
+            new.kept = False
+            ladder.rungs.append(new)
+            if progress:
+                progress(new)
+            ladder.stopped = (f"the refit with {label} did not improve the held-out VAF "
+                              f"({new.heldout_vaf:.2f} % vs {current.heldout_vaf:.2f} %): not kept")
+            break
+        diagnose_rung(new)
+        ladder.rungs.append(new)
+        if progress:
+            progress(new)
+        current = new
+    return ladder
+
+
+def write_report(ladder: Ladder, heldout, folder) -> Path:
+    """Markdown report: the ladder (table and plot of held-out VAF and RMSE per step), the
+    residual before and after each step, and each kept model's diagnosis."""
+    import matplotlib.pyplot as plt
+
+    from . import plotting
+    from .diagnose import write_report as write_diagnosis
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "ladder.json").write_text(json.dumps(ladder.to_dict(), indent=1) + "\n")
+    steps = [{"label": r.label if r.kept else r.label + " (not kept)", "heldout_vaf": r.heldout_vaf,
+              "heldout_rmse": r.heldout_rmse} for r in ladder.rungs]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    plotting.plot_ladder(steps, ax)
+    fig.tight_layout()
+    fig.savefig(folder / "ladder.png", dpi=110)
+    plt.close(fig)
+    lines = ["# Improve: the model ladder", "",
+             f"Identification on the identification record; VAF and RMSE on the held-out record "
+             f"`{getattr(heldout, 'source', '')}`.", "", "```", ladder.table(), "```", "",
+             f"Stopped: {ladder.stopped}.", "", "![ladder](ladder.png)", ""]
+    prev = None
+    for r in ladder.rungs:
+        lines += [f"## Step {r.index}: {r.label}" + ("" if r.kept else " (not kept)"), "",
+                  f"held-out VAF {r.heldout_vaf:.2f} %, RMSE {r.heldout_rmse:.4f} N m; identification VAF "
+                  f"{r.fit_vaf:.2f} %; fit {r.fit_time:.1f} s" +
+                  (f", diagnosis {r.diagnosis_time:.1f} s" if r.diagnosis is not None else ""), ""]
+        if r.change.get("effect"):
+            lines += [f"Effect: {CATALOG[r.change['effect']].explanation}", ""]
+        if prev is not None:
+            fig, axes = plt.subplots(1, 2, figsize=(11, 3.5))
+            plotting.plot_residual_change(heldout.time, heldout.torque, prev.residual, r.residual,
+                                          labels=(f"step {prev.index}", f"step {r.index}"), fs=heldout.fs, axes=axes)
+            fig.tight_layout()
+            name = f"residual_step{r.index}.png"
+            fig.savefig(folder / name, dpi=100)
+            plt.close(fig)
+            lines += [f"Residual before (step {prev.index}) and after (step {r.index}):", "", f"![residual]({name})", ""]
+        if r.diagnosis is not None:
+            sub = folder / f"step{r.index}"
+            write_diagnosis(r.diagnosis, heldout, sub, title=f"Diagnosis after step {r.index} ({r.label})")
+            lines += [f"Diagnosis: {r.diagnosis.answer()} ([details](step{r.index}/diagnosis.md))", "",
+                      "```", format_table(r.diagnosis, 5), "```", ""]
+        if r.kept:
+            prev = r
+    path = folder / "improve.md"
+    path.write_text("\n".join(lines))
+    return path
