@@ -4,13 +4,16 @@
 
     lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
     lpvpc identify (--pt PT.csv --ut UT.csv | DATA.csv) -o model.json [estimator settings]
-                   [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
+                   [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact]
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--band-limit-command] [--route-tolerance TOL]
+    lpvpc diagnose model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json diagnosis.json] [--report DIR]
+    lpvpc improve --pt PT.csv --ut UT.csv --heldout-pt PT2.csv --heldout-ut UT2.csv --report DIR
+                  [--json ladder.json] [--max-steps N] [--effect NAME ...]
 
 ``validate`` exits with status 1 when a threshold fails (``--min-vaf``, route agreement).
 Errors of the package (bad data, corrupt model file, ...) and unreadable or unwritable
@@ -107,11 +110,36 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _check_effect_names(names) -> tuple:
+    from .effects import CATALOG, SETTINGS
+
+    names = tuple(names or ())
+    unknown = [e for e in names if e not in CATALOG]
+    if unknown:
+        hint = "; settings candidates (not effects) are changed with their own options" if any(
+            e in SETTINGS for e in unknown) else ""
+        raise _UsageError(f"unknown effect {', '.join(map(repr, unknown))} (known: {', '.join(CATALOG)}){hint}")
+    if len(set(names)) != len(names):
+        raise _UsageError(f"effect given twice: {', '.join(names)}")
+    return names
+
+
+def _with_reference_emg(data, ut):
+    """Attach the UT trial's EMG (``emg_ut``) when the UT file has an emg column."""
+    if ut is not None:
+        from .effects import reference_emg
+
+        reference_emg(ut, data)
+    return data
+
+
 def cmd_identify(args) -> int:
     from .identify import LPVPCEstimator
 
     defaults = _estimator_defaults()
     settings = {k: getattr(args, k) for k in defaults if getattr(args, k, None) is not None}
+    if "effects" in settings:
+        settings["effects"] = _check_effect_names(settings["effects"])
     if args.state_order == "auto":
         settings.pop("state_order")
     elif "state_order" in settings:
@@ -119,6 +147,8 @@ def cmd_identify(args) -> int:
     target_fs = None if args.fs == 0 else args.fs
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
+    if settings.get("effects"):
+        _with_reference_emg(data, args.ut)
     t0 = time.perf_counter()
     est = LPVPCEstimator(**settings).fit(data)
     elapsed = time.perf_counter() - t0
@@ -136,6 +166,9 @@ def cmd_identify(args) -> int:
     vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
     print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
     print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
+    if model.effects:
+        print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
+              f"{', '.join(model.signals) or 'none'})")
     print(f"time:        {elapsed:.2f} s")
     print(f"model:       {args.output} (hash {model.model_hash[:12]})")
     return 0
@@ -156,7 +189,12 @@ def cmd_predict(args) -> int:
     if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
                         source=data.source or None)
-    pred = model.predict(data.position, data.scheduling, causal=args.causal)
+    signals = {}
+    if model.effects:  # an extended model takes its extra channels from the data
+        from .effects import signals_from_data
+
+        signals = signals_from_data(_with_reference_emg(data, args.ut))
+    pred = model.predict(data.position, data.scheduling, causal=args.causal, signals=signals)
     measured = data.torque
     metrics = {
         "vaf": vaf(measured, pred.total),
@@ -265,6 +303,90 @@ def cmd_validate(args) -> int:
     return 0 if result.passed else 1
 
 
+def _load_for_model(args, model):
+    """Data for a saved model: decimated to its rate, with its units and sign conventions."""
+    conv = model.conventions or {}
+    position_unit = args.position_unit or conv.get("position_unit", "rad")
+    torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    return _with_reference_emg(data, args.ut)
+
+
+def cmd_diagnose(args) -> int:
+    from .diagnose import diagnose, format_table, write_report
+    from .model import LPVPCModel
+
+    model = LPVPCModel.load(args.model)
+    data = _load_for_model(args, model)
+    diag = diagnose(model, data)
+    print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
+    print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; its structure refitted "
+          f"with {diag.settings['folds']}-fold blocked cross-validation: {diag.surrogate_vaf:.2f} %")
+    print(format_table(diag))
+    print(f"answer:    {diag.answer()}")
+    pos = diag.where["position"]["bins"]
+    worst = max(pos, key=lambda b: b["residual_rms"]) if pos else None
+    if worst:
+        print(f"where:     largest residual at positions {worst['bin']} rad (RMS {worst['residual_rms']:.3g} N m, "
+              f"{worst['relative_rms']:.2f} x the mean)")
+    cc = [f"{k} (lag {c['at_lag_s']:+.2f} s)" for k, c in diag.where["cross_correlation"].items() if c["outside_band"]]
+    if cc:
+        print(f"           residual correlated with {', '.join(cc)} beyond the 99 % band")
+    print(f"time:      {diag.timings['total']:.2f} s")
+    if args.json:
+        diag.save(args.json)
+        print(f"diagnosis: {args.json}")
+    if args.report:
+        print(f"report:    {write_report(diag, data, args.report)}")
+    return 0
+
+
+def cmd_improve(args) -> int:
+    from .improve import improve, write_report
+
+    effects = _check_effect_names(args.effect)
+    target_fs = None if args.fs == 0 else args.fs
+    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
+    from .data import load_identification_data
+
+    ident = _with_reference_emg(load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw), args.ut)
+    held = _with_reference_emg(load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut,
+                                                        target_fs=ident.fs, **kw), args.heldout_ut)
+
+    def show(r):
+        head = "step  model" if r.index == 0 else None
+        if head:
+            print(f"{'step':>4}  {'model':44} {'held-out VAF':>12} {'RMSE (N m)':>11}   fit + diagnosis")
+        times = f"{r.fit_time:.1f} s + {r.diagnosis_time:.1f} s" if r.diagnosis is not None else f"{r.fit_time:.1f} s"
+        note = "" if r.kept else "   (not kept: no held-out gain)"
+        print(f"{r.index:>4}  {r.label[:44]:44} {r.heldout_vaf:>10.2f} % {r.heldout_rmse:>11.4f}   {times}{note}",
+              flush=True)
+        if r.kept and r.diagnosis is not None:
+            top = r.diagnosis.top
+            print(f"      diagnosis: {r.diagnosis.answer() if top is None else top.effect + ' significant, +' + format(top.vaf_gain, '.2f') + ' pp held-out'}",
+                  flush=True)
+
+    ladder = improve(ident, held, settings={"effects": effects} if effects else None, max_steps=args.max_steps,
+                     progress=show)
+    first, last = ladder.rungs[0], ladder.final
+    print(f"stopped:   {ladder.stopped}")
+    print(f"result:    held-out VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE "
+          f"{first.heldout_rmse:.4f} -> {last.heldout_rmse:.4f} N m; final model: "
+          f"{', '.join(last.effects) or 'no effects'}"
+          + (f"; settings changed: {', '.join(f'{k}={v:g}' for k, v in last.settings.items())}" if last.settings else ""))
+    if args.output:
+        model = last.model
+        model.conventions.setdefault("position_unit", args.position_unit)
+        model.conventions.setdefault("torque_sign", args.torque_sign)
+        model.save(args.output)
+        print(f"model:     {args.output} (hash {model.model_hash[:12]})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(ladder.to_dict(), indent=1) + "\n")
+        print(f"ladder:    {args.json}")
+    print(f"report:    {write_report(ladder, held, args.report)}")
+    return 0
+
+
 # --------------------------------------------------------------------------- parser
 
 
@@ -365,6 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="multiplies the files' torque into the package's convention (default 1)")
     p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
+    p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
+                   help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predict torque with a saved model and report the VAF",
@@ -424,7 +548,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
                    help="torque sign convention of the files (default: as at identification)")
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
+                       description="Analyse the residual of a saved model on a record it was not fitted to, and "
+                                   "fit and score every candidate effect of the catalog by cross-validated "
+                                   "held-out VAF gain with a significance test.")
+    p.add_argument("model", metavar="MODEL.json")
+    _add_data_args(p, "instead of --pt/--ut")
+    p.add_argument("--json", metavar="DIAGNOSIS.json", help="write the diagnosis (candidates in rank order)")
+    p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.md, diagnosis.json and residual.png")
+    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
+                   help="unit of positions in the files (default: as at identification)")
+    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
+                   help="torque sign convention of the files (default: as at identification)")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("improve", help="fit, diagnose, add the top significant effect, refit, until none is left",
+                       description="The improve loop on an identification record and a held-out record; writes "
+                                   "DIR/improve.md with the ladder of models (held-out VAF and RMSE), residual "
+                                   "plots before and after each step, and each step's diagnosis.")
+    p.add_argument("--pt", required=True, metavar="PT", help="identification perturbed trial")
+    p.add_argument("--ut", required=True, metavar="UT", help="identification unperturbed trial")
+    p.add_argument("--heldout-pt", required=True, metavar="PT2", help="held-out perturbed trial")
+    p.add_argument("--heldout-ut", required=True, metavar="UT2", help="held-out unperturbed trial")
+    p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
+    p.add_argument("--json", metavar="LADDER.json", help="write the ladder as JSON")
+    p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
+    p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
+    p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
+                   help="effects the starting model already has (repeatable)")
+    p.add_argument("--position-unit", choices=("rad", "deg"), default="rad",
+                   help="unit of positions in the files (default rad)")
+    p.add_argument("--torque-sign", type=_sign, default=1.0, metavar="1|-1",
+                   help="multiplies the files' torque into the package's convention (default 1)")
+    p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
+                   help="rate to identify at (default 100; 0 keeps the file's rate)")
+    p.set_defaults(func=cmd_improve)
     return parser
+
+
+def _effect_names():
+    from .effects import CATALOG
+
+    return list(CATALOG)
 
 
 # --------------------------------------------------------------------------- main
