@@ -129,7 +129,13 @@ def _background_features(c, ops, options):
 
 
 def _reflex_dynamics_features(c, ops, options):
-    return list(c.x) + [c.z] + list(c.w)
+    """Reflex states x and cascade states w minus their steady-state values for the drive z
+    (kappa = (I - A)^-1 B, w_ss = kappa C kappa z): every combination has zero static gain,
+    so these terms change the reflex dynamics, not its gain (the gain's position
+    dependence belongs to the reflex nonlinearity and its basis order)."""
+    kappa, ck = options["kappa"], options["c_kappa"]
+    return ([c.x[i] - kappa[i] * c.z for i in range(len(kappa))]
+            + [c.w[i] - (kappa[i] * ck) * c.z for i in range(len(kappa))])
 
 
 CATALOG: dict[str, Effect] = {
@@ -177,13 +183,13 @@ CATALOG: dict[str, Effect] = {
         Effect(
             "position_dependent_reflex_dynamics", "reflex",
             "The reflex loop's linear dynamics (muscle activation and contraction speed) "
-            "change with joint position: the reflex states and their second cascade are "
-            "weighted by functions of position.",
+            "change with joint position: the reflex states and their second cascade, minus their "
+            "steady state, are weighted by functions of position (the static gain is unchanged).",
             derived=("reflex",),
             features=_reflex_dynamics_features,
             feature_order=2,
-            feature_names=lambda opt: ([f"reflex state x{i}" for i in range(opt["m"])] + ["reflex drive z"]
-                                       + [f"reflex cascade w{i}" for i in range(opt["m"])]),
+            feature_names=lambda opt: ([f"reflex state x{i} - steady state" for i in range(opt["m"])]
+                                       + [f"reflex cascade w{i} - steady state" for i in range(opt["m"])]),
         ),
     )
 }
@@ -472,7 +478,10 @@ def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, 
 def effect_options(effect: Effect, signals: dict, model_like=None) -> dict:
     opts = {s: True for s in effect.optional_signals if s in signals}
     if effect.uses_reflex and model_like is not None:
-        opts["m"] = int(np.atleast_2d(model_like.A).shape[0])
+        A = np.atleast_2d(np.asarray(model_like.A, dtype=float))
+        kappa = np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(model_like.B, dtype=float))
+        opts.update(m=int(A.shape[0]), kappa=[float(k) for k in kappa],
+                    c_kappa=float(np.asarray(model_like.C, dtype=float) @ kappa))
     return opts
 
 
