@@ -613,8 +613,9 @@ class Diagnosis:
                     f"(p = {top.p_value:.1e}). {top.explanation}")
         if self.dependence:
             d = self.dependence[0]
+            level = self.settings.get("alpha", ALPHA) / len(self.dependence)  # Bonferroni over the probes
             if d["vaf_gain"] is not None and d["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN) \
-                    and d["p_value"] is not None and d["p_value"] <= self.settings.get("alpha", ALPHA):
+                    and d["p_value"] is not None and d["p_value"] <= level:
                 return (f"No catalog effect explains the residual. It depends most on {d['signal']} "
                         f"({d['description']}): {FORMS[d['form']]}, {d['pathway']} pathway "
                         f"(held-out VAF +{d['vaf_gain']:.2f} pp, p = {d['p_value']:.1e}).")
