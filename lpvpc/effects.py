@@ -600,6 +600,8 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
                                 design.blocks + blocks_r, model.causal_lags)
     model.effects = effects
+    if "effects" in model.settings:  # JSON form (a list), so that save/load round-trips exactly
+        model.settings["effects"] = list(model.settings["effects"])
     return model
 
 

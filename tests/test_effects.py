@@ -1,0 +1,190 @@
+"""The effect catalog and extended models: fit, predict, save/load, CasADi and FMU export
+with extra inputs, and ``lpvpc identify --effect``."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from lpvpc import effects as fx
+from lpvpc import equations as eq
+from lpvpc import export
+from lpvpc.cli import main
+from lpvpc.data import pair_trials
+from lpvpc.errors import DataError
+from lpvpc.identify import LPVPCEstimator, identify
+from lpvpc.model import LPVPCModel, vaf
+from lpvpc.simulate import simulate_pair, write_dataset
+
+ALL = tuple(fx.CATALOG)
+
+
+@pytest.fixture(scope="module")
+def rich():
+    """A 60-s record with every catalog effect switched on (EMG of both trials) and the
+    model with every effect identified from it."""
+    pair = simulate_pair("multilevel", seed=4, effects=ALL, duration=60.0)
+    data = pair_trials(pair.pt, pair.ut)
+    fx.reference_emg(pair.ut, data)
+    model = identify(data, effects=ALL)
+    return data, model
+
+
+def test_catalog_entries_are_documented():
+    assert {"drift", "nonlinear_viscosity", "direction_dependent_stiffness", "background_activation",
+            "position_dependent_reflex_dynamics"} <= set(fx.CATALOG)
+    assert {"reflex_delay", "irf_length", "intrinsic_basis_order", "reflex_basis_order"} <= set(fx.SETTINGS)
+    for name, e in {**fx.CATALOG, **fx.SETTINGS}.items():
+        assert e.name == name and e.pathway in ("intrinsic", "reflex")
+        assert e.explanation.endswith(".") and len(e.explanation) > 40
+        assert set(e.signals) <= set(fx.SIGNALS)
+        assert fx.describe(name) == e.explanation
+
+
+def test_unknown_effects_are_refused():
+    with pytest.raises(ValueError, match="unknown effect.*'stiction'"):
+        fx.check_effects(["drift", "stiction"])
+    with pytest.raises(ValueError, match="reflex_delay is an estimator setting"):
+        fx.check_effects(["reflex_delay"])
+    with pytest.raises(ValueError, match="twice"):
+        fx.check_effects(["drift", "drift"])
+
+
+def test_direction_memory_latches_through_holds():
+    fs = 100.0
+    v = np.r_[np.zeros(50), np.full(50, 0.2), np.zeros(200), np.full(50, -0.2), np.zeros(100), np.full(50, 0.03)]
+    d = eq.direction_memory(v, fx.DIRECTION_V_MIN, fx.DIRECTION_V_WIDTH, fx.direction_alpha(fs))
+    assert d[49] == 0.0  # no movement yet
+    assert d[290] == pytest.approx(1.0, abs=1e-3)  # held after moving toward dorsiflexion
+    assert d[440] == pytest.approx(-1.0, abs=1e-2)  # flipped by the movement toward plantarflexion
+    assert d[-1] == pytest.approx(-1.0, abs=1e-3)  # 0.03 rad/s is below v_min: no change
+
+
+def test_extended_model_fits_predicts_and_needs_its_channels(rich):
+    data, model = rich
+    assert [fe.name for fe in model.effects] == list(ALL)
+    assert model.signals == ("trial_time", "scheduling_velocity", "emg", "emg_ut")
+    assert model.settings["effects"] == list(ALL)
+    sig = fx.signals_from_data(data)
+    pred = model.predict(data.position, data.scheduling, signals=sig, warn=False)
+    assert set(pred.effects) == set(ALL)
+    assert np.allclose(pred.total, pred.intrinsic + pred.reflex)
+    assert vaf(data.torque, pred.total) == pytest.approx(model.fit["vaf"])
+    assert model.fit["vaf"] > identify(data).fit["vaf"] + 5  # background activation is a large effect
+    with pytest.raises(DataError, match="channel 'emg'.*missing"):
+        model.predict(data.position, data.scheduling, signals={"emg_ut": sig["emg_ut"]}, warn=False)
+
+
+def test_extended_model_save_load_round_trip(rich, tmp_path, model_file):
+    data, model = rich
+    path = tmp_path / "extended.json"
+    model.save(path)
+    d = json.loads(path.read_text())
+    assert d["format_version"] == 2 and [e["name"] for e in d["effects"]] == list(ALL)
+    assert json.loads(model_file.read_text())["format_version"] == 1  # base models keep version 1
+    loaded = LPVPCModel.load(path)
+    assert loaded.model_hash == model.model_hash
+    assert loaded.to_dict() == model.to_dict()
+    sig = fx.signals_from_data(data)
+    a = model.predict(data.position, data.scheduling, signals=sig, warn=False).total
+    b = loaded.predict(data.position, data.scheduling, signals=sig, warn=False).total
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("variant", ["causal", "exact"])
+def test_extended_casadi_step_matches_numpy(rich, variant, tmp_path):
+    data, model = rich
+    sig = fx.signals_from_data(data)
+    n = 2500
+    pos, rho = data.position[:n], data.scheduling[:n]
+    s = {k: v[:n] for k, v in sig.items()}
+    path = export.export_casadi(model, tmp_path / "m.casadi", variant=variant)
+    meta = json.loads((tmp_path / "m.casadi.json").read_text())
+    assert meta["inputs"][-4:] == ["trial_time", "scheduling_velocity", "emg", "emg_ut"]
+    assert meta["effects"] == list(ALL)
+    import casadi
+
+    step = casadi.Function.load(str(path))
+    out = export.trajectory_function(step, n)(state=np.zeros(step.size1_in("state")),
+                                              **export.replay_inputs(model, pos, rho, variant, signals=s))
+    tq = np.asarray(out["torque"]).ravel()
+    ref = model.predict(pos, rho, causal=variant == "causal", signals=s, warn=False).total
+    lat = export.latency_samples(model, variant)
+    if lat:
+        tq, ref = tq[lat:], ref[:-lat]
+    assert np.max(np.abs(tq - ref)) <= 1e-9 * np.max(np.abs(ref))
+
+
+def test_extended_fmu_takes_the_extra_channels_as_inputs(rich, tmp_path):
+    if shutil.which("gcc") is None and shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    data, model = rich
+    fmu = export.export_fmu(model, tmp_path / "extended.fmu")
+    md = read_model_description(str(fmu))
+    inputs = {v.name: v for v in md.modelVariables if v.causality == "input"}
+    assert list(inputs) == ["position", "scheduling", "velocity", "acceleration", "trial_time",
+                            "scheduling_velocity", "emg", "emg_ut"]
+    assert inputs["emg"].unit == "1" and inputs["trial_time"].unit == "s"
+    assert "drift_H_causal_0_0" in {v.name for v in md.modelVariables}
+    n = 1500
+    rows = export.replay_inputs(model, data.position[:n], data.scheduling[:n], "causal",
+                                signals={k: v[:n] for k, v in fx.signals_from_data(data).items()})
+    names = list(rows)
+    u = np.vstack([rows[k] for k in names]).T
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzip = extract(str(fmu))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="t")
+    y = np.empty(n)
+    try:
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        h = 1.0 / model.fs
+        for k in range(n):
+            slave.setReal([vr[c] for c in names], u[k].tolist())
+            y[k] = slave.getReal([vr["torque"]])[0]
+            slave.doStep(k * h, h)
+        slave.terminate()
+    finally:
+        slave.freeInstance()
+        shutil.rmtree(unzip, ignore_errors=True)
+    ref = model.predict(data.position[:n], data.scheduling[:n], causal=True, warn=False,
+                        signals={k: v[:n] for k, v in fx.signals_from_data(data).items()}).total
+    assert np.max(np.abs(y - ref)) <= 1e-9 * np.max(np.abs(ref))
+
+
+def test_effect_columns_join_the_intrinsic_regressor(rich):
+    """Joint estimation: the estimator sees the effects' columns (more features than the
+    base model) and the fitted effect reproduces its share of the torque."""
+    data, model = rich
+    est = LPVPCEstimator(effects=("drift",)).fit(data)
+    base = LPVPCEstimator().fit(data)
+    n_drift = len(est.model_.lags) * est.model_.intrinsic_basis.size
+    assert est.n_features_ == base.n_features_ + n_drift
+    (fe,) = est.model_.effects
+    assert fe.H.shape == (len(est.model_.lags), est.model_.intrinsic_basis.size)
+    assert fe.H_causal.shape == (len(est.model_.causal_lags) + 2, est.model_.intrinsic_basis.size)
+
+
+def test_cli_identify_with_effects(tmp_path, capsys):
+    paths = write_dataset(tmp_path / "data", seed=2, fs_out=100.0, effects=("drift",), duration=60.0)
+    out = tmp_path / "model.json"
+    assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
+                 "--effect", "drift", "nonlinear_viscosity"]) == 0
+    text = capsys.readouterr().out
+    assert "effects:     drift, nonlinear_viscosity (extra inputs: trial_time, scheduling_velocity)" in text
+    assert [fe.name for fe in LPVPCModel.load(out).effects] == ["drift", "nonlinear_viscosity"]
+    assert main(["predict", str(out), "--pt", str(paths["novel_PT"]), "--ut", str(paths["novel_UT"])]) == 0
+    assert "VAF" in capsys.readouterr().out
+    assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
+                 "--effect", "stiction"]) == 2
+    assert "unknown effect 'stiction'" in capsys.readouterr().err
+    assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
+                 "--effect", "background_activation"]) == 2
+    assert "channel 'emg'" in capsys.readouterr().err
