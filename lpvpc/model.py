@@ -319,8 +319,9 @@ class LPVPCModel:
         arrays = [self.H, self.H_causal, self.Omega, self.A, self.B, self.C, np.array([self.D, self.fs])]
         for fe in self.effects:
             arrays += [a for a in (fe.H, fe.H_causal, fe.Theta) if a is not None]
-            if fe.H is not None and (fe.H.shape[0] != len(self.lags) or fe.H.shape[1] % n_i):
-                problems.append(f"effect {fe.name}: H has shape {fe.H.shape}, expected ({len(self.lags)}, k * {n_i})")
+            n_c = n_i if fe.channel_basis is None else fe.channel_basis.size
+            if fe.H is not None and (fe.H.shape[0] != len(self.lags) or fe.H.shape[1] % n_c):
+                problems.append(f"effect {fe.name}: H has shape {fe.H.shape}, expected ({len(self.lags)}, k * {n_c})")
             if fe.H_causal is not None and fe.H_causal.shape[0] != len(self.causal_lags) + 2:
                 problems.append(f"effect {fe.name}: H_causal has {fe.H_causal.shape[0]} rows, expected {len(self.causal_lags) + 2}")
             if fe.Theta is not None and (fe.basis is None or fe.Theta.shape[1] != fe.basis.size):
