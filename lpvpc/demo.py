@@ -12,7 +12,11 @@
 6. exports OUTDIR/model.casadi and OUTDIR/model.fmu and runs the FMU on the novel record;
 7. validates the model on the novel record (package ``validation``: numpy, CasADi and FMU
    routes, co-simulation of the model FMU with the actuator FMU) and writes the report
-   OUTDIR/validation/report.html with metrics.json and the figures.
+   OUTDIR/validation/report.html with metrics.json and the figures;
+8. runs the improve loop on a data set with a hidden effect (direction-dependent
+   stiffness, OUTDIR/data_hidden): fit, diagnose on the held-out record, add the effect
+   the diagnosis names, refit, until nothing significant is left; prints the error
+   falling and writes OUTDIR/improve/improve.md.
 
 Units: rad, rad/s, N m, N m/rad, s.
 """
@@ -244,12 +248,50 @@ def run(outdir) -> int:
              f"max |FMU - causal numpy| / max |torque| = {diff:.1e}")
 
     report = _validate(outdir, paths, fmu_path, v_ceiling)
+    improve_report = _improve(outdir)
 
     _say()
     _say(f"done in {time.perf_counter() - t_start:.1f} s; outputs in {outdir}")
     if report is not None:
         _say(f"validation report: {report.resolve()} (open it in a browser)")
+    _say(f"improve report: {improve_report.resolve()}")
     return 0
+
+
+HIDDEN_EFFECT = "direction_dependent_stiffness"
+
+
+def _improve(outdir):
+    """Step 8: the improve loop on a hidden-effect data set; returns the report's path."""
+    from .data import load_identification_data
+    from .improve import improve, write_report
+    from .simulate import EFFECTS, write_dataset
+
+    _section("8. What is the model missing? The improve loop on data with a hidden effect")
+    t0 = time.perf_counter()
+    paths = write_dataset(outdir / "data_hidden", seed=0, fs_out=1000.0, effects=(HIDDEN_EFFECT,))
+    _say(f"virtual subject with a hidden effect ({EFFECTS[HIDDEN_EFFECT][0]}) written to {outdir / 'data_hidden'}; "
+         f"the loop is not told which")
+    ident = load_identification_data(pt=paths["ident_PT"], ut=paths["ident_UT"])
+    held = load_identification_data(pt=paths["novel_PT"], ut=paths["novel_UT"], target_fs=ident.fs)
+    _say(f"  {'step':>4}  {'model':34} {'held-out VAF':>12} {'RMSE (N m)':>11}")
+
+    def show(r):
+        note = "" if r.kept else "  (not kept: no held-out gain)"
+        _say(f"  {r.index:>4}  {r.label[:34]:34} {r.heldout_vaf:>10.2f} % {r.heldout_rmse:>11.4f}{note}")
+        if r.kept and r.diagnosis is not None:
+            _say(f"        diagnosis: {r.diagnosis.answer()[:150]}")
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        ladder = improve(ident, held, progress=show)
+        path = write_report(ladder, held, outdir / "improve")
+    first, last = ladder.rungs[0], ladder.final
+    _say(f"stopped: {ladder.stopped}")
+    _say(f"held-out error: VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE {first.heldout_rmse:.4f} -> "
+         f"{last.heldout_rmse:.4f} N m ({100 * (1 - last.heldout_rmse / first.heldout_rmse):.0f} % lower) "
+         f"[{time.perf_counter() - t0:.1f} s]")
+    return path
 
 
 def _validate(outdir, paths, fmu_path, v_ceiling):
