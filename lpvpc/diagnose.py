@@ -687,13 +687,13 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
 
 def format_table(diag: Diagnosis, n=None) -> str:
     """Plain-text ranking table of the candidates."""
-    lines = [f"{'rank':>4}  {'candidate':36} {'kind':8} {'pathway':9} {'gain (pp)':>9} {'p':>9}  significant"]
+    lines = [f"{'rank':>4}  {'candidate':44} {'kind':8} {'pathway':9} {'gain (pp)':>9} {'p':>9}  significant"]
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         if not c.available:
-            lines.append(f"{i:>4}  {c.effect:36} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {c.reason}")
+            lines.append(f"{i:>4}  {c.effect:44} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {c.reason}")
             continue
         name = c.effect + (" (" + ", ".join(f"{k}={v:g}" for k, v in c.variant.items()) + ")" if c.variant else "")
-        lines.append(f"{i:>4}  {name:36} {c.kind:8} {c.pathway:9} {c.vaf_gain:>+9.3f} {c.p_value:>9.1e}  "
+        lines.append(f"{i:>4}  {name:44} {c.kind:8} {c.pathway:9} {c.vaf_gain:>+9.3f} {c.p_value:>9.1e}  "
                      f"{'YES' if c.significant else 'no'}")
     return "\n".join(lines)
 
