@@ -242,7 +242,7 @@ class CandidateResult:
     def to_dict(self) -> dict:
         d = {"effect": self.effect, "kind": self.kind, "pathway": self.pathway,
              "vaf_gain": _r(self.vaf_gain), "significant": bool(self.significant),
-             "p_value": _r(self.p_value, 6), "t": _r(self.t, 3), "n_params": int(self.n_params),
+             "p_value": _g(self.p_value), "t": _r(self.t, 3), "n_params": int(self.n_params),
              "explanation": self.explanation, "available": bool(self.available)}
         if self.variant is not None:
             d["variant"] = self.variant
@@ -256,6 +256,12 @@ class CandidateResult:
 def _r(x, nd=4):
     x = float(x)
     return None if not np.isfinite(x) else round(x, nd)
+
+
+def _g(x):
+    """Three significant digits (p-values)."""
+    x = float(x)
+    return None if not np.isfinite(x) else float(f"{x:.3g}")
 
 
 def _effect_candidate(sur: Surrogate, name):
@@ -441,7 +447,7 @@ def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None) -> 
                                                      "neither (tonic)" if name in ("emg", "emg_ut", "trial_time") else
                                                      "intrinsic")
             out.append({"signal": name, "form": form, "pathway": pathway, "description": desc,
-                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _r(pv, 6)})
+                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _g(pv)})
     out.sort(key=lambda d: -d["vaf_gain"])
     return out[:top] if top else out
 
@@ -547,7 +553,7 @@ def where_it_fails(model, data, residual, *, signals=None) -> dict:
     lb = n * (n + 2) * np.sum(ac[1:] ** 2 / (n - np.arange(1, nl + 1)))
     out["whiteness"] = {"lags": nl, "acf": [_r(a, 4) for a in ac[1:]],
                         "fraction_outside_2_over_sqrt_n": _r(np.mean(np.abs(ac[1:]) > band), 3),
-                        "ljung_box_q": _r(lb, 2), "ljung_box_p": _r(scipy.stats.chi2.sf(lb, nl), 6),
+                        "ljung_box_q": _r(lb, 2), "ljung_box_p": _g(scipy.stats.chi2.sf(lb, nl)),
                         "note": "torque sensor noise is coloured, so even a perfect model leaves a non-white residual"}
     # cross-correlations with the input, incl. negative lags; band from Bartlett's formula
     maxlag = int(round(0.25 * fs))
