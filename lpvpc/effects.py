@@ -115,6 +115,7 @@ class Effect:
     feature_order: int = 0
     feature_names: Callable | None = None
     channel_order: int | None = None  # rho basis order of the channel-scheduled IRF (None: the intrinsic one)
+    feature_constant: bool = True  # False: the features' rho basis without its constant function
     kind: str = "effect"
 
     @property
@@ -361,7 +362,8 @@ def effect_term(fe: FittedEffect, ctx: Context, position_signals, rho_basis, var
         tq = tq + eq.intrinsic_torque(position_signals, sched, H, ops)
     if e.features is not None:
         F = ops.hcat(e.features(ctx, ops, fe.options))
-        tq = tq + eq.scheduled_term(F, fe.basis.evaluate(ctx.rho, ops), coef.get("Theta", fe.Theta), ops)
+        G = fe.basis.evaluate(ctx.rho, ops)
+        tq = tq + eq.scheduled_term(F, G if e.feature_constant else G[:, 1:], coef.get("Theta", fe.Theta), ops)
     return tq
 
 
@@ -482,7 +484,8 @@ def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, 
         irf = _kron_rows(eq.lagged(position, lags), sched)
     if effect.features is not None:
         F = np.column_stack(effect.features(ctx, NUMPY, options))
-        static = _kron_rows(F, basis.evaluate(ctx.rho[:, 0]))
+        G = basis.evaluate(ctx.rho[:, 0])
+        static = _kron_rows(F, G if effect.feature_constant else G[:, 1:])
     return irf, static
 
 
@@ -595,7 +598,7 @@ class EffectDesign:
                 two_sided = eq.intrinsic_torque(eq.lagged(self.position, self.lags), sched, H)
                 fe.H_causal = causal_irf(self.position, self.fs, causal_lags, sched, two_sided)
             else:
-                fe.Theta = coef.reshape(-1, self.bases[name].size)
+                fe.Theta = coef.reshape(-1, self.bases[name].size - (0 if e.feature_constant else 1))
         return [out[n] for n in self.names if n in out]
 
 

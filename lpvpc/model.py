@@ -324,7 +324,7 @@ class LPVPCModel:
                 problems.append(f"effect {fe.name}: H has shape {fe.H.shape}, expected ({len(self.lags)}, k * {n_c})")
             if fe.H_causal is not None and fe.H_causal.shape[0] != len(self.causal_lags) + 2:
                 problems.append(f"effect {fe.name}: H_causal has {fe.H_causal.shape[0]} rows, expected {len(self.causal_lags) + 2}")
-            if fe.Theta is not None and (fe.basis is None or fe.Theta.shape[1] != fe.basis.size):
+            if fe.Theta is not None and (fe.basis is None or fe.Theta.shape[1] != fe.basis.size - (not fe.effect.feature_constant)):
                 problems.append(f"effect {fe.name}: Theta has shape {fe.Theta.shape}, inconsistent with its basis")
         if not problems and not all(np.all(np.isfinite(a)) for a in arrays):
             problems.append("non-finite coefficients")
