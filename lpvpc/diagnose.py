@@ -63,6 +63,7 @@ FOLDS = 10
 BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
 MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains are never called significant
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
+OUTSIDE_RATIO = 1.5  # a signal probe this many times better than the top candidate: say so
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -613,18 +614,25 @@ class Diagnosis:
     def answer(self) -> str:
         """One paragraph: the missing effect, or the signal and pathway the residual depends on."""
         top = self.top
+        dep = self.dependence[0] if self.dependence else None
+        if dep is not None:
+            level = self.settings.get("alpha", ALPHA) / len(self.dependence)  # Bonferroni over the probes
+            if not (dep["vaf_gain"] is not None and dep["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN)
+                    and dep["p_value"] is not None and dep["p_value"] <= level):
+                dep = None
+        if dep is not None:
+            where = (f"{dep['signal']} ({dep['description']}): {FORMS[dep['form']]}, {dep['pathway']} pathway "
+                     f"(held-out VAF +{dep['vaf_gain']:.2f} pp, p = {dep['p_value']:.1e})")
         if top is not None:
             extra = f" ({', '.join(f'{k}={v:g}' for k, v in top.variant.items())})" if top.variant else ""
-            return (f"Missing: {top.effect}{extra}, {top.pathway} pathway: held-out VAF +{top.vaf_gain:.2f} pp "
+            text = (f"Missing: {top.effect}{extra}, {top.pathway} pathway: held-out VAF +{top.vaf_gain:.2f} pp "
                     f"(p = {top.p_value:.1e}). {top.explanation}")
-        if self.dependence:
-            d = self.dependence[0]
-            level = self.settings.get("alpha", ALPHA) / len(self.dependence)  # Bonferroni over the probes
-            if d["vaf_gain"] is not None and d["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN) \
-                    and d["p_value"] is not None and d["p_value"] <= level:
-                return (f"No catalog effect explains the residual. It depends most on {d['signal']} "
-                        f"({d['description']}): {FORMS[d['form']]}, {d['pathway']} pathway "
-                        f"(held-out VAF +{d['vaf_gain']:.2f} pp, p = {d['p_value']:.1e}).")
+            if dep is not None and dep["vaf_gain"] > OUTSIDE_RATIO * top.vaf_gain:
+                text += (f" But it explains only part of the structure: the residual depends more on {where}; "
+                         f"the missing effect may lie outside the catalog.")
+            return text
+        if dep is not None:
+            return f"No catalog effect explains the residual. It depends most on {where}."
         return "Nothing significant: no candidate effect or signal explains a meaningful part of the residual."
 
     def to_dict(self) -> dict:
