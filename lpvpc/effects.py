@@ -528,8 +528,10 @@ class EffectDesign:
     """Regressor columns of a list of effects on one record, and the bookkeeping that turns
     estimated coefficients into :class:`FittedEffect` terms.
 
-    ``model_like`` supplies fs, lags, causal_lags, intrinsic_basis (and A, B, C, Omega
-    bases for reflex-pathway effects, via ``reflex_drive``).
+    ``lags`` and ``intrinsic_basis`` are the model's; ``signals`` the extra channels
+    (:func:`signals_from_data`). Intrinsic-pathway columns are built at once
+    (``columns``, ``blocks``); reflex-pathway ones need an identified model
+    (:meth:`reflex_columns`).
     """
 
     def __init__(self, effects, position, scheduling, fs, lags, intrinsic_basis: Basis, signals: dict,
