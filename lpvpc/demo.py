@@ -280,7 +280,7 @@ def _improve(outdir):
         note = "" if r.kept else "  (not kept: no held-out gain)"
         _say(f"  {r.index:>4}  {r.label[:34]:34} {r.heldout_vaf:>10.2f} % {r.heldout_rmse:>11.4f}{note}")
         if r.kept and r.diagnosis is not None:
-            _say(f"        diagnosis: {r.diagnosis.answer()[:150]}")
+            _say(f"        diagnosis: {r.diagnosis.answer().split('. ')[0].rstrip('.')}.")
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
