@@ -29,7 +29,6 @@ import numpy as np  # noqa: E402
 
 from lpvpc.data import Trial, pair_trials  # noqa: E402
 from lpvpc.diagnose import diagnose  # noqa: E402
-from lpvpc.effects import reference_emg  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.improve import improve  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
@@ -63,8 +62,7 @@ def pairs(seed, effects=(), modify=None):
     for kind, s in (("multilevel", seed), ("novel", seed + 1)):
         pair = simulate_pair(kind, seed=s, effects=effects)
         pt, ut = (modify(pair) if modify else (pair.pt, pair.ut))
-        data = pair_trials(pt, ut)
-        reference_emg(ut, data)
+        data = pair_trials(pt, ut)  # with the UT trial's EMG as extra['emg_ut']
         out.append(data)
     return out
 

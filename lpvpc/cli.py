@@ -124,15 +124,6 @@ def _check_effect_names(names) -> tuple:
     return names
 
 
-def _with_reference_emg(data, ut):
-    """Attach the UT trial's EMG (``emg_ut``) when the UT file has an emg column."""
-    if ut is not None:
-        from .effects import reference_emg
-
-        reference_emg(ut, data)
-    return data
-
-
 def cmd_identify(args) -> int:
     from .identify import LPVPCEstimator
 
@@ -147,8 +138,6 @@ def cmd_identify(args) -> int:
     target_fs = None if args.fs == 0 else args.fs
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
-    if settings.get("effects"):
-        _with_reference_emg(data, args.ut)
     t0 = time.perf_counter()
     est = LPVPCEstimator(**settings).fit(data)
     elapsed = time.perf_counter() - t0
@@ -193,7 +182,7 @@ def cmd_predict(args) -> int:
     if model.effects:  # an extended model takes its extra channels from the data
         from .effects import signals_from_data
 
-        signals = signals_from_data(_with_reference_emg(data, args.ut))
+        signals = signals_from_data(data)
     pred = model.predict(data.position, data.scheduling, causal=args.causal, signals=signals)
     measured = data.torque
     metrics = {
@@ -309,7 +298,7 @@ def _load_for_model(args, model):
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
-    return _with_reference_emg(data, args.ut)
+    return data
 
 
 def cmd_diagnose(args) -> int:
@@ -349,9 +338,8 @@ def cmd_improve(args) -> int:
     kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
     from .data import load_identification_data
 
-    ident = _with_reference_emg(load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw), args.ut)
-    held = _with_reference_emg(load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut,
-                                                        target_fs=ident.fs, **kw), args.heldout_ut)
+    ident = load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw)
+    held = load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut, target_fs=ident.fs, **kw)
 
     def show(r):
         head = "step  model" if r.index == 0 else None

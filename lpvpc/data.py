@@ -550,8 +550,9 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
     scheduling = UT position (rad), all decimated with one anti-alias FIR filter to
     ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
-    ``ut_velocity`` (rad/s, gradient of the decimated UT position) and ``emg`` from PT if
-    present (decimated as given: rectify/envelope raw EMG first).
+    ``ut_velocity`` (rad/s, gradient of the decimated UT position), ``emg`` from PT and
+    ``emg_ut`` from UT if present (decimated as given with the same filter: rectify/envelope
+    raw EMG first).
     Raises DataError (problems of both trials, different lengths or rates) or
     InsufficientExcitationError (no perturbation).
     """
@@ -570,6 +571,8 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     channels = {"scheduling": ut_position}
     if "emg" in pt.channels:
         channels["emg"] = pt.channels["emg"]
+    if "emg" in ut.channels:
+        channels["emg_ut"] = ut.channels["emg"]
     # Decimation is linear: decimating PT-UT equals the difference of the decimated trials,
     # and position and torque go through the same filter.
     diff = Trial(
@@ -584,8 +587,9 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     fs = _output_rate(pt.fs, target_fs)
     _check_perturbation(low.position, source)
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
-    if "emg" in low.channels:
-        extra["emg"] = low.channels["emg"]
+    for k in ("emg", "emg_ut"):
+        if k in low.channels:
+            extra[k] = low.channels[k]
     meta = {"fs_original": float(pt.fs), "decimation": q}
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta)
 

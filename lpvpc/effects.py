@@ -629,19 +629,3 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
     if "effects" in model.settings:  # JSON form (a list), so that save/load round-trips exactly
         model.settings["effects"] = list(model.settings["effects"])
     return model
-
-
-def reference_emg(ut_trial, data):
-    """Attach the unperturbed trial's EMG as ``data.extra['emg_ut']`` (decimated like the
-    perturbation data). ``ut_trial``: a :class:`lpvpc.data.Trial` or a path. Returns data."""
-    from .data import Trial, decimate_signal, decimation_factor, load_trial
-
-    ut = ut_trial if isinstance(ut_trial, Trial) else load_trial(ut_trial)
-    if "emg" not in ut.channels:
-        return data
-    q = decimation_factor(ut.fs, data.fs)
-    emg = np.asarray(ut.channels["emg"], dtype=float)
-    emg = decimate_signal(emg, q) if q > 1 else emg
-    if len(emg) == data.n:
-        data.extra["emg_ut"] = emg
-    return data

@@ -402,6 +402,36 @@ def test_pairing_gives_pt_minus_ut():
     assert low.meta["decimation"] == 10
 
 
+def test_pairing_keeps_ut_emg_as_emg_ut():
+    """The UT trial's EMG becomes extra['emg_ut'], decimated with the same filter as PT's."""
+    pt, ut, _ = make_trials(emg=True)
+    assert "emg_ut" not in pair_trials(pt, ut).extra  # UT without EMG: no emg_ut
+    rng = np.random.default_rng(7)
+    t = ut.time
+    ut_emg = 0.3 + 0.2 * np.sin(2 * np.pi * 0.5 * t) + 0.1 * np.sin(2 * np.pi * 80.0 * t) \
+        + 0.01 * np.abs(rng.standard_normal(len(t)))
+    ut = Trial(ut.time, ut.position, ut.torque, {"emg": ut_emg}, "ut")
+
+    full = pair_trials(pt, ut, target_fs=None)
+    np.testing.assert_array_equal(full.extra["emg_ut"], ut_emg)
+    np.testing.assert_array_equal(full.extra["emg"], pt.channels["emg"])
+
+    low = pair_trials(pt, ut)
+    assert low.n == 300 and len(low.extra["emg_ut"]) == low.n
+    # the same anti-alias filter as every other channel: equal to decimating the UT trial
+    ref = decimate_trial(ut, 100.0)
+    np.testing.assert_allclose(low.extra["emg_ut"], ref.channels["emg"], atol=1e-12)
+    np.testing.assert_allclose(low.extra["emg"], decimate_trial(pt, 100.0).channels["emg"], atol=1e-12)
+    # the 80 Hz component (above the new 50 Hz Nyquist rate) is removed, the slow part kept
+    inner = slice(20, -20)
+    slow = 0.3 + 0.2 * np.sin(2 * np.pi * 0.5 * low.time)
+    np.testing.assert_allclose(low.extra["emg_ut"][inner], slow[inner], atol=0.02)
+    assert np.abs(low.extra["emg_ut"][inner] - ut_emg[::10][inner]).max() > 0.05
+    # load_identification_data goes through the same pairing
+    via = load_identification_data(pt=pt, ut=ut)
+    np.testing.assert_array_equal(via.extra["emg_ut"], low.extra["emg_ut"])
+
+
 def test_data_hash_deterministic_and_sensitive():
     pt, ut, _ = make_trials()
     a, b = pair_trials(pt, ut), pair_trials(pt, ut)

@@ -14,7 +14,7 @@ from lpvpc import simulate
 from lpvpc.cli import main
 from lpvpc.data import Trial, pair_trials
 from lpvpc.diagnose import BlockCV, diagnose, paired_test, write_report
-from lpvpc.effects import reference_emg, signals_from_data
+from lpvpc.effects import signals_from_data
 from lpvpc.identify import identify
 from lpvpc.improve import improve
 from lpvpc.improve import write_report as write_ladder
@@ -27,8 +27,7 @@ def _pairs(seed, effects=(), modify=None):
     for kind, s in (("multilevel", seed), ("novel", seed + 1)):
         pair = simulate_pair(kind, seed=s, effects=effects)
         pt, ut = modify(pair) if modify else (pair.pt, pair.ut)
-        data = pair_trials(pt, ut)
-        reference_emg(ut, data)
+        data = pair_trials(pt, ut)  # with the UT trial's EMG as extra['emg_ut']
         out.append(data)
     return out
 

@@ -26,7 +26,6 @@ def rich():
     model with every effect identified from it."""
     pair = simulate_pair("multilevel", seed=4, effects=ALL, duration=60.0)
     data = pair_trials(pair.pt, pair.ut)
-    fx.reference_emg(pair.ut, data)
     model = identify(data, effects=ALL)
     return data, model
 
