@@ -55,6 +55,12 @@ Algebraic loop (``coupling``)
     actuator's acceleration output depends directly on ``load_torque``, the causal model's
     torque directly on its acceleration input), and the same two options apply.
 
+Extra inputs of an extended model (``signals``)
+    A model identified with effects (:mod:`lpvpc.effects`) has extra FMU inputs
+    (``trial_time``, ``scheduling_velocity``, ``emg``, ``emg_ut``). The actuator does not
+    produce them: the master feeds the record's (at the model rate, as the offline routes
+    use them) at every model step.
+
 Every output of every FMU is checked finite at every communication step; a non-finite
 value or an FMU error status raises :class:`lpvpc.errors.FMUError` with the FMU's own log.
 """
@@ -255,8 +261,9 @@ def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, 
 # --------------------------------------------------------------------------- master
 
 
-def connections(settings: CosimSettings) -> list:
-    """The signal connections of the experiment, by variable name, as readable lines."""
+def connections(settings: CosimSettings, signals=()) -> list:
+    """The signal connections of the experiment, by variable name, as readable lines
+    (``signals``: names of an extended model's extra inputs, fed from the record)."""
     load_ut = {"measured_ut+model": "record.UT torque (measured, at the actuator rate)",
                "model": "0", "none": "0"}[settings.load]
     load_pt = {"measured_ut+model": "record.UT torque + model.torque",
@@ -280,7 +287,7 @@ def connections(settings: CosimSettings) -> list:
         ("model.scheduling", "actuator_ut.position"),
         ("model.velocity", vel),
         ("model.acceleration", acc),
-    ]
+    ] + [(f"model.{name}", f"record.{name} (at the model rate, every model step)") for name in signals]
 
 
 def _check_finite(values, who, names, t):
@@ -309,11 +316,14 @@ def _next_guess(tried):
 
 
 def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorDrive, *,
-                     settings: CosimSettings | None = None, actuator_parameters: dict | None = None) -> CosimResult:
+                     settings: CosimSettings | None = None, actuator_parameters: dict | None = None,
+                     signals: dict | None = None) -> CosimResult:
     """Run the experiment (module docstring) over ``drive`` and return what the master saw.
 
     ``actuator_parameters`` (name -> value) are set in both actuator instances in
     addition to ``initial_position`` (each run starts at rest at its first command).
+    ``signals``: an extended model's extra inputs (FMU input name -> array at the model
+    rate, at least ``drive.n_model`` samples), set from the record at every model step.
     """
     settings = (settings or CosimSettings()).check()
     params = dict(actuator_parameters or {})
@@ -324,6 +334,16 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     for name, x in (("command_ut", drive.command_ut), ("command_pt", drive.command_pt), ("load_ut", drive.load_ut)):
         if len(x) < n_a:
             raise DataError(f"actuator drive '{name}' has {len(x)} samples, the run needs {n_a}")
+    sig_names = tuple(signals or ())
+    S = np.zeros((K, len(sig_names)))
+    for j, name in enumerate(sig_names):
+        x = np.asarray(signals[name], dtype=float).ravel()
+        if len(x) < K:
+            raise DataError(f"model input signal '{name}' has {len(x)} samples, the run needs {K}")
+        if not np.all(np.isfinite(x[:K])):
+            raise DataError(f"model input signal '{name}' has non-finite values")
+        S[:, j] = x[:K]
+    n_in = len(MODEL_INPUTS) + len(sig_names)
     cmd_u, cmd_p = drive.command_ut, drive.command_pt
     if settings.command_rate == "hold":
         idx = (np.arange(n_a) // r) * r
@@ -336,7 +356,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     Yu = np.empty((n_a + 1, 3))
     Yp = np.empty((n_a + 1, 3))
     tq = np.empty((K, 3))
-    ins = np.empty((K, 4))
+    ins = np.empty((K, n_in))
     load_model = np.zeros(K)
     iters = np.ones(K, dtype=int)
 
@@ -353,7 +373,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         mod.initialize(0.0)
         a_in = [a.port(ACTUATOR_INPUTS, "input") for a in (ut, pt)]
         a_out = [a.port(ACTUATOR_OUTPUTS, "output") for a in (ut, pt)]
-        m_in = mod.port(MODEL_INPUTS, "input")
+        m_in = mod.port(tuple(MODEL_INPUTS) + sig_names, "input")
         m_out = mod.port(MODEL_OUTPUTS, "output")
         if iterate and not actuator_fmu.model_description.coSimulation.canGetAndSetFMUstate:
             raise FMUError(f"{actuator_fmu.path.name}: coupling 'iterate' needs fmi{actuator_fmu.fmi_version}"
@@ -396,7 +416,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                 else:
                     vel = Yp[i0, 1] - Yu[i0, 1]
                     acc = Yp[i0, 2] - Yu[i0, 2]
-                u = (p_k, Yu[i0, 0], vel, acc)
+                u = (p_k, Yu[i0, 0], vel, acc, *S[k])
                 m_in.set(u)
                 y = m_out.get()
                 if not (np.isfinite(y[0]) and np.isfinite(y[1]) and np.isfinite(y[2])):
@@ -422,6 +442,6 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
             inst.close()
     return CosimResult(
         time=np.arange(K) * H, torque=tq[:, 0], torque_intrinsic=tq[:, 1], torque_reflex=tq[:, 2],
-        model_inputs={name: ins[:, j] for j, name in enumerate(MODEL_INPUTS)},
+        model_inputs={name: ins[:, j] for j, name in enumerate(tuple(MODEL_INPUTS) + sig_names)},
         ut=Yu[:n_a], pt=Yp[:n_a], load_pt_model=load_model, iterations=iters, settings=settings,
-        parameters=params, step_model=H, step_actuator=h, elapsed=elapsed, connections=connections(settings))
+        parameters=params, step_model=H, step_actuator=h, elapsed=elapsed, connections=connections(settings, sig_names))

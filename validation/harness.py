@@ -34,10 +34,10 @@ from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.model import LPVPCModel
 
 from . import compare as cmp
-from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_INPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
+from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
                     band_limit, calibrate_servo, feedforward_command, run_cosimulation, to_rate)
 from .fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
-from .routes import casadi_routes, fmu_replay, offline_routes
+from .routes import casadi_routes, fmu_replay, model_fmu_inputs, offline_routes
 
 __all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROUTE_TOLERANCE"]
 
@@ -106,8 +106,9 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
 
 
 def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
-    """The model FMU must be a causal lpvpc export of this model at its sample period."""
-    missing_in = [n for n in MODEL_INPUTS if info.variables.get(n, (None, None))[1] != "input"]
+    """The model FMU must be a causal lpvpc export of this model at its sample period (with
+    the extra inputs of an extended model)."""
+    missing_in = [n for n in model_fmu_inputs(model) if info.variables.get(n, (None, None))[1] != "input"]
     missing_out = [n for n in MODEL_OUTPUTS if info.variables.get(n, (None, None))[1] != "output"]
     if missing_in or missing_out:
         hint = (" (is it the exact variant? co-simulation needs the default causal FMU)"
@@ -235,6 +236,20 @@ def _versions() -> dict:
 # --------------------------------------------------------------------------- validate
 
 
+def record_signals(model: LPVPCModel, measured) -> dict | None:
+    """The extra signals an extended model needs, from the record (name -> array at the
+    model rate, :func:`lpvpc.effects.signals_from_data`); None for the base model.
+    DataError when the record lacks one (e.g. ``emg_ut`` without EMG in the UT trial)."""
+    from lpvpc.effects import check_signals, model_signals, signals_from_data
+
+    names = model_signals(model)
+    if not names:
+        return None
+    signals = signals_from_data(measured)
+    check_signals(signals, names, measured.n, source=measured.source or "record")
+    return {n: signals[n] for n in names}
+
+
 def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actuator_fmu=None,
              actuator_parameters: dict | None = None, calibrate: bool = True, settings: CosimSettings | None = None,
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
@@ -267,6 +282,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         model = LPVPCModel.load(model_path)
     record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign)
     meas = record.measured
+    signals = record_signals(model, meas)  # extended model: the record's extra channels, for every route
     given_fmu = None
     if fmu is not None:
         given_fmu = inspect_fmu(fmu, "model FMU")
@@ -300,10 +316,10 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
 
     # -- offline routes -----------------------------------------------------------------
     t0 = time.perf_counter()
-    off = offline_routes(model, meas.position, meas.scheduling)
-    cas = casadi_routes(model, meas.position, meas.scheduling)
+    off = offline_routes(model, meas.position, meas.scheduling, signals)
+    cas = casadi_routes(model, meas.position, meas.scheduling, signals)
     timing["offline_and_casadi"] = time.perf_counter() - t0
-    rep = fmu_replay(model_fmu, model, meas.position, meas.scheduling)
+    rep = fmu_replay(model_fmu, model, meas.position, meas.scheduling, signals)
     timing["fmu_replay"] = rep["seconds"]
 
     # -- co-simulation ------------------------------------------------------------------
@@ -311,21 +327,22 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
     drive, params, calibration = actuator_drive(record, act_fmu, ratio, meas.n, actuator_parameters, calibrate,
                                                 band_limit_to=model.fs if band_limit_command else None)
     timing["calibration"] = calibration.get("seconds", 0.0)
-    cos = run_cosimulation(model_fmu, act_fmu, drive, settings=settings, actuator_parameters=params)
+    cos = run_cosimulation(model_fmu, act_fmu, drive, settings=settings, actuator_parameters=params,
+                           signals=signals)
     timing["cosim"] = time.perf_counter() - t0
     unloaded = None
     if measure_load_effect and settings.load != "none":
         t0 = time.perf_counter()
         unloaded = run_cosimulation(model_fmu, act_fmu, drive, settings=CosimSettings(**{**asdict(settings),
                                                                                          "load": "none"}),
-                                    actuator_parameters=params)
+                                    actuator_parameters=params, signals=signals)
         timing["cosim_unloaded"] = time.perf_counter() - t0
     # the lab pipeline on the co-simulated actuator: its 1 kHz positions recorded,
     # decimated like the measured data, replayed through the model FMU
     q_a = int(round((1.0 / drive.step) / model.fs))
     rec_pos = decimate_signal(cos.pt[:, 0] - cos.ut[:, 0], q_a)[: meas.n]
     rec_rho = decimate_signal(cos.ut[:, 0], q_a)[: meas.n]
-    rec = fmu_replay(model_fmu, model, rec_pos, rec_rho)
+    rec = fmu_replay(model_fmu, model, rec_pos, rec_rho, signals)
 
     # -- comparison ---------------------------------------------------------------------
     y = meas.torque
@@ -436,6 +453,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         "rmse_fmu": route_table["fmu"]["rmse"],
         "rmse_cosim": route_table["cosim"]["rmse"],
         "n_samples": int(meas.n),
+        "model_signals": list(signals or {}),  # extra inputs of an extended model, from the record
         "fs": float(model.fs),
         "duration_s": float(meas.n / meas.fs),
         "units": {"vaf": "%", "rmse": "N m", "fs": "Hz", "time": "s", "position": "rad", "torque": "N m"},

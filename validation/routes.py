@@ -7,6 +7,11 @@
   by its latency of L samples so that it lines up with ``numpy``);
 - ``fmu``: the model FMU replaying the measured perturbation position, scheduling and
   their central-difference velocity and acceleration (no actuator).
+
+An extended model (identified with effects, :mod:`lpvpc.effects`) takes extra signals
+(``trial_time``, ``scheduling_velocity``, ``emg``, ``emg_ut``): every route receives the
+record's (``signals``, name -> array at the model rate, e.g. from
+:func:`lpvpc.effects.signals_from_data`) and the FMU gets them on its extra inputs.
 """
 
 from __future__ import annotations
@@ -23,18 +28,24 @@ from lpvpc.errors import FMUError, OutOfRangeWarning
 from .cosim import MODEL_INPUTS, MODEL_OUTPUTS
 from .fmu import FMUInfo, FMUInstance
 
-__all__ = ["offline_routes", "casadi_routes", "fmu_replay"]
+__all__ = ["offline_routes", "casadi_routes", "fmu_replay", "model_fmu_inputs"]
 
 
-def offline_routes(model, position, scheduling) -> dict:
+def model_fmu_inputs(model) -> tuple:
+    """Inputs of the model FMU in the order the routes set them: :data:`MODEL_INPUTS`, then
+    the extra signals of an extended model (none for the base model)."""
+    return tuple(MODEL_INPUTS) + tuple(ex._effect_signals(model))
+
+
+def offline_routes(model, position, scheduling, signals=None) -> dict:
     """numpy predictions: {"numpy": Prediction (two-sided), "numpy_causal": Prediction}."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
-        return {"numpy": model.predict(position, scheduling),
-                "numpy_causal": model.predict(position, scheduling, causal=True)}
+        return {"numpy": model.predict(position, scheduling, signals=signals),
+                "numpy_causal": model.predict(position, scheduling, causal=True, signals=signals)}
 
 
-def casadi_routes(model, position, scheduling) -> dict:
+def casadi_routes(model, position, scheduling, signals=None) -> dict:
     """CasADi predictions {"casadi": total, "casadi_exact": total} (N m) and build/run times."""
     out, timing = {}, {}
     n = len(position)
@@ -42,7 +53,7 @@ def casadi_routes(model, position, scheduling) -> dict:
         t0 = time.perf_counter()
         step = ex.step_function(model, variant)
         traj = ex.trajectory_function(step, n)
-        args = ex.replay_inputs(model, position, scheduling, variant)
+        args = ex.replay_inputs(model, position, scheduling, variant, signals=signals)
         res = traj(state=np.zeros(step.size1_in("state")), **args)
         tq = np.asarray(res["torque"]).ravel()
         lat = ex.latency_samples(model, variant)
@@ -53,16 +64,17 @@ def casadi_routes(model, position, scheduling) -> dict:
     return {"torque": out, "seconds": timing}
 
 
-def fmu_replay(model_fmu: FMUInfo, model, position, scheduling) -> dict:
+def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) -> dict:
     """Replay a record through the (causal) model FMU at its sample period; every output
     checked finite. Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
-    rows = ex.replay_inputs(model, position, scheduling, "causal")
-    U = np.column_stack([np.ravel(rows[name]) for name in MODEL_INPUTS])
+    rows = ex.replay_inputs(model, position, scheduling, "causal", signals=signals)
+    inputs = model_fmu_inputs(model)
+    U = np.column_stack([np.ravel(rows[name]) for name in inputs])
     h = 1.0 / model.fs
     Y = np.empty((len(U), 3))
     with FMUInstance(model_fmu, "model_replay") as inst:
         inst.initialize(0.0)
-        pin, pout = inst.port(MODEL_INPUTS, "input"), inst.port(MODEL_OUTPUTS, "output")
+        pin, pout = inst.port(inputs, "input"), inst.port(MODEL_OUTPUTS, "output")
         t0 = time.perf_counter()
         for k in range(len(U)):
             pin.set(U[k])
