@@ -410,6 +410,21 @@ def _state_order(text):
     return m
 
 
+def _add_convention_args(p, from_model: bool):
+    """--position-unit and --torque-sign: given for new data (identify, improve), or
+    defaulting to the conventions recorded in the model (predict, validate, diagnose)."""
+    if from_model:
+        p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
+                       help="unit of positions in the files (default: as at identification)")
+        p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
+                       help="torque sign convention of the files (default: as at identification)")
+    else:
+        p.add_argument("--position-unit", choices=("rad", "deg"), default="rad",
+                       help="unit of positions in the files (default rad)")
+        p.add_argument("--torque-sign", type=_sign, default=1.0, metavar="1|-1",
+                       help="multiplies the files' torque into the package's convention (default 1)")
+
+
 def _add_data_args(p, what):
     p.add_argument("data", nargs="?", metavar="DATA",
                    help=f"{what}: one CSV/.mat file with perturbation position, torque and a scheduling column")
@@ -469,10 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tol", type=_positive_float, help=f"separable least-squares tolerance (default {d['tol']:g})")
     p.add_argument("--max-iter", type=int, metavar="N",
                    help=f"separable least-squares iterations (default {d['max_iter']})")
-    p.add_argument("--position-unit", choices=("rad", "deg"), default="rad",
-                   help="unit of positions in the files (default rad)")
-    p.add_argument("--torque-sign", type=_sign, default=1.0, metavar="1|-1",
-                   help="multiplies the files' torque into the package's convention (default 1)")
+    _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
@@ -490,10 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write time, measured, predicted, intrinsic, reflex torques (and position, scheduling)")
     p.add_argument("--causal", action="store_true",
                    help="use the causal intrinsic IRF (what the default FMU runs)")
-    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
-                   help="unit of positions in the files (default: as at identification)")
-    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
-                   help="torque sign convention of the files (default: as at identification)")
+    _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_predict)
 
     p = sub.add_parser("export", help="export a saved model as a CasADi function and/or an FMU",
@@ -531,10 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="load-torque coupling: iterate to convergence (default) or a one-step delay")
     p.add_argument("--route-tolerance", type=_positive_float, default=1e-9, metavar="TOL",
                    help="largest max|a-b|/max|b| of the CasADi and FMU routes vs numpy (default 1e-9)")
-    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
-                   help="unit of positions in the files (default: as at identification)")
-    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
-                   help="torque sign convention of the files (default: as at identification)")
+    _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
@@ -545,10 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_args(p, "instead of --pt/--ut")
     p.add_argument("--json", metavar="DIAGNOSIS.json", help="write the diagnosis (candidates in rank order)")
     p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.md, diagnosis.json and residual.png")
-    p.add_argument("--position-unit", choices=("rad", "deg"), default=None,
-                   help="unit of positions in the files (default: as at identification)")
-    p.add_argument("--torque-sign", type=_sign, default=None, metavar="1|-1",
-                   help="torque sign convention of the files (default: as at identification)")
+    _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("improve", help="fit, diagnose, add the top significant effect, refit, until none is left",
@@ -565,10 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
                    help="effects the starting model already has (repeatable)")
-    p.add_argument("--position-unit", choices=("rad", "deg"), default="rad",
-                   help="unit of positions in the files (default rad)")
-    p.add_argument("--torque-sign", type=_sign, default=1.0, metavar="1|-1",
-                   help="multiplies the files' torque into the package's convention (default 1)")
+    _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
     p.set_defaults(func=cmd_improve)
