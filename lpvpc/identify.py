@@ -6,7 +6,7 @@ Steps (equation numbers of the seed paper):
 2. MOESP on the MISO form (21)-(23) gives A_r, C_r; the state order is chosen from the
    singular values (the orders at the two largest gaps, plus order 2) and settled by BIC
    of the complete fit, unless ``state_order`` is given; the MOESP poles are then refined
-   by variable projection on the complete fit (``refine_poles``; MOESP with ~70 inputs
+   by variable projection on the complete fit (``PoleRefinement``; MOESP with ~70 inputs
    leaves a bias in the poles that leaks reflex torque into the intrinsic estimate);
 3. reflex regressor Psi_r (25) by filtering U_r through C_r (zI - A_r)^-1;
 4. orthogonal projection (27)-(28): the intrinsic parameters by least squares after
@@ -32,7 +32,7 @@ from .linalg import orthonormal_range, pivoted_qr
 from .intrinsic import intrinsic_regressor, two_sided_lags
 from .model import LPVPCModel, vaf
 from .reflex import fit_hammerstein, reflex_input_regressor, reflex_regressor
-from .subspace import candidate_orders, po_moesp, refine_poles
+from .subspace import PoleRefinement, candidate_orders, po_moesp
 
 class LPVPCEstimator:
     """Estimator of an LPV-PC ankle stiffness model (scikit-learn style).
@@ -149,9 +149,8 @@ class LPVPCEstimator:
             orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2, 3})
             orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
         orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity
-        fits = {}
-        for m in orders:
-            fits[m] = self._fit_given_order(sub, m, U_r, Psi_i, y, orientation)
+        refinement = PoleRefinement(U_r, Psi_i, y) if self.refine else None
+        fits = {m: self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation) for m in orders}
         n = len(y)
         bic = {m: n * np.log(f["rss"] / n) + f["n_params"] * np.log(n) for m, f in fits.items()}
         m_best = min(bic, key=bic.get)
@@ -202,11 +201,11 @@ class LPVPCEstimator:
         return self
 
     # ------------------------------------------------------------------------------------
-    def _fit_given_order(self, sub, m, U_r, Psi_i, y, orientation):
+    def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation):
         A, C = sub.system(m)
         moesp_poles = np.linalg.eigvals(A)
-        if self.refine:
-            A, C, _ = refine_poles(A, U_r, Psi_i, y)
+        if refinement is not None:
+            A, C, _ = refinement.refine(A)
         blocks = reflex_regressor(U_r, A, C)
         Psi_r = np.hstack(blocks)
         theta_i = project_out_and_solve(Psi_r, Psi_i, y)

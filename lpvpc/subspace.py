@@ -126,40 +126,89 @@ def companion_form(den):
     return A, C
 
 
-def refine_poles(A0, u_state, fixed_regressor, y, max_nfev: int = 60):
-    """Refine the poles of (A, C) by variable projection on the complete fit.
+class PoleRefinement:
+    """Refinement of the poles of (A, C) by variable projection on the complete fit.
 
     The column space of the reflex regressor (25) depends on A only through its
-    characteristic polynomial, so the residual of the unconstrained least-squares fit of
-    y on [Psi_i, Psi_r(den)] is a function of the m denominator coefficients alone. Its
-    minimum, started from the MOESP poles, corrects the bias that MOESP's many
-    instruments leave in the poles at the price of a few dozen cheap projections.
-    Returns (A, C) in observable canonical form and the optimiser result.
+    characteristic polynomial ``1 + a_1 q^-1 + ... + a_m q^-m``, so the residual of the
+    unconstrained least-squares fit of y on [Psi_i, U_r, X(a)], X(a) = [q^-1 W, ...,
+    q^-m W] with W = U_r / a(q), is a function of the m coefficients alone. Its minimum,
+    started from the MOESP poles, corrects the bias that MOESP's many instruments leave in
+    the poles at the price of a few dozen cheap projections.
+
+    range([Psi_i, U_r]) does not depend on the poles: it is factored once here and shared
+    by every state order and evaluation. The Jacobian is the exact variable-projection
+    one (Golub and Pereyra 1973), from one more filtering of W; finite differences would
+    cost m extra residuals per step.
     """
-    m = A0.shape[0]
-    den0 = np.poly(np.linalg.eigvals(A0)).real[1:]
-    Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
-    y_perp = y - Q0 @ (Q0.T @ y)
 
-    def residual(den):
+    def __init__(self, u_state, fixed_regressor, y):
+        self.u = u_state
+        self.Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
+        self.y_perp = y - self.Q0 @ (self.Q0.T @ y)
+        self._cache = (None, None)
+
+    def refine(self, A0, max_nfev: int = 60):
+        """(A, C) in observable canonical form, and the optimiser result."""
+        den0 = np.poly(np.linalg.eigvals(A0)).real[1:]
+        result = scipy.optimize.least_squares(self._residual, den0, jac=self._jacobian, method="lm",
+                                              max_nfev=max_nfev, x_scale="jac", ftol=1e-6, xtol=1e-6)
+        A, C = companion_form(result.x)
+        return A, C, result
+
+    def _project(self, v):
+        return v - self.Q0 @ (self.Q0.T @ v)
+
+    def _fit(self, den):
+        """Least-squares fit at ``den`` (cached: the optimiser asks for the residual and
+        the Jacobian at the same point)."""
+        key = den.tobytes()
+        if self._cache[0] == key:
+            return self._cache[1]
         if np.any(np.abs(np.roots(np.r_[1.0, den])) >= 0.999):  # keep the reflex stable
-            return 10.0 * y_perp
-        W = scipy.signal.lfilter([1.0], np.r_[1.0, den], u_state, axis=0)
-        X = np.hstack([np.vstack([np.zeros((j, W.shape[1])), W[:-j]]) for j in range(1, m + 1)])
-        X -= Q0 @ (Q0.T @ X)
-        # Normal equations on column-scaled X: ~3x cheaper than a pivoted QR per evaluation,
-        # and the residual only steers the optimiser (the final fit is redone by QR).
-        scale = np.sqrt(np.einsum("ij,ij->j", X, X))
-        scale[scale == 0] = 1.0
-        X /= scale
-        try:
-            coef = scipy.linalg.cho_solve(scipy.linalg.cho_factor(X.T @ X), X.T @ y_perp)
-        except np.linalg.LinAlgError:
-            Q = orthonormal_range(X)
-            return y_perp - Q @ (Q.T @ y_perp)
-        return y_perp - X @ coef
+            fit = None
+        else:
+            m = len(den)
+            W = scipy.signal.lfilter([1.0], np.r_[1.0, den], self.u, axis=0)
+            X = self._project(np.hstack([_delay(W, j) for j in range(1, m + 1)]))
+            # Normal equations on column-scaled X: ~3x cheaper than a QR per evaluation, and
+            # the residual only steers the optimiser (the final fit is redone by QR). The
+            # pseudo-inverse of the Gram matrix also covers a rank-deficient X.
+            scale = np.sqrt(np.einsum("ij,ij->j", X, X))
+            scale[scale == 0] = 1.0
+            X /= scale
+            G_pinv = np.linalg.pinv(X.T @ X, hermitian=True)
+            coef = G_pinv @ (X.T @ self.y_perp)
+            fit = {"W": W, "X": X, "scale": scale, "G_pinv": G_pinv, "coef": coef, "r": self.y_perp - X @ coef}
+        self._cache = (key, fit)
+        return fit
 
-    result = scipy.optimize.least_squares(residual, den0, method="lm", max_nfev=max_nfev, x_scale="jac",
-                                          ftol=1e-6, xtol=1e-6)
-    A, C = companion_form(result.x)
-    return A, C, result
+    def _residual(self, den):
+        fit = self._fit(den)
+        return 10.0 * self.y_perp if fit is None else fit["r"]
+
+    def _jacobian(self, den):
+        """d r / d a_k = -P dX_k c - X^+T dX_k^T r with P the projector off [Psi_i, U_r, X],
+        c the coefficients of X and dX_k = -[q^-(k+1) V, ..., q^-(k+m) V], V = W / a(q)."""
+        fit = self._fit(den)
+        m = len(den)
+        if fit is None:
+            return np.zeros((len(self.y_perp), m))
+        X, r, G_pinv = fit["X"], fit["r"], fit["G_pinv"]
+        V = scipy.signal.lfilter([1.0], np.r_[1.0, den], fit["W"], axis=0)
+        c = (fit["coef"] / fit["scale"]).reshape(m, -1)
+        Vc = V @ c.T
+        z = sum(_delay(Vc[:, j - 1], j) for j in range(1, m + 1))  # -dX_k c = q^-k z
+        S = self._project(np.column_stack([_delay(z, k) for k in range(1, m + 1)]))
+        S -= X @ (G_pinv @ (X.T @ S))
+        n = len(r)
+        corr = {lag: V[: n - lag].T @ r[lag:] for lag in range(2, 2 * m + 1)}  # (q^-lag V)^T r
+        H = np.column_stack([np.concatenate([corr[j + k] for j in range(1, m + 1)]) for k in range(1, m + 1)])
+        return S + X @ (G_pinv @ (H / fit["scale"][:, None]))
+
+
+def _delay(a, lag: int):
+    """a delayed by ``lag`` samples along axis 0, zeros before the start."""
+    out = np.zeros_like(a)
+    out[lag:] = a[:-lag]
+    return out
