@@ -14,7 +14,11 @@ Notation (seed paper, eqs. 3-20), at sample k, sampling period T = 1/fs:
     reflex:     x(k+1)  = A x(k) + B z(k),   tq_r(k) = C x(k) + D z(k)
     total:      tq(k)   = tq_i(k) + tq_r(k)
 
-Positions before the start of a record are taken as zero (they are perturbations).
+Record edges: positions before the start of a record are zero (a perturbation starts
+from rest, as the forward-running CasADi step and FMU do); positions after its end are
+held at the last value (a record may end mid-perturbation: the joint does not jump back
+to zero, and a zero there would put a spurious step into the two-sided IRF and the
+central differences of the last samples).
 """
 
 from __future__ import annotations
@@ -55,7 +59,8 @@ def reflex_step(A, B, C, D, x, z):
 
 
 def lagged(signal, lags):
-    """(N, len(lags)) array whose column l is signal(k - lags[l]), zero outside the record."""
+    """(N, len(lags)) array whose column l is signal(k - lags[l]): zero before the record,
+    the last value after it (see the module notes on record edges)."""
     signal = np.asarray(signal, dtype=float)
     n = len(signal)
     out = np.zeros((n, len(lags)))
@@ -63,19 +68,27 @@ def lagged(signal, lags):
         if lag >= 0:
             out[lag:, col] = signal[: n - lag] if lag < n else []
         else:
-            out[: n + lag, col] = signal[-lag:]
+            ahead = min(-lag, n)
+            out[: n - ahead, col] = signal[ahead:]
+            out[n - ahead:, col] = signal[-1] if n else 0.0
     return out
 
 
+def _padded(position):
+    """The record with one sample of edge padding: zero before, the last value after."""
+    p = np.asarray(position, dtype=float)
+    return np.concatenate([[0.0], p, p[-1:]])
+
+
 def velocity(position, fs):
-    """Central-difference velocity (rad/s) of a whole record (zero outside the record)."""
-    p = np.concatenate([[0.0], np.asarray(position, dtype=float), [0.0]])
+    """Central-difference velocity (rad/s) of a whole record (record edges: module notes)."""
+    p = _padded(position)
     return central_velocity(p[2:], p[:-2], fs)
 
 
 def acceleration(position, fs):
     """Central second-difference acceleration (rad/s^2) of a whole record."""
-    p = np.concatenate([[0.0], np.asarray(position, dtype=float), [0.0]])
+    p = _padded(position)
     return (p[2:] - 2.0 * p[1:-1] + p[:-2]) * fs**2
 
 
