@@ -15,9 +15,14 @@ Two questions (see :func:`diagnose`):
 2. *Which physical effect is missing?* Every candidate of the catalog
    (:mod:`lpvpc.effects`: effects and settings) is fitted and scored on held-out data.
    Scoring uses the model's linear surrogate: with the model's structure held (IRF lags,
-   bases and their ranges, reflex delay and poles), the torque is linear in the intrinsic
-   IRF coefficients, in an unstructured reflex nonlinearity (the blocks of eq. 25) and in
-   the coefficients of the model's effects. Each candidate adds columns to it (an effect)
+   bases and their ranges, reflex delay and linear dynamics), the torque is linear in the
+   intrinsic IRF coefficients, in the reflex nonlinearity's coefficients (its basis
+   functions filtered by the model's reflex dynamics), in the numerator of those dynamics
+   (the model's reflex drive through its states) and in the coefficients of the model's
+   effects. The reflex dynamics stay position-independent, as in the model: the blocks of
+   eq. 25 (a free numerator for every basis function of the nonlinearity) would let the
+   numerator vary with rho and so absorb most of a position-dependent reflex dynamics
+   before its candidate is tried. Each candidate adds columns to it (an effect)
    or replaces some (a setting: its variants are selected inside each training fold by
    training error). Base and candidate are fitted on K - 1 contiguous folds of the record
    and predict the held-out fold (blocked cross-validation, K = 10): the held-out VAF gain
@@ -57,7 +62,7 @@ from .basis import Basis
 from .effects import CATALOG, SETTINGS, EffectDesign, signals_from_data
 from .intrinsic import two_sided_lags
 from .model import vaf
-from .reflex import reflex_input_regressor, reflex_regressor
+from .reflex import reflex_input_regressor
 
 FOLDS = 10
 BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
@@ -147,9 +152,10 @@ RIDGE = 1e-8  # relative to the largest eigenvalue of the (column-scaled) Gram m
 def _solve_psd(G, b, ridge=RIDGE):
     """Least-squares coefficients from normal equations with a tiny relative ridge.
 
-    The unstructured reflex blocks (eq. 25) are nearly collinear (their filters differ
-    little); without the ridge, directions with eigenvalues ~1e-12 of the largest turn
-    fold-to-fold noise into large held-out errors. The intrinsic block's smallest
+    The reflex columns are nearly collinear (neighbouring basis functions of the
+    nonlinearity through the same filter, the drive through filters that differ little);
+    without the ridge, directions with eigenvalues ~1e-12 of the largest turn fold-to-fold
+    noise into large held-out errors. The intrinsic block's smallest
     eigenvalues (~1e-5) are untouched."""
     w, V = scipy.linalg.eigh(G, check_finite=False)
     w = np.maximum(w, 0.0)
@@ -182,8 +188,7 @@ class Surrogate:
     """The model's structure on a record as blocks of a linear least-squares problem.
 
     Base blocks: ``intrinsic`` (the IRF, model lags and basis), ``effects`` (the model's
-    own effect terms, if any) and ``reflex`` (eq. 25 blocks of an unstructured reflex
-    nonlinearity through the model's reflex poles, at the model's delay).
+    own effect terms, if any) and ``reflex`` (:meth:`reflex_block` at the model's delay).
     """
 
     def __init__(self, model, data, folds=FOLDS):
@@ -211,9 +216,16 @@ class Surrogate:
         return _kron_rows(eq.lagged(self.p, lags), basis.evaluate(self.rho))
 
     def reflex_block(self, delay, velocity_basis: Basis, rho_basis: Basis):
+        """Reflex columns at ``delay`` (samples): every basis function of the nonlinearity
+        (eq. 17) through the model's reflex dynamics C (zI - A)^-1 B + D, and the model's
+        own nonlinearity at that delay through each state and the feedthrough (a free,
+        position-independent numerator)."""
+        m = self.model
         dvel = eq.delayed_velocity(self.p, self.fs, delay)
         U = reflex_input_regressor(velocity_basis.evaluate(dvel), rho_basis.evaluate(self.rho))
-        return np.hstack(reflex_regressor(U, self.model.A, self.model.C[None, :]))
+        num, den = scipy.signal.ss2tf(m.A, m.B[:, None], m.C[None, :], np.array([[m.D]]))
+        z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(dvel), m.reflex_rho_basis.evaluate(self.rho), m.Omega), -1)
+        return np.hstack([scipy.signal.lfilter(num[0], den, U, axis=0), eq.state_trajectory(m.A, m.B, z), z[:, None]])
 
     def reflex_drive(self):
         if self.z is None:

@@ -134,7 +134,8 @@ def _reflex_dynamics_features(c, ops, options):
     """Reflex states x and cascade states w minus their steady-state values for the drive z
     (kappa = (I - A)^-1 B, w_ss = kappa C kappa z): every combination has zero static gain,
     so these terms change the reflex dynamics, not its gain (the gain's position
-    dependence belongs to the reflex nonlinearity and its basis order)."""
+    dependence belongs to the reflex nonlinearity and its basis order). The states x give
+    the numerator, the cascade w (double poles) the first-order change of the poles."""
     kappa, ck = options["kappa"], options["c_kappa"]
     return ([c.x[i] - kappa[i] * c.z for i in range(len(kappa))]
             + [c.w[i] - (kappa[i] * ck) * c.z for i in range(len(kappa))])
@@ -195,6 +196,9 @@ CATALOG: dict[str, Effect] = {
             derived=("reflex",),
             features=_reflex_dynamics_features,
             feature_order=2,
+            # Without the constant: only the change WITH position, so that a model whose
+            # (position-independent) reflex dynamics are merely off is not taken for this effect.
+            feature_constant=False,
             feature_names=lambda opt: ([f"reflex state x{i} - steady state" for i in range(opt["m"])]
                                        + [f"reflex cascade w{i} - steady state" for i in range(opt["m"])]),
         ),
