@@ -164,11 +164,11 @@ def test_effect_columns_join_the_intrinsic_regressor(rich):
     data, model = rich
     est = LPVPCEstimator(effects=("drift",)).fit(data)
     base = LPVPCEstimator().fit(data)
-    n_drift = len(est.model_.lags) * est.model_.intrinsic_basis.size
-    assert est.n_features_ == base.n_features_ + n_drift
     (fe,) = est.model_.effects
-    assert fe.H.shape == (len(est.model_.lags), est.model_.intrinsic_basis.size)
-    assert fe.H_causal.shape == (len(est.model_.causal_lags) + 2, est.model_.intrinsic_basis.size)
+    n_b = fe.channel_basis.size  # drift's own rho basis order (below the intrinsic one)
+    assert est.n_features_ == base.n_features_ + len(est.model_.lags) * n_b
+    assert fe.H.shape == (len(est.model_.lags), n_b)
+    assert fe.H_causal.shape == (len(est.model_.causal_lags) + 2, n_b)
 
 
 def test_cli_identify_with_effects(tmp_path, capsys):
