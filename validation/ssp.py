@@ -76,8 +76,10 @@ def _fmt(x: float) -> str:
     return repr(float(x))
 
 
-def ssp_connections(settings: CosimSettings | None = None, signals=()) -> list[dict]:
-    """The experiment's wiring (:func:`validation.cosim.connections`) in SSP terms: one dict
+def ssp_connections(settings: CosimSettings | None = None, signals=(), wiring=None) -> list[dict]:
+    """The experiment's wiring in SSP terms: ``wiring``, the master's (input, source) pairs
+    (``CosimResult.connections`` of a run), default :func:`validation.cosim.connections`
+    of ``settings`` and ``signals``. One dict
     per input of an instance with ``end`` (component, connector), ``kind`` ("component":
     from another instance's output, ``start`` its (component, connector); "system": from
     the system input connector ``start`` (None, name); "constant": unconnected) and
@@ -85,7 +87,7 @@ def ssp_connections(settings: CosimSettings | None = None, signals=()) -> list[d
     input connector too (``kind`` "constant", ``value`` its value, bound as a parameter)."""
     settings = (settings or CosimSettings()).check()
     out = []
-    for target, source in connections(settings, tuple(signals)):
+    for target, source in (wiring if wiring is not None else connections(settings, tuple(signals))):
         end = tuple(target.split(".", 1))
         m = _DIRECT.match(source)
         if m and m.group(1) in _RESOURCES and m.group(2) in _OUTPUTS[_RESOURCES[m.group(1)]]:
@@ -148,8 +150,8 @@ def _units(infos) -> list:
 
 
 def _ssd(fmus: dict, settings: CosimSettings, parameters: dict, signals, start_time: float, stop_time: float,
-         communication_step: float, name: str) -> bytes:
-    wiring = ssp_connections(settings, signals)
+         communication_step: float, name: str, master_wiring) -> bytes:
+    wiring = ssp_connections(settings, signals, master_wiring)
     variables = {role: _variables(info) for role, info in fmus.items()}
     var_of = {comp: variables[role] for comp, role in _RESOURCES.items()}
 
@@ -246,14 +248,16 @@ def _ssd(fmus: dict, settings: CosimSettings, parameters: dict, signals, start_t
 
 def write_ssp(path, model_fmu, actuator_fmu, *, stop_time: float, communication_step: float,
               settings: CosimSettings | None = None, parameters: dict | None = None, signals=(),
-              start_time: float = 0.0, name: str = "lpvpc_cosimulation") -> Path:
+              start_time: float = 0.0, name: str = "lpvpc_cosimulation", wiring=None) -> Path:
     """Write the co-simulation set-up as an SSP 1.0 archive at ``path`` and return it.
 
     ``model_fmu``, ``actuator_fmu``: FMU paths or :class:`validation.fmu.FMUInfo` (a path is
     checked with :func:`validation.fmu.inspect_fmu`: a missing or corrupt FMU raises
     :class:`lpvpc.errors.FMUError`). ``parameters``: instance -> {parameter: value}, as
     :func:`instance_parameters` gives them; ``signals``: an extended model's extra input
-    names (fed from the record). ``stop_time``, ``communication_step`` in s.
+    names (fed from the record); ``wiring``: the run's own connections
+    (``CosimResult.connections``; default those of ``settings``). ``stop_time``,
+    ``communication_step`` in s.
     """
     fmus = {"model": model_fmu if isinstance(model_fmu, FMUInfo) else inspect_fmu(model_fmu, "model FMU"),
             "actuator": actuator_fmu if isinstance(actuator_fmu, FMUInfo) else inspect_fmu(actuator_fmu,
@@ -265,7 +269,7 @@ def write_ssp(path, model_fmu, actuator_fmu, *, stop_time: float, communication_
         raise ValueError(f"need stop_time > start_time and communication_step > 0, got {start_time}, {stop_time}, "
                          f"{communication_step}")
     ssd = _ssd(fmus, (settings or CosimSettings()).check(), parameters or {}, tuple(signals), start_time,
-               stop_time, communication_step, name)
+               stop_time, communication_step, name, wiring)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # write next to the target and rename, so a reader never sees half an archive
