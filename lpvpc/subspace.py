@@ -143,7 +143,7 @@ class PoleRefinement:
     """
 
     def __init__(self, u_state, fixed_regressor, y):
-        self.u = u_state
+        self.u = np.asfortranarray(u_state)  # lfilter runs along columns
         self.Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
         self.y_perp = y - self.Q0 @ (self.Q0.T @ y)
         self._cache = (None, None)
@@ -156,32 +156,36 @@ class PoleRefinement:
         A, C = companion_form(result.x)
         return A, C, result
 
-    def _project(self, v):
-        return v - self.Q0 @ (self.Q0.T @ v)
-
     def _fit(self, den):
         """Least-squares fit at ``den`` (cached: the optimiser asks for the residual and
-        the Jacobian at the same point)."""
+        the Jacobian at the same point), or None where the reflex would be unstable.
+
+        X is never projected explicitly: with B = Q0^T X the projected Gram matrix is
+        X^T X - B^T B and the projection of any X w is X w - Q0 (B w). These normal
+        equations on scaled columns are several times cheaper than a QR per evaluation,
+        and the residual only steers the optimiser (the final fit is redone by QR).
+        """
         key = den.tobytes()
         if self._cache[0] == key:
             return self._cache[1]
-        if np.any(np.abs(np.roots(np.r_[1.0, den])) >= 0.999):  # keep the reflex stable
-            fit = None
-        else:
-            m = len(den)
+        fit = None
+        if np.all(np.abs(np.roots(np.r_[1.0, den])) < 0.999):
             W = scipy.signal.lfilter([1.0], np.r_[1.0, den], self.u, axis=0)
-            X = self._project(np.hstack([_delay(W, j) for j in range(1, m + 1)]))
-            # Normal equations on column-scaled X: ~3x cheaper than a QR per evaluation, and
-            # the residual only steers the optimiser (the final fit is redone by QR). The
-            # pseudo-inverse of the Gram matrix also covers a rank-deficient X.
-            scale = np.sqrt(np.einsum("ij,ij->j", X, X))
+            X = _delays(W, len(den))
+            B = self.Q0.T @ X
+            G = X.T @ X - B.T @ B
+            scale = np.sqrt(np.maximum(np.diag(G), 0.0))
             scale[scale == 0] = 1.0
-            X /= scale
-            G_pinv = np.linalg.pinv(X.T @ X, hermitian=True)
+            # pseudo-inverse (of the scaled Gram matrix): X may be rank-deficient
+            G_pinv = np.linalg.pinv(G / np.outer(scale, scale), hermitian=True) / np.outer(scale, scale)
             coef = G_pinv @ (X.T @ self.y_perp)
-            fit = {"W": W, "X": X, "scale": scale, "G_pinv": G_pinv, "coef": coef, "r": self.y_perp - X @ coef}
+            fit = {"W": W, "X": X, "B": B, "G_pinv": G_pinv, "coef": coef, "r": self.y_perp - self._perp_x(X, B, coef)}
         self._cache = (key, fit)
         return fit
+
+    def _perp_x(self, X, B, w):
+        """(X - Q0 Q0^T X) w."""
+        return X @ w - self.Q0 @ (B @ w)
 
     def _residual(self, den):
         fit = self._fit(den)
@@ -194,17 +198,25 @@ class PoleRefinement:
         m = len(den)
         if fit is None:
             return np.zeros((len(self.y_perp), m))
-        X, r, G_pinv = fit["X"], fit["r"], fit["G_pinv"]
+        X, B, r, G_pinv = fit["X"], fit["B"], fit["r"], fit["G_pinv"]
         V = scipy.signal.lfilter([1.0], np.r_[1.0, den], fit["W"], axis=0)
-        c = (fit["coef"] / fit["scale"]).reshape(m, -1)
-        Vc = V @ c.T
+        Vc = V @ fit["coef"].reshape(m, -1).T
         z = sum(_delay(Vc[:, j - 1], j) for j in range(1, m + 1))  # -dX_k c = q^-k z
-        S = self._project(np.column_stack([_delay(z, k) for k in range(1, m + 1)]))
-        S -= X @ (G_pinv @ (X.T @ S))
+        S = np.column_stack([_delay(z, k) for k in range(1, m + 1)])
+        S -= self.Q0 @ (self.Q0.T @ S)
         n = len(r)
         corr = {lag: V[: n - lag].T @ r[lag:] for lag in range(2, 2 * m + 1)}  # (q^-lag V)^T r
         H = np.column_stack([np.concatenate([corr[j + k] for j in range(1, m + 1)]) for k in range(1, m + 1)])
-        return S + X @ (G_pinv @ (H / fit["scale"][:, None]))
+        return S + self._perp_x(X, B, G_pinv @ (H - X.T @ S))
+
+
+def _delays(W, m: int):
+    """[q^-1 W, ..., q^-m W] (zeros before the start)."""
+    n, k = W.shape
+    X = np.zeros((n, m * k))
+    for j in range(1, m + 1):
+        X[j:, (j - 1) * k : j * k] = W[:-j]
+    return X
 
 
 def _delay(a, lag: int):
