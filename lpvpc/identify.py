@@ -28,7 +28,7 @@ from . import __version__
 from . import equations as eq
 from .basis import basis_from_data
 from .errors import DataError, IdentificationError, InsufficientExcitationError
-from .linalg import orthonormal_range, pivoted_qr
+from .linalg import orthonormal_range, pivoted_qr, triangular_factor
 from .intrinsic import intrinsic_regressor, two_sided_lags
 from .model import LPVPCModel, vaf
 from .reflex import fit_hammerstein, reflex_input_regressor, reflex_regressor
@@ -207,11 +207,16 @@ class LPVPCEstimator:
         if refinement is not None:
             A, C, _ = refinement.refine(A)
         blocks = reflex_regressor(U_r, A, C)
-        Psi_r = np.hstack(blocks)
-        theta_i = project_out_and_solve(Psi_r, Psi_i, y)
-        tq_r = y - Psi_i @ theta_i
-        hf = fit_hammerstein(blocks, tq_r, orientation, tol=self.tol, max_iter=self.max_iter)
-        fitted_r = sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks))
+        # Every fit below is a least-squares problem in the columns of [Psi_r, Psi_i, y]:
+        # solved on their triangular factor, at ~100 rows instead of N, with the same
+        # solutions and residual norms.
+        k_r = sum(blk.shape[1] for blk in blocks)
+        R = triangular_factor(np.hstack(blocks + [Psi_i, y[:, None]]))
+        blocks_c, Psi_i_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
+        theta_i = project_out_and_solve(R[:, :k_r], Psi_i_c, y_c)
+        tq_r = y_c - Psi_i_c @ theta_i
+        hf = fit_hammerstein(blocks_c, tq_r, orientation, tol=self.tol, max_iter=self.max_iter)
+        fitted_r = sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks_c))
         resid = tq_r - fitted_r
         n_params = Psi_i.shape[1] + U_r.shape[1] + m + 1 + 2 * m
         return {"A": A, "C": C, "moesp_poles": moesp_poles, "theta_i": theta_i, "hammerstein": hf, "rss": float(resid @ resid), "n_params": n_params}

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.signal
 
 from .errors import IdentificationError
@@ -64,27 +63,20 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
     energy = float(tq_r @ tq_r)
     if energy <= 0:
         raise IdentificationError("reflex torque estimate is identically zero")
-    # Every regressor of the alternation lies in range(Psi): with the triangular factor of
-    # [Psi, tq_r] = Q [[R, t], [0, e]] each sub-problem is solved on R and t (k rows
-    # instead of N) with the same solution, and e^2 is the part of the energy no fit reaches.
     Psi = np.hstack(blocks)
-    k = Psi.shape[1]
-    R_aug = scipy.linalg.qr(np.column_stack([Psi, tq_r]), mode="r", overwrite_a=True, check_finite=False)[0]
-    R, t, floor = R_aug[:k, :k], R_aug[:k, k], float(R_aug[k, k] ** 2)
-    compact = [R[:, i * n_w : (i + 1) * n_w] for i in range(m1)]
-    theta, *_ = np.linalg.lstsq(R, t, rcond=None)
+    theta, *_ = np.linalg.lstsq(Psi, tq_r, rcond=None)
     U, S, Vt = np.linalg.svd(theta.reshape(m1, n_w), full_matrices=False)
     # The alternating LS has several attractors, and the dominant singular pair of the
     # unstructured solution does not always lead to the best one (on the virtual subject
     # it once ended at 75 % relative error where the second pair reached 26 %). Start from
     # the singular pairs in turn until a fit comes close to the unstructured optimum.
-    resid = t - R @ theta
-    unstructured = (float(resid @ resid) + floor) / energy
+    resid = tq_r - Psi @ theta
+    unstructured = float(resid @ resid) / energy
     best = None
-    for j in range(len(S)):
-        if S[j] <= 1e-12 * S[0]:
+    for k in range(len(S)):
+        if S[k] <= 1e-12 * S[0]:
             break
-        fit = _alternate(compact, t, floor, U[:, j] * S[j], Vt[j], orientation, energy, tol, abs_tol, max_iter)
+        fit = _alternate(blocks, tq_r, U[:, k] * S[k], Vt[k], orientation, energy, tol, abs_tol, max_iter)
         if best is None or fit.relative_error < best.relative_error:
             best = fit
         if best.relative_error <= unstructured + NEAR_UNSTRUCTURED:
@@ -92,20 +84,18 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
     return best
 
 
-def _alternate(blocks, target, floor, bd, omega, orientation, energy, tol, abs_tol, max_iter) -> HammersteinFit:
-    """The alternation on (compressed) blocks and target; ``floor`` is the squared
-    residual that lies outside their range."""
+def _alternate(blocks, tq_r, bd, omega, orientation, energy, tol, abs_tol, max_iter) -> HammersteinFit:
     bd, omega = _normalise(bd, omega, orientation)
     err_prev = np.inf
     converged = False
     for it in range(1, max_iter + 1):
         X_bd = np.column_stack([blk @ omega for blk in blocks])
-        bd, *_ = np.linalg.lstsq(X_bd, target, rcond=None)
+        bd, *_ = np.linalg.lstsq(X_bd, tq_r, rcond=None)
         X_om = sum(c * blk for c, blk in zip(bd, blocks))
-        omega, *_ = np.linalg.lstsq(X_om, target, rcond=None)
+        omega, *_ = np.linalg.lstsq(X_om, tq_r, rcond=None)
         bd, omega = _normalise(bd, omega, orientation)
-        resid = target - sum(c * (blk @ omega) for c, blk in zip(bd, blocks))
-        err = (float(resid @ resid) + floor) / energy
+        resid = tq_r - sum(c * (blk @ omega) for c, blk in zip(bd, blocks))
+        err = float(resid @ resid) / energy
         if abs(err_prev - err) <= max(tol * err, abs_tol):
             converged = True
             break
