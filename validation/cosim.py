@@ -80,12 +80,23 @@ from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["CosimSettings", "CosimResult", "ActuatorDrive", "run_cosimulation", "connections",
            "to_rate", "band_limit", "feedforward_command", "calibrate_servo", "ACTUATOR_INPUTS", "ACTUATOR_OUTPUTS",
-           "MODEL_INPUTS", "MODEL_OUTPUTS"]
+           "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_variant_inputs"]
 
 ACTUATOR_INPUTS = ("command", "load_torque")
 ACTUATOR_OUTPUTS = ("position", "velocity", "acceleration")
 MODEL_INPUTS = ("position", "scheduling", "velocity", "acceleration")
 MODEL_OUTPUTS = ("torque", "torque_intrinsic", "torque_reflex")
+
+
+def model_fmu_variant(info: FMUInfo) -> str:
+    """"causal" when the model FMU takes velocity and acceleration inputs, else "exact"
+    (the two-sided model, outputs delayed by its declared latency; lpvpc.export)."""
+    return "causal" if info.variables.get("velocity", (None, None))[1] == "input" else "exact"
+
+
+def model_variant_inputs(variant: str) -> tuple:
+    """The base inputs of a model FMU variant (an extended model adds its signals)."""
+    return MODEL_INPUTS if variant == "causal" else MODEL_INPUTS[:2]
 
 COUPLINGS = ("delay", "iterate")
 DERIVATIVES = ("central", "actuator")
@@ -150,6 +161,8 @@ class CosimResult:
     step_actuator: float
     elapsed: float  # s of wall time in the stepping loop
     connections: list = field(default_factory=list)
+    variant: str = "causal"  # of the model FMU (model_fmu_variant)
+    latency: int = 0  # its output delay in model steps, removed from the torques above
 
     @property
     def real_time_factor(self) -> float:
@@ -261,14 +274,17 @@ def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, 
 # --------------------------------------------------------------------------- master
 
 
-def connections(settings: CosimSettings, signals=()) -> list:
+def connections(settings: CosimSettings, signals=(), variant: str = "causal", latency: int = 0) -> list:
     """The signal connections of the experiment, by variable name, as readable lines
-    (``signals``: names of an extended model's extra inputs, fed from the record)."""
+    (``signals``: names of an extended model's extra inputs, fed from the record;
+    ``variant``/``latency``: of the model FMU, :func:`model_fmu_variant`)."""
     load_ut = {"measured_ut+model": "record.UT torque (measured, at the actuator rate)",
                "model": "0", "none": "0"}[settings.load]
     load_pt = {"measured_ut+model": "record.UT torque + model.torque",
                "model": "model.torque", "none": "0"}[settings.load]
     delay = " (torque of the previous model step)" if settings.coupling == "delay" else " (iterated to convergence)"
+    if variant == "exact":
+        delay = f" (the exact FMU's current output: the torque of {latency} model steps earlier)"
     if settings.load == "none":
         delay = ""
     cmd = "every actuator step" if settings.command_rate == "actuator" else "held over each model step"
@@ -285,9 +301,8 @@ def connections(settings: CosimSettings, signals=()) -> list:
         ("actuator_pt.load_torque", load_pt + delay),
         ("model.position", "actuator_pt.position - actuator_ut.position"),
         ("model.scheduling", "actuator_ut.position"),
-        ("model.velocity", vel),
-        ("model.acceleration", acc),
-    ] + [(f"model.{name}", f"record.{name} (at the model rate, every model step)") for name in signals]
+    ] + ([("model.velocity", vel), ("model.acceleration", acc)] if variant == "causal" else []) + [
+        (f"model.{name}", f"record.{name} (at the model rate, every model step)") for name in signals]
 
 
 def _check_finite(values, who, names, t):
@@ -317,16 +332,27 @@ def _next_guess(tried):
 
 def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorDrive, *,
                      settings: CosimSettings | None = None, actuator_parameters: dict | None = None,
-                     signals: dict | None = None) -> CosimResult:
+                     signals: dict | None = None, latency: int = 0) -> CosimResult:
     """Run the experiment (module docstring) over ``drive`` and return what the master saw.
 
     ``actuator_parameters`` (name -> value) are set in both actuator instances in
     addition to ``initial_position`` (each run starts at rest at its first command).
     ``signals``: an extended model's extra inputs (FMU input name -> array at the model
     rate, at least ``drive.n_model`` samples), set from the record at every model step.
+    ``latency``: the output delay in model steps of an exact-variant model FMU
+    (:func:`lpvpc.export.latency_samples`). Its current output (the torque of ``latency``
+    steps earlier) loads the PT actuator over the next step (no algebraic loop, no
+    derivatives: ``coupling`` and ``derivatives`` do not apply); the run continues
+    ``latency`` steps past the record with the last command and load held (the record-edge
+    convention of :mod:`lpvpc.equations`) and the torques are shifted back to their time.
     """
     settings = (settings or CosimSettings()).check()
     params = dict(actuator_parameters or {})
+    variant = model_fmu_variant(model_fmu)
+    exact = variant == "exact"
+    if exact != (latency > 0):
+        raise FMUError(f"model FMU {model_fmu.path.name}: variant {variant} with latency {latency} samples (an exact "
+                       "FMU has a latency > 0, a causal one none)")
     r, h = drive.ratio, drive.step
     H = r * h
     K = drive.n_model
@@ -343,22 +369,29 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         if not np.all(np.isfinite(x[:K])):
             raise DataError(f"model input signal '{name}' has non-finite values")
         S[:, j] = x[:K]
-    n_in = len(MODEL_INPUTS) + len(sig_names)
-    cmd_u, cmd_p = drive.command_ut, drive.command_pt
+    base_inputs = model_variant_inputs(variant)
+    n_in = len(base_inputs) + len(sig_names)
+    cmd_u, cmd_p = drive.command_ut[:n_a], drive.command_pt[:n_a]
     if settings.command_rate == "hold":
         idx = (np.arange(n_a) // r) * r
         cmd_u, cmd_p = cmd_u[idx], cmd_p[idx]
-    load_u = drive.load_ut if settings.load == "measured_ut+model" else np.zeros(n_a)
+    load_u = drive.load_ut[:n_a] if settings.load == "measured_ut+model" else np.zeros(n_a)
+    if latency:  # run past the end with everything held, so every sample gets its torque
+        hold = lambda x: np.concatenate([x, np.repeat(x[-1:], latency * r)])  # noqa: E731
+        cmd_u, cmd_p, load_u = hold(cmd_u), hold(cmd_p), hold(load_u)
+        S = np.concatenate([S, np.repeat(S[-1:], latency, axis=0)])
+    K_run = K + latency
+    n_run = K_run * r
     model_loads = settings.load != "none"
-    iterate = settings.coupling == "iterate" and model_loads
+    iterate = settings.coupling == "iterate" and model_loads and not exact
     central = settings.derivatives == "central"
 
-    Yu = np.empty((n_a + 1, 3))
-    Yp = np.empty((n_a + 1, 3))
-    tq = np.empty((K, 3))
-    ins = np.empty((K, n_in))
-    load_model = np.zeros(K)
-    iters = np.ones(K, dtype=int)
+    Yu = np.empty((n_run + 1, 3))
+    Yp = np.empty((n_run + 1, 3))
+    tq = np.empty((K_run, 3))
+    ins = np.empty((K_run, n_in))
+    load_model = np.zeros(K_run)
+    iters = np.ones(K_run, dtype=int)
 
     instances = []
     try:
@@ -373,7 +406,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         mod.initialize(0.0)
         a_in = [a.port(ACTUATOR_INPUTS, "input") for a in (ut, pt)]
         a_out = [a.port(ACTUATOR_OUTPUTS, "output") for a in (ut, pt)]
-        m_in = mod.port(tuple(MODEL_INPUTS) + sig_names, "input")
+        m_in = mod.port(tuple(base_inputs) + sig_names, "input")
         m_out = mod.port(MODEL_OUTPUTS, "output")
         if iterate and not actuator_fmu.model_description.coSimulation.canGetAndSetFMUstate:
             raise FMUError(f"{actuator_fmu.path.name}: coupling 'iterate' needs fmi{actuator_fmu.fmi_version}"
@@ -386,12 +419,29 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                 inst.do_step(i * h, h)
             Y[i0 + r] = port_out.get()  # outputs at t(k+1) with the last inputs (position has no feedthrough)
 
+        Yu[0], Yp[0] = a_out[0].get(), a_out[1].get()  # positions at t(0) (no feedthrough)
         tq_prev = tq_prev2 = 0.0
         p_prev = None
         t_start = time.perf_counter()
-        for k in range(K):
+        for k in range(K_run):
             i0 = k * r
             tk = k * H
+            if exact:  # the model first: its output loads the PT actuator over [t(k), t(k+1)]
+                u = (Yp[i0, 0] - Yu[i0, 0], Yu[i0, 0], *S[k])
+                m_in.set(u)
+                y = m_out.get()
+                if not (np.isfinite(y[0]) and np.isfinite(y[1]) and np.isfinite(y[2])):
+                    _check_finite(y, "model", MODEL_OUTPUTS, tk)
+                guess = y[0] if model_loads else 0.0
+                run_actuator(ut, a_in[0], a_out[0], cmd_u, load_u, 0.0, Yu, i0)
+                run_actuator(pt, a_in[1], a_out[1], cmd_p, load_u, guess, Yp, i0)
+                for who, blk in (("actuator_ut", Yu[i0:i0 + r + 1]), ("actuator_pt", Yp[i0:i0 + r + 1])):
+                    if not np.isfinite(blk).all():
+                        for row in range(r + 1):
+                            _check_finite(blk[row], who, ACTUATOR_OUTPUTS, (i0 + row) * h)
+                ins[k], tq[k], load_model[k] = u, y, guess
+                mod.do_step(tk, H)
+                continue
             run_actuator(ut, a_in[0], a_out[0], cmd_u, load_u, 0.0, Yu, i0)
             # first guess of the torque over [t(k), t(k+1)]: the last one (delay), or its
             # linear extrapolation (iterate)
@@ -440,8 +490,10 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     finally:
         for inst in reversed(instances):
             inst.close()
+    out = slice(latency, latency + K)  # output k + L is the torque of sample k
     return CosimResult(
-        time=np.arange(K) * H, torque=tq[:, 0], torque_intrinsic=tq[:, 1], torque_reflex=tq[:, 2],
-        model_inputs={name: ins[:, j] for j, name in enumerate(tuple(MODEL_INPUTS) + sig_names)},
-        ut=Yu[:n_a], pt=Yp[:n_a], load_pt_model=load_model, iterations=iters, settings=settings,
-        parameters=params, step_model=H, step_actuator=h, elapsed=elapsed, connections=connections(settings, sig_names))
+        time=np.arange(K) * H, torque=tq[out, 0], torque_intrinsic=tq[out, 1], torque_reflex=tq[out, 2],
+        model_inputs={name: ins[:K, j] for j, name in enumerate(tuple(base_inputs) + sig_names)},
+        ut=Yu[:n_a], pt=Yp[:n_a], load_pt_model=load_model[:K], iterations=iters[:K], settings=settings,
+        parameters=params, step_model=H, step_actuator=h, elapsed=elapsed,
+        connections=connections(settings, sig_names, variant, latency), variant=variant, latency=latency)

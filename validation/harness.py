@@ -13,7 +13,8 @@ FMUs) so that bad input fails in well under a second with one :class:`lpvpc.erro
    runs driven by the record's commands, the model FMU closing the loop; once more
    without load to measure what the load changes;
 3. the comparison (:mod:`validation.compare`) and the report (:mod:`validation.report`):
-   ``report.html``, ``metrics.json`` and the figures as PNG in the report folder.
+   ``report.html``, ``metrics.json``, the figures as PNG and the co-simulation set-up as an
+   SSP archive (``cosimulation.ssp``, :mod:`validation.ssp`) in the report folder.
 """
 
 from __future__ import annotations
@@ -31,11 +32,12 @@ import numpy as np
 from lpvpc import equations as eq
 from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
+from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
 
 from . import compare as cmp
 from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
-                    band_limit, calibrate_servo, feedforward_command, run_cosimulation, to_rate)
+                    band_limit, calibrate_servo, feedforward_command, model_fmu_variant, run_cosimulation, to_rate)
 from .fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
 from .routes import casadi_routes, fmu_replay, model_fmu_inputs, offline_routes
 
@@ -44,6 +46,8 @@ __all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROU
 #: Largest max|a - b| / max|b| allowed between the numpy causal prediction and the CasADi
 #: and FMU routes (they evaluate the same equations; measured ~1e-15).
 DEFAULT_ROUTE_TOLERANCE = 1e-9
+#: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`validation.ssp`).
+SSP_FILE = "cosimulation.ssp"
 #: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
 CALIBRATION_WARN_VAF = 99.0
 
@@ -106,15 +110,14 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
 
 
 def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
-    """The model FMU must be a causal lpvpc export of this model at its sample period (with
-    the extra inputs of an extended model)."""
-    missing_in = [n for n in model_fmu_inputs(model) if info.variables.get(n, (None, None))[1] != "input"]
+    """The model FMU must be an lpvpc export of this model (exact or causal variant) at its
+    sample period (with the extra inputs of an extended model)."""
+    inputs = model_fmu_inputs(model, model_fmu_variant(info))
+    missing_in = [n for n in inputs if info.variables.get(n, (None, None))[1] != "input"]
     missing_out = [n for n in MODEL_OUTPUTS if info.variables.get(n, (None, None))[1] != "output"]
     if missing_in or missing_out:
-        hint = (" (is it the exact variant? co-simulation needs the default causal FMU)"
-                if set(missing_in) <= {"velocity", "acceleration"} and missing_in else "")
         what = ", ".join([f"input '{n}'" for n in missing_in] + [f"output '{n}'" for n in missing_out])
-        raise FMUError(f"model FMU {info.path}: lacks {what}{hint}")
+        raise FMUError(f"model FMU {info.path}: lacks {what}")
     declared = fmu_model_hash(info)
     if declared is not None and declared != model.model_hash:
         raise FMUError(f"model FMU {info.path}: exported from model {declared[:12]}, not from this model "
@@ -253,19 +256,28 @@ def record_signals(model: LPVPCModel, measured) -> dict | None:
 def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actuator_fmu=None,
              actuator_parameters: dict | None = None, calibrate: bool = True, settings: CosimSettings | None = None,
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
-             measure_load_effect: bool = True, band_limit_command: bool = False, position_unit=None,
+             measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
+             position_unit=None,
              torque_sign=None, command_line=None, write_report: bool = True) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
 
-    ``fmu``: an existing model FMU to validate (default: export the causal FMU, FMI
-    ``fmi_version``, into ``report_dir/fmus``); ``actuator_fmu``: default the project's
+    ``fmu``: an existing model FMU to validate, either variant (default: export the
+    ``fmu_variant`` FMU, FMI ``fmi_version``, into ``report_dir/fmus``). The default
+    "exact" FMU runs the identified two-sided model with its declared latency of L
+    samples, which the replay and the co-simulation remove (its torque loads the actuator
+    L steps late: the load effect is measured and reported); "causal" validates the
+    latency-free form meant for closed loop, which loses ~0.5 VAF points (``vaf_causal``
+    states that loss in every report). ``actuator_fmu``: default the project's
     actuator FMU built into the same folder; ``actuator_parameters``: fixed actuator
     parameter values (servo parameters given here are not calibrated); ``min_vaf``
     (percent): threshold for ``vaf``, ``vaf_fmu`` and ``vaf_cosim``; ``route_tolerance``:
-    for the CasADi and FMU routes against numpy; ``band_limit_command``: low-pass the
-    record's commands to the model's band before they drive the actuators
-    (:func:`validation.cosim.band_limit`). Returns a :class:`ValidationResult`
+    for the CasADi and FMU routes against numpy; ``band_limit_command`` (default on):
+    low-pass the record's commands (zero-phase) to the model's band before they drive the
+    actuators (:func:`validation.cosim.band_limit`): the measured record is the
+    anti-aliased view of the experiment, and a model sampled at fs sees nothing above
+    fs/2; off, the actuators' faster motion reaches the model sampled, not anti-aliased.
+    Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
@@ -299,8 +311,8 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
     if given_fmu is None:
         from lpvpc.export import export_fmu
 
-        model_fmu = inspect_fmu(export_fmu(model, fmu_dir / f"model_fmi{fmi_version}.fmu", fmi_version=fmi_version),
-                                "model FMU")
+        model_fmu = inspect_fmu(export_fmu(model, fmu_dir / f"model_{fmu_variant}_fmi{fmi_version}.fmu",
+                                           fmi_version=fmi_version, variant=fmu_variant), "model FMU")
         check_model_fmu(model_fmu, model)
     else:
         model_fmu = given_fmu
@@ -327,15 +339,17 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
     drive, params, calibration = actuator_drive(record, act_fmu, ratio, meas.n, actuator_parameters, calibrate,
                                                 band_limit_to=model.fs if band_limit_command else None)
     timing["calibration"] = calibration.get("seconds", 0.0)
+    variant = model_fmu_variant(model_fmu)
+    latency = latency_samples(model, variant)
     cos = run_cosimulation(model_fmu, act_fmu, drive, settings=settings, actuator_parameters=params,
-                           signals=signals)
+                           signals=signals, latency=latency)
     timing["cosim"] = time.perf_counter() - t0
     unloaded = None
     if measure_load_effect and settings.load != "none":
         t0 = time.perf_counter()
         unloaded = run_cosimulation(model_fmu, act_fmu, drive, settings=CosimSettings(**{**asdict(settings),
                                                                                          "load": "none"}),
-                                    actuator_parameters=params, signals=signals)
+                                    actuator_parameters=params, signals=signals, latency=latency)
         timing["cosim_unloaded"] = time.perf_counter() - t0
     # the lab pipeline on the co-simulated actuator: its 1 kHz positions recorded,
     # decimated like the measured data, replayed through the model FMU
@@ -347,16 +361,18 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
     # -- comparison ---------------------------------------------------------------------
     y = meas.torque
     preds = {"numpy": off["numpy"].total, "fmu": rep["torque"], "cosim": cos.torque}
+    fmu_form = (f"exact two-sided, latency of {latency} samples removed" if variant == "exact"
+                else "causal, no latency")
     routes = {
         "numpy": ("offline numpy prediction, two-sided intrinsic IRF (the identified model)", off["numpy"].total),
         "numpy_causal": ("offline numpy prediction, causal intrinsic IRF (what the default FMU runs)",
                          off["numpy_causal"].total),
         "casadi": ("CasADi step function (causal) over the record, trajectory_function", cas["torque"]["casadi"]),
         "casadi_exact": ("CasADi step function (exact two-sided, latency removed)", cas["torque"]["casadi_exact"]),
-        "fmu": ("model FMU replaying the measured positions (causal, no actuator)", rep["torque"]),
+        "fmu": (f"model FMU replaying the measured positions ({fmu_form}; no actuator)", rep["torque"]),
         "actuator_replay": ("model FMU replaying the co-simulated actuator positions recorded at the actuator "
                             "rate and decimated like the measured data", rec["torque"]),
-        "cosim": ("co-simulation: actuator FMUs driven by the record's commands, model FMU in the loop",
+        "cosim": (f"co-simulation: actuator FMUs driven by the record's commands, model FMU ({fmu_form}) in the loop",
                   cos.torque),
     }
     if unloaded is not None:
@@ -367,9 +383,11 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         route_table[name] = {"description": desc, "vaf": cmp.vaf(y[ok], p[ok]), "rmse": cmp.rmse(y[ok], p[ok]),
                              "n": int(ok.sum())}
     ex_ok = np.isfinite(cas["torque"]["casadi_exact"])
-    agreement = cmp.route_agreement(off["numpy_causal"].total, {"casadi_vs_numpy_causal": cas["torque"]["casadi"],
-                                                                "fmu_vs_numpy_causal": rep["torque"]},
+    fmu_key = "fmu_vs_numpy" if variant == "exact" else "fmu_vs_numpy_causal"
+    agreement = cmp.route_agreement(off["numpy_causal"].total, {"casadi_vs_numpy_causal": cas["torque"]["casadi"]},
                                     route_tolerance)
+    agreement.update(cmp.route_agreement(off["numpy" if variant == "exact" else "numpy_causal"].total,
+                                         {fmu_key: rep["torque"]}, route_tolerance))
     agreement.update(cmp.route_agreement(off["numpy"].total[ex_ok], {
         "casadi_exact_vs_numpy": cas["torque"]["casadi_exact"][ex_ok]}, route_tolerance))
     agreement["tolerance"] = route_tolerance
@@ -435,7 +453,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
             v = route_table[name]["vaf"]
             checks.append({"name": f"{key} >= min_vaf", "value": v, "threshold": float(min_vaf),
                            "pass": bool(v >= min_vaf)})
-    for key in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal", "casadi_exact_vs_numpy"):
+    for key in ("casadi_vs_numpy_causal", fmu_key, "casadi_exact_vs_numpy"):
         checks.append({"name": f"route agreement {key} <= tolerance",
                        "value": agreement[key]["max_relative_difference"], "threshold": route_tolerance,
                        "pass": agreement[key]["pass"]})
@@ -463,6 +481,8 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         "out_of_range_fraction": sched["out_of_range_fraction"],
         "cosim": {
             "settings": {**asdict(settings), "band_limit_command": bool(band_limit_command)},
+            "model_fmu_variant": variant,
+            "model_fmu_latency_samples": int(latency),
             "connections": [{"to": a, "from": b} for a, b in cos.connections],
             "command_source": drive.source,
             "actuator_parameters": params,
@@ -495,6 +515,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
             "position_unit": meas.meta.get("position_unit"),
             "torque_sign": meas.meta.get("torque_sign"),
             "model_fmu": {"path": str(model_fmu.path), "sha256": model_fmu.sha256, "fmi_version": model_fmu.fmi_version,
+                          "variant": variant, "latency_samples": int(latency),
                           "given": given_fmu is not None, "declared_model_hash": fmu_model_hash(model_fmu)},
             "actuator_fmu": {"path": str(act_fmu.path), "sha256": act_fmu.sha256, "fmi_version": act_fmu.fmi_version,
                              "given": given_act is not None},
@@ -509,6 +530,16 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         },
         "timing_s": timing,
     }
+    ssp_path = None
+    if write_report:
+        # the same set-up for other co-simulation tools (SSP 1.0, FMUs included)
+        from .ssp import instance_parameters, write_ssp
+
+        ssp_path = write_ssp(report_dir / SSP_FILE, model_fmu, act_fmu, stop_time=meas.n * cos.step_model,
+                             communication_step=cos.step_model, settings=settings,
+                             parameters=instance_parameters(params, drive.command_ut[0], drive.command_pt[0]),
+                             signals=tuple(signals or ()), wiring=cos.connections)
+        metrics["cosim"]["ssp"] = SSP_FILE
     result = ValidationResult(metrics=metrics, report_dir=report_dir)
     if write_report:
         from .report import write_report as _write
@@ -520,6 +551,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
                 "numpy": off["numpy"], "numpy_causal": off["numpy_causal"], "fmu": rep, "cosim": cos,
                 "unloaded": unloaded, "actuator_replay": rec})
         timing["report"] = time.perf_counter() - t0
+        result.files["ssp"] = ssp_path
     timing["total"] = time.perf_counter() - t_all
     if write_report:
         from .report import write_metrics

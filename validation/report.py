@@ -146,8 +146,9 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     ax2.set_ylabel("perturbation (mrad)")
     ax2.legend(fontsize="small", loc="upper right")
     ax3.plot(t[sel], series["cosim"][sel] - series["fmu"][sel], color="C3", lw=1.0, label="co-simulation - FMU replay")
-    ax3.plot(t[sel], series["fmu"][sel] - pred["numpy_causal"].total[sel], color="C2", lw=1.0,
-             label="FMU replay - numpy causal")
+    ref = "numpy" if cos.variant == "exact" else "numpy_causal"  # what the FMU's variant computes
+    ax3.plot(t[sel], series["fmu"][sel] - pred[ref].total[sel], color="C2", lw=1.0,
+             label=f"FMU replay - {ref.replace('_', ' ')}")
     ax3.set_ylabel("difference (N m)")
     ax3.set_xlabel("time (s)")
     ax3.legend(fontsize="small", loc="upper right")
@@ -382,13 +383,14 @@ def _html(m: dict, figs: dict, model) -> str:
     # routes
     parts.append("<h2>Prediction routes and co-simulation</h2>")
     d = ag["cosim_vs_fmu_replay"]
+    fmu_key = "fmu_vs_numpy" if "fmu_vs_numpy" in ag else "fmu_vs_numpy_causal"
     parts.append(f"<p class=\"what\">The CasADi and FMU routes reproduce the numpy prediction to "
-                 f"{max(ag['casadi_vs_numpy_causal']['max_relative_difference'], ag['fmu_vs_numpy_causal']['max_relative_difference']):.1e} "
+                 f"{max(ag['casadi_vs_numpy_causal']['max_relative_difference'], ag[fmu_key]['max_relative_difference']):.1e} "
                  f"of the torque scale, while the co-simulation, which adds the actuator and the loop, is "
                  f"{abs(d['vaf_difference']):.2f} VAF points {'below' if d['vaf_difference'] >= 0 else 'above'} "
                  f"the FMU replay.</p>")
     rows = []
-    for key in ("casadi_vs_numpy_causal", "fmu_vs_numpy_causal", "casadi_exact_vs_numpy"):
+    for key in ("casadi_vs_numpy_causal", fmu_key, "casadi_exact_vs_numpy"):
         a = ag[key]
         rows.append([f"<code>{key}</code>", _num(a["max_relative_difference"], "{:.2e}"),
                      _num(a["rmse_difference"], "{:.2e}"), pf(a["pass"])])
@@ -403,6 +405,11 @@ def _html(m: dict, figs: dict, model) -> str:
     le = c["load_effect"]
     st = c["settings"]
     txt = (f"The actuators were driven by {_e(c['command_source'])}. ")
+    if c.get("model_fmu_variant") == "exact":
+        txt += (f"The model FMU is the exact variant (the identified two-sided model): its torque is that of "
+                f"{c['model_fmu_latency_samples']} samples earlier, so the replay and the co-simulation shift it "
+                f"back, and in the loop it loads the actuator that much late. The latency-free causal FMU meant for "
+                f"closed loop reaches {m['vaf_causal']:.2f} % offline (validate it with --fmu-variant causal). ")
     if cal.get("done"):
         txt += (f"The servo was calibrated on the record: bandwidth {cal['servo_bandwidth']:.2f} Hz, damping "
                 f"{cal['servo_damping']:.3f} (FMU defaults {cal['defaults']['servo_bandwidth']:g} Hz, "
@@ -443,6 +450,10 @@ def _html(m: dict, figs: dict, model) -> str:
             ["actuator parameters", _e(", ".join(f"{k} = {v:.6g}" for k, v in c["actuator_parameters"].items()) or "defaults")],
             ["stepping time", f"{c['stepping_seconds']:.2f} s ({c['real_time_factor']:.0f}x real time)"]]
     parts.append(_table(["co-simulation set-up", ""], rows, left=(0, 1)))
+    if c.get("ssp"):
+        parts.append(f"<p>The same set-up (both FMUs, connections by variable name, the parameters above, start and "
+                     f"stop time) is in <code>{_e(c['ssp'])}</code> (SSP 1.0) for other co-simulation tools; the "
+                     f"signals this master computes or takes from the record are inputs of the system there.</p>")
 
     # physiology
     parts.append("<h2>Identified intrinsic stiffness (Fig. 4)</h2>")
@@ -553,4 +564,6 @@ def write_report(result, *, model, record, predictions) -> dict:
     path.write_text(page, encoding="utf-8")
     result.metrics["files"] = {"report": "report.html", "metrics": "metrics.json",
                                "figures": [f"figures/{n}" for n in figs]}
+    if result.metrics["cosim"].get("ssp"):
+        result.metrics["files"]["ssp"] = result.metrics["cosim"]["ssp"]
     return {"report": path, "figures": figs}

@@ -5,8 +5,9 @@
 - ``casadi`` / ``casadi_exact``: the exported CasADi step run over the record with
   :func:`lpvpc.export.trajectory_function` (causal; exact two-sided, output shifted back
   by its latency of L samples so that it lines up with ``numpy``);
-- ``fmu``: the model FMU replaying the measured perturbation position, scheduling and
-  their central-difference velocity and acceleration (no actuator).
+- ``fmu``: the model FMU replaying the measured perturbation position, scheduling (and,
+  for the causal variant, their central-difference velocity and acceleration), no
+  actuator; an exact-variant FMU's outputs are shifted back by its latency.
 
 An extended model (identified with effects, :mod:`lpvpc.effects`) takes extra signals
 (``trial_time``, ``scheduling_velocity``, ``emg``, ``emg_ut``): every route receives the
@@ -25,16 +26,17 @@ import numpy as np
 from lpvpc import export as ex
 from lpvpc.errors import FMUError, OutOfRangeWarning
 
-from .cosim import MODEL_INPUTS, MODEL_OUTPUTS
+from .cosim import MODEL_OUTPUTS, model_fmu_variant, model_variant_inputs
 from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["offline_routes", "casadi_routes", "fmu_replay", "model_fmu_inputs"]
 
 
-def model_fmu_inputs(model) -> tuple:
-    """Inputs of the model FMU in the order the routes set them: :data:`MODEL_INPUTS`, then
-    the extra signals of an extended model (none for the base model)."""
-    return tuple(MODEL_INPUTS) + tuple(ex._effect_signals(model))
+def model_fmu_inputs(model, variant: str = "causal") -> tuple:
+    """Inputs of the model FMU in the order the routes set them: the variant's base inputs
+    (:func:`validation.cosim.model_variant_inputs`), then the extra signals of an
+    extended model (none for the base model)."""
+    return tuple(model_variant_inputs(variant)) + tuple(ex._effect_signals(model))
 
 
 def offline_routes(model, position, scheduling, signals=None) -> dict:
@@ -65,10 +67,20 @@ def casadi_routes(model, position, scheduling, signals=None) -> dict:
 
 
 def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) -> dict:
-    """Replay a record through the (causal) model FMU at its sample period; every output
-    checked finite. Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
-    rows = ex.replay_inputs(model, position, scheduling, "causal", signals=signals)
-    inputs = model_fmu_inputs(model)
+    """Replay a record through the model FMU (either variant) at its sample period; every
+    output checked finite. An exact FMU runs its latency L past the record with the last
+    sample held (the record-edge convention of :mod:`lpvpc.equations`) and its outputs
+    are shifted back by L, so that every route covers every sample.
+    Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
+    variant = model_fmu_variant(model_fmu)
+    lat = ex.latency_samples(model, variant)
+    position, scheduling = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
+    if lat:
+        idx = np.r_[np.arange(len(position)), np.full(lat, len(position) - 1)]
+        position, scheduling = position[idx], scheduling[idx]
+        signals = {k: np.asarray(v)[idx] for k, v in signals.items()} if signals else signals
+    rows = ex.replay_inputs(model, position, scheduling, variant, signals=signals)
+    inputs = model_fmu_inputs(model, variant)
     U = np.column_stack([np.ravel(rows[name]) for name in inputs])
     h = 1.0 / model.fs
     Y = np.empty((len(U), 3))
@@ -84,4 +96,5 @@ def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) ->
                                f"t = {k * h:.6g} s although the FMU reported OK")
             inst.do_step(k * h, h)
         elapsed = time.perf_counter() - t0
+    Y = Y[lat:]
     return {"torque": Y[:, 0], "torque_intrinsic": Y[:, 1], "torque_reflex": Y[:, 2], "seconds": elapsed}
