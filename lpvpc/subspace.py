@@ -19,13 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.linalg.lapack
 import scipy.optimize
 import scipy.signal
 
 from .errors import IdentificationError, InsufficientExcitationError
-from .linalg import orthonormal_range
+from .linalg import CHUNK_ROWS, fold_rows, orthonormal_range
 
 
 @dataclass
@@ -47,32 +45,28 @@ class SubspaceResult:
 
 
 def hankel_rows(u_future, u_past, y, start: int, stop: int, s: int):
-    """Rows ``start..stop-1`` of the transposed block Hankel matrix [U_f; U_p; Y_p; Y_f]^T."""
+    """Rows ``start..stop-1`` of the transposed block Hankel matrix [U_f; U_p; Y_p; Y_f]^T
+    (column-major, as LAPACK takes it)."""
     blocks = [u_future[start + t : stop + t] for t in range(s, 2 * s)]
     blocks += [u_past[start + t : stop + t] for t in range(s)]
     blocks += [y[start + t : stop + t, None] for t in range(2 * s)]
-    return np.hstack(blocks)
+    out = np.empty((stop - start, sum(blk.shape[1] for blk in blocks)), order="F")
+    col = 0
+    for blk in blocks:
+        out[:, col : col + blk.shape[1]] = blk
+        col += blk.shape[1]
+    return out
 
 
 def streamed_r(u_future, u_past, y, s: int, chunk: int | None = None):
-    """Triangular factor R of the QR of the transposed block Hankel matrix, streamed.
-
-    Each chunk of rows is folded into R with LAPACK's triangular-pentagonal QR (tpqrt),
-    which skips the zeros below R's diagonal that a QR of the stacked [R; chunk] would
-    work through (~40 % of the time at N = 12,000).
-    """
+    """Triangular factor R of the QR of the transposed block Hankel matrix, streamed:
+    chunks of its rows are built and folded into R one at a time."""
     n_cols = s * (u_future.shape[1] + u_past.shape[1] + 2)
     n_rows = len(y) - 2 * s + 1
-    chunk = chunk or max(4 * n_cols, 2000)
+    chunk = chunk or max(4 * n_cols, CHUNK_ROWS)
     R = None
     for start in range(0, n_rows, chunk):
-        rows = np.asfortranarray(hankel_rows(u_future, u_past, y, start, min(start + chunk, n_rows), s))
-        if R is None:
-            R = np.asfortranarray(scipy.linalg.qr(rows, mode="r", overwrite_a=True, check_finite=False)[0][:n_cols])
-        else:
-            R, _, _, info = scipy.linalg.lapack.dtpqrt(0, min(32, n_cols), R, rows, overwrite_a=True, overwrite_b=True)
-            if info != 0:
-                raise IdentificationError(f"subspace QR failed (LAPACK dtpqrt info {info})")
+        R = fold_rows(R, hankel_rows(u_future, u_past, y, start, min(start + chunk, n_rows), s))
     return R
 
 
@@ -96,7 +90,7 @@ def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None) 
     scale_f = _rms(u_future)
     scale_p = _rms(u_state)
     scale_y = _rms(y[:, None])[0]
-    R = streamed_r(u_future / scale_f, u_state / scale_p, y / scale_y, s, chunk)
+    R = streamed_r(np.asfortranarray(u_future / scale_f), np.asfortranarray(u_state / scale_p), y / scale_y, s, chunk)
     L = R.T
     n_f = s * u_future.shape[1]
     n_w = s * (u_state.shape[1] + 1)
@@ -203,19 +197,24 @@ class PoleRefinement:
 
     def _jacobian(self, den):
         """d r / d a_k = -P dX_k c - X^+T dX_k^T r with P the projector off [Psi_i, U_r, X],
-        c the coefficients of X and dX_k = -[q^-(k+1) V, ..., q^-(k+m) V], V = W / a(q)."""
+        c the coefficients of X and dX_k = -[q^-(k+1) V, ..., q^-(k+m) V], V = W / a(q).
+
+        V itself is not needed: V c_j = (W c_j) / a(q), and V^T v = W^T F^T v where the
+        transposed filter F^T runs backwards in time.
+        """
         fit = self._fit(den)
         m = len(den)
         if fit is None:
             return np.zeros((len(self.y_perp), m))
-        X, B, r, G_pinv = fit["X"], fit["B"], fit["r"], fit["G_pinv"]
-        V = scipy.signal.lfilter([1.0], np.r_[1.0, den], fit["W"], axis=0)
-        Vc = V @ fit["coef"].reshape(m, -1).T
+        W, X, B, r, G_pinv = fit["W"], fit["X"], fit["B"], fit["r"], fit["G_pinv"]
+        a = np.r_[1.0, den]
+        Vc = scipy.signal.lfilter([1.0], a, W @ fit["coef"].reshape(m, -1).T, axis=0)
         z = sum(_delay(Vc[:, j - 1], j) for j in range(1, m + 1))  # -dX_k c = q^-k z
         S = np.column_stack([_delay(z, k) for k in range(1, m + 1)])
         S -= self.Q0 @ (self.Q0.T @ S)
         n = len(r)
-        corr = {lag: V[: n - lag].T @ r[lag:] for lag in range(2, 2 * m + 1)}  # (q^-lag V)^T r
+        g = scipy.signal.lfilter([1.0], a, r[::-1])[::-1]  # F^T r
+        corr = {lag: W[: n - lag].T @ g[lag:] for lag in range(2, 2 * m + 1)}  # (q^-lag V)^T r
         H = np.column_stack([np.concatenate([corr[j + k] for j in range(1, m + 1)]) for k in range(1, m + 1)])
         return S + self._perp_x(X, B, G_pinv @ (H - X.T @ S))
 
