@@ -86,6 +86,7 @@ def main():
     from lpvpc.identify import identify
 
     lines = ["# Identification speed and memory (python benchmarks/bench_identify.py)", ""]
+    load_before = os.getloadavg()
     data = subject_data(120.0)
     runs = []
     for _ in range(3):
@@ -111,6 +112,10 @@ def main():
     pc = projection_comparison()
     lines.append(f"Projection (27)-(28) at N = {pc['n']}: lpvpc {1000 * pc['t_lpvpc_s']:.1f} ms, literal pinv formula "
                  f"{pc['t_pinv_s']:.2f} s, ratio {pc['ratio']:.0f}x, max relative difference {pc['max_rel_diff']:.1e}")
+    # Timings depend on what else runs on the machine: record the conditions with them.
+    lines += ["", f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+                  f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
+                  "(this process counts as 1)"]
     text = "\n".join(lines) + "\n"
     print(text)
     out = ROOT / "benchmarks" / "results" / "identify.txt"

@@ -142,7 +142,7 @@ class PoleRefinement:
 
     range([Psi_i, U_r]) does not depend on the poles: it is factored once here and shared
     by every state order and evaluation. The Jacobian is the exact variable-projection
-    one (Golub and Pereyra 1973), from one more filtering of W; finite differences would
+    one (Golub and Pereyra 1973), from m + 1 filtered vectors; finite differences would
     cost m extra residuals per step.
     """
 
