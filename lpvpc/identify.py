@@ -143,9 +143,9 @@ class LPVPCEstimator:
             orders = [int(self.state_order)]
         else:
             # The gaps alone are not enough: a well-damped reflex pole pair often shows as one
-            # gap at order 1, and on some records the order-2 Hammerstein fit lands in a poor
-            # minimum that order 3 avoids (2 of 20 seeds of the virtual subject). Orders 2 and
-            # 3 are therefore always tried; BIC of the complete fit decides.
+            # gap at order 1. Orders 2 and 3 are therefore always tried; BIC of the complete
+            # fit decides (which needs each order's Hammerstein fit at its best minimum:
+            # lpvpc.reflex.fit_hammerstein).
             orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2, 3})
             orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
         orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity

@@ -58,14 +58,26 @@ def test_reflex_gain_rises_toward_dorsiflexion(model):
     assert np.all(gain > 0)
 
 
-@pytest.mark.xfail(reason="issue 2 target not met: the rectifier threshold read off the identified "
-                          "nonlinearity has the right trend on only part of the seeds (Monte Carlo: "
-                          "benchmarks/results/montecarlo.txt)", strict=False)
+@pytest.mark.xfail(reason="issue 2 target not reachable at 100 Hz: even the ideal rectifier of the 100 Hz "
+                          "velocity fitted to the noise-free true reflex reaches a threshold slope of x0.40 of the "
+                          "simulator's 1 kHz one (benchmarks/results/reflex_observability.txt); the identified "
+                          "one: montecarlo.txt", strict=False)
 def test_reflex_threshold_falls_toward_dorsiflexion_within_20_percent(model):
     rho = central_rho(model)
     _, threshold = model.reflex_gain_threshold(rho)
     slope = np.polyfit(rho, threshold, 1)[0] / np.polyfit(rho, TRUTH.reflex_threshold(rho), 1)[0]
     assert 0.8 < slope < 1.2, f"threshold {np.round(threshold, 2)}, slope ratio {slope:.2f}"
+
+
+def test_each_order_is_fitted_at_its_best_minimum():
+    """Seed 13's alternating LS for order 2 started from every singular pair of the
+    unstructured fit ends at twice order 1's error; the direction search over [B; d] finds
+    the real minimum, so BIC picks the subject's second-order reflex."""
+    pair = simulate_pair("multilevel", seed=13, fs_out=100.0)
+    model = identify(pair_trials(pair.pt, pair.ut))
+    bic = {int(k): v for k, v in model.fit["state_order_candidates"].items()}
+    assert model.state_order == 2, bic
+    assert bic[2] < bic[1] - 1000 and bic[3] < bic[1] - 1000, bic
 
 
 def test_reflex_dynamics_are_second_order_low_pass_near_truth(model):
