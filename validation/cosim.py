@@ -6,10 +6,13 @@ The experiment (as in the lab)
 ------------------------------
 Two instances of the actuator FMU run the held-out record's two trials: ``actuator_ut``
 follows the UT command (the slow trajectory), ``actuator_pt`` the PT command (trajectory
-plus perturbation). The model FMU (the default, causal export) plays the ankle: it
-receives the perturbation position PT - UT, the scheduling variable (the UT position)
-and the perturbation velocity and acceleration, and returns the perturbation torque,
-which loads the PT actuator. Commands come from the record's ``command`` channel; a
+plus perturbation). The model FMU plays the ankle: it receives the perturbation position
+PT - UT and the scheduling variable (the UT position) (the causal variant also the
+perturbation velocity and acceleration) and returns the perturbation torque, which loads
+the PT actuator. An exact-variant FMU (the two-sided model, outputs L samples late) is
+evaluated before the actuators step, its output loads the PT actuator at once (so L steps
+late), and the run continues L steps past the record so that its torques can be shifted
+back to their time (``latency`` of :func:`run_cosimulation`). Commands come from the record's ``command`` channel; a
 record without one is driven by its measured positions passed through the inverse of the
 servo loop (a feedforward command under which the servo reproduces the measured
 position; see :func:`feedforward_command`).
