@@ -27,6 +27,8 @@ import scipy.signal
 from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
 
 OPTIONAL_CHANNELS = ("emg", "command", "scheduling")
+# EMG columns of a perturbation file (PT - UT already formed): the PT and the UT trial's.
+PERTURBATION_EMG = ("emg", "emg_ut")
 REQUIRED_CHANNELS = ("time", "position", "torque")
 # Channels that hold joint angles: converted by position_unit, checked for degrees.
 ANGLE_CHANNELS = ("position", "command", "scheduling")
@@ -241,7 +243,7 @@ def _read_mat(path: Path) -> dict[str, np.ndarray]:
         raise DataError([f"cannot read MATLAB file: {exc}"], source=str(path)) from exc
     table: dict[str, np.ndarray] = {}
     problems = []
-    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS)
+    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS + PERTURBATION_EMG)
     for key, value in raw.items():
         name = key.lower()
         if key.startswith("__") or name not in known:
@@ -328,9 +330,9 @@ def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str) ->
     )
 
 
-def _trial_from_table(table, path, name, required) -> Trial:
+def _trial_from_table(table, path, name, required, extra_channels=()) -> Trial:
     _require(table, required, path)
-    channels = {c: table[c] for c in OPTIONAL_CHANNELS if c in table}
+    channels = {c: table[c] for c in OPTIONAL_CHANNELS + tuple(extra_channels) if c in table}
     trial = Trial(table["time"], table["position"], table["torque"], channels, name or path.stem)
     check_trial(trial, source=str(path))
     return trial
@@ -599,20 +601,20 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
-    (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg``. Units, sign and
-    decimation as in :func:`load_trial` and :func:`pair_trials`.
+    (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg`` (of the PT trial) and
+    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
+    :func:`pair_trials`.
     """
     _check_settings(position_unit, torque_sign)
     table, path = _read_table(path)
-    trial = _trial_from_table(table, path, None, REQUIRED_CHANNELS + ("scheduling",))
+    trial = _trial_from_table(table, path, None, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
     trial = _to_si(trial, position_unit, torque_sign, str(path))
     q = decimation_factor(trial.fs, target_fs, source=str(path))
     low = decimate_trial(trial, target_fs) if q > 1 else trial
     fs = _output_rate(trial.fs, target_fs)
     _check_perturbation(low.position, str(path))
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
-    if "emg" in low.channels:
-        extra["emg"] = low.channels["emg"]
+    extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
     meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
             "fs_original": float(trial.fs), "decimation": q}
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta)
@@ -649,13 +651,14 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
 
 
 def write_perturbation_csv(data: PerturbationData, path) -> None:
-    """Write ``time,position,torque,scheduling[,emg]`` (s, rad, N m, rad) so that
-    :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
+    """Write ``time,position,torque,scheduling[,emg][,emg_ut]`` (s, rad, N m, rad) so
+    that :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
     names = ["time", "position", "torque", "scheduling"]
     cols = [data.time, data.position, data.torque, data.scheduling]
-    if "emg" in data.extra:
-        names.append("emg")
-        cols.append(data.extra["emg"])
+    for c in PERTURBATION_EMG:
+        if c in data.extra:
+            names.append(c)
+            cols.append(data.extra[c])
     np.savetxt(
         path, np.column_stack(cols), delimiter=",", fmt="%.17g", comments="",
         header="# lpvpc perturbation data; units: time s, position rad, torque N m, scheduling rad\n"

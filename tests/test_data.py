@@ -112,6 +112,26 @@ def test_perturbation_csv_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(back.time, data.time)
 
 
+def test_perturbation_file_carries_both_trials_emg(tmp_path):
+    """An extended model with background activation needs the UT trial's EMG too: a
+    perturbation file written from a PT/UT pair keeps it (CSV and MAT)."""
+    pt, ut, _ = make_trials(emg=True)
+    ut.channels["emg"] = 2.0 + ut.position
+    data = pair_trials(pt, ut)
+    path = tmp_path / "pert.csv"
+    write_perturbation_csv(data, path)
+    assert path.read_text().splitlines()[1] == "time,position,torque,scheduling,emg,emg_ut"
+    back = load_perturbation_file(path)
+    for c in ("emg", "emg_ut"):
+        np.testing.assert_array_equal(back.extra[c], data.extra[c])
+    mat = tmp_path / "pert.mat"
+    scipy.io.savemat(mat, {"time": data.time, "position": data.position, "torque": data.torque,
+                           "scheduling": data.scheduling, "emg_ut": data.extra["emg_ut"], "notes": 1.0})
+    back = load_perturbation_file(mat)
+    np.testing.assert_array_equal(back.extra["emg_ut"], data.extra["emg_ut"])
+    assert "emg" not in back.extra
+
+
 def test_load_perturbation_file_decimates(tmp_path):
     pt, ut, pert = make_trials()
     path = tmp_path / "p.csv"
