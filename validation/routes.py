@@ -4,7 +4,7 @@
 - ``numpy_causal``: the same with the causal IRF the default FMU runs;
 - ``casadi`` / ``casadi_exact``: the exported CasADi step run over the record with
   :func:`lpvpc.export.trajectory_function` (causal; exact two-sided, output shifted back
-  by its latency of L samples so that it lines up with ``numpy``);
+  by its latency of L samples so that it lines up with ``numpy``, see :func:`_held_tail`);
 - ``fmu``: the model FMU replaying the measured perturbation position, scheduling (and,
   for the causal variant, their central-difference velocity and acceleration), no
   actuator; an exact-variant FMU's outputs are shifted back by its latency.
@@ -47,38 +47,42 @@ def offline_routes(model, position, scheduling, signals=None) -> dict:
                 "numpy_causal": model.predict(position, scheduling, causal=True, signals=signals)}
 
 
+def _held_tail(position, scheduling, signals, latency):
+    """The record run ``latency`` samples past its end with the last sample held (the
+    record-edge convention of :mod:`lpvpc.equations`): a model with an output latency of L
+    then gives the torque of every sample, output k + L being that of sample k."""
+    position, scheduling = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
+    if not latency:
+        return position, scheduling, signals
+    idx = np.r_[np.arange(len(position)), np.full(latency, len(position) - 1)]
+    held = {k: np.asarray(v)[idx] for k, v in signals.items()} if signals else signals
+    return position[idx], scheduling[idx], held
+
+
 def casadi_routes(model, position, scheduling, signals=None) -> dict:
     """CasADi predictions {"casadi": total, "casadi_exact": total} (N m) and build/run times."""
     out, timing = {}, {}
-    n = len(position)
     for name, variant in (("casadi", "causal"), ("casadi_exact", "exact")):
         t0 = time.perf_counter()
-        step = ex.step_function(model, variant)
-        traj = ex.trajectory_function(step, n)
-        args = ex.replay_inputs(model, position, scheduling, variant, signals=signals)
-        res = traj(state=np.zeros(step.size1_in("state")), **args)
-        tq = np.asarray(res["torque"]).ravel()
         lat = ex.latency_samples(model, variant)
-        if lat:  # output k is the torque of sample k - L: shift back, the last L samples are not computed
-            tq = np.concatenate([tq[lat:], np.full(lat, np.nan)])
-        out[name] = tq
+        pos, sched, sig = _held_tail(position, scheduling, signals, lat)
+        step = ex.step_function(model, variant)
+        traj = ex.trajectory_function(step, len(pos))
+        args = ex.replay_inputs(model, pos, sched, variant, signals=sig)
+        res = traj(state=np.zeros(step.size1_in("state")), **args)
+        out[name] = np.asarray(res["torque"]).ravel()[lat:]
         timing[name] = time.perf_counter() - t0
     return {"torque": out, "seconds": timing}
 
 
 def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) -> dict:
     """Replay a record through the model FMU (either variant) at its sample period; every
-    output checked finite. An exact FMU runs its latency L past the record with the last
-    sample held (the record-edge convention of :mod:`lpvpc.equations`) and its outputs
-    are shifted back by L, so that every route covers every sample.
+    output checked finite. An exact FMU's outputs are shifted back by its latency
+    (:func:`_held_tail`), so that every route covers every sample.
     Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
     variant = model_fmu_variant(model_fmu)
     lat = ex.latency_samples(model, variant)
-    position, scheduling = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
-    if lat:
-        idx = np.r_[np.arange(len(position)), np.full(lat, len(position) - 1)]
-        position, scheduling = position[idx], scheduling[idx]
-        signals = {k: np.asarray(v)[idx] for k, v in signals.items()} if signals else signals
+    position, scheduling, signals = _held_tail(position, scheduling, signals, lat)
     rows = ex.replay_inputs(model, position, scheduling, variant, signals=signals)
     inputs = model_fmu_inputs(model, variant)
     U = np.column_stack([np.ravel(rows[name]) for name in inputs])
