@@ -254,6 +254,7 @@ def _actuator_param(text):
 def cmd_validate(args) -> int:
     try:
         from validation import CosimSettings, validate
+        from validation.compare import worst_route_difference
     except ModuleNotFoundError as exc:
         if exc.name != "validation":
             raise
@@ -273,7 +274,7 @@ def cmd_validate(args) -> int:
     print(f"VAF offline {m['vaf']:.2f} %, FMU replay {m['vaf_fmu']:.2f} %, co-simulation {m['vaf_cosim']:.2f} %  "
           f"(RMSE {m['rmse']:.3g} / {m['rmse_fmu']:.3g} / {m['rmse_cosim']:.3g} N m; {m['n_samples']} samples at "
           f"{m['fs']:g} Hz)")
-    worst = max(v["max_relative_difference"] for v in ag.values() if isinstance(v, dict) and "pass" in v)
+    worst = worst_route_difference(ag)
     print(f"routes:      CasADi and FMU vs numpy agree to {worst:.1e} (tolerance {ag['tolerance']:.0e}); "
           f"co-simulation {m['vaf_cosim'] - m['vaf_fmu']:+.2f} VAF points vs FMU replay")
     if cos["model_fmu_variant"] == "exact":

@@ -301,6 +301,7 @@ def _validate(outdir, paths, fmu_path, v_ceiling):
     _section("7. Validation on the novel trajectory (prediction routes, co-simulation with the actuator)")
     try:
         from validation import validate
+        from validation.compare import worst_route_difference
     except ModuleNotFoundError as exc:
         if exc.name != "validation":
             raise
@@ -320,7 +321,7 @@ def _validate(outdir, paths, fmu_path, v_ceiling):
     ag = m["route_agreement"]
     _say(f"VAF offline {m['vaf']:.2f} %, FMU replay {m['vaf_fmu']:.2f} %, co-simulation {m['vaf_cosim']:.2f} %  "
          f"(noise ceiling {v_ceiling:.2f} %)")
-    worst = max(v["max_relative_difference"] for v in ag.values() if isinstance(v, dict) and "pass" in v)
+    worst = worst_route_difference(ag)
     _say(f"CasADi and FMU routes agree with numpy to {worst:.1e} of the torque scale (exact model FMU, latency "
          f"{c['model_fmu_latency_samples']} samples removed; the causal closed-loop form: {m['vaf_causal']:.2f} % "
          f"offline)")

@@ -86,8 +86,7 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
     # No singular pair led close (seen with well-fitting orders 2 and 3 stuck at twice the
     # error of order 1): search the direction of [B; d], a point on a small sphere whose
     # best Omega is one least-squares solve, and alternate from the best directions found.
-    for bd in _best_directions(blocks, tq_r, DIRECTION_STARTS):
-        omega, *_ = np.linalg.lstsq(sum(c * blk for c, blk in zip(bd, blocks)), tq_r, rcond=None)
+    for bd, omega in _best_directions(blocks, tq_r, DIRECTION_STARTS):
         fit = _alternate(blocks, tq_r, bd, omega, orientation, energy, tol, abs_tol, max_iter)
         if fit.relative_error < best.relative_error:
             best = fit
@@ -96,17 +95,19 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
 
 def _best_directions(blocks, tq_r, n_starts, n_per_dim=150):
     """The ``n_starts`` unit vectors [B; d] (of a fixed quasi-random set) whose
-    least-squares Omega leaves the smallest residual: the profile of the separable problem."""
+    least-squares Omega leaves the smallest residual (the profile of the separable
+    problem), each with that Omega."""
     dim = len(blocks)
     directions = np.random.default_rng(0).standard_normal((n_per_dim * dim, dim))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    cost = np.empty(len(directions))
-    for i, bd in enumerate(directions):
+    fits = []
+    for bd in directions:
         X = sum(c * blk for c, blk in zip(bd, blocks))
         omega, *_ = np.linalg.lstsq(X, tq_r, rcond=None)
         r = tq_r - X @ omega
-        cost[i] = r @ r
-    return directions[np.argsort(cost)[:n_starts]]
+        fits.append((float(r @ r), bd, omega))
+    fits.sort(key=lambda f: f[0])
+    return [(bd, omega) for _, bd, omega in fits[:n_starts]]
 
 
 def _alternate(blocks, tq_r, bd, omega, orientation, energy, tol, abs_tol, max_iter) -> HammersteinFit:

@@ -44,6 +44,12 @@ def route_agreement(reference, others: dict, tolerance: float) -> dict:
     return out
 
 
+def worst_route_difference(agreement: dict) -> float:
+    """Largest max relative difference among the numerical route comparisons of
+    :func:`route_agreement` results merged into ``agreement`` (the entries with a ``pass``)."""
+    return max(v["max_relative_difference"] for v in agreement.values() if isinstance(v, dict) and "pass" in v)
+
+
 def _fit(measured, predicted, mask) -> dict:
     n = int(np.count_nonzero(mask))
     if n == 0:

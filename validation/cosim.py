@@ -83,7 +83,7 @@ from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["CosimSettings", "CosimResult", "ActuatorDrive", "run_cosimulation", "connections",
            "to_rate", "band_limit", "feedforward_command", "calibrate_servo", "ACTUATOR_INPUTS", "ACTUATOR_OUTPUTS",
-           "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_variant_inputs"]
+           "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_variant_inputs", "hold_tail"]
 
 ACTUATOR_INPUTS = ("command", "load_torque")
 ACTUATOR_OUTPUTS = ("position", "velocity", "acceleration")
@@ -308,6 +308,13 @@ def connections(settings: CosimSettings, signals=(), variant: str = "causal", la
         (f"model.{name}", f"record.{name} (at the model rate, every model step)") for name in signals]
 
 
+def hold_tail(x, n: int):
+    """``x`` (along axis 0) followed by ``n`` copies of its last row: a run continued past
+    the record with everything held (the record-edge convention of lpvpc.equations)."""
+    x = np.asarray(x)
+    return np.concatenate([x, np.repeat(x[-1:], n, axis=0)]) if n else x
+
+
 def _check_finite(values, who, names, t):
     for name, v in zip(names, values):
         if not np.isfinite(v):
@@ -379,10 +386,9 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         idx = (np.arange(n_a) // r) * r
         cmd_u, cmd_p = cmd_u[idx], cmd_p[idx]
     load_u = drive.load_ut[:n_a] if settings.load == "measured_ut+model" else np.zeros(n_a)
-    if latency:  # run past the end with everything held, so every sample gets its torque
-        hold = lambda x: np.concatenate([x, np.repeat(x[-1:], latency * r)])  # noqa: E731
-        cmd_u, cmd_p, load_u = hold(cmd_u), hold(cmd_p), hold(load_u)
-        S = np.concatenate([S, np.repeat(S[-1:], latency, axis=0)])
+    # an exact FMU runs past the end with everything held, so every sample gets its torque
+    cmd_u, cmd_p, load_u = (hold_tail(x, latency * r) for x in (cmd_u, cmd_p, load_u))
+    S = hold_tail(S, latency)
     K_run = K + latency
     n_run = K_run * r
     model_loads = settings.load != "none"
@@ -422,6 +428,20 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                 inst.do_step(i * h, h)
             Y[i0 + r] = port_out.get()  # outputs at t(k+1) with the last inputs (position has no feedthrough)
 
+        def check_actuators(i0):
+            blk_u, blk_p = Yu[i0:i0 + r + 1], Yp[i0:i0 + r + 1]
+            if not (np.isfinite(blk_u).all() and np.isfinite(blk_p).all()):
+                for who, blk in (("actuator_ut", blk_u), ("actuator_pt", blk_p)):
+                    for row in range(r + 1):
+                        _check_finite(blk[row], who, ACTUATOR_OUTPUTS, (i0 + row) * h)
+
+        def model_outputs(u, tk):
+            m_in.set(u)
+            y = m_out.get()
+            if not (np.isfinite(y[0]) and np.isfinite(y[1]) and np.isfinite(y[2])):
+                _check_finite(y, "model", MODEL_OUTPUTS, tk)
+            return y
+
         Yu[0], Yp[0] = a_out[0].get(), a_out[1].get()  # positions at t(0) (no feedthrough)
         tq_prev = tq_prev2 = 0.0
         p_prev = None
@@ -431,17 +451,11 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
             tk = k * H
             if exact:  # the model first: its output loads the PT actuator over [t(k), t(k+1)]
                 u = (Yp[i0, 0] - Yu[i0, 0], Yu[i0, 0], *S[k])
-                m_in.set(u)
-                y = m_out.get()
-                if not (np.isfinite(y[0]) and np.isfinite(y[1]) and np.isfinite(y[2])):
-                    _check_finite(y, "model", MODEL_OUTPUTS, tk)
+                y = model_outputs(u, tk)
                 guess = y[0] if model_loads else 0.0
                 run_actuator(ut, a_in[0], a_out[0], cmd_u, load_u, 0.0, Yu, i0)
                 run_actuator(pt, a_in[1], a_out[1], cmd_p, load_u, guess, Yp, i0)
-                for who, blk in (("actuator_ut", Yu[i0:i0 + r + 1]), ("actuator_pt", Yp[i0:i0 + r + 1])):
-                    if not np.isfinite(blk).all():
-                        for row in range(r + 1):
-                            _check_finite(blk[row], who, ACTUATOR_OUTPUTS, (i0 + row) * h)
+                check_actuators(i0)
                 ins[k], tq[k], load_model[k] = u, y, guess
                 mod.do_step(tk, H)
                 continue
@@ -455,11 +469,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
             while True:
                 it += 1
                 run_actuator(pt, a_in[1], a_out[1], cmd_p, load_u, guess, Yp, i0)
-                blk_u, blk_p = Yu[i0:i0 + r + 1], Yp[i0:i0 + r + 1]
-                if not (np.isfinite(blk_u).all() and np.isfinite(blk_p).all()):
-                    for who, blk in (("actuator_ut", blk_u), ("actuator_pt", blk_p)):
-                        for row in range(r + 1):
-                            _check_finite(blk[row], who, ACTUATOR_OUTPUTS, (i0 + row) * h)
+                check_actuators(i0)
                 p_k = Yp[i0, 0] - Yu[i0, 0]
                 if central:
                     p_next = Yp[i0 + r, 0] - Yu[i0 + r, 0]
@@ -470,10 +480,7 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                     vel = Yp[i0, 1] - Yu[i0, 1]
                     acc = Yp[i0, 2] - Yu[i0, 2]
                 u = (p_k, Yu[i0, 0], vel, acc, *S[k])
-                m_in.set(u)
-                y = m_out.get()
-                if not (np.isfinite(y[0]) and np.isfinite(y[1]) and np.isfinite(y[2])):
-                    _check_finite(y, "model", MODEL_OUTPUTS, tk)
+                y = model_outputs(u, tk)
                 if not iterate or abs(y[0] - guess) <= settings.iterate_tol or it >= settings.max_iterations:
                     break
                 pt.set_state(state)

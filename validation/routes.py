@@ -26,7 +26,7 @@ import numpy as np
 from lpvpc import export as ex
 from lpvpc.errors import FMUError, OutOfRangeWarning
 
-from .cosim import MODEL_OUTPUTS, model_fmu_variant, model_variant_inputs
+from .cosim import MODEL_OUTPUTS, hold_tail, model_fmu_variant, model_variant_inputs
 from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["offline_routes", "casadi_routes", "fmu_replay", "model_fmu_inputs"]
@@ -51,12 +51,8 @@ def _held_tail(position, scheduling, signals, latency):
     """The record run ``latency`` samples past its end with the last sample held (the
     record-edge convention of :mod:`lpvpc.equations`): a model with an output latency of L
     then gives the torque of every sample, output k + L being that of sample k."""
-    position, scheduling = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
-    if not latency:
-        return position, scheduling, signals
-    idx = np.r_[np.arange(len(position)), np.full(latency, len(position) - 1)]
-    held = {k: np.asarray(v)[idx] for k, v in signals.items()} if signals else signals
-    return position[idx], scheduling[idx], held
+    held = {k: hold_tail(v, latency) for k, v in signals.items()} if signals else signals
+    return hold_tail(np.asarray(position, dtype=float), latency), hold_tail(np.asarray(scheduling, dtype=float), latency), held
 
 
 def casadi_routes(model, position, scheduling, signals=None) -> dict:
