@@ -43,10 +43,10 @@ from lpvpc.export import export_fmu, latency_samples  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import write_dataset  # noqa: E402
-from validation import CosimSettings, validate  # noqa: E402
-from validation.cosim import run_cosimulation  # noqa: E402
-from validation.fmu import inspect_fmu  # noqa: E402
-from validation.harness import actuator_drive, check_actuator_fmu, load_record  # noqa: E402
+from lpvpc.validation import CosimSettings, validate  # noqa: E402
+from lpvpc.validation.cosim import run_cosimulation  # noqa: E402
+from lpvpc.validation.fmu import inspect_fmu  # noqa: E402
+from lpvpc.validation.harness import actuator_drive, check_actuator_fmu, load_record  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "validation.txt"
 

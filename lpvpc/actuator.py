@@ -16,6 +16,7 @@ undeflected: set ``initial_position`` to the first command.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from lpvpc.fmu_build import FmuVariable, build_fmu, wrapper_dir
@@ -74,7 +75,9 @@ def actuator_variables() -> tuple[list[FmuVariable], list[FmuVariable], list[Fmu
 
 
 def _default_path(fmi_version: int) -> Path:
-    return Path(__file__).resolve().parent.parent / "build" / "fmus" / f"actuator_fmi{fmi_version}.fmu"
+    # A per-user cache, not the package folder: an installed package may be read-only.
+    cache = os.environ.get("LPVPC_CACHE") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "lpvpc"
+    return Path(cache) / "fmus" / f"actuator_fmi{fmi_version}.fmu"
 
 
 def actuator_build_kwargs(fmi_version: int = 2) -> dict:

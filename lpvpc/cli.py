@@ -253,8 +253,8 @@ def _actuator_param(text):
 
 def cmd_validate(args) -> int:
     try:
-        from validation import CosimSettings, validate
-        from validation.compare import worst_route_difference
+        from lpvpc.validation import CosimSettings, validate
+        from lpvpc.validation.compare import worst_route_difference
     except ModuleNotFoundError as exc:
         if exc.name != "validation":
             raise

@@ -300,8 +300,8 @@ def _validate(outdir, paths, fmu_path, v_ceiling):
     """Step 7: the validation harness on the novel record; returns the report's path."""
     _section("7. Validation on the novel trajectory (prediction routes, co-simulation with the actuator)")
     try:
-        from validation import validate
-        from validation.compare import worst_route_difference
+        from lpvpc.validation import validate
+        from lpvpc.validation.compare import worst_route_difference
     except ModuleNotFoundError as exc:
         if exc.name != "validation":
             raise

@@ -107,11 +107,16 @@ class FmuVariable:
 def wrapper_dir() -> Path:
     """Folder with ``system.h``, ``cs_core.h``, ``fmi2_cs.c`` and ``fmi3_cs.c``.
 
-    ``$LPVPC_FMU_MODELS/wrapper`` if that variable is set, else ``fmu_models/wrapper`` next to
-    the package (source checkout or editable install).
+    ``$LPVPC_FMU_MODELS/wrapper`` if that variable is set, else the installed package data
+    ``lpvpc.fmu_models`` (the checkout's ``fmu_models/`` folder, mapped by pyproject.toml).
     """
     root = os.environ.get("LPVPC_FMU_MODELS")
-    base = Path(root) if root else Path(__file__).resolve().parent.parent / "fmu_models"
+    if root:
+        base = Path(root)
+    else:
+        from . import fmu_models  # the C sources ship as package data
+
+        base = Path(fmu_models.__file__).resolve().parent
     d = base / "wrapper"
     if not (d / "system.h").is_file():
         raise ExportError(

@@ -110,9 +110,11 @@ def test_build_is_cached(tmp_path):
     assert t2["total"] < t1["total"]
 
 
-def test_default_path_is_under_build_fmus():
+def test_default_path_is_a_user_cache_not_the_package(tmp_path, monkeypatch):
+    # An installed package folder may be read-only: the default build goes to a cache.
+    monkeypatch.setenv("LPVPC_CACHE", str(tmp_path / "cache"))
     p = build_actuator_fmu()
-    assert p.parts[-3:] == ("build", "fmus", "actuator_fmi2.fmu") and p.is_file()
+    assert p == tmp_path / "cache" / "fmus" / "actuator_fmi2.fmu" and p.is_file()
 
 
 def test_initial_state_and_direct_feedthrough(fmu):

@@ -27,11 +27,11 @@ from lpvpc.actuator import ACTUATOR_DEFAULTS, build_actuator_fmu
 from lpvpc.data import Trial, write_trial_csv
 from lpvpc.errors import FMUError
 from lpvpc.export import export_fmu
-from validation import CosimSettings, validate
-from validation.cosim import ACTUATOR_INPUTS, MODEL_INPUTS, connections, run_cosimulation
-from validation.fmu import FMUInstance, inspect_fmu
-from validation.harness import actuator_drive, check_actuator_fmu, load_record
-from validation.ssp import SSD_NAMESPACES, instance_parameters, write_ssp
+from lpvpc.validation import CosimSettings, validate
+from lpvpc.validation.cosim import ACTUATOR_INPUTS, MODEL_INPUTS, connections, run_cosimulation
+from lpvpc.validation.fmu import FMUInstance, inspect_fmu
+from lpvpc.validation.harness import actuator_drive, check_actuator_fmu, load_record
+from lpvpc.validation.ssp import SSD_NAMESPACES, instance_parameters, write_ssp
 
 SHORT_S = 20.0  # s of the novel record
 WARM_UP_S = 1.0  # s: fmpy starts every connector at 0 (not at the FMUs' initial outputs)

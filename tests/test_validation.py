@@ -23,10 +23,10 @@ from lpvpc.cli import main
 from lpvpc.data import Trial, decimate_trial, write_trial_csv
 from lpvpc.errors import FMUError
 from lpvpc.model import LPVPCModel, vaf
-from validation import CosimSettings, validate
-from validation.cosim import ActuatorDrive, _check_finite, run_cosimulation
-from validation.fmu import inspect_fmu
-from validation.report import FIGURES
+from lpvpc.validation import CosimSettings, validate
+from lpvpc.validation.cosim import ActuatorDrive, _check_finite, run_cosimulation
+from lpvpc.validation.fmu import inspect_fmu
+from lpvpc.validation.report import FIGURES
 
 CHROMIUM = "/usr/bin/chromium"
 SHORT_S = 20.0  # s, length of the cut record
