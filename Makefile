@@ -17,7 +17,7 @@ demo: $(STAMP)
 
 # One BLAS thread, as the CLI and demo use: identification's many small least-squares
 # problems run faster single-threaded (benchmarks/results/identify.txt).
-test: $(STAMP)
+test: $(STAMP) chromium
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) -m pytest -q
 
 bench: $(STAMP)
@@ -27,8 +27,8 @@ clean:
 	rm -rf $(VENV) demo_out build
 
 # Headless Chromium (Debian's package) for the test that opens the validation report
-# (tests/test_validation.py). CI runs this before `make test` (.ci/run); the test fails
-# without /usr/bin/chromium unless LPVPC_ALLOW_NO_CHROMIUM is set.
+# (tests/test_validation.py); `make test` depends on it, so a fresh machine gets it. The
+# test fails without /usr/bin/chromium unless LPVPC_ALLOW_NO_CHROMIUM is set.
 chromium:
 	@if [ -x /usr/bin/chromium ]; then echo "chromium: $$(/usr/bin/chromium --version 2>/dev/null)"; else \
 	  SUDO=; [ "$$(id -u)" = 0 ] || SUDO=sudo; \

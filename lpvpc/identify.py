@@ -22,17 +22,15 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.linalg
 
 from . import __version__
 from . import equations as eq
 from .basis import basis_from_data
 from .errors import DataError, IdentificationError, InsufficientExcitationError
-from .linalg import orthonormal_range, pivoted_qr, triangular_factor
 from .intrinsic import intrinsic_regressor, two_sided_lags
-from .model import LPVPCModel, vaf
-from .reflex import fit_hammerstein, reflex_input_regressor, reflex_regressor
-from .subspace import PoleRefinement, candidate_orders, po_moesp
+
+# scipy-based modules are imported where they are used, so that `lpvpc identify --help`
+# (which reads the estimator's defaults) starts without scipy.signal.
 
 class LPVPCEstimator:
     """Estimator of an LPV-PC ankle stiffness model (scikit-learn style).
@@ -107,6 +105,10 @@ class LPVPCEstimator:
     def fit(self, data) -> "LPVPCEstimator":
         """Identify the model from :class:`lpvpc.data.PerturbationData` (or any object with
         ``position``, ``torque``, ``scheduling`` arrays and ``fs``)."""
+        from .model import LPVPCModel, vaf
+        from .reflex import reflex_input_regressor
+        from .subspace import PoleRefinement, candidate_orders, po_moesp
+
         t0 = time.perf_counter()
         timings = {}
         p, y, rho, fs = self._checked(data)
@@ -202,6 +204,9 @@ class LPVPCEstimator:
 
     # ------------------------------------------------------------------------------------
     def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation):
+        from .linalg import triangular_factor
+        from .reflex import fit_hammerstein, reflex_regressor
+
         A, C = sub.system(m)
         moesp_poles = np.linalg.eigvals(A)
         if refinement is not None:
@@ -263,6 +268,10 @@ def project_out_and_solve(Psi_r, Psi_i, y):
     Equivalent to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y when Psi_i has full column rank
     (Frisch-Waugh-Lovell) but costs O(N n^2) instead of O(N^2).
     """
+    import scipy.linalg
+
+    from .linalg import orthonormal_range
+
     Q_r = orthonormal_range(Psi_r)
     Pi_perp = Psi_i - Q_r @ (Q_r.T @ Psi_i)
     y_perp = y - Q_r @ (Q_r.T @ y)
@@ -275,6 +284,8 @@ def project_out_and_solve(Psi_r, Psi_i, y):
 def check_full_rank(M, name, context=""):
     """Pivoted QR (Q, R, piv) of M; raises InsufficientExcitationError naming the
     dependent columns if M is rank-deficient."""
+    from .linalg import pivoted_qr
+
     Q, R, piv, rank = pivoted_qr(M)
     if rank < M.shape[1]:
         raise InsufficientExcitationError(

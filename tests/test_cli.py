@@ -358,3 +358,14 @@ def test_plotting_functions_draw(run_dir, model_file):
         assert len(ax.lines) == 2 and "worst central error" in ax.lines[1].get_label()
     finally:
         plt.close("all")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"], ["export", "--help"], ["validate", "--help"]])
+def test_help_imports_no_heavy_module(argv):
+    """`lpvpc --help` and the commands' help start fast: none of casadi, scipy.signal,
+    matplotlib or fmpy is imported to build the parser (each is imported where it is used)."""
+    heavy = ("casadi", "scipy.signal", "scipy.linalg", "matplotlib", "fmpy")
+    code = ("import sys\nfrom lpvpc.cli import main\ntry:\n    main(%r)\nexcept SystemExit as e:\n"
+            "    assert e.code == 0, e.code\nprint(sorted(m for m in %r if m in sys.modules))" % (argv, heavy))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]", out[-300:]
