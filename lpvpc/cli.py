@@ -8,10 +8,12 @@
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact]
+    lpvpc whole-joint model.json --ut UT.csv -o whole.json [--cutoff HZ] [--order N] [--fmu F.fmu]
+                      [--fmi 2|3] [--casadi F.casadi]
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
-                   [--route-tolerance TOL]
+                   [--route-tolerance TOL] [--whole-joint whole.json]
     lpvpc diagnose model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json diagnosis.json] [--report DIR]
     lpvpc improve --pt PT.csv --ut UT.csv --heldout-pt PT2.csv --heldout-ut UT2.csv --report DIR
                   [--json ladder.json] [--max-steps N] [--effect NAME ...]
@@ -240,6 +242,31 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_whole_joint(args) -> int:
+    from . import whole_joint as W
+    from .data import load_trial
+    from .model import LPVPCModel
+
+    model = LPVPCModel.load(args.model)
+    conv = model.conventions or {}
+    ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+                    torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+    try:
+        wj = W.fit_whole_joint(model, ut, cutoff=args.cutoff, order=args.order)
+    except ValueError as exc:  # a cutoff outside (0, fs/2)
+        raise _UsageError(str(exc)) from None
+    wj.save(args.out)
+    print(f"whole-joint model: {args.out} (quasi-static curve VAF {wj.fit['quasi_static_vaf']:.2f} % on the UT "
+          f"trial; low-pass {wj.cutoff:g} Hz; step/FMU latency {W.latency_samples(wj)} samples)")
+    if args.casadi:
+        print(f"CasADi step function (angle -> torque): {W.export_whole_joint_casadi(wj, args.casadi)}")
+    if args.fmu:
+        t0 = time.perf_counter()
+        path = W.export_whole_joint_fmu(wj, args.fmu, fmi_version=args.fmi)
+        print(f"FMU (FMI {args.fmi}.0 co-simulation, angle -> torque): {path}  [{time.perf_counter() - t0:.2f} s]")
+    return 0
+
+
 def _actuator_param(text):
     name, sep, value = text.partition("=")
     try:
@@ -266,7 +293,8 @@ def cmd_validate(args) -> int:
                       calibrate=not args.no_calibrate, settings=settings, min_vaf=args.min_vaf,
                       band_limit_command=args.band_limit_command, fmu_variant=args.fmu_variant,
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
-                      torque_sign=args.torque_sign, command_line=" ".join([PROG, *sys.argv[1:]]))
+                      torque_sign=args.torque_sign, command_line=" ".join([PROG, *sys.argv[1:]]),
+                      whole_joint=args.whole_joint)
     m = result.metrics
     ag = m["route_agreement"]
     sched = m["scheduling"]
@@ -292,6 +320,10 @@ def cmd_validate(args) -> int:
             print(f"FAILED:      {check['name']}: {check['value']:.4g} (threshold {check['threshold']:.4g})")
     print(f"report:      {Path(result.files['report']).resolve()}")
     print(f"metrics:     {Path(result.files['metrics']).resolve()}")
+    if "whole_joint" in m:
+        w = m["whole_joint"]
+        print(f"whole joint: total-torque VAF {w['vaf_total']:.2f} % (FMU {w['vaf_total_fmu']:.2f} %), perturbation "
+              f"part {w['vaf_perturbation']:.2f} % (two-input model {w['vaf_two_input']:.2f} %)")
     if result.files.get("ssp"):
         print(f"ssp:         {Path(result.files['ssp']).resolve()}")
     print(f"result:      {'pass' if result.passed else 'FAIL'}")
@@ -552,8 +584,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="load-torque coupling: iterate to convergence (default) or a one-step delay")
     p.add_argument("--route-tolerance", type=_positive_float, default=1e-9, metavar="TOL",
                    help="largest max|a-b|/max|b| of the CasADi and FMU routes vs numpy (default 1e-9)")
+    p.add_argument("--whole-joint", metavar="WHOLE.json",
+                   help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
     _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("whole-joint", help="joint angle in, total torque out: fit the quasi-static curve, export",
+                       description="Build the whole-joint model of a saved LPV-PC model: the quasi-static "
+                                   "torque-angle curve fitted to the UT trial at the operating angle (a causal "
+                                   "low-pass of the joint angle) plus the LPV-PC model of the angle minus it. "
+                                   "Save it as JSON; optionally export it as a CasADi step and an FMU (input "
+                                   "angle in rad, output torque in N m, latency L samples).")
+    p.add_argument("model", metavar="MODEL.json")
+    p.add_argument("--ut", required=True, metavar="UT", help="the unperturbed trial the model was identified with")
+    p.add_argument("-o", "--out", required=True, metavar="WHOLE.json", help="write the whole-joint model here")
+    p.add_argument("--cutoff", type=_positive_float, default=0.5, metavar="HZ",
+                   help="cutoff of the operating-angle low-pass (default 0.5 Hz)")
+    p.add_argument("--order", type=int, default=5, metavar="N", help="order of the quasi-static curve (default 5)")
+    p.add_argument("--fmu", metavar="FILE.fmu", help="write the whole-joint FMU")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
+    p.add_argument("--casadi", metavar="FILE.casadi", help="write the whole-joint CasADi step function")
+    _add_convention_args(p, from_model=True)
+    p.set_defaults(func=cmd_whole_joint)
 
     p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
                        description="Analyse the residual of a saved model on a record it was not fitted to, and "

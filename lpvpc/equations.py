@@ -203,3 +203,36 @@ def state_trajectory(A, B, u):
         num, den = scipy.signal.ss2tf(A, B, e_i, np.zeros((1, 1)))
         out[:, i] = scipy.signal.lfilter(num[0], den, u)
     return out
+
+
+# ---------------------------------------------------------------------------------------
+# Whole-joint model (lpvpc.whole_joint): the operating angle is a causal low-pass of the
+# joint angle; the quasi-static torque-angle curve acts on it; the LPV-PC model on the rest.
+
+
+def lowpass_alpha(cutoff, fs, ops=NUMPY):
+    """Factor alpha = 1 - exp(-2 pi cutoff / fs) of the first-order low-pass (cutoff Hz, fs Hz)."""
+    return 1.0 - ops.exp(-2.0 * np.pi * cutoff / fs)
+
+
+def lowpass_step(previous, angle, alpha):
+    """One sample of the causal first-order low-pass: y(k) = y(k-1) + alpha (x(k) - y(k-1))."""
+    return previous + alpha * (angle - previous)
+
+
+def lowpass(angle, alpha):
+    """:func:`lowpass_step` over a whole record (rad), at rest at the first sample: y(0) = x(0).
+
+    The same recurrence, run as a linear filter on x - x(0)."""
+    import scipy.signal
+
+    x = np.asarray(angle, dtype=float)
+    if not len(x):
+        return x.copy()
+    return scipy.signal.lfilter([alpha], [1.0, alpha - 1.0], x - x[0]) + x[0]
+
+
+def quasi_static_torque(angle_basis, coefficients, ops=NUMPY):
+    """Quasi-static joint torque (N m) sum_i c_i g_i(angle): angle_basis (N, n) basis values,
+    coefficients (n,) in N m."""
+    return ops.mtimes(angle_basis, coefficients)

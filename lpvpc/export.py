@@ -106,6 +106,7 @@ __all__ = [
     "fmu_description",
     "system_functions",
     "generate_c",
+    "write_system_c",
     "model_source_dir",
 ]
 
@@ -600,13 +601,20 @@ def system_functions(model, variant="causal"):
 def generate_c(model, folder, variant="causal") -> list:
     """Write the CasADi-generated C code (``lpvpc_model_casadi.c`` and ``.h``) into
     ``folder``; returns the paths."""
+    init, output, update, _ = system_functions(model, variant)
+    return write_system_c((init, output, update), folder)
+
+
+def write_system_c(functions, folder) -> list:
+    """Generate C for the three system functions (initial, output, update, named as in
+    :func:`system_functions`) into ``folder`` as ``lpvpc_model_casadi.c`` and ``.h``, the
+    files the adapter ``model_system.c`` includes; returns the paths."""
     import casadi as ca
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    init, output, update, _ = system_functions(model, variant)
     cg = ca.CodeGenerator(f"{CASADI_C_NAME}.c", {"with_header": True, "casadi_real": "double"})
-    for f in (init, output, update):
+    for f in functions:
         cg.add(f)
     cg.generate(str(folder) + "/")
     paths = [folder / f"{CASADI_C_NAME}.c", folder / f"{CASADI_C_NAME}.h"]

@@ -258,7 +258,8 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
-             torque_sign=None, command_line=None, write_report: bool = True) -> ValidationResult:
+             torque_sign=None, command_line=None, write_report: bool = True,
+             whole_joint=None) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
 
@@ -277,7 +278,9 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
     actuators (:func:`validation.cosim.band_limit`): the measured record is the
     anti-aliased view of the experiment, and a model sampled at fs sees nothing above
     fs/2; off, the actuators' faster motion reaches the model sampled, not anti-aliased.
-    Returns a :class:`ValidationResult`
+    ``whole_joint``: a :class:`lpvpc.whole_joint.WholeJointModel` (or its JSON path) built on
+    this model, validated on the PT trial's total torque as well (:mod:`validation.whole_joint`;
+    a report section and ``metrics["whole_joint"]``). Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
@@ -529,6 +532,16 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
         },
         "timing_s": timing,
     }
+    wj_traces = None
+    if whole_joint is not None:  # the whole-joint model on the PT trial's total torque
+        from lpvpc.whole_joint import WholeJointModel
+
+        from .whole_joint import evaluate_whole_joint
+
+        t0 = time.perf_counter()
+        wj = whole_joint if isinstance(whole_joint, WholeJointModel) else WholeJointModel.load(whole_joint)
+        metrics["whole_joint"], wj_traces = evaluate_whole_joint(wj, record, fmu_dir, model_fmu.fmi_version)
+        timing["whole_joint"] = time.perf_counter() - t0
     ssp_path = None
     if write_report:
         # the same set-up for other co-simulation tools (SSP 1.0, FMUs included)
@@ -548,7 +561,7 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
             warnings.simplefilter("ignore", OutOfRangeWarning)
             result.files = _write(result, model=model, record=record, predictions={
                 "numpy": off["numpy"], "numpy_causal": off["numpy_causal"], "fmu": rep, "cosim": cos,
-                "unloaded": unloaded, "actuator_replay": rec})
+                "unloaded": unloaded, "actuator_replay": rec, "whole_joint": wj_traces})
         timing["report"] = time.perf_counter() - t0
         result.files["ssp"] = ssp_path
     timing["total"] = time.perf_counter() - t_all

@@ -522,6 +522,9 @@ def _html(m: dict, figs: dict, model) -> str:
                  f"(RMSE {segs[0]['rmse']:.3f} N m).</p>")
     parts.append(_img(figs["worst_segments.png"], FIGURES["worst_segments.png"]))
 
+    if "whole_joint" in m and WHOLE_JOINT_FIGURE in figs:
+        parts.append(_whole_joint_section(m["whole_joint"], figs[WHOLE_JOINT_FIGURE]))
+
     # provenance
     parts.append("<h2>Provenance</h2>")
     parts.append("<p class=\"what\">What was validated, with what, and when.</p>")
@@ -553,12 +556,57 @@ def _html(m: dict, figs: dict, model) -> str:
     return "\n".join(parts)
 
 
+WHOLE_JOINT_FIGURE = "whole_joint.png"
+
+
+def _draw_whole_joint(folder: Path, tr: dict) -> Path:
+    t = tr["time"]
+    t0, t1 = _window(len(t), 1.0 / (t[1] - t[0]))
+    sel = (t >= t0) & (t < t1)
+    fig = _fig(9, 5.2)
+    ax1 = fig.add_subplot(2, 1, 1)
+    ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
+    ax1.plot(t[sel], tr["angle"][sel], color="0.3", lw=1.0, label="joint angle (PT)")
+    ax1.plot(t[sel], tr["operating_angle"][sel], color="C1", lw=1.2, label="operating angle (causal low-pass)")
+    ax1.set_ylabel("angle (rad)")
+    ax1.legend(loc="upper right", fontsize=8)
+    ax2.plot(t[sel], tr["measured"][sel], color="0.3", lw=1.0, label="measured total torque (PT)")
+    ax2.plot(t[sel], tr["predicted"][sel], color="C0", lw=1.0, label="whole-joint model")
+    ax2.plot(t[sel], tr["quasi_static"][sel], color="C1", lw=1.0, ls="--", label="quasi-static part")
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("torque (N m)")
+    ax2.legend(loc="upper right", fontsize=8)
+    path = folder / WHOLE_JOINT_FIGURE
+    _save(fig, path)
+    return path
+
+
+def _whole_joint_section(w: dict, fig: Path) -> str:
+    rows = [["total torque of the PT trial", _num(w["vaf_total"]), _num(w["vaf_total_fmu"])],
+            ["perturbation part (whole-joint PT minus UT) vs measured PT minus UT", _num(w["vaf_perturbation"]), ""],
+            ["two-input model on the measured split (reference)", _num(w["vaf_two_input"]), ""],
+            ["quasi-static curve at the UT angle vs the UT torque", _num(w["vaf_quasi_static_ut"]), ""]]
+    return "\n".join([
+        "<h2>Whole-joint model</h2>",
+        f"<p class=\"what\">Joint angle in, total torque out: the quasi-static torque-angle curve (order "
+        f"{w['quasi_static_order']}, fitted to the identification UT trial) at the operating angle (first-order "
+        f"causal low-pass, {w['cutoff_hz']:g} Hz) plus the LPV parallel cascade of the angle minus it. Its CasADi "
+        f"step and FMU (FMI {w['fmi_version']}.0) return the torque of {w['latency_samples']} samples earlier "
+        f"({w['latency_s'] * 1000:g} ms, removed here); they agree with numpy to {w['casadi_vs_numpy']:.1e} and "
+        f"{w['fmu_vs_numpy']:.1e} (max |difference| / max |torque|).</p>",
+        _table(["VAF (%)", "numpy", "FMU"], rows),
+        _img(fig, "The whole-joint model on the PT trial: angle, operating angle and total torque"),
+    ])
+
+
 def write_report(result, *, model, record, predictions) -> dict:
     """Draw the figures into ``report_dir/figures`` and write ``report_dir/report.html``;
     returns {"report": path, "figures": {name: path}}."""
     folder = Path(result.report_dir) / "figures"
     folder.mkdir(parents=True, exist_ok=True)
     figs = _draw_figures(folder, result.metrics, model, record, predictions)
+    if predictions.get("whole_joint") is not None:
+        figs[WHOLE_JOINT_FIGURE] = _draw_whole_joint(folder, predictions["whole_joint"])
     page = _html(result.metrics, figs, model)
     path = Path(result.report_dir) / "report.html"
     path.write_text(page, encoding="utf-8")
