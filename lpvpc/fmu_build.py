@@ -81,6 +81,10 @@ _FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"
 _FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 _BASE_CFLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra")
 _LDFLAGS = ("-Wl,--no-undefined", "-lm")
+#: Internal steps one doStep may take: the FMU's declared maximum communication step is
+#: MAX_STEPS * step_size (stated in the model description); a longer step is an error, so
+#: one call's work stays bounded (milliseconds to seconds, never hours).
+MAX_STEPS = 1_000_000
 
 
 @dataclass
@@ -234,6 +238,7 @@ def _system_config(guid, model_identifier, nx, step_size, outputs, inputs, param
 #define SYS_NY {len(outputs)}
 #define SYS_NP {len(parameters)}
 #define SYS_STEP {float(step_size)!r} /* internal fixed step, s */
+#define SYS_MAX_STEPS {MAX_STEPS} /* internal steps per doStep at most (the maximum communication step) */
 #define SYS_GUID {_c_string(guid)}
 #define SYS_MODEL_IDENTIFIER {_c_string(model_identifier)}
 #define SYS_PARAM_DEFAULTS {_c_doubles(v.start for v in parameters)}
@@ -252,7 +257,8 @@ def _fmt(x: float) -> str:
 
 def _full_description(description: str, latency: float | None, step_size: float) -> str:
     text = description.strip()
-    extra = f"Fixed internal step {_fmt(step_size)} s; communication steps must be integer multiples of it."
+    extra = (f"Fixed internal step {_fmt(step_size)} s; communication steps must be integer multiples of it, "
+             f"at most {_fmt(MAX_STEPS * float(step_size))} s ({MAX_STEPS} internal steps).")
     if latency is not None:
         if latency == 0:
             extra += " Output latency: 0 s (no added delay)."

@@ -527,6 +527,78 @@ def test_get_set_and_serialize_state_round_trip(opened, version):
     s.free()
 
 
+def _state_fields(blob):
+    """Byte offsets of the fields of a serialized state of the wrapper (cs_core.h FmuState):
+    header (8-byte tag, 6 uint32, uint64 GUID hash), then x, u, p, time, mode, x_ready."""
+    nx, nu, np_ = (int.from_bytes(blob[o:o + 4], "little") for o in (12, 16, 20))
+    x0 = 40
+    u0 = x0 + 8 * max(nx, 1)
+    p0 = u0 + 8 * max(nu, 1)
+    t0 = p0 + 8 * max(np_, 1)
+    return {"x": x0, "u": u0, "p": p0, "time": t0, "mode": t0 + 8, "x_ready": t0 + 12}
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_deserialized_state_is_checked_completely(opened, version):
+    """A serialized state is data from outside (a file): a mode that is not one of the
+    instance's modes (e.g. instantiated|step, under which a fixed parameter could be set
+    while stepping), a bad flag, or a non-finite time, state, input or parameter is refused
+    with a message; the instance keeps its own state."""
+    import struct
+
+    s = new_slave(opened, version)
+    s.init()
+    _drive(s, 0.0, 5, seed=3)
+    before = s.get([POS, VEL, ACC, CMD, LOAD])
+    blob = s.fmu.serializeFMUState(s.fmu.getFMUState())
+    off = _state_fields(blob)
+    nan = struct.pack("<d", float("nan"))
+    cases = [
+        ("mode", struct.pack("<i", 1 | 4), "invalid mode 5"),
+        ("mode", struct.pack("<i", 3), "invalid mode 3"),
+        ("mode", struct.pack("<i", 0), "invalid mode 0"),
+        ("x_ready", struct.pack("<i", 7), "initial-state flag 7"),
+        ("x_ready", struct.pack("<i", 0), "without an initialized system state"),
+        ("time", nan, "time nan is not finite"),
+        ("x", nan, "x[0] = nan is not finite"),
+        ("u", struct.pack("<d", float("inf")), "input 'command' = inf"),
+        ("p", nan, "parameter '"),
+    ]
+    for field, value, message in cases:
+        bad = bytearray(blob)
+        bad[off[field]:off[field] + len(value)] = value
+        s.expect_error(s.fmu.deserializeFMUState, bytes(bad), contains=message)
+    assert s.get([POS, VEL, ACC, CMD, LOAD]) == before
+    st = s.fmu.deserializeFMUState(blob)  # the untouched state still loads
+    s.fmu.setFMUState(st)
+    s.fmu.freeFMUState(st)
+    s.free()
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_one_do_step_is_bounded_by_the_declared_maximum_step(opened, version, fmus):
+    """doStep longer than the declared maximum communication step (MAX_STEPS internal steps,
+    stated in the model description) is an error at once, not hours of computation."""
+    from lpvpc.fmu_build import MAX_STEPS
+
+    md, _ = opened[version]
+    step = float(md.defaultExperiment.stepSize)
+    assert f"at most {MAX_STEPS * step!r} s" in md.description
+    s = new_slave(opened, version)
+    s.init()
+    s.expect_error(s.step, 0.0, (MAX_STEPS + 1) * step, contains="maximum communication step")
+    s.free()
+    s = new_slave(opened, version)
+    s.init()
+    s.expect_error(s.step, 0.0, 1e9, contains="maximum communication step")
+    s.free()
+    s = new_slave(opened, version)
+    s.init()
+    s.step(0.0, MAX_STEPS * step)  # the maximum itself is allowed
+    assert all(math.isfinite(v) for v in s.get([POS, VEL, ACC]))
+    s.free()
+
+
 @pytest.mark.parametrize("version", [2, 3])
 def test_reset_gives_the_same_run_again(opened, version):
     s = new_slave(opened, version)

@@ -13,11 +13,14 @@
  *   - inputs u are set at communication point t_k; outputs read at t_k are g(x, u, p)
  *     with the current inputs (direct feedthrough);
  *   - DoStep(t_k, h): h > 0, |t_k - time| <= 1e-9 * max(1, |time|), h an integer
- *     multiple n of SYS_STEP (relative tolerance 1e-9); applies n updates with the
+ *     multiple n of SYS_STEP (relative tolerance 1e-9), n <= SYS_MAX_STEPS (the declared
+ *     maximum communication step, so one call's work is bounded); applies n updates with the
  *     input held, then time = t_k + h. Every state and output is checked finite;
  *     a non-finite value or a failing system function rolls the instance back to
  *     t_k, logs why and returns an error (the instance is then in the error state:
  *     get values / FMU state, set FMU state, reset or free).
+ *   - a state given to SetFMUState / DeserializeFMUState is checked field by field (tag,
+ *     version, dimensions, GUID, mode, flags, finite time, state, inputs and parameters);
  *   - wrong calls (illegal call sequence, unknown value reference, NaN/inf value,
  *     fixed parameter after initialization, bad step) return an error, log a message
  *     through the logger callback and leave the instance unchanged.
@@ -58,6 +61,9 @@
 #define VR_END (VR_PAR0 + (unsigned)SYS_NP)
 #define VR_MIN (CS_HAS_TIME_VR ? VR_TIME : VR_OUT0)
 
+#ifndef SYS_MAX_STEPS
+#define SYS_MAX_STEPS 1000000 /* internal steps one doStep may take (the declared maximum step) */
+#endif
 #define TIME_TOL 1e-9 /* relative tolerance on the communication point */
 #define STEP_TOL 1e-9 /* relative tolerance on h being a multiple of SYS_STEP */
 
@@ -539,17 +545,46 @@ static void fill_state(const Instance *c, FmuState *st)
 
 static int valid_state(const Instance *c, const FmuState *st, const char *fn)
 {
+    int bad;
+    const CoreState *s = &st->s;
     if (memcmp(st->magic, CS_STATE_MAGIC, sizeof st->magic) != 0 || st->version != STATE_VERSION) {
         log_error(c, "%s: not an FMU state of this wrapper (bad magic or version).", fn);
         return 0;
     }
     if (st->token_hash != c->token_hash || st->nx != SYS_NX || st->nu != SYS_NU || st->np != SYS_NP ||
-        st->ny != SYS_NY) {
+        st->ny != SYS_NY || st->pad != 0) {
         log_error(c, "%s: the FMU state belongs to another FMU (" CS_TOKEN_NAME " or dimensions differ).", fn);
         return 0;
     }
-    if (!(st->s.mode & MODE_ANY)) {
-        log_error(c, "%s: the FMU state has an invalid mode %d.", fn, (int)st->s.mode);
+    /* A state may come from a file: every field is checked, so that no mode, flag or number
+     * reachable through fmi*SetFMUState is one the instance could not have reached itself. */
+    if (s->mode != MODE_INSTANTIATED && s->mode != MODE_INIT && s->mode != MODE_STEP && s->mode != MODE_TERMINATED &&
+        s->mode != MODE_ERROR) {
+        log_error(c, "%s: the FMU state has an invalid mode %d.", fn, (int)s->mode);
+        return 0;
+    }
+    if (s->x_ready != 0 && s->x_ready != 1) {
+        log_error(c, "%s: the FMU state has an invalid initial-state flag %d.", fn, (int)s->x_ready);
+        return 0;
+    }
+    if (!s->x_ready && (s->mode & (MODE_STEP | MODE_TERMINATED | MODE_ERROR))) {
+        log_error(c, "%s: the FMU state is in %s without an initialized system state.", fn, mode_name(s->mode));
+        return 0;
+    }
+    if (!isfinite(s->time)) {
+        log_error(c, "%s: the FMU state's time %g is not finite.", fn, s->time);
+        return 0;
+    }
+    if (s->x_ready && !all_finite(s->x, SYS_NX, &bad)) {
+        log_error(c, "%s: the FMU state's system state x[%d] = %g is not finite.", fn, bad, s->x[bad]);
+        return 0;
+    }
+    if (!all_finite(s->u, SYS_NU, &bad)) {
+        log_error(c, "%s: the FMU state's input '%s' = %g is not finite.", fn, input_names[bad], s->u[bad]);
+        return 0;
+    }
+    if (!all_finite(s->p, SYS_NP, &bad)) {
+        log_error(c, "%s: the FMU state's parameter '%s' = %g is not finite.", fn, param_names[bad], s->p[bad]);
         return 0;
     }
     return 1;
@@ -679,9 +714,10 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
         return CS_ERROR;
     }
     nsteps = h / (double)SYS_STEP;
-    if (nsteps > 1e12) {
-        log_error(c, "%s: communicationStepSize = %g s is too large (%g internal steps of %g s).", fn, h, nsteps,
-                  (double)SYS_STEP);
+    if (nsteps > (double)SYS_MAX_STEPS + 0.5) {
+        log_error(c, "%s: communicationStepSize = %g s is larger than this FMU's maximum communication step "
+                     "%g s (%d internal steps of %g s; the bound keeps one doStep short).",
+                  fn, h, (double)SYS_MAX_STEPS * (double)SYS_STEP, SYS_MAX_STEPS, (double)SYS_STEP);
         return CS_ERROR;
     }
     n = (long long)(nsteps + 0.5);
