@@ -265,11 +265,9 @@ class LPVPCModel:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "model") -> "LPVPCModel":
-        if not isinstance(d, dict) or d.get("format") != FORMAT:
-            raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
-        if d.get("format_version") not in (FORMAT_VERSION, FORMAT_VERSION_EFFECTS):
-            raise ModelFileError(f"{source}: unsupported model format_version {d.get('format_version')!r} "
-                                 f"(expected {FORMAT_VERSION} or {FORMAT_VERSION_EFFECTS})")
+        from .modelfile import check_model_dict
+
+        check_model_dict(d, source)  # the schema and its limits, before anything is built
         try:
             intr, refl = d["intrinsic"], d["reflex"]
             model = cls(
@@ -336,14 +334,9 @@ class LPVPCModel:
 
     @classmethod
     def load(cls, path) -> "LPVPCModel":
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ModelFileError(f"{path}: model file not found") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ModelFileError(f"{path}: corrupt model file ({exc})") from None
-        return cls.from_dict(d, source=str(path))
+        from .modelfile import read_model_file
+
+        return cls.from_dict(read_model_file(path), source=str(path))
 
     @property
     def model_hash(self) -> str:

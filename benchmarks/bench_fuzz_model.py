@@ -1,0 +1,200 @@
+"""Fuzz benchmark of the model loader (lpvpc.modelfile): random mutations of a real model file.
+
+    python benchmarks/bench_fuzz_model.py [--model model.json] [--cases 5000] [--seed 0]
+
+Without ``--model`` it identifies a model from the virtual subject (seed 0, 60 s
+multilevel record at 100 Hz). Each case mutates the model's JSON tree (a value replaced
+by a hostile one, a key deleted, a list grown, shrunk or duplicated, a container's type
+changed, a number scaled) or its text (truncated, a byte flipped or inserted), writes it
+to a file and loads it with ``LPVPCModel.load`` (the path every command takes). A case
+passes when it either loads, and then predicts a finite torque on a short record, or is
+refused with a one-line :class:`~lpvpc.errors.ModelFileError`; anything else (another
+exception, a multi-line message, a non-finite prediction) is counted as a traceback.
+Prints a table and writes it to ``benchmarks/results/fuzz_model.txt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from lpvpc.errors import ModelFileError  # noqa: E402
+from lpvpc.model import LPVPCModel  # noqa: E402
+
+HOSTILE_VALUES = [0, -1, 1, 2, 3.9, -0.5, 1e300, -1e308, 1e-320, math.inf, -math.inf, math.nan, True, False, None,
+                  "", "x", "rad", "deg", "chebyshev", "hinge", "linear", [], {}, [[]], [0.0], [[1.0, 2.0]],
+                  10**9, -10**9, 2**63, 10**400, 100_000, 0.0, 1.0, -1.0]
+
+
+def _paths(tree, prefix=()):
+    """Every (path, value) in a JSON tree."""
+    out = [(prefix, tree)]
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            out += _paths(v, prefix + (k,))
+    elif isinstance(tree, list):
+        for i, v in enumerate(tree):
+            out += _paths(v, prefix + (i,))
+    return out
+
+
+def _mutate_tree(d, rng):
+    paths = [p for p, _ in _paths(d) if p]
+    path = paths[rng.integers(len(paths))]
+    parent = d
+    for k in path[:-1]:
+        parent = parent[k]
+    key, value = path[-1], parent[path[-1]]
+    op = rng.integers(9)
+    if op == 0:
+        parent[key] = HOSTILE_VALUES[rng.integers(len(HOSTILE_VALUES))]
+    elif op == 1 and isinstance(parent, dict):
+        del parent[key]
+    elif op == 2 and isinstance(value, (int, float)) and not isinstance(value, bool):
+        parent[key] = value * float(10.0 ** rng.uniform(-12, 12)) * (-1 if rng.random() < 0.3 else 1)
+    elif op == 3 and isinstance(value, list):
+        n = int(rng.choice([1, 2, 10, 1000, 50_000]))
+        filler = value[-1] if value else 0.0
+        value.extend(copy.deepcopy(filler) for _ in range(n))
+    elif op == 4 and isinstance(value, list) and value:
+        del value[rng.integers(len(value)):]
+    elif op == 5 and isinstance(value, list) and value:
+        value.insert(rng.integers(len(value)), copy.deepcopy(value[rng.integers(len(value))]))
+    elif op == 6 and isinstance(value, list):
+        parent[key] = {str(i): v for i, v in enumerate(value)}
+    elif op == 7 and isinstance(value, (int, float)) and not isinstance(value, bool):
+        parent[key] = value + int(rng.choice([-1, 1, 10**6]))
+    elif op == 8:
+        parent[key] = f"__DEEP_{int(rng.choice([10, 40, 1000, 100_000]))}__"  # nested lists, put in as text
+    else:
+        parent[key] = HOSTILE_VALUES[rng.integers(len(HOSTILE_VALUES))]
+    return d
+
+
+def _mutate_text(text, rng):
+    op = rng.integers(3)
+    i = int(rng.integers(len(text)))
+    if op == 0:
+        return text[:i]
+    if op == 1:
+        return text[:i] + chr(int(rng.integers(32, 127))) + text[i + 1:]
+    return text[:i] + "[{\"}],:0e9-"[rng.integers(11)] + text[i:]
+
+
+def _record(n=300, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    position = 0.03 * np.sign(np.sin(2 * np.pi * t / 37.0)) + 0.002 * rng.standard_normal(n)
+    scheduling = -0.1 + 0.2 * np.sin(2 * np.pi * t / n)
+    return position, scheduling
+
+
+def _signals(model, n):
+    return {s: np.linspace(0.0, 1.0, n) for s in model.signals}
+
+
+def fuzz(base: dict, n_cases: int = 5000, seed: int = 0) -> dict:
+    """Run ``n_cases`` mutations of the model dict ``base``; returns counts, the slowest
+    case (s) and the failures (case index, mutation, message)."""
+    rng = np.random.default_rng(seed)
+    position, scheduling = _record()
+    base_text = json.dumps(base)
+    out = {"cases": n_cases, "loaded": 0, "refused": 0, "tracebacks": [], "slowest_s": 0.0}
+    with tempfile.TemporaryDirectory(prefix="lpvpc-fuzz-") as tmp:
+        path = Path(tmp) / "model.json"
+        for case in range(n_cases):
+            if rng.random() < 0.2:
+                text, what = _mutate_text(base_text, rng), "text"
+            else:
+                d = copy.deepcopy(base)
+                for _ in range(int(rng.integers(1, 4))):
+                    d = _mutate_tree(d, rng)
+                text, what = json.dumps(d), "tree"
+                while "\"__DEEP_" in text:
+                    i = text.index("\"__DEEP_")
+                    j = text.index("__\"", i + 8)
+                    depth = int(text[i + 8:j])
+                    text = text[:i] + "[" * depth + "]" * depth + text[j + 3:]
+            path.write_text(text)
+            t0 = time.perf_counter()
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    model = LPVPCModel.load(path)
+                    pred = model.predict(position, scheduling, signals=_signals(model, len(position)))
+                    pred_c = model.predict(position, scheduling, causal=True, signals=_signals(model, len(position)))
+                if not (np.all(np.isfinite(pred.total)) and np.all(np.isfinite(pred_c.total))):
+                    out["tracebacks"].append((case, what, "loaded, but the prediction is not finite"))
+                else:
+                    out["loaded"] += 1
+            except ModelFileError as exc:
+                if "\n" in str(exc) or not str(exc):
+                    out["tracebacks"].append((case, what, f"refused, not in one line: {str(exc)[:200]!r}"))
+                else:
+                    out["refused"] += 1
+            except Exception:  # noqa: BLE001 - the point is to catch everything else
+                out["tracebacks"].append((case, what, traceback.format_exc(limit=3)[-600:]))
+            out["slowest_s"] = max(out["slowest_s"], time.perf_counter() - t0)
+    return out
+
+
+def _virtual_subject_model(tmp):
+    from lpvpc.data import load_identification_data, write_trial_csv
+    from lpvpc.identify import identify
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=0, duration=60.0)
+    pt, ut = Path(tmp) / "PT.csv", Path(tmp) / "UT.csv"
+    write_trial_csv(pair.pt, pt)
+    write_trial_csv(pair.ut, ut)
+    return identify(load_identification_data(pt=pt, ut=ut)).to_dict()
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--model", help="model file to mutate (default: identified from the virtual subject)")
+    ap.add_argument("--cases", type=int, default=5000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "fuzz_model.txt"))
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        base = json.loads(Path(args.model).read_text()) if args.model else _virtual_subject_model(tmp)
+    t0 = time.perf_counter()
+    r = fuzz(base, args.cases, args.seed)
+    elapsed = time.perf_counter() - t0
+    lines = [
+        "Fuzz benchmark of the model loader (benchmarks/bench_fuzz_model.py)",
+        f"model: {args.model or 'virtual subject, seed 0, 60 s at 100 Hz'}; seed {args.seed}; "
+        f"load average {os.getloadavg()[0]:.1f}",
+        "",
+        f"{'cases':>28}: {r['cases']}",
+        f"{'loaded (finite prediction)':>28}: {r['loaded']}",
+        f"{'refused in one line':>28}: {r['refused']}",
+        f"{'tracebacks / other failures':>28}: {len(r['tracebacks'])}",
+        f"{'slowest case':>28}: {r['slowest_s'] * 1000:.0f} ms (load + two predictions of 300 samples)",
+        f"{'total':>28}: {elapsed:.1f} s",
+    ]
+    for case, what, msg in r["tracebacks"][:10]:
+        lines += ["", f"case {case} ({what}):", msg]
+    text = "\n".join(lines) + "\n"
+    print(text, end="")
+    Path(args.out).write_text(text)
+    return 1 if r["tracebacks"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,457 @@
+"""Model files as untrusted input: the one check every command runs before building anything.
+
+A model file is e-mailed between labs and edited by hand. Whatever reaches
+:class:`lpvpc.model.LPVPCModel` (and from there numpy prediction, CasADi code generation,
+the C compiler and the FMU) has first passed :func:`read_model_file` (the bytes: a regular
+file, at most :data:`MAX_FILE_BYTES`, UTF-8 JSON, no duplicate keys, nesting at most
+:data:`MAX_NESTING_DEPTH`) and :func:`check_model_dict` (the schema: types, shapes, finite
+values, and limits that bound the work of export and prediction). Each refusal is a
+:class:`~lpvpc.errors.ModelFileError` naming the field, its value and the limit by name.
+
+The limits are generous for any identified ankle model (the default identification at
+100 Hz has 7 lags, a delay of 4 samples, orders <= 5, state order 2, ~120 coefficients)
+and keep what passes cheap: at the limits an FMU export takes seconds and prediction's
+memory grows linearly with the record (see ``benchmarks/bench_fuzz_model.py``).
+
+Extending the format: the fields known here are checked strictly; other top-level
+sections are allowed (bounded by the size and nesting limits). A module that adds a
+section registers its check in :data:`SECTION_CHECKS` (``name -> check(value, where,
+problems, d)``, appending one-line problems) so that every command runs it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import stat
+
+import numpy as np
+
+from .errors import ModelFileError
+
+# --------------------------------------------------------------------------- limits
+MAX_FILE_BYTES = 8 * 1024 * 1024  # bytes read from a model file (the default model is ~6 KB)
+MAX_NESTING_DEPTH = 32  # JSON nesting (a model needs 5)
+MAX_FS = 100_000.0  # Hz: sampling rate
+MAX_LAG = 256  # samples: |lag| of the two-sided and the causal intrinsic IRF
+MAX_DELAY = 1000  # samples: reflex delay (1 s at 1 kHz)
+MAX_BASIS_ORDER = 16  # order of every basis (scheduling, velocity, effects)
+MAX_STATE_ORDER = 12  # order m of the reflex linear dynamics
+MAX_COEFFICIENTS = 40_000  # identified coefficients in all arrays (each becomes an FMU parameter)
+MAX_ABS_VALUE = 1e9  # magnitude of any coefficient and basis range bound (SI units)
+MIN_BASIS_SPAN = 1e-10  # hi - lo of a basis range
+MAX_SPECTRAL_RADIUS = 1.0  # reflex dynamics A: all eigenvalues strictly inside the unit circle
+MAX_ITEMS = 1_000_000  # JSON values in the whole file
+
+POSITION_UNITS = ("rad", "deg")
+TORQUE_SIGNS = (1.0, -1.0)
+
+_INT_SETTINGS = {"irf_lags": MAX_LAG, "causal_lags": MAX_LAG, "intrinsic_order": MAX_BASIS_ORDER,
+                 "reflex_order": MAX_BASIS_ORDER, "velocity_order": MAX_BASIS_ORDER,
+                 "state_order": MAX_STATE_ORDER, "min_state_order": MAX_STATE_ORDER,
+                 "max_state_order": MAX_STATE_ORDER, "horizon": 10 * MAX_LAG, "max_iter": 100_000}
+
+
+# --------------------------------------------------------------------------- bytes
+def _no_duplicate_keys(pairs):
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"duplicate key {key!r}")
+        out[key] = value
+    return out
+
+
+def read_model_file(path) -> dict:
+    """The parsed JSON of a model file, refused unless it is a regular file of at most
+    :data:`MAX_FILE_BYTES` bytes holding UTF-8 JSON without duplicate keys, nested at most
+    :data:`MAX_NESTING_DEPTH` deep. The schema is :func:`check_model_dict`'s job."""
+    name = str(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ModelFileError(f"{name}: model file not found") from None
+    except OSError as exc:
+        raise ModelFileError(f"{name}: cannot read the model file ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ModelFileError(f"{name}: not a regular file (a model file is a JSON file)")
+    if st.st_size > MAX_FILE_BYTES:
+        raise ModelFileError(f"{name}: {st.st_size} bytes exceeds MAX_FILE_BYTES = {MAX_FILE_BYTES}")
+    try:
+        with open(path, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the stat
+                raise ModelFileError(f"{name}: not a regular file (a model file is a JSON file)")
+            raw = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ModelFileError(f"{name}: cannot read the model file ({exc.strerror or exc})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ModelFileError(f"{name}: more than MAX_FILE_BYTES = {MAX_FILE_BYTES} bytes")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ModelFileError(f"{name}: corrupt model file (not UTF-8 text: byte {exc.start})") from None
+    try:
+        d = json.loads(text, object_pairs_hook=_no_duplicate_keys)
+    except RecursionError:
+        raise ModelFileError(f"{name}: JSON nested deeper than MAX_NESTING_DEPTH = {MAX_NESTING_DEPTH}") from None
+    except MemoryError:
+        raise ModelFileError(f"{name}: corrupt model file (out of memory while parsing)") from None
+    except ValueError as exc:  # JSONDecodeError, duplicate keys, integers too long to convert
+        raise ModelFileError(f"{name}: corrupt model file ({_short(exc)})") from None
+    _check_tree(d, name)
+    return d
+
+
+def _short(exc, n=160) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _check_tree(d, name):
+    """Nesting depth and number of values, without recursion."""
+    stack, count = [(d, 1)], 0
+    while stack:
+        value, depth = stack.pop()
+        count += 1
+        if depth > MAX_NESTING_DEPTH:
+            raise ModelFileError(f"{name}: JSON nested deeper than MAX_NESTING_DEPTH = {MAX_NESTING_DEPTH}")
+        if count > MAX_ITEMS:
+            raise ModelFileError(f"{name}: more than MAX_ITEMS = {MAX_ITEMS} JSON values")
+        if isinstance(value, dict):
+            stack.extend((v, depth + 1) for v in value.values())
+        elif isinstance(value, list):
+            stack.extend((v, depth + 1) for v in value)
+
+
+# --------------------------------------------------------------------------- schema
+class _Refused(Exception):
+    """A problem after which the rest of a section cannot be checked."""
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _isfinite(x) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an integer beyond the float range
+        return False
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _show(x, n=40) -> str:
+    text = repr(x)
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _number(x, where, problems, *, lo=-MAX_ABS_VALUE, hi=MAX_ABS_VALUE, limit="MAX_ABS_VALUE"):
+    if not _is_number(x):
+        problems.append(f"{where} must be a number, got {_show(x)}")
+        return None
+    if not _isfinite(x):
+        problems.append(f"{where} = {x!r} is not finite")
+        return None
+    if not lo <= x <= hi:
+        problems.append(f"{where} = {_show(x)} outside [{lo:g}, {hi:g}] ({limit})")
+        return None
+    return float(x)
+
+
+def _integer(x, where, problems, lo, hi, limit):
+    if not _is_int(x):
+        problems.append(f"{where} must be an integer, got {_show(x)}")
+        return None
+    if not lo <= x <= hi:
+        problems.append(f"{where} = {_show(x)} outside [{lo}, {hi}] ({limit})")
+        return None
+    return x
+
+
+def _dict(x, where, problems, required=False):
+    if x is None and not required:
+        return {}
+    if not isinstance(x, dict):
+        problems.append(f"{where} must be an object, got {type(x).__name__}")
+        raise _Refused
+    return x
+
+
+def _array(x, where, problems, ndim, budget) -> np.ndarray:
+    """A rectangular list (ndim 1) or list of lists (ndim 2) of finite numbers of
+    magnitude <= MAX_ABS_VALUE, as a float array."""
+    rows = x if ndim == 2 else [x]
+    if not isinstance(x, list) or (ndim == 2 and not all(isinstance(r, list) for r in rows)):
+        problems.append(f"{where} must be a {'list of lists' if ndim == 2 else 'list'} of numbers")
+        raise _Refused
+    size = sum(len(r) for r in rows)
+    budget[0] += size
+    if budget[0] > MAX_COEFFICIENTS:
+        problems.append(f"more than MAX_COEFFICIENTS = {MAX_COEFFICIENTS} coefficients (at {where})")
+        raise _Refused
+    if ndim == 2 and len({len(r) for r in rows}) > 1:
+        problems.append(f"{where} has rows of different lengths")
+        raise _Refused
+    for i, r in enumerate(rows):
+        for j, v in enumerate(r):
+            if not _is_number(v) or (isinstance(v, int) and abs(v) > MAX_ABS_VALUE):
+                problems.append(f"{where}{f'[{i}]' if ndim == 2 else ''}[{j}] must be a number of magnitude at "
+                                f"most MAX_ABS_VALUE = {MAX_ABS_VALUE:g}, got {_show(v)}")
+                raise _Refused
+    a = np.array(x, dtype=float)
+    if ndim == 2 and a.ndim == 1:  # []
+        a = a.reshape(0, 0)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        problems.append(f"{where}: {int(bad.sum())} non-finite values")
+        raise _Refused
+    big = np.abs(a) > MAX_ABS_VALUE
+    if big.any():
+        problems.append(f"{where}: {int(big.sum())} values of magnitude above MAX_ABS_VALUE = {MAX_ABS_VALUE:g}")
+        raise _Refused
+    return a
+
+
+def _shape(a, expected, where, problems):
+    if a.shape != expected:
+        problems.append(f"{where} has shape {a.shape}, expected {expected}")
+        raise _Refused
+
+
+def _lags(x, where, problems, lo):
+    if not isinstance(x, list) or not x:
+        problems.append(f"{where} must be a non-empty list of integers")
+        raise _Refused
+    if len(x) > 2 * MAX_LAG + 1:
+        problems.append(f"{where}: {len(x)} lags exceed 2 MAX_LAG + 1 = {2 * MAX_LAG + 1}")
+        raise _Refused
+    out = []
+    for i, v in enumerate(x):
+        if _integer(v, f"{where}[{i}]", problems, lo, MAX_LAG, "MAX_LAG") is None:
+            raise _Refused
+        out.append(v)
+    if len(set(out)) != len(out):
+        dup = sorted({v for v in out if out.count(v) > 1})
+        problems.append(f"{where}: duplicate lags {dup}")
+        raise _Refused
+    return out
+
+
+def _basis(x, where, problems):
+    from .basis import EXTRAPOLATIONS, FAMILIES
+
+    b = _dict(x, where, problems, required=True)
+    unknown = sorted(set(b) - {"family", "order", "lo", "hi", "extrapolation"})
+    if unknown:
+        problems.append(f"{where}: unknown field(s) {', '.join(unknown)}")
+        raise _Refused
+    family, extrap = b.get("family"), b.get("extrapolation", "clip")
+    if family not in FAMILIES:
+        problems.append(f"{where}.family must be one of {', '.join(FAMILIES)}, got {_show(family)}")
+        raise _Refused
+    if extrap not in EXTRAPOLATIONS:
+        problems.append(f"{where}.extrapolation must be one of {', '.join(EXTRAPOLATIONS)}, got {_show(extrap)}")
+        raise _Refused
+    if family == "gaussian" and extrap != "clip":
+        problems.append(f"{where}: a gaussian basis supports only extrapolation 'clip'")
+        raise _Refused
+    order = _integer(b.get("order"), f"{where}.order", problems, 0, MAX_BASIS_ORDER, "MAX_BASIS_ORDER")
+    lo, hi = _number(b.get("lo"), f"{where}.lo", problems), _number(b.get("hi"), f"{where}.hi", problems)
+    if order is None or lo is None or hi is None:
+        raise _Refused
+    if not hi - lo >= MIN_BASIS_SPAN:
+        problems.append(f"{where}: range [{lo!r}, {hi!r}] narrower than MIN_BASIS_SPAN = {MIN_BASIS_SPAN:g}")
+        raise _Refused
+    return order + 1
+
+
+def _check_intrinsic(x, where, problems, d, budget):
+    s = _dict(x, where, problems, required=True)
+    lags = _lags(s.get("lags"), f"{where}.lags", problems, -MAX_LAG)
+    causal = _lags(s.get("causal_lags"), f"{where}.causal_lags", problems, 0)
+    n_i = _basis(s.get("basis"), f"{where}.basis", problems)
+    _shape(_array(s.get("H"), f"{where}.H", problems, 2, budget), (len(lags), n_i), f"{where}.H", problems)
+    _shape(_array(s.get("H_causal"), f"{where}.H_causal", problems, 2, budget), (len(causal) + 2, n_i),
+           f"{where}.H_causal", problems)
+
+
+def _check_reflex(x, where, problems, d, budget):
+    s = _dict(x, where, problems, required=True)
+    if _integer(s.get("delay"), f"{where}.delay", problems, 1, MAX_DELAY, "MAX_DELAY (samples)") is None:
+        raise _Refused
+    n_v = _basis(s.get("velocity_basis"), f"{where}.velocity_basis", problems)
+    n_r = _basis(s.get("rho_basis"), f"{where}.rho_basis", problems)
+    _shape(_array(s.get("Omega"), f"{where}.Omega", problems, 2, budget), (n_v, n_r), f"{where}.Omega", problems)
+    A = _array(s.get("A"), f"{where}.A", problems, 2, budget)
+    m = A.shape[0]
+    if not 1 <= m <= MAX_STATE_ORDER:
+        problems.append(f"{where}.A: state order {m} outside [1, {MAX_STATE_ORDER}] (MAX_STATE_ORDER)")
+        raise _Refused
+    _shape(A, (m, m), f"{where}.A", problems)
+    _shape(_array(s.get("B"), f"{where}.B", problems, 1, budget), (m,), f"{where}.B", problems)
+    _shape(_array(s.get("C"), f"{where}.C", problems, 1, budget), (m,), f"{where}.C", problems)
+    if _number(s.get("D"), f"{where}.D", problems) is None:
+        raise _Refused
+    radius = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if not radius < MAX_SPECTRAL_RADIUS:
+        problems.append(f"{where}.A: unstable reflex dynamics, spectral radius {radius:.6g} "
+                        f"(must be below MAX_SPECTRAL_RADIUS = {MAX_SPECTRAL_RADIUS:g})")
+        raise _Refused
+
+
+def _check_conventions(x, where, problems, d, budget):
+    c = _dict(x, where, problems)
+    if "torque_sign" in c and not (_is_number(c["torque_sign"]) and c["torque_sign"] in TORQUE_SIGNS):
+        problems.append(f"{where}.torque_sign must be 1 or -1, got {_show(c['torque_sign'])}")
+    if "position_unit" in c and c["position_unit"] not in POSITION_UNITS:
+        problems.append(f"{where}.position_unit must be one of {', '.join(POSITION_UNITS)}, "
+                        f"got {_show(c['position_unit'])}")
+
+
+def _check_settings(x, where, problems, d, budget):
+    s = _dict(x, where, problems)
+    for key, top in _INT_SETTINGS.items():
+        v = s.get(key)
+        if v is not None and not (_is_number(v) and _isfinite(v) and 0 <= v <= top):
+            problems.append(f"{where}.{key} = {_show(v)} outside [0, {top}]")
+    if s.get("reflex_delay") is not None:  # seconds
+        _number(s["reflex_delay"], f"{where}.reflex_delay", problems, lo=0.0, hi=MAX_DELAY / d["fs"],
+                limit="MAX_DELAY samples")
+    if "effects" in s and not isinstance(s["effects"], (list, tuple)):
+        problems.append(f"{where}.effects must be a list of effect names")
+
+
+def _check_fit(x, where, problems, d, budget):
+    f = _dict(x, where, problems)
+    if "velocity_p99" in f:
+        _number(f["velocity_p99"], f"{where}.velocity_p99", problems)
+
+
+def _check_effects(x, where, problems, d, budget):
+    from .effects import CATALOG
+
+    if x is None:
+        return
+    if not isinstance(x, list):
+        problems.append(f"{where} must be a list")
+        raise _Refused
+    if len(x) > len(CATALOG):
+        problems.append(f"{where}: {len(x)} effects, more than the catalog's {len(CATALOG)}")
+        raise _Refused
+    m = len(d["reflex"]["A"])
+    names = []
+    for k, e in enumerate(x):
+        w = f"{where}[{k}]"
+        e = _dict(e, w, problems, required=True)
+        name = e.get("name")
+        if not isinstance(name, str) or name not in CATALOG:
+            problems.append(f"{w}.name must be one of {', '.join(CATALOG)}, got {_show(name)}")
+            raise _Refused
+        if name in names:
+            problems.append(f"{where}: effect {name} listed twice")
+            raise _Refused
+        names.append(name)
+        eff = CATALOG[name]
+        w = f"{where}[{name}]"
+        unknown = sorted(set(e) - {"name", "options", "H", "H_causal", "Theta", "basis", "channel_basis"})
+        if unknown:
+            problems.append(f"{w}: unknown field(s) {', '.join(unknown)}")
+            raise _Refused
+        sizes = {key: _basis(e[key], f"{w}.{key}", problems) for key in ("basis", "channel_basis") if key in e}
+        need = (("H", "H_causal") if eff.channels is not None else ()) + (
+            ("Theta", "basis") if eff.features is not None else ())
+        missing = [key for key in need if key not in e]
+        if missing:
+            problems.append(f"{w}: missing {', '.join(missing)}")
+            raise _Refused
+        arrays = {key: _array(e[key], f"{w}.{key}", problems, 2, budget) for key in ("H", "H_causal", "Theta")
+                  if key in e}
+        opts = _dict(e.get("options"), f"{w}.options", problems)
+        for key, v in opts.items():
+            ok = isinstance(v, (bool, str)) or (_is_number(v) and _isfinite(v)) or (
+                isinstance(v, list) and len(v) <= MAX_STATE_ORDER
+                and all(_is_number(u) and _isfinite(u) for u in v))
+            if not ok:
+                problems.append(f"{w}.options.{key}: not a finite number, flag, name or short list of numbers")
+                raise _Refused
+        if eff.uses_reflex:
+            if not (opts.get("m") == m and _is_int(opts.get("m")) and isinstance(opts.get("kappa"), list)
+                    and len(opts["kappa"]) == m and _is_number(opts.get("c_kappa"))):
+                problems.append(f"{w}.options: needs m = {m} (the reflex state order), kappa ({m} numbers) and c_kappa")
+                raise _Refused
+        intr = d["intrinsic"]
+        if eff.channels is not None:
+            n_c = sizes.get("channel_basis", intr["basis"]["order"] + 1)
+            width = _n_channels(eff) * n_c
+            _shape(arrays["H"], (len(intr["lags"]), width), f"{w}.H", problems)
+            _shape(arrays["H_causal"], (len(intr["causal_lags"]) + 2, width), f"{w}.H_causal", problems)
+        if eff.features is not None:
+            n_f = len(eff.feature_names(opts)) if eff.feature_names is not None else arrays["Theta"].shape[0]
+            _shape(arrays["Theta"], (n_f, sizes["basis"] - (not eff.feature_constant)), f"{w}.Theta", problems)
+
+
+def _n_channels(effect) -> int:
+    """How many channels schedule an effect's IRF (evaluated on a one-sample context)."""
+    from .basis import NUMPY
+    from .effects import SIGNALS, Context
+
+    one = np.ones((1, 1))
+    ctx = Context(rho=one, velocity=one, direction=one, **{s: one for s in SIGNALS})
+    return len(effect.channels(ctx, NUMPY))
+
+
+#: Checks of the top-level sections, in order: name -> check(value, where, problems, d,
+#: budget). ``budget`` is a one-element list counting coefficients against
+#: MAX_COEFFICIENTS (pass it to :func:`_array`). Sections not listed are allowed.
+SECTION_CHECKS = {
+    "intrinsic": _check_intrinsic,
+    "reflex": _check_reflex,
+    "effects": _check_effects,
+    "conventions": _check_conventions,
+    "settings": _check_settings,
+    "fit": _check_fit,
+}
+REQUIRED_SECTIONS = ("intrinsic", "reflex")
+DICT_SECTIONS = ("settings", "provenance", "conventions", "fit", "units", "identified_ranges")
+
+
+def check_model_dict(d, source: str = "model") -> None:
+    """Refuse (:class:`~lpvpc.errors.ModelFileError`, one line naming each problem and
+    its limit) a parsed model file that lpvpc must not build anything from."""
+    from .model import FORMAT, FORMAT_VERSION, FORMAT_VERSION_EFFECTS
+
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
+    version = d.get("format_version")
+    if not _is_int(version) or version not in (FORMAT_VERSION, FORMAT_VERSION_EFFECTS):
+        raise ModelFileError(f"{source}: unsupported model format_version {_show(version)} "
+                             f"(expected {FORMAT_VERSION} or {FORMAT_VERSION_EFFECTS})")
+    problems = []
+    fs = d.get("fs")
+    if not _is_number(fs):
+        problems.append(f"fs must be a number (Hz), got {_show(fs)}")
+    elif not (_isfinite(fs) and 0 < fs <= MAX_FS):
+        problems.append(f"fs = {fs!r} Hz outside (0, {MAX_FS:g}] (MAX_FS)")
+    for key in REQUIRED_SECTIONS:
+        if key not in d:
+            problems.append(f"missing section {key!r}")
+    for key in DICT_SECTIONS:
+        if key in d and not isinstance(d[key], dict):
+            problems.append(f"{key} must be an object, got {type(d[key]).__name__}")
+    budget = [0]
+    if not problems:
+        for key, check in SECTION_CHECKS.items():
+            if key in d:
+                try:
+                    check(d[key], key, problems, d, budget)
+                except _Refused:
+                    pass
+            if problems and key in REQUIRED_SECTIONS:
+                break  # the rest refers to these sections
+    if problems:
+        raise ModelFileError(f"{source}: invalid model file: " + "; ".join(problems[:4])
+                             + (f"; and {len(problems) - 4} more" if len(problems) > 4 else ""))
