@@ -34,11 +34,11 @@ from .errors import ModelFileError
 MAX_FILE_BYTES = 8 * 1024 * 1024  # bytes read from a model file (the default model is ~6 KB)
 MAX_NESTING_DEPTH = 32  # JSON nesting (a model needs 5)
 MAX_FS = 100_000.0  # Hz: sampling rate
-MAX_LAG = 256  # samples: |lag| of the two-sided and the causal intrinsic IRF
-MAX_DELAY = 1000  # samples: reflex delay (1 s at 1 kHz)
-MAX_BASIS_ORDER = 16  # order of every basis (scheduling, velocity, effects)
+MAX_LAG = 128  # samples: |lag| of the two-sided intrinsic IRF (the causal IRF: MAX_LAG + 2, its default)
+MAX_DELAY = 500  # samples: reflex delay (0.5 s at 1 kHz)
+MAX_BASIS_ORDER = 12  # order of every basis (scheduling, velocity, effects)
 MAX_STATE_ORDER = 12  # order m of the reflex linear dynamics
-MAX_COEFFICIENTS = 40_000  # identified coefficients in all arrays (each becomes an FMU parameter)
+MAX_COEFFICIENTS = 5_000  # identified coefficients in all arrays (each becomes an FMU parameter)
 MAX_ABS_VALUE = 1e9  # magnitude of any coefficient and basis range bound (SI units)
 MIN_BASIS_SPAN = 1e-10  # hi - lo of a basis range
 MAX_SPECTRAL_RADIUS = 1.0  # reflex dynamics A: all eigenvalues strictly inside the unit circle
@@ -47,7 +47,7 @@ MAX_ITEMS = 1_000_000  # JSON values in the whole file
 POSITION_UNITS = ("rad", "deg")
 TORQUE_SIGNS = (1.0, -1.0)
 
-_INT_SETTINGS = {"irf_lags": MAX_LAG, "causal_lags": MAX_LAG, "intrinsic_order": MAX_BASIS_ORDER,
+_INT_SETTINGS = {"irf_lags": MAX_LAG, "causal_lags": MAX_LAG + 2, "intrinsic_order": MAX_BASIS_ORDER,
                  "reflex_order": MAX_BASIS_ORDER, "velocity_order": MAX_BASIS_ORDER,
                  "state_order": MAX_STATE_ORDER, "min_state_order": MAX_STATE_ORDER,
                  "max_state_order": MAX_STATE_ORDER, "horizon": 10 * MAX_LAG, "max_iter": 100_000}
@@ -222,7 +222,7 @@ def _shape(a, expected, where, problems):
         raise _Refused
 
 
-def _lags(x, where, problems, lo):
+def _lags(x, where, problems, lo, hi=MAX_LAG):
     if not isinstance(x, list) or not x:
         problems.append(f"{where} must be a non-empty list of integers")
         raise _Refused
@@ -231,7 +231,7 @@ def _lags(x, where, problems, lo):
         raise _Refused
     out = []
     for i, v in enumerate(x):
-        if _integer(v, f"{where}[{i}]", problems, lo, MAX_LAG, "MAX_LAG") is None:
+        if _integer(v, f"{where}[{i}]", problems, lo, hi, "MAX_LAG" if hi == MAX_LAG else "MAX_LAG + 2") is None:
             raise _Refused
         out.append(v)
     if len(set(out)) != len(out):
@@ -272,7 +272,7 @@ def _basis(x, where, problems):
 def _check_intrinsic(x, where, problems, d, budget):
     s = _dict(x, where, problems, required=True)
     lags = _lags(s.get("lags"), f"{where}.lags", problems, -MAX_LAG)
-    causal = _lags(s.get("causal_lags"), f"{where}.causal_lags", problems, 0)
+    causal = _lags(s.get("causal_lags"), f"{where}.causal_lags", problems, 0, MAX_LAG + 2)
     n_i = _basis(s.get("basis"), f"{where}.basis", problems)
     _shape(_array(s.get("H"), f"{where}.H", problems, 2, budget), (len(lags), n_i), f"{where}.H", problems)
     _shape(_array(s.get("H_causal"), f"{where}.H_causal", problems, 2, budget), (len(causal) + 2, n_i),
