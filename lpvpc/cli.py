@@ -31,6 +31,7 @@ import argparse
 import inspect
 import json
 import os
+import signal
 import sys
 import time
 import warnings
@@ -38,6 +39,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import LpvpcError, OutOfRangeWarning, UnitWarning
+from .outputs import atomic_path, check_outputs, staged_folder, write_text
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -81,6 +83,20 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
                                         torque_sign=torque_sign, target_fs=target_fs)
     return load_identification_data(pt=args.pt, ut=args.ut, position_unit=position_unit,
                                     torque_sign=torque_sign, target_fs=target_fs)
+
+
+def _data_inputs(args) -> dict:
+    return {"DATA": args.data, "--pt": args.pt, "--ut": args.ut}
+
+
+def check_report_folder(folder, markers, force) -> None:
+    """A report folder is replaced as a whole: refuse a non-empty folder that holds no
+    previous report (none of ``markers``) unless ``--force``."""
+    folder = Path(folder)
+    if force or not folder.is_dir() or any((folder / m).exists() for m in markers) or not any(folder.iterdir()):
+        return
+    raise _UsageError(f"report folder {folder} holds files but no previous report ({', '.join(markers)}); it is "
+                      "replaced as a whole: give another folder, or --force to replace it")
 
 
 def _estimator_defaults() -> dict:
@@ -139,6 +155,7 @@ def cmd_identify(args) -> int:
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
     target_fs = None if args.fs == 0 else args.fs
+    check_outputs(_data_inputs(args), {"-o": args.output})
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
     t0 = time.perf_counter()
@@ -173,6 +190,7 @@ def cmd_predict(args) -> int:
     from .errors import DataError
     from .model import LPVPCModel, vaf
 
+    check_outputs({"MODEL": args.model, **_data_inputs(args)}, {"--json": args.json, "--out": args.out})
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
@@ -207,12 +225,13 @@ def cmd_predict(args) -> int:
     print(f"VAF {metrics['vaf']:.2f} %  RMSE {metrics['rmse']:.3g} N m  ({data.n} samples at {data.fs:g} Hz, "
           f"{form} intrinsic IRF)")
     if args.json:
-        Path(args.json).write_text(json.dumps(metrics, indent=1) + "\n")
+        write_text(args.json, json.dumps(metrics, indent=1) + "\n")
         print(f"metrics:   {args.json}")
     if args.out:
         cols = [data.time, measured, pred.total, pred.intrinsic, pred.reflex, data.position, data.scheduling]
-        np.savetxt(args.out, np.column_stack(cols), delimiter=",", fmt="%.10g", comments="",
-                   header="time,measured,predicted,intrinsic,reflex,position,scheduling")
+        with atomic_path(args.out) as tmp:
+            np.savetxt(tmp, np.column_stack(cols), delimiter=",", fmt="%.10g", comments="",
+                       header="time,measured,predicted,intrinsic,reflex,position,scheduling")
         print(f"predicted: {args.out} (time s; torques N m; position, scheduling rad)")
     return 0
 
@@ -222,6 +241,8 @@ def cmd_export(args) -> int:
 
     if not (args.casadi or args.fmu):
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
+    check_outputs({"MODEL": args.model}, {"--casadi": args.casadi, "--fmu": args.fmu,
+                                          "--casadi sidecar": args.casadi and str(args.casadi) + ".json"})
     model = LPVPCModel.load(args.model)
     try:
         from . import export
@@ -287,6 +308,9 @@ def cmd_validate(args) -> int:
             raise
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
+    check_outputs({"MODEL": args.model, "--pt": args.pt, "--ut": args.ut, "--fmu": args.fmu,
+                   "--actuator-fmu": args.actuator_fmu}, {}, {"--report": args.report})
+    check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
     settings = CosimSettings(coupling=args.coupling)
     result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,
                       actuator_fmu=args.actuator_fmu, actuator_parameters=dict(args.actuator_param),
@@ -343,6 +367,11 @@ def cmd_diagnose(args) -> int:
     from .diagnose import diagnose, format_table, write_report
     from .model import LPVPCModel
 
+    check_outputs({"MODEL": args.model, **_data_inputs(args)},
+                  {"--json": args.json, "--report diagnosis.json": args.report and Path(args.report) / "diagnosis.json"},
+                  {"--report": args.report})
+    if args.report:
+        check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
     model = LPVPCModel.load(args.model)
     data = _load_for_model(args, model)
     diag = diagnose(model, data)
@@ -361,10 +390,13 @@ def cmd_diagnose(args) -> int:
         print(f"           residual correlated with {', '.join(cc)} beyond the 99 % band")
     print(f"time:      {diag.timings['total']:.2f} s")
     if args.json:
-        diag.save(args.json)
+        with atomic_path(args.json) as tmp:
+            diag.save(tmp)
         print(f"diagnosis: {args.json}")
     if args.report:
-        print(f"report:    {write_report(diag, data, args.report)}")
+        with staged_folder(args.report) as stage:
+            page = write_report(diag, data, stage)
+        print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
     return 0
 
 
@@ -373,6 +405,9 @@ def cmd_improve(args) -> int:
 
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
+    check_outputs({"--pt": args.pt, "--ut": args.ut, "--heldout-pt": args.heldout_pt, "--heldout-ut": args.heldout_ut},
+                  {"-o": args.output, "--json": args.json}, {"--report": args.report})
+    check_report_folder(args.report, ("improve.md",), args.force)
     kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
     from .data import load_identification_data
 
@@ -407,9 +442,11 @@ def cmd_improve(args) -> int:
         model.save(args.output)
         print(f"model:     {args.output} (hash {model.model_hash[:12]})")
     if args.json:
-        Path(args.json).write_text(json.dumps(ladder.to_dict(), indent=1) + "\n")
+        write_text(args.json, json.dumps(ladder.to_dict(), indent=1) + "\n")
         print(f"ladder:    {args.json}")
-    print(f"report:    {write_report(ladder, held, args.report)}")
+    with staged_folder(args.report) as stage:
+        page = write_report(ladder, held, stage)
+    print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
     return 0
 
 
@@ -477,6 +514,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "from a perturbed (PT) and an unperturbed (UT) trial; predict, and export them.",
         epilog="Units: time s, position rad, torque N m. Exit status 2 for bad input.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="print notes on stderr (e.g. CSV columns that were ignored)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("simulate", help="write a virtual-subject data set with its truth",
@@ -564,6 +603,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pt", required=True, metavar="PT", help="held-out perturbed trial (CSV or .mat)")
     p.add_argument("--ut", required=True, metavar="UT", help="held-out unperturbed trial on the same trajectory")
     p.add_argument("--report", required=True, metavar="DIR", help="folder for report.html, metrics.json, figures/")
+    p.add_argument("--force", action="store_true",
+                   help="replace the report folder even if it holds files that are not a previous report")
     p.add_argument("--min-vaf", type=float, metavar="X",
                    help="fail (exit 1) when vaf, vaf_fmu or vaf_cosim is below X percent")
     p.add_argument("--fmu", metavar="F.fmu", help="validate this model FMU, either variant (default: export one, "
@@ -615,6 +656,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_args(p, "instead of --pt/--ut")
     p.add_argument("--json", metavar="DIAGNOSIS.json", help="write the diagnosis (candidates in rank order)")
     p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.md, diagnosis.json and residual.png")
+    p.add_argument("--force", action="store_true",
+                   help="replace the report folder even if it holds files that are not a previous report")
     _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_diagnose)
 
@@ -627,6 +670,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heldout-pt", required=True, metavar="PT2", help="held-out perturbed trial")
     p.add_argument("--heldout-ut", required=True, metavar="UT2", help="held-out unperturbed trial")
     p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
+    p.add_argument("--force", action="store_true",
+                   help="replace the report folder even if it holds files that are not a previous report")
     p.add_argument("--json", metavar="LADDER.json", help="write the ladder as JSON")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
@@ -669,6 +714,48 @@ def main(argv=None) -> int:
             os.environ.setdefault(var, "1")
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = _terminate_as_interrupt()
+    try:
+        return _run(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is, so that it takes the same clean-up path as
+    Ctrl-C (temporary files and folders removed, the compiler killed)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _terminate_as_interrupt():
+    """Install the SIGTERM handler (main thread only); returns the previous one."""
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread
+        return None
+
+
+def _show_notes() -> None:
+    """--verbose: the library's notes (logging, INFO) as lines ``lpvpc: note: ...`` on stderr."""
+    import logging
+
+    logger = logging.getLogger(__package__)
+    if any(getattr(h, "lpvpc_notes", False) for h in logger.handlers):
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"{PROG}: note: %(message)s"))
+    handler.lpvpc_notes = True
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+
+
+def _run(args) -> int:
+    if getattr(args, "verbose", False):
+        _show_notes()
     with warnings.catch_warnings():
         warnings.simplefilter("always", OutOfRangeWarning)
         warnings.simplefilter("always", UnitWarning)
@@ -681,6 +768,12 @@ def main(argv=None) -> int:
         except OSError as exc:
             _err(_os_message(exc))
             return OSERROR_STATUS
+        except MemoryError:
+            _err(f"out of memory in {args.command} (input too large for this machine)")
+            return 2
+        except Terminated:
+            _err("terminated")
+            return 128 + signal.SIGTERM
         except KeyboardInterrupt:
             _err("interrupted")
             return 130

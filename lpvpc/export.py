@@ -85,6 +85,7 @@ import numpy as np
 from . import equations as eq
 from .basis import CasadiOps
 from .errors import ExportError
+from .outputs import atomic_path, write_text
 
 __all__ = [
     "VARIANTS",
@@ -469,7 +470,8 @@ def export_casadi(model, path, variant="causal") -> Path:
     step = step_function(model, variant)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        step.save(str(path))
+        with atomic_path(path) as tmp:  # temporary file + rename
+            step.save(str(tmp))
     except (OSError, RuntimeError) as exc:
         raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
     lay = state_layout(model, variant)
@@ -492,7 +494,7 @@ def export_casadi(model, path, variant="causal") -> Path:
         "model_hash": model.model_hash,
         "lpvpc_version": __version__,
     }
-    Path(str(path) + ".json").write_text(json.dumps(meta, indent=1))
+    write_text(str(path) + ".json", json.dumps(meta, indent=1))
     return path
 
 

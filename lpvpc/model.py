@@ -330,7 +330,9 @@ class LPVPCModel:
             raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems))
 
     def save(self, path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        from .outputs import write_text
+
+        write_text(path, json.dumps(self.to_dict(), indent=1))  # temporary file + rename
 
     @classmethod
     def load(cls, path) -> "LPVPCModel":

@@ -20,6 +20,7 @@ FMUs) so that bad input fails in well under a second with one :class:`lpvpc.erro
 from __future__ import annotations
 
 import datetime as _dt
+import inspect
 import platform
 import sys
 import time
@@ -34,6 +35,7 @@ from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
+from lpvpc.outputs import staged_folder
 
 from . import compare as cmp
 from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
@@ -253,7 +255,26 @@ def record_signals(model: LPVPCModel, measured) -> dict | None:
     return {n: signals[n] for n in names}
 
 
-def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actuator_fmu=None,
+def _report_path(path, report_dir) -> str:
+    """A file in the report folder by its path relative to the folder (the folder is
+    built beside its target and renamed); others as given."""
+    try:
+        return Path(path).resolve().relative_to(Path(report_dir).resolve()).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def validate(model, pt, ut, report_dir, **kwargs) -> "ValidationResult":
+    final = Path(report_dir)
+    with staged_folder(final) as stage:  # written as a whole or not at all: never two runs in one folder
+        result = _validate(model, pt, ut, stage, **kwargs)
+    result.report_dir = final
+    result.files = {k: (final / Path(v).relative_to(stage) if isinstance(v, (str, Path)) and Path(v).is_relative_to(stage)
+                        else v) for k, v in result.files.items()}
+    return result
+
+
+def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actuator_fmu=None,
              actuator_parameters: dict | None = None, calibrate: bool = True, settings: CosimSettings | None = None,
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
@@ -516,10 +537,10 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
             "record_samples": int(len(record.pt.time)),
             "position_unit": meas.meta.get("position_unit"),
             "torque_sign": meas.meta.get("torque_sign"),
-            "model_fmu": {"path": str(model_fmu.path), "sha256": model_fmu.sha256, "fmi_version": model_fmu.fmi_version,
+            "model_fmu": {"path": _report_path(model_fmu.path, report_dir), "sha256": model_fmu.sha256, "fmi_version": model_fmu.fmi_version,
                           "variant": variant, "latency_samples": int(latency),
                           "given": given_fmu is not None, "declared_model_hash": fmu_model_hash(model_fmu)},
-            "actuator_fmu": {"path": str(act_fmu.path), "sha256": act_fmu.sha256, "fmi_version": act_fmu.fmi_version,
+            "actuator_fmu": {"path": _report_path(act_fmu.path, report_dir), "sha256": act_fmu.sha256, "fmi_version": act_fmu.fmi_version,
                              "given": given_act is not None},
             "step_sizes": {"model_s": 1.0 / model.fs, "actuator_s": act_fmu.step_size,
                            "communication_s": cos.step_model},
@@ -570,3 +591,12 @@ def validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actua
 
         write_metrics(result)
     return result
+
+
+validate.__doc__ = _validate.__doc__.rstrip() + """
+
+    The report folder is built beside ``report_dir`` and swapped in when the run has
+    finished: a failed or interrupted run leaves the previous folder as it was, and a
+    folder never mixes two runs (its previous content is replaced).
+    """
+validate.__signature__ = inspect.signature(_validate)

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lpvpc.outputs import write_text
+
 __all__ = ["write_report", "write_metrics", "FIGURES"]
 
 #: file name -> (section, caption); the order of the report.
@@ -65,7 +67,7 @@ def _clean(o):
 
 def write_metrics(result) -> Path:
     path = Path(result.report_dir) / "metrics.json"
-    path.write_text(json.dumps(_clean(result.metrics), indent=1, default=_json_default) + "\n")
+    write_text(path, json.dumps(_clean(result.metrics), indent=1, default=_json_default) + "\n")
     result.files["metrics"] = path
     return path
 
@@ -609,7 +611,7 @@ def write_report(result, *, model, record, predictions) -> dict:
         figs[WHOLE_JOINT_FIGURE] = _draw_whole_joint(folder, predictions["whole_joint"])
     page = _html(result.metrics, figs, model)
     path = Path(result.report_dir) / "report.html"
-    path.write_text(page, encoding="utf-8")
+    write_text(path, page)
     result.metrics["files"] = {"report": "report.html", "metrics": "metrics.json",
                                "figures": [f"figures/{n}" for n in figs]}
     if result.metrics["cosim"].get("ssp"):

@@ -32,13 +32,13 @@ settings are in the annotation.
 from __future__ import annotations
 
 import re
-import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
 from dataclasses import asdict
 from pathlib import Path
 
 from lpvpc.errors import FMUError
+from lpvpc.outputs import atomic_path
 
 from .cosim import ACTUATOR_OUTPUTS, MODEL_OUTPUTS, CosimSettings, connections
 from .fmu import FMUInfo, inspect_fmu
@@ -273,10 +273,9 @@ def write_ssp(path, model_fmu, actuator_fmu, *, stop_time: float, communication_
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # write next to the target and rename, so a reader never sees half an archive
-    with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as tmp:
+    with atomic_path(path) as tmp:
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("SystemStructure.ssd", ssd)
             for role, info in fmus.items():
                 zf.write(info.path, f"resources/{role}.fmu")
-    Path(tmp.name).replace(path)
     return path
