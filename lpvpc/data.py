@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
+import logging
 import math
 import os
 import struct
@@ -25,6 +26,8 @@ import scipy.io
 import scipy.signal
 
 from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
+
+_log = logging.getLogger(__name__)  # notes (e.g. ignored CSV columns); the CLI shows them with --verbose
 
 OPTIONAL_CHANNELS = ("emg", "command", "scheduling")
 # EMG columns of a perturbation file (PT - UT already formed): the PT and the UT trial's.
@@ -195,42 +198,59 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     if problems:
         raise DataError(problems, source=str(path))
     body = [ln for ln in lines[header_at + 1:] if ln.strip() and not ln.lstrip().startswith("#")]
-    if not body:
-        return {c: np.empty(0) for c in names}
-    try:
-        values = np.loadtxt(body, delimiter=",", ndmin=2, dtype=float)
-    except ValueError:
-        values = None
-    if values is None or values.shape[1] != len(names):
-        raise DataError(_csv_row_problems(body, names, first_line=header_at + 2), source=str(path))
-    return {c: values[:, i] for i, c in enumerate(names)}
+    # Columns the loaders know are read as numbers; any other column (a text notes column,
+    # a trigger, a label) is ignored, whatever it holds. Every row still needs every field.
+    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS + PERTURBATION_EMG)
+    use = [i for i, c in enumerate(names) if c in known]
+    ignored = [c for c in names if c not in known]
+    if ignored:
+        _log.info("%s: ignored column(s) %s (not channels lpvpc reads)", path, ", ".join(ignored))
+    if not body or not use:
+        return {names[i]: np.empty(0) for i in use}
+    values = None
+    if '"' not in text and all(ln.count(",") == len(names) - 1 for ln in body):
+        try:
+            values = np.loadtxt(body, delimiter=",", ndmin=2, dtype=float, usecols=use)
+        except ValueError:
+            values = None
+    if values is None:  # quoted fields, ragged or unparsable rows: the careful parse
+        values, problems = _csv_rows(body, names, use, first_line=header_at + 2)
+        if problems:
+            raise DataError(problems, source=str(path))
+    return {names[i]: values[:, k] for k, i in enumerate(use)}
 
 
-def _csv_row_problems(body: list[str], names: list[str], first_line: int) -> list[str]:
-    """Slow diagnostic parse, only after the fast one failed: which rows and fields are bad.
+def _csv_rows(body: list[str], names: list[str], use: list[int], first_line: int):
+    """Slow parse (quoted fields allowed), after the fast one failed: the ``use`` columns as
+    an array, or the problems (which rows and fields are bad).
 
     Line numbers are approximate when comment or blank lines sit between data rows.
     """
     wrong_width: list[int] = []
     unparsable: dict[str, list[int]] = {}
+    rows = []
     for k, row in enumerate(csv.reader(io.StringIO("\n".join(body)))):
         line = first_line + k
         if len(row) != len(names):
             wrong_width.append(line)
             continue
-        for name, value in zip(names, row):
+        out = []
+        for i in use:
             try:
-                float(value)
+                out.append(float(row[i]))
             except ValueError:
-                unparsable.setdefault(name, []).append(line)
+                unparsable.setdefault(names[i], []).append(line)
+        rows.append(out)
     problems = []
     if wrong_width:
         problems.append(
             f"{_plural(len(wrong_width), 'row')} without {len(names)} fields, first at line {wrong_width[0]}"
         )
-    for name, rows in unparsable.items():
-        problems.append(f"column '{name}': {_plural(len(rows), 'value')} not a number, first at line {rows[0]}")
-    return problems or ["cannot parse the data rows as numbers"]
+    for name, at in unparsable.items():
+        problems.append(f"column '{name}': {_plural(len(at), 'value')} not a number, first at line {at[0]}")
+    if problems:
+        return None, problems
+    return np.array(rows, dtype=float).reshape(len(rows), len(use)), []
 
 
 def _read_mat(path: Path) -> dict[str, np.ndarray]:
