@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Sequence
 
 from lpvpc.errors import ExportError
+from lpvpc.outputs import file_mode
 
 __all__ = [
     "FmuVariable",
@@ -540,6 +541,25 @@ def _existing_guid(fmu_path: Path) -> str | None:
 # ----------------------------------------------------------------------------- build
 
 
+def check_built_fmu(folder, model_identifier: str) -> None:
+    """Check an unpacked FMU before it is written: fmpy loads its shared library, which must
+    export every FMI function of its interface (``fmi2Instantiate``, ``fmi2DoStep``, ... or
+    ``fmi3InstantiateCoSimulation``, ...), and instantiates it once. Raises
+    :class:`~lpvpc.errors.ExportError` naming what failed."""
+    from fmpy import instantiate_fmu, read_model_description
+
+    try:
+        md = read_model_description(str(folder), validate=False)
+        fmu = instantiate_fmu(str(folder), md)
+    except Exception as exc:  # noqa: BLE001 - fmpy raises plain Exceptions (missing symbol, NULL instance)
+        raise ExportError(f"the compiled FMU {model_identifier} is not usable (missing FMI functions or "
+                          f"instantiation failed): {' '.join(str(exc).split())}") from None
+    try:
+        fmu.freeInstance()
+    finally:
+        fmu.freeLibrary()
+
+
 def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx: int, step_size: float,
               outputs: list[FmuVariable], inputs: list[FmuVariable], parameters: list[FmuVariable],
               fmi_version: int = 2, description: str = "", version: str = "", author: str = "lpvpc",
@@ -576,6 +596,7 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
     """
     t0 = time.perf_counter()
     fmu_path = Path(fmu_path)
+    target = fmu_path.absolute()  # the compiler gets absolute paths: a name starting with '-' is no option
     guid, files, c_sources, md_args = _plan(
         model_identifier, system_sources, nx, step_size, outputs, inputs, parameters, fmi_version,
         description, version, author, include_dirs, extra_cflags, latency, generation_tool)
@@ -589,10 +610,10 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
     if shutil.which(cc) is None:
         raise ExportError(f"C compiler {cc!r} not found (install gcc or set CC)")
     platform_dir = _platform_dir(fmi_version)
-    fmu_path.parent.mkdir(parents=True, exist_ok=True)
+    target.parent.mkdir(parents=True, exist_ok=True)
 
-    with tempfile.TemporaryDirectory(prefix=f".{model_identifier}-", dir=fmu_path.parent) as tmp:
-        stage = Path(tmp) / "fmu"
+    with tempfile.TemporaryDirectory(prefix=f".{model_identifier}-", dir=target.parent) as tmp:
+        stage = Path(tmp).absolute() / "fmu"
         src_dir = stage / "sources"
         bin_dir = stage / "binaries" / platform_dir
         src_dir.mkdir(parents=True)
@@ -618,13 +639,15 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
             raise ExportError(
                 f"compiling {model_identifier} failed (exit status {proc.returncode}):\n"
                 f"$ {' '.join(cmd)}\n{proc.stderr.strip()}")
+        check_built_fmu(stage, model_identifier)
         t_cc = time.perf_counter()
 
         tmp_fmu = Path(tmp) / "out.fmu"
         with zipfile.ZipFile(tmp_fmu, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             for path in sorted(p for p in stage.rglob("*") if p.is_file()):
                 zf.write(path, path.relative_to(stage).as_posix())
-        os.replace(tmp_fmu, fmu_path)
+        os.chmod(tmp_fmu, file_mode())
+        os.replace(tmp_fmu, target)
         t_end = time.perf_counter()
 
     if timings is not None:
