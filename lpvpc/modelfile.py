@@ -453,5 +453,5 @@ def check_model_dict(d, source: str = "model") -> None:
             if problems and key in REQUIRED_SECTIONS:
                 break  # the rest refers to these sections
     if problems:
-        raise ModelFileError(f"{source}: invalid model file: " + "; ".join(problems[:4])
+        raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems[:4])
                              + (f"; and {len(problems) - 4} more" if len(problems) > 4 else ""))
