@@ -206,7 +206,7 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     if ignored:
         _log.info("%s: ignored column(s) %s (not channels lpvpc reads)", path, ", ".join(ignored))
     if not body or not use:
-        return {names[i]: np.empty(0) for i in use}
+        return _Table({names[i]: np.empty(0) for i in use}, names)
     values = None
     if '"' not in text and all(ln.count(",") == len(names) - 1 for ln in body):
         try:
@@ -217,7 +217,15 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
         values, problems = _csv_rows(body, names, use, first_line=header_at + 2)
         if problems:
             raise DataError(problems, source=str(path))
-    return {names[i]: values[:, k] for k, i in enumerate(use)}
+    return _Table({names[i]: values[:, k] for k, i in enumerate(use)}, names)
+
+
+class _Table(dict):
+    """Channels read from a file; ``columns``: every column of the file (also those ignored)."""
+
+    def __init__(self, channels, columns):
+        super().__init__(channels)
+        self.columns = list(columns)
 
 
 def _csv_rows(body: list[str], names: list[str], use: list[int], first_line: int):
@@ -295,7 +303,7 @@ def _read_table(path) -> tuple[dict[str, np.ndarray], Path]:
 def _require(table: dict, required, path) -> None:
     missing = [c for c in required if c not in table]
     if missing:
-        found = ", ".join(table) or "none"
+        found = ", ".join(getattr(table, "columns", table)) or "none"
         raise DataError(
             [f"missing required column '{c}' (columns found: {found})" for c in missing], source=str(path)
         )

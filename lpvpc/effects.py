@@ -461,15 +461,19 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
             z = model.reflex_drive(position, scheduling)
         reflex = (model.A, model.B, model.C, z)
     ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex)
+    lags = model.causal_lags if causal else model.lags
     if causal:
-        S = eq.causal_signals(position, model.fs, model.causal_lags, velocity, acceleration)
-    else:
-        S = eq.lagged(position, model.lags)
+        velocity = eq.velocity(position, model.fs) if velocity is None else velocity
+        acceleration = eq.acceleration(position, model.fs) if acceleration is None else acceleration
     Gi = model.intrinsic_basis.evaluate(scheduling)
-    out = {}
-    for fe in model.effects:
-        tq = effect_term(fe, ctx, S, Gi, "causal" if causal else "two_sided")
-        out[fe.name] = (fe.effect.pathway, np.asarray(tq, dtype=float).reshape(-1) * np.ones(n))
+    out = {fe.name: (fe.effect.pathway, np.zeros(n)) for fe in model.effects}
+    for a, b in eq.blocks(n, len(lags) + 2):  # bounded memory for any record length
+        S = eq.position_signals(position, model.fs, lags, a, b, causal=causal, vel=velocity, acc=acceleration)
+        rows = Context(**{k: ([u[a:b] for u in v] if isinstance(v, list) else v[a:b])
+                          for k, v in vars(ctx).items()})
+        for fe in model.effects:
+            tq = effect_term(fe, rows, S, Gi[a:b], "causal" if causal else "two_sided")
+            out[fe.name][1][a:b] = np.asarray(tq, dtype=float).reshape(-1)
     return out
 
 

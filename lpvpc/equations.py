@@ -105,6 +105,39 @@ def causal_signals(position, fs, lags, vel=None, acc=None):
     return np.column_stack([lagged(position, lags), vel, acc])
 
 
+#: Lagged-position cells (samples x signals) built at once by a whole-record prediction:
+#: longer records are predicted in blocks, so memory grows with the record, not with
+#: record x lags (2**22 cells: 32 MiB per array).
+BLOCK_CELLS = 2**22
+
+
+def blocks(n: int, width: int) -> list:
+    """(start, stop) sample ranges covering 0..n, each at most BLOCK_CELLS / width samples."""
+    rows = max(1024, BLOCK_CELLS // max(int(width), 1))
+    return [(a, min(a + rows, n)) for a in range(0, n, rows)] or [(0, 0)]
+
+
+def lagged_rows(signal, lags, start: int, stop: int):
+    """Rows start..stop-1 of ``lagged(signal, lags)``, built from the samples they need."""
+    signal = np.asarray(signal, dtype=float)
+    back, ahead = max(max(lags), 0), max(-min(lags), 0)
+    lo, hi = max(0, start - back), min(len(signal), stop + ahead)
+    # Before the record: zeros (lo == 0); after it: the last value (hi == len). Elsewhere the
+    # window holds every sample the rows reach, so the rows equal the whole record's.
+    return lagged(signal[lo:hi], lags)[start - lo: stop - lo]
+
+
+def position_signals(position, fs, lags, start: int, stop: int, *, causal: bool, vel=None, acc=None):
+    """Rows start..stop-1 of the intrinsic IRF's signals: ``lagged(position, lags)`` or, causal,
+    ``causal_signals(position, fs, lags, vel, acc)`` (``vel``, ``acc``: whole-record arrays or None)."""
+    rows = lagged_rows(position, lags, start, stop)
+    if not causal:
+        return rows
+    vel = velocity(position, fs) if vel is None else np.asarray(vel, dtype=float)
+    acc = acceleration(position, fs) if acc is None else np.asarray(acc, dtype=float)
+    return np.column_stack([rows, vel[start:stop], acc[start:stop]])
+
+
 def delayed_velocity(position, fs, delay):
     """dvel(k) = vel(k - delay) for a whole record, delay in samples (>= 1 keeps it causal)."""
     return lagged(velocity(position, fs), [delay])[:, 0]

@@ -138,11 +138,16 @@ class LPVPCModel:
                 OutOfRangeWarning,
                 stacklevel=2,
             )
-        if causal:
-            signals, H = eq.causal_signals(position, self.fs, self.causal_lags, velocity, acceleration), self.H_causal
-        else:
-            signals, H = eq.lagged(position, self.lags), self.H
-        tq_i = eq.intrinsic_torque(signals, self.intrinsic_basis.evaluate(scheduling), H)
+        lags, H = (self.causal_lags, self.H_causal) if causal else (self.lags, self.H)
+        if causal:  # whole-record differences, unless given
+            velocity = eq.velocity(position, self.fs) if velocity is None else np.asarray(velocity, dtype=float)
+            acceleration = (eq.acceleration(position, self.fs) if acceleration is None
+                            else np.asarray(acceleration, dtype=float))
+        Gi = self.intrinsic_basis.evaluate(scheduling)
+        tq_i = np.zeros(len(position))
+        for a, b in eq.blocks(len(position), H.shape[0]):  # bounded memory for any record length
+            signals = eq.position_signals(position, self.fs, lags, a, b, causal=causal, vel=velocity, acc=acceleration)
+            tq_i[a:b] = eq.intrinsic_torque(signals, Gi[a:b], H)
         z = self.reflex_drive(position, scheduling)
         tq_r = self._reflex_filter(z)
         parts = {}

@@ -170,3 +170,295 @@ def test_fuzz_model_loader_small(base):
     assert result["tracebacks"] == [], result["tracebacks"][:3]
     assert result["loaded"] + result["refused"] == 300
     assert result["refused"] > 100 and result["loaded"] > 0
+
+
+# --------------------------------------------------------------------------- outputs vs inputs
+@pytest.fixture
+def files(model_file, tmp_path):
+    """A model file and two data files in a fresh folder (contents never need to be valid:
+    the output check comes before any reading)."""
+    m = tmp_path / "model.json"
+    m.write_bytes(Path(model_file).read_bytes())
+    pt, ut = tmp_path / "PT.csv", tmp_path / "UT.csv"
+    pt.write_text("time,position,torque\n0,0,0\n")
+    ut.write_text("time,position,torque\n0,0,0\n")
+    (tmp_path / "hard.csv").hardlink_to(pt)
+    (tmp_path / "soft.json").symlink_to(m)
+    return {"model": m, "pt": pt, "ut": ut, "dir": tmp_path}
+
+
+OUTPUT_CASES = {
+    "identify-o-pt": (["identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o", "PT.csv"], "PT.csv"),
+    "identify-o-hardlink": (["identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o", "hard.csv"], "PT.csv"),
+    "export-fmu-over-model": (["export", "model.json", "--fmu", "model.json"], "model.json"),
+    "export-casadi-sidecar": (["export", "model.json", "--casadi", "model"], "model.json"),
+    "export-symlink": (["export", "soft.json", "--fmu", "model.json"], "model.json"),
+    "predict-out-pt": (["predict", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--out", "PT.csv"], "PT.csv"),
+    "predict-json-model": (["predict", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--json", "model.json"],
+                           "model.json"),
+    "predict-two-outputs": (["predict", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--json", "o.csv",
+                             "--out", "o.csv"], "same file"),
+    "diagnose-json-model": (["diagnose", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--json", "soft.json"],
+                            "model.json"),
+    "validate-report-holds-model": (["validate", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--report", "."],
+                                    "inside the output folder"),
+    "improve-o-heldout": (["improve", "--pt", "PT.csv", "--ut", "UT.csv", "--heldout-pt", "a.csv", "--heldout-ut",
+                           "UT.csv", "--report", "rep", "-o", "UT.csv"], "UT.csv"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OUTPUT_CASES))
+def test_output_never_replaces_an_input(case, files, capsys, monkeypatch):
+    from lpvpc.cli import main
+
+    argv, words = OUTPUT_CASES[case]
+    monkeypatch.chdir(files["dir"])
+    before = {p.name: p.read_bytes() for p in files["dir"].iterdir() if p.is_file()}
+    status = main(argv)
+    err = capsys.readouterr().err
+    assert status == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lpvpc: error: ") and words in lines[0], err
+    after = {p.name: p.read_bytes() for p in files["dir"].iterdir() if p.is_file()}
+    assert after == before  # nothing replaced, nothing left behind
+
+
+def test_report_folder_of_other_files_needs_force(files, subject, capsys, monkeypatch):
+    from lpvpc.cli import main
+    from lpvpc.data import write_trial_csv
+
+    d = files["dir"]
+    write_trial_csv(subject["novel_pair"].pt, d / "nPT.csv")
+    write_trial_csv(subject["novel_pair"].ut, d / "nUT.csv")
+    keep = d / "results" / "thesis.tex"
+    keep.parent.mkdir()
+    keep.write_text("months of work")
+    argv = ["diagnose", files["model"], "--pt", d / "nPT.csv", "--ut", d / "nUT.csv", "--report", d / "results"]
+    assert main([str(a) for a in argv]) == 2
+    assert "--force" in capsys.readouterr().err and keep.read_text() == "months of work"
+    assert main([str(a) for a in argv + ["--force"]]) == 0
+    capsys.readouterr()
+    assert not keep.exists() and (d / "results" / "diagnosis.json").is_file()  # replaced as a whole
+    assert main([str(a) for a in argv]) == 0  # a previous report: replaced without --force
+    assert not list(d.glob(".*lpvpc-tmp"))
+
+
+# --------------------------------------------------------------------------- atomic outputs
+def test_staged_folder_is_all_or_nothing(tmp_path):
+    from lpvpc.outputs import staged_folder
+
+    folder = tmp_path / "report"
+    folder.mkdir()
+    (folder / "metrics.json").write_text("old run")
+    with pytest.raises(RuntimeError):
+        with staged_folder(folder) as stage:
+            (stage / "metrics.json").write_text("half of a new run")
+            raise RuntimeError("failed in the middle")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
+    assert (folder / "metrics.json").read_text() == "old run"
+    with staged_folder(folder) as stage:
+        (stage / "report.html").write_text("new run")
+    assert sorted(p.name for p in folder.iterdir()) == ["report.html"]  # nothing of the old run
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
+
+
+def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
+    from lpvpc.outputs import atomic_path
+
+    target = tmp_path / "model.json"
+    target.write_text("previous model")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half a mod")
+            raise KeyboardInterrupt
+    assert target.read_text() == "previous model" and [p.name for p in tmp_path.iterdir()] == ["model.json"]
+
+
+def _cli_with_umask(mask, *argv, cwd):
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "lpvpc.cli", *map(str, argv)], capture_output=True, text=True,
+                          cwd=cwd, env=env, timeout=TIMEOUT, preexec_fn=lambda: os.umask(mask))
+
+
+@pytest.mark.slow
+def test_every_output_has_the_same_mode(model, subject, tmp_path):
+    """Model, predict's CSV and JSON, .casadi and sidecar, FMU and the validation report's SSP:
+    all 0666 less the umask (the SSP was written 0600)."""
+    from lpvpc.actuator import build_actuator_fmu
+    from lpvpc.data import Trial, write_trial_csv
+    from lpvpc.export import export_fmu
+    from lpvpc.validation import validate
+
+    n = 10_000  # 10 s of the novel record
+    for key, tr in (("PT", subject["novel_pair"].pt), ("UT", subject["novel_pair"].ut)):
+        write_trial_csv(Trial(tr.time[:n], tr.position[:n], tr.torque[:n], {k: v[:n] for k, v in tr.channels.items()},
+                              name=tr.name), tmp_path / f"{key}.csv")
+    model.save(tmp_path / "model.json")
+    r = _cli_with_umask(0o002, "predict", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--json", "m.json",
+                        "--out", "p.csv", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = _cli_with_umask(0o002, "export", "model.json", "--casadi", "s.casadi", "--fmu", "m.fmu", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    for name in ("m.json", "p.csv", "s.casadi", "s.casadi.json", "m.fmu"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o664, name
+    old = os.umask(0o022)
+    try:
+        act = build_actuator_fmu(tmp_path / "act.fmu")
+        res = validate(model, tmp_path / "PT.csv", tmp_path / "UT.csv", tmp_path / "report",
+                       fmu=export_fmu(model, tmp_path / "exact.fmu", variant="exact"), actuator_fmu=act,
+                       measure_load_effect=False)
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "report").rglob("*") if p.is_file()}
+    assert modes["cosimulation.ssp"] == 0o644 and set(modes.values()) == {0o644}, modes
+    assert res.files["ssp"] == tmp_path / "report" / "cosimulation.ssp"
+    assert not list(tmp_path.glob(".*lpvpc-tmp"))
+
+
+def _wait_for(pattern_dir, pattern, proc, limit=90.0):
+    import time
+
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < limit and proc.poll() is None:
+        if list(Path(pattern_dir).glob(pattern)):
+            return True
+        time.sleep(0.005)
+    return False
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
+    """A signal while gcc runs: exit 128 + signal, one line, no temporary files in the
+    target folder or the temporary directory, no FMU."""
+    import signal
+
+    d = copy.deepcopy(base)
+    d["reflex"]["delay"] = 400  # within the limits; a longer compile, easier to interrupt
+    (tmp_path / "model.json").write_text(json.dumps(d))
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    (tmp_path / "out").mkdir()
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir),
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "export", "model.json", "--fmu", "out/m.fmu"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(tmp_path / "out", ".lpvpc_model-*", proc), "the build folder never appeared"
+        proc.send_signal(getattr(signal, sig))
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + getattr(signal, sig), err
+    assert len(err.strip().splitlines()) == 1 and ("terminated" if sig == "SIGTERM" else "interrupted") in err
+    assert list((tmp_path / "out").iterdir()) == [] and list(tmpdir.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_interrupted_validate_keeps_the_previous_report(model, subject, tmp_path):
+    """SIGTERM in the middle of a validation into a folder holding a previous report: the
+    previous report stays whole, and no half-built folder is left beside it."""
+    import signal
+
+    from lpvpc.data import Trial, write_trial_csv
+
+    n = 20_000
+    for key, tr in (("PT", subject["novel_pair"].pt), ("UT", subject["novel_pair"].ut)):
+        write_trial_csv(Trial(tr.time[:n], tr.position[:n], tr.torque[:n], {k: v[:n] for k, v in tr.channels.items()},
+                              name=tr.name), tmp_path / f"{key}.csv")
+    model.save(tmp_path / "model.json")
+    report = tmp_path / "report"
+    report.mkdir()
+    previous = {"metrics.json": '{"pass": true, "model": "previous"}', "report.html": "<p>previous</p>"}
+    for name, text in previous.items():
+        (report / name).write_text(text)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "validate", "model.json", "--pt", "PT.csv", "--ut",
+                             "UT.csv", "--report", "report"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(tmp_path, ".report.*lpvpc-tmp/fmus/*.fmu", proc), "no FMU was built"
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143 and "terminated" in err, err
+    assert {p.name: p.read_text() for p in report.iterdir()} == previous
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["PT.csv", "UT.csv", "model.json", "report"]
+
+
+# --------------------------------------------------------------------------- paths are paths
+@pytest.mark.slow
+def test_fmu_path_starting_with_a_dash_and_the_built_fmu_check(model_file, tmp_path):
+    """gcc gets absolute paths: an FMU written as '-out/m.fmu' is a real FMU there; a library
+    without FMI functions is refused before it is written."""
+    import zipfile
+
+    from fmpy import read_model_description
+
+    from lpvpc.errors import ExportError
+    from lpvpc.fmu_build import check_built_fmu
+
+    (tmp_path / "model.json").write_bytes(Path(model_file).read_bytes())
+    r = _cli("export", "model.json", "--fmu=-out/m.fmu", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    fmu = tmp_path / "-out" / "m.fmu"
+    md = read_model_description(str(fmu))
+    folder = tmp_path / "unpacked"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(folder)
+    check_built_fmu(folder, md.coSimulation.modelIdentifier)  # the real one passes
+    lib = folder / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    src = tmp_path / "empty.c"
+    src.write_text("int lpvpc_not_fmi(void) { return 0; }\n")
+    subprocess.run(["gcc", "-shared", "-fPIC", str(src), "-o", str(lib)], check=True, timeout=60)
+    with pytest.raises(ExportError, match="not usable"):
+        check_built_fmu(folder, md.coSimulation.modelIdentifier)
+
+
+# --------------------------------------------------------------------------- CSV extra columns
+def test_csv_extra_text_columns_are_ignored(tmp_path, caplog):
+    import logging
+
+    from lpvpc.data import load_trial
+    from lpvpc.errors import DataError
+
+    n = 40
+    rows = ["time,position,notes,torque,trigger"]
+    rows += [f'{k / 100},{0.01 * k},"subject said, ""ok""",{0.5 * k},{"A" if k % 2 else 3}' for k in range(n)]
+    path = tmp_path / "notes.csv"
+    path.write_text("\n".join(rows) + "\n")
+    with caplog.at_level(logging.INFO, logger="lpvpc"):
+        trial = load_trial(path)
+    np.testing.assert_allclose(trial.position, 0.01 * np.arange(n))
+    np.testing.assert_allclose(trial.torque, 0.5 * np.arange(n))
+    assert "ignored column(s) notes, trigger" in caplog.text
+    plain = tmp_path / "plain.csv"  # unquoted text: the fast path
+    plain.write_text("time,notes,position,torque\n" + "".join(f"{k / 100},fine,{0.01 * k},{k}\n" for k in range(n)))
+    assert len(load_trial(plain).position) == n
+    rows[5] = rows[5].replace(f"{0.5 * 4}", "n/a")  # a required column still strictly checked
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"column 'torque': 1 value not a number, first at line 6"):
+        load_trial(path)
+
+
+# --------------------------------------------------------------------------- bounded prediction
+@pytest.mark.parametrize("causal", [False, True])
+def test_prediction_in_blocks_equals_the_whole_record(causal, subject, model, monkeypatch):
+    """Prediction builds lagged positions block by block (memory bounded for any record
+    length); the blocks' edges change nothing, also for an extended model."""
+    from lpvpc import equations as eq
+    from lpvpc.effects import signals_from_data
+    from lpvpc.identify import LPVPCEstimator
+
+    data = subject["novel"]
+    extended = LPVPCEstimator(effects=("drift", "position_dependent_reflex_dynamics")).fit(subject["ident"]).model_
+    for m, sig in ((model, None), (extended, signals_from_data(data))):
+        whole = m.predict(data.position, data.scheduling, causal=causal, signals=sig, warn=False)
+        monkeypatch.setattr(eq, "BLOCK_CELLS", 1)  # blocks of 1024 samples
+        parts = m.predict(data.position, data.scheduling, causal=causal, signals=sig, warn=False)
+        monkeypatch.undo()
+        assert len(eq.blocks(data.n, len(m.lags))) == 1 and data.n > 4 * 1024
+        np.testing.assert_allclose(parts.total, whole.total, rtol=0, atol=1e-12 * np.max(np.abs(whole.total)))
+        for k in whole.effects:
+            np.testing.assert_allclose(parts.effects[k], whole.effects[k], rtol=0, atol=1e-12)
