@@ -173,15 +173,29 @@ def test_fuzz_model_loader_small(base):
 
 
 # --------------------------------------------------------------------------- outputs vs inputs
+@pytest.fixture(scope="module")
+def short_csv(subject, tmp_path_factory):
+    """The first 20 s of the novel record as PT/UT CSV files (valid input: were an output
+    written over them, the command would succeed)."""
+    from lpvpc.data import Trial, write_trial_csv
+
+    folder = tmp_path_factory.mktemp("short")
+    n = 20_000
+    for key, tr in (("PT", subject["novel_pair"].pt), ("UT", subject["novel_pair"].ut)):
+        write_trial_csv(Trial(tr.time[:n], tr.position[:n], tr.torque[:n], {k: v[:n] for k, v in tr.channels.items()},
+                              name=tr.name), folder / f"{key}.csv")
+    return folder
+
+
 @pytest.fixture
-def files(model_file, tmp_path):
-    """A model file and two data files in a fresh folder (contents never need to be valid:
-    the output check comes before any reading)."""
+def files(model_file, short_csv, tmp_path):
+    """A model file and a valid PT/UT pair in a fresh folder, a hard link to PT.csv and a
+    symbolic link to the model."""
     m = tmp_path / "model.json"
     m.write_bytes(Path(model_file).read_bytes())
     pt, ut = tmp_path / "PT.csv", tmp_path / "UT.csv"
-    pt.write_text("time,position,torque\n0,0,0\n")
-    ut.write_text("time,position,torque\n0,0,0\n")
+    pt.write_bytes((short_csv / "PT.csv").read_bytes())
+    ut.write_bytes((short_csv / "UT.csv").read_bytes())
     (tmp_path / "hard.csv").hardlink_to(pt)
     (tmp_path / "soft.json").symlink_to(m)
     return {"model": m, "pt": pt, "ut": ut, "dir": tmp_path}
@@ -202,8 +216,8 @@ OUTPUT_CASES = {
                             "model.json"),
     "validate-report-holds-model": (["validate", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--report", "."],
                                     "inside the output folder"),
-    "improve-o-heldout": (["improve", "--pt", "PT.csv", "--ut", "UT.csv", "--heldout-pt", "a.csv", "--heldout-ut",
-                           "UT.csv", "--report", "rep", "-o", "UT.csv"], "UT.csv"),
+    "improve-o-heldout": (["improve", "--pt", "PT.csv", "--ut", "UT.csv", "--heldout-pt", "PT.csv", "--heldout-ut",
+                           "UT.csv", "--report", "rep", "--max-steps", "0", "-o", "UT.csv"], "UT.csv"),
 }
 
 
@@ -223,17 +237,14 @@ def test_output_never_replaces_an_input(case, files, capsys, monkeypatch):
     assert after == before  # nothing replaced, nothing left behind
 
 
-def test_report_folder_of_other_files_needs_force(files, subject, capsys, monkeypatch):
+def test_report_folder_of_other_files_needs_force(files, capsys):
     from lpvpc.cli import main
-    from lpvpc.data import write_trial_csv
 
     d = files["dir"]
-    write_trial_csv(subject["novel_pair"].pt, d / "nPT.csv")
-    write_trial_csv(subject["novel_pair"].ut, d / "nUT.csv")
     keep = d / "results" / "thesis.tex"
     keep.parent.mkdir()
     keep.write_text("months of work")
-    argv = ["diagnose", files["model"], "--pt", d / "nPT.csv", "--ut", d / "nUT.csv", "--report", d / "results"]
+    argv = ["diagnose", files["model"], "--pt", files["pt"], "--ut", files["ut"], "--report", d / "results"]
     assert main([str(a) for a in argv]) == 2
     assert "--force" in capsys.readouterr().err and keep.read_text() == "months of work"
     assert main([str(a) for a in argv + ["--force"]]) == 0
