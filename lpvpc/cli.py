@@ -7,9 +7,9 @@
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
-    lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact]
+    lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
     lpvpc whole-joint model.json --ut UT.csv -o whole.json [--cutoff HZ] [--order N] [--fmu F.fmu]
-                      [--fmi 2|3] [--casadi F.casadi]
+                      [--fmi 2|3] [--fmi-type cs|me] [--casadi F.casadi]
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
@@ -257,8 +257,9 @@ def cmd_export(args) -> int:
         print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
     if args.fmu:
         t0 = time.perf_counter()
-        path = export.export_fmu(model, args.fmu, fmi_version=args.fmi, variant=variant)
-        print(f"FMU (FMI {args.fmi}.0 co-simulation, {variant}): {path or args.fmu}  "
+        path = export.export_fmu(model, args.fmu, fmi_version=args.fmi, variant=variant, fmi_type=args.fmi_type)
+        kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange, a time event per sample"
+        print(f"FMU (FMI {args.fmi}.0 {kind}, {variant}): {path or args.fmu}  "
               f"[{time.perf_counter() - t0:.2f} s]")
     return 0
 
@@ -283,8 +284,9 @@ def cmd_whole_joint(args) -> int:
         print(f"CasADi step function (angle -> torque): {W.export_whole_joint_casadi(wj, args.casadi)}")
     if args.fmu:
         t0 = time.perf_counter()
-        path = W.export_whole_joint_fmu(wj, args.fmu, fmi_version=args.fmi)
-        print(f"FMU (FMI {args.fmi}.0 co-simulation, angle -> torque): {path}  [{time.perf_counter() - t0:.2f} s]")
+        path = W.export_whole_joint_fmu(wj, args.fmu, fmi_version=args.fmi, fmi_type=args.fmi_type)
+        kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange"
+        print(f"FMU (FMI {args.fmi}.0 {kind}, angle -> torque): {path}  [{time.perf_counter() - t0:.2f} s]")
     return 0
 
 
@@ -591,6 +593,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
     p.add_argument("--exact", action="store_true",
                    help="exact two-sided IRF, output delayed by L+1 samples (default: causal, no latency)")
+    p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
+                   help="cs: co-simulation (default); me: Model Exchange, sampled with a time event every 1/fs "
+                        "(for tools that import Model Exchange only)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("validate", help="validate a model on a held-out record: routes, co-simulation, report",
@@ -644,6 +649,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--order", type=int, default=5, metavar="N", help="order of the quasi-static curve (default 5)")
     p.add_argument("--fmu", metavar="FILE.fmu", help="write the whole-joint FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
+    p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
+                   help="cs: co-simulation (default); me: Model Exchange, a time event per sample")
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the whole-joint CasADi step function")
     _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_whole_joint)

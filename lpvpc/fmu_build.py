@@ -418,6 +418,55 @@ def _model_description(guid, *, model_identifier, fmi_version, step_size, output
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
 
 
+#: FMI interface types :func:`build_fmu` can build: co-simulation, Model Exchange.
+INTERFACES = ("cs", "me")
+
+
+def _interface_description(xml: bytes, interface: str) -> bytes:
+    """The co-simulation model description turned into Model Exchange for ``interface="me"``:
+    a ``ModelExchange`` element with the same identifier and capabilities, outputs ``discrete``
+    (a sampled model changes them at its time events only), and a description that states the
+    time events instead of communication steps."""
+    if interface == "cs":
+        return xml
+    root = ET.fromstring(xml)
+    fmi2 = root.get("fmiVersion") == "2.0"
+    cs = root.find("CoSimulation")
+    index = list(root).index(cs)
+    me = ET.Element("ModelExchange")
+    me.set("modelIdentifier", cs.get("modelIdentifier"))
+    me.set("needsExecutionTool", "false")
+    me.set("canBeInstantiatedOnlyOncePerProcess", "false")
+    if fmi2:
+        me.set("completedIntegratorStepNotNeeded", "true")
+        me.set("canNotUseMemoryManagementFunctions", "false")
+        me.set("canGetAndSetFMUstate", "true")
+        me.set("canSerializeFMUstate", "true")
+        me.set("providesDirectionalDerivative", "false")
+        me.append(cs.find("SourceFiles"))
+    else:
+        me.set("canGetAndSetFMUState", "true")
+        me.set("canSerializeFMUState", "true")
+        me.set("providesDirectionalDerivatives", "false")
+        me.set("providesAdjointDerivatives", "false")
+        me.set("providesPerElementDependencies", "false")
+        me.set("needsCompletedIntegratorStep", "false")
+        me.set("providesEvaluateDiscreteStates", "false")
+    root.remove(cs)
+    root.insert(index, me)
+    step = root.find("DefaultExperiment").get("stepSize")
+    text = root.get("description", "")
+    text = re.sub(r"Fixed internal step \S+ s; communication steps must be integer multiples of it\.",
+                  f"Model Exchange, sampled: one time event every {step} s (at start time + k {step} s); "
+                  "inputs are sampled at the events, outputs change only there.", text)
+    root.set("description", text)
+    for v in root.find("ModelVariables"):
+        if v.get("causality") == "output":
+            v.set("variability", "discrete")
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
+
+
 def _definitions(extra_cflags) -> list[tuple[str, str | None]]:
     """``-DNAME[=VALUE]`` flags as (name, value) pairs, for buildDescription.xml."""
     out = []
@@ -451,7 +500,7 @@ def _build_description(model_identifier: str, c_sources: list[str], extra_cflags
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
 
 
-def _collect_sources(fmi_version, system_sources, include_dirs) -> dict[str, Path]:
+def _collect_sources(fmi_version, system_sources, include_dirs, interface="cs") -> dict[str, Path]:
     """name in sources/ -> file to copy (the generated config is added later)."""
     wdir = wrapper_dir()
     hdir = fmi_headers_dir()
@@ -464,7 +513,9 @@ def _collect_sources(fmi_version, system_sources, include_dirs) -> dict[str, Pat
                               "sources/ is flat, rename one")
         files[path.name] = path
 
-    add(wdir / ("fmi2_cs.c" if fmi_version == 2 else "fmi3_cs.c"), "wrapper")
+    add(wdir / f"fmi{fmi_version}_{interface}.c", "wrapper")
+    if interface == "me":
+        add(wdir / "me_core.h", "wrapper")
     add(wdir / "system.h", "wrapper")
     add(wdir / "cs_core.h", "wrapper")  # included by the wrapper: shipped, not listed as a source file
     for h in _FMI2_HEADERS if fmi_version == 2 else _FMI3_HEADERS:
@@ -498,10 +549,12 @@ def _hash_inputs(files: dict[str, Path], parts: Sequence[str | bytes]) -> str:
 
 
 def _plan(model_identifier, system_sources, nx, step_size, outputs, inputs, parameters, fmi_version,
-          description, version, author, include_dirs, extra_cflags, latency, generation_tool):
+          description, version, author, include_dirs, extra_cflags, latency, generation_tool, interface="cs"):
     _check_inputs(model_identifier, system_sources, nx, step_size, outputs, inputs, parameters,
                   fmi_version, latency)
-    files = _collect_sources(fmi_version, system_sources, include_dirs)
+    if interface not in INTERFACES:
+        raise ExportError(f"unknown FMI interface {interface!r}; choose one of {INTERFACES}")
+    files = _collect_sources(fmi_version, system_sources, include_dirs, interface)
     c_sources = sorted(n for n in files if n.endswith(".c"))
     md_args = dict(model_identifier=model_identifier, fmi_version=fmi_version, step_size=float(step_size),
                    outputs=list(outputs), inputs=list(inputs), parameters=list(parameters),
@@ -512,10 +565,11 @@ def _plan(model_identifier, system_sources, nx, step_size, outputs, inputs, para
     probe = "{GUID}"
     parts = [
         _system_config(probe, model_identifier, nx, step_size, outputs, inputs, parameters),
-        _model_description(probe, **md_args),
+        _interface_description(_model_description(probe, **md_args), interface),
         " ".join(_BASE_CFLAGS + tuple(extra_cflags) + _LDFLAGS),
     ]
     guid = _hash_inputs(files, parts)
+    md_args["interface"] = interface
     return guid, files, c_sources, md_args
 
 
@@ -565,7 +619,7 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
               fmi_version: int = 2, description: str = "", version: str = "", author: str = "lpvpc",
               include_dirs: list[Path] = (), extra_cflags: list[str] = (), latency: float | None = None,
               generation_tool: str = "lpvpc", reuse_existing: bool = False,
-              timings: dict | None = None) -> Path:
+              timings: dict | None = None, interface: str = "cs") -> Path:
     """Build a co-simulation FMU (FMI 2.0 or 3.0) around a fixed-step discrete-time C system.
 
     Parameters
@@ -588,6 +642,9 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
         description and a vendor annotation.
     reuse_existing : if ``fmu_path`` exists and carries the GUID these arguments produce
         (same sources, settings and builder), return it without rebuilding.
+    interface : ``"cs"`` co-simulation (default) or ``"me"`` Model Exchange: the same system as a
+        sampled-data model with a time event every ``step_size`` s (wrapper ``fmi2_me.c`` /
+        ``fmi3_me.c`` over ``me_core.h``; outputs discrete, no continuous states).
     timings : if a dict is given, it receives ``generate``, ``compile``, ``package`` and
         ``total`` times in s, ``reused`` (bool) and ``compiler_output`` (gcc's warnings).
 
@@ -599,7 +656,7 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
     target = fmu_path.absolute()  # the compiler gets absolute paths: a name starting with '-' is no option
     guid, files, c_sources, md_args = _plan(
         model_identifier, system_sources, nx, step_size, outputs, inputs, parameters, fmi_version,
-        description, version, author, include_dirs, extra_cflags, latency, generation_tool)
+        description, version, author, include_dirs, extra_cflags, latency, generation_tool, interface)
     if reuse_existing and fmu_path.is_file() and _existing_guid(fmu_path) == guid:
         if timings is not None:
             timings.update(generate=time.perf_counter() - t0, compile=0.0, package=0.0,
@@ -622,7 +679,9 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
             shutil.copyfile(path, src_dir / name)
         (src_dir / "system_config.h").write_text(
             _system_config(guid, model_identifier, nx, step_size, outputs, inputs, parameters))
-        (stage / "modelDescription.xml").write_bytes(_model_description(guid, **md_args))
+        interface = md_args.pop("interface")
+        (stage / "modelDescription.xml").write_bytes(
+            _interface_description(_model_description(guid, **md_args), interface))
         if fmi_version == 3:
             (src_dir / "buildDescription.xml").write_bytes(
                 _build_description(model_identifier, c_sources, extra_cflags))

@@ -311,10 +311,12 @@ def _system_functions(wj):
     return (init, output, update), deps, nx
 
 
-def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False) -> Path:
+def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
+                           fmi_type: str = "cs") -> Path:
     """The whole-joint model as an FMI 2.0 or 3.0 co-simulation FMU (input ``angle`` rad,
     outputs :data:`OUTPUT_NAMES`, step 1/fs, outputs of sample k - L; parameters: the
-    LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz)."""
+    LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz);
+    ``fmi_type="me"``: Model Exchange, a time event per sample (see :func:`lpvpc.export.export_fmu`)."""
     import tempfile
 
     from . import __version__
@@ -339,11 +341,11 @@ def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, r
     with tempfile.TemporaryDirectory(prefix="lpvpc-whole-joint-") as tmp:
         generated = write_system_c(functions, tmp)
         try:
-            return Path(build_fmu(path, model_identifier="lpvpc_whole_joint",
+            return Path(build_fmu(path, model_identifier="lpvpc_whole_joint" + ("_me" if fmi_type == "me" else ""),
                                   system_sources=[model_source_dir() / "model_system.c", *generated], nx=nx,
                                   step_size=1.0 / wj.fs, outputs=outputs, inputs=inputs, parameters=parameters,
                                   fmi_version=fmi_version, description=description,
                                   version=f"lpvpc {__version__} model {wj.model.model_hash[:12]}",
-                                  latency=L / wj.fs, reuse_existing=reuse_existing))
+                                  latency=L / wj.fs, reuse_existing=reuse_existing, interface=fmi_type))
         except OSError as exc:
             raise ExportError(f"{path}: could not write the FMU ({exc})") from None

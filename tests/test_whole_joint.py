@@ -121,11 +121,16 @@ def test_cli_whole_joint_writes_model_and_fmu(subject, model_file, tmp_path):
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main(["whole-joint", str(model_file), "--ut", str(subject["folder"] / "ident_UT.csv"),
-                   "-o", str(tmp_path / "wj.json"), "--fmu", str(tmp_path / "wj.fmu"), "--fmi", "3"])
+                   "-o", str(tmp_path / "wj.json"), "--fmu", str(tmp_path / "wj.fmu"), "--fmi", "3",
+                   "--fmi-type", "me"])
     assert rc == 0, err.getvalue()
     assert "quasi-static curve VAF" in out.getvalue()
     assert W.WholeJointModel.load(tmp_path / "wj.json").cutoff == W.DEFAULT_CUTOFF
-    assert (tmp_path / "wj.fmu").stat().st_size > 1000
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+
+    assert read_model_description(str(tmp_path / "wj.fmu")).modelExchange is not None
+    assert validate_fmu(str(tmp_path / "wj.fmu")) == []
     err = io.StringIO()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         rc = main(["whole-joint", str(model_file), "--ut", str(subject["folder"] / "ident_UT.csv"),
