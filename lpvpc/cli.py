@@ -3,8 +3,10 @@
 ::
 
     lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
-    lpvpc identify (--pt PT.csv --ut UT.csv | DATA.csv) -o model.json [estimator settings]
+    lpvpc identify (--pt PT.csv --ut UT.csv [--pt PT2 --ut UT2 ...] | DATA.csv [DATA2 ...]
+                    | --pt PT.mat --stationary) -o model.json [estimator settings]
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
+                   [--variable NAME] [--channel ROLE=NAME ...]
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
@@ -68,21 +70,44 @@ def _os_message(exc: OSError) -> str:
 # --------------------------------------------------------------------------- loading
 
 
-def _load_data(args, *, target_fs, position_unit, torque_sign):
-    """PerturbationData from either DATA or --pt/--ut (SI units after the loader)."""
-    from .data import load_identification_data
+def _listed(value) -> list:
+    return list(value) if isinstance(value, list) else [] if value is None else [value]
 
-    pair = (args.pt is not None, args.ut is not None)
-    if args.data is not None and any(pair):
+
+def _load_data(args, *, target_fs, position_unit, torque_sign):
+    """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
+    loader); several files (identify) are joined as trials of one identification."""
+    from .data import load_identification_data
+    from .matfiles import parse_channel_options
+
+    data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
+    stationary = getattr(args, "stationary", False)
+    if data and (pts or uts):
         raise _UsageError("give either DATA or --pt and --ut, not both")
-    if args.data is None and pair != (True, True):
-        missing = "--ut" if pair[0] else "--pt" if pair[1] else "DATA or --pt and --ut"
-        raise _UsageError(f"missing {missing}")
-    if args.data is not None:
-        return load_identification_data(data=args.data, position_unit=position_unit,
-                                        torque_sign=torque_sign, target_fs=target_fs)
-    return load_identification_data(pt=args.pt, ut=args.ut, position_unit=position_unit,
-                                    torque_sign=torque_sign, target_fs=target_fs)
+    if stationary:
+        if data or uts:
+            raise _UsageError("--stationary reads --pt alone (a perturbed trial recorded without UT)")
+        if not pts:
+            raise _UsageError("missing --pt")
+    elif not data:
+        if not (pts and uts):
+            missing = "--ut" if pts else "--pt" if uts else "DATA or --pt and --ut"
+            raise _UsageError(f"missing {missing}")
+        if len(pts) != len(uts):
+            raise _UsageError(f"{len(pts)} --pt but {len(uts)} --ut: give the trials in PT/UT pairs")
+    try:
+        channels = parse_channel_options(getattr(args, "channel", None))
+    except ValueError as exc:
+        raise _UsageError(f"--channel: {exc}") from None
+    kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
+              variable=getattr(args, "variable", None), channels=channels or None)
+
+    def one(items):  # a single file as itself, several as a list (trials of one identification)
+        return items[0] if len(items) == 1 else items
+
+    if data:
+        return load_identification_data(data=one(data), **kw)
+    return load_identification_data(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
 
 
 def _data_inputs(args) -> dict:
@@ -170,8 +195,13 @@ def cmd_identify(args) -> int:
     lo, hi = model.scheduling_range
     q = data.meta.get("decimation", 1)
     rate = f"{data.fs:g} Hz" + (f" (decimated from {data.meta['fs_original']:g} Hz)" if q > 1 else "")
-    print(f"data:        {data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
+    trials = f"{len(data.segments)} trials, " if data.segments else ""
+    print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")
+    if data.meta.get("stationary"):
+        ops = data.meta.get("operating_points", [data.meta.get("operating_point")])
+        print(f"stationary:  no UT trial; operating point {', '.join(f'{x:+.4f}' for x in ops)} rad "
+              f"(the trial's mean position; its mean torque removed)")
     vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
     print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
     print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
@@ -217,7 +247,8 @@ def cmd_predict(args) -> int:
         "data_hash": data.data_hash,
         "model": str(args.model),
         "data": data.source,
-        "data_files": {"data": str(args.data)} if args.data is not None else {"pt": str(args.pt), "ut": str(args.ut)},
+        "data_files": {"data": str(args.data)} if args.data is not None else {
+            k: str(v) for k, v in (("pt", args.pt), ("ut", args.ut)) if v is not None},
         "units": {"vaf": "%", "rmse": "N m", "fs": "Hz"},
         "lpvpc_version": __version__,
     }
@@ -502,11 +533,25 @@ def _add_convention_args(p, from_model: bool):
                        help="multiplies the files' torque into the package's convention (default 1)")
 
 
-def _add_data_args(p, what):
-    p.add_argument("data", nargs="?", metavar="DATA",
-                   help=f"{what}: one CSV/.mat file with perturbation position, torque and a scheduling column")
-    p.add_argument("--pt", metavar="PT", help="perturbed trial (CSV or .mat: time, position, torque)")
-    p.add_argument("--ut", metavar="UT", help="unperturbed trial on the same trajectory")
+def _add_data_args(p, what, several: bool = False):
+    """DATA | --pt/--ut | --pt --stationary, and the .mat choices; ``several``: repeatable
+    (trials of one identification)."""
+    more = " (several: trials of one identification)" if several else ""
+    p.add_argument("data", nargs="*" if several else "?", metavar="DATA",
+                   help=f"{what}: CSV/.mat file with perturbation position, torque and a scheduling column{more}")
+    p.add_argument("--pt", action="append" if several else "store", metavar="PT",
+                   help="perturbed trial (CSV or .mat: time, position, torque)"
+                        + ("; repeat with --ut for several PT/UT pairs" if several else ""))
+    p.add_argument("--ut", action="append" if several else "store", metavar="UT",
+                   help="unperturbed trial on the same trajectory")
+    p.add_argument("--stationary", action="store_true",
+                   help="--pt alone: a perturbed trial around one fixed operating position recorded without UT; "
+                        "the operating point is its mean position (and torque)")
+    p.add_argument("--variable", metavar="NAME",
+                   help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
+    p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
+                   help="channel of a .mat file for a role (position, torque, scheduling, time, emg, command), "
+                        "e.g. --channel torque=tq1 or --channel scheduling=sv.'Ankle Position (rad)' (repeatable)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -538,7 +583,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = _estimator_defaults()
     p = sub.add_parser("identify", help="identify an LPV-PC model and save it as JSON",
                        description="Identify an LPV-PC model (subspace method) and save it as JSON.")
-    _add_data_args(p, "instead of --pt/--ut")
+    _add_data_args(p, "instead of --pt/--ut", several=True)
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
                    help=f"intrinsic IRF spans lags -L..L samples (default {d['irf_lags']})")

@@ -26,6 +26,7 @@ import scipy.io
 import scipy.signal
 
 from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
+from lpvpc.segments import Segments
 
 _log = logging.getLogger(__name__)  # notes (e.g. ignored CSV columns); the CLI shows them with --verbose
 
@@ -261,34 +262,33 @@ def _csv_rows(body: list[str], names: list[str], use: list[int], first_line: int
     return np.array(rows, dtype=float).reshape(len(rows), len(use)), []
 
 
-def _read_mat(path: Path) -> dict[str, np.ndarray]:
-    """Vectors of a MATLAB v5 file, variable names lower-cased, any orientation flattened."""
-    try:
-        raw = scipy.io.loadmat(str(path))
-    except NotImplementedError as exc:
-        raise DataError(["MATLAB v7.3 (HDF5) files are not supported; save with -v7"], source=str(path)) from exc
-    except (scipy.io.matlab.MatReadError, OSError, ValueError, TypeError, EOFError, struct.error) as exc:
-        raise DataError([f"cannot read MATLAB file: {exc}"], source=str(path)) from exc
-    table: dict[str, np.ndarray] = {}
-    problems = []
-    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS + PERTURBATION_EMG)
-    for key, value in raw.items():
-        name = key.lower()
-        if key.startswith("__") or name not in known:
-            continue  # MAT files often hold other variables (settings, notes): ignore them
-        x = np.asarray(value)
-        if not (np.issubdtype(x.dtype, np.number) or x.dtype == bool) or np.iscomplexobj(x):
-            problems.append(f"variable '{key}': not real numbers (dtype {x.dtype})")
-        elif x.ndim > 2 or (x.ndim == 2 and min(x.shape) > 1):
-            problems.append(f"variable '{key}': expected a vector, got shape {x.shape}")
-        else:
-            table[name] = x.astype(float).ravel()
-    if problems:
-        raise DataError(problems, source=str(path))
-    return table
+def _read_mat(path: Path, required, optional, variable=None, channels=None) -> dict[str, np.ndarray]:
+    """Channels of a MATLAB file by role (``time``, ``position``, ...): the lab's ``nldat``
+    objects, structs, matrices or plain vectors, v4 to v7.3 (:mod:`lpvpc.matfiles`)."""
+    from lpvpc.matfiles import read_mat, select_channels
+
+    records = read_mat(path)
+    return select_channels(records, required, optional, channels=channels, variable=variable, source=str(path))
 
 
-def _read_table(path) -> tuple[dict[str, np.ndarray], Path]:
+def split_variable(path) -> tuple[Path, str | None]:
+    """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
+    (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None)."""
+    text = str(path)
+    head, sep, name = text.rpartition(":")
+    if sep and head.lower().endswith(".mat") and name and "/" not in name and "\\" not in name \
+            and not Path(text).exists():
+        return Path(head), name
+    return Path(path), None
+
+
+def _path_and_variable(path, variable):
+    path, named = split_variable(path)
+    return path, (named if named is not None else variable)
+
+
+def _read_table(path, required=REQUIRED_CHANNELS, optional=OPTIONAL_CHANNELS, *, variable=None,
+                channels=None) -> tuple[dict[str, np.ndarray], Path]:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".csv", ".mat"):
@@ -297,7 +297,12 @@ def _read_table(path) -> tuple[dict[str, np.ndarray], Path]:
         raise DataError(["no such file"], source=str(path))
     if os.path.getsize(path) == 0:
         raise DataError(["empty file"], source=str(path))
-    return (_read_csv(path) if suffix == ".csv" else _read_mat(path)), path
+    if suffix == ".csv":
+        if variable is not None or channels:
+            raise DataError(["variable and channel names choose within .mat files; a CSV file's columns are "
+                             f"named {', '.join(required)} in its header"], source=str(path))
+        return _read_csv(path), path
+    return _read_mat(path, required, optional, variable, channels), path
 
 
 def _require(table: dict, required, path) -> None:
@@ -358,6 +363,10 @@ def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str) ->
     )
 
 
+def _name(path: Path, variable) -> str:
+    return f"{path.stem}:{variable}" if variable else path.stem
+
+
 def _trial_from_table(table, path, name, required, extra_channels=()) -> Trial:
     _require(table, required, path)
     channels = {c: table[c] for c in OPTIONAL_CHANNELS + tuple(extra_channels) if c in table}
@@ -366,18 +375,25 @@ def _trial_from_table(table, path, name, required, extra_channels=()) -> Trial:
     return trial
 
 
-def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, name=None) -> Trial:
-    """Load one trial from CSV or MATLAB v5 ``.mat``.
+def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, name=None, variable=None,
+               channels=None) -> Trial:
+    """Load one trial from CSV or MATLAB ``.mat`` (v4 to v7.3, the lab's ``nldat`` objects too).
 
     Required columns/variables: ``time`` (s), ``position``, ``torque``; optional ``emg``,
     ``command``, ``scheduling``; other columns are ignored. ``position_unit`` ("rad" or
     "deg") is the unit of position, command and scheduling in the file; ``torque_sign``
     multiplies torque (N m) to bring the lab's sign convention to the package's.
+    In a .mat file ``variable`` names the variable (e.g. an ``nldat`` object; also
+    ``"file.mat:NAME"``) and ``channels`` maps roles to channel names
+    (``{"position": "pos1", "torque": "tq1"}``); what they leave open is chosen
+    automatically when only one choice fits (:func:`lpvpc.matfiles.select_channels`), and
+    time comes from a ``time`` channel or the variable's sample period.
     Raises DataError listing every problem; warns (UnitWarning) when radians look like degrees.
     """
     _check_settings(position_unit, torque_sign)
-    table, path = _read_table(path)
-    trial = _trial_from_table(table, path, name, REQUIRED_CHANNELS)
+    path, variable = _path_and_variable(path, variable)
+    table, path = _read_table(path, variable=variable, channels=channels)
+    trial = _trial_from_table(table, path, name or _name(path, variable), REQUIRED_CHANNELS)
     return _to_si(trial, position_unit, torque_sign, str(path))
 
 
@@ -494,7 +510,9 @@ class PerturbationData:
     ``extra`` holds other channels aligned with them (``time`` (s), ``emg``,
     ``ut_velocity`` (rad/s) ...); ``source`` says where the data came from; ``meta`` records
     the loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
-    ``decimation``) so a model can report them.
+    ``decimation``) so a model can report them. ``segments`` lists the ``(start, stop)``
+    sample ranges of the trials when several are joined (:func:`join_trials`; empty: one
+    trial); identification builds its regressors trial by trial (:mod:`lpvpc.segments`).
     """
 
     position: np.ndarray
@@ -504,6 +522,7 @@ class PerturbationData:
     extra: dict = field(default_factory=dict)
     source: str = ""
     meta: dict = field(default_factory=dict)
+    segments: tuple = ()
 
     def __post_init__(self):
         self.position = np.asarray(self.position, dtype=float)
@@ -526,6 +545,10 @@ class PerturbationData:
                 problems += _finite_problems(name, x)
         if problems:
             raise DataError(problems, source=self.source or None)
+        self.segments = tuple((int(a), int(b)) for a, b in self.segments)
+        if len(self.segments) == 1:
+            self.segments = ()
+        Segments(self.segments, self.n)  # they must tile the record
 
     @property
     def n(self) -> int:
@@ -547,15 +570,20 @@ class PerturbationData:
         for x in (self.position, self.torque, self.scheduling):
             h.update(np.ascontiguousarray(x, dtype="<f8").tobytes())
         h.update(np.float64(self.fs).astype("<f8").tobytes())
+        if self.segments:  # the same samples cut into trials are other data
+            h.update(np.asarray(self.segments, dtype="<i8").tobytes())
         return h.hexdigest()
 
     def segment(self, start: int | None = None, stop: int | None = None) -> "PerturbationData":
         """Samples ``start:stop`` (e.g. to hold out the last part of a record for validation)."""
         sl = slice(start, stop)
         extra = {k: (np.asarray(v)[sl] if np.ndim(v) == 1 and len(v) == self.n else v) for k, v in self.extra.items()}
+        lo, hi, _ = sl.indices(self.n)
+        segments = [(max(a, lo) - lo, min(b, hi) - lo) for a, b in self.segments if min(b, hi) > max(a, lo)]
         return PerturbationData(
             self.position[sl], self.torque[sl], self.scheduling[sl], self.fs, extra,
             f"{self.source}[{'' if start is None else start}:{'' if stop is None else stop}]", dict(self.meta),
+            tuple(segments),
         )
 
 
@@ -625,17 +653,21 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
 
 
 def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
-                           target_fs=100.0) -> PerturbationData:
+                           target_fs=100.0, variable=None, channels=None) -> PerturbationData:
     """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
     (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg`` (of the PT trial) and
     ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
-    :func:`pair_trials`.
+    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`load_trial` (the lab's
+    pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
+    found without options).
     """
     _check_settings(position_unit, torque_sign)
-    table, path = _read_table(path)
-    trial = _trial_from_table(table, path, None, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
+    path, variable = _path_and_variable(path, variable)
+    table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
+                              channels=channels)
+    trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
     trial = _to_si(trial, position_unit, torque_sign, str(path))
     q = decimation_factor(trial.fs, target_fs, source=str(path))
     low = decimate_trial(trial, target_fs) if q > 1 else trial
@@ -648,32 +680,132 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta)
 
 
+def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
+    """Perturbation data from one perturbed trial around a fixed operating position recorded
+    without a UT trial (the commonest experiment in the field, e.g. the lab's
+    ``experimental_data.mat``).
+
+    The UT trial of such an experiment would hold the joint at the operating position: a
+    constant position and a constant torque. Both are taken as the PT trial's means, so
+    position = PT position - its mean (rad), torque = PT torque - its mean (N m), and
+    scheduling = the mean position (constant; the model is then position-independent).
+    The mean and not a low-pass: the perturbation itself reaches down to the lowest
+    frequencies (the lab's trials keep about half their peak-to-peak range below 0.5 Hz),
+    and that slow part carries the elastic stiffness. Removing the torque mean also removes
+    the mean of the rectified reflex torque, which the model then cannot attribute (the
+    same as the lab's own stationary analysis, which removes it too). ``meta`` records
+    ``stationary``, ``operating_point`` (rad) and ``torque_offset`` (N m).
+    """
+    problems = trial_problems(pt)
+    if problems:
+        raise DataError(problems, source=pt.name or "PT")
+    op, tq0 = float(np.mean(pt.position)), float(np.mean(pt.torque))
+    ut = Trial(np.asarray(pt.time, dtype=float), np.full(len(pt.time), op), np.full(len(pt.time), tq0), {},
+               "constant operating point")
+    out = pair_trials(pt, ut, target_fs=target_fs)
+    out.source = f"{pt.name or 'PT'} (stationary at {op:+.4f} rad)"
+    out.meta.update(stationary=True, operating_point=op, torque_offset=tq0)
+    return out
+
+
+def join_trials(trials) -> PerturbationData:
+    """Several trials' perturbation data as one record for a joint identification.
+
+    The arrays are put end to end and ``segments`` marks each trial, so that identification
+    builds every regressor trial by trial and nothing (IRF lags, velocities, the reflex
+    delay and dynamics, MOESP Hankel blocks) reaches from one trial into the next
+    (:mod:`lpvpc.segments`). The trials must share the sampling rate (that of their files
+    too), the position unit and the torque sign (DataError otherwise); extra channels
+    (``time``, ``emg``, ...) are kept when every trial has them.
+    """
+    trials = list(trials)
+    if not trials:
+        raise DataError(["no trials given"])
+    if len(trials) == 1:
+        return trials[0]
+    problems = []
+    label = [f"trial {i + 1} ({d.source or '?'})" for i, d in enumerate(trials)]
+    for what, values in (("sampling rate", [d.meta.get("fs_original", d.fs) for d in trials]),
+                         ("sampling rate after decimation", [d.fs for d in trials])):
+        if max(values) - min(values) > RATE_TOLERANCE * max(values):
+            problems.append(f"trials differ in {what}: " + ", ".join(f"{lb} {v:.6g} Hz" for lb, v in zip(label, values))
+                            + "; resample them to one rate")
+            break
+    for key in ("position_unit", "torque_sign"):
+        values = [d.meta.get(key) for d in trials]
+        if len({v for v in values if v is not None}) > 1:
+            problems.append(f"trials differ in {key}: " + ", ".join(f"{lb} {v}" for lb, v in zip(label, values)))
+    if problems:
+        raise DataError(problems)
+    segments, start = [], 0
+    for d in trials:
+        segments += [(start + a, start + b) for a, b in (d.segments or ((0, d.n),))]
+        start += d.n
+    common = [k for k, v in trials[0].extra.items()
+              if all(np.ndim(d.extra.get(k)) == 1 and len(d.extra[k]) == d.n for d in trials)]
+    extra = {k: np.concatenate([np.asarray(d.extra[k], dtype=float) for d in trials]) for k in common}
+    meta = dict(trials[0].meta)
+    meta["trials"] = [d.source for d in trials]
+    for key in ("operating_point", "torque_offset"):
+        meta.pop(key, None)
+        if all(key in d.meta for d in trials):
+            meta[key + "s"] = [d.meta[key] for d in trials]
+    return PerturbationData(
+        np.concatenate([d.position for d in trials]), np.concatenate([d.torque for d in trials]),
+        np.concatenate([d.scheduling for d in trials]), trials[0].fs, extra,
+        " + ".join(d.source or "?" for d in trials), meta, tuple(segments),
+    )
+
+
 def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
-                             torque_sign: float = 1.0, target_fs=100.0) -> PerturbationData:
+                             torque_sign: float = 1.0, target_fs=100.0, variable=None, channels=None,
+                             stationary: bool = False) -> PerturbationData:
     """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
     a perturbation file, or a PerturbationData returned as is).
 
     ``position_unit`` and ``torque_sign`` describe the inputs (applied to Trials too);
-    ``target_fs`` (Hz, None keeps the rate). Wrong combinations raise DataError.
+    ``target_fs`` (Hz, None keeps the rate); ``variable`` and ``channels`` choose within
+    .mat files (:func:`load_trial`; a path ``"file.mat:NAME"`` names its own variable).
+    Several trials: lists for ``pt`` and ``ut`` (paired in order) or for ``data``, joined by
+    :func:`join_trials` for one joint identification. ``stationary=True``: ``pt`` alone, a
+    perturbed trial (or a list) around a fixed operating position recorded without UT
+    (:func:`stationary_perturbation`). Wrong combinations raise DataError.
     """
     given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
-    if given not in (["pt", "ut"], ["data"]):
-        raise DataError(
-            [f"give either both pt and ut, or data alone; got {', '.join(given) or 'nothing'}"]
-        )
+    allowed = (["pt"],) if stationary else (["pt", "ut"], ["data"])
+    if given not in allowed:
+        want = "pt alone (a stationary trial has no UT)" if stationary else "either both pt and ut, or data alone"
+        raise DataError([f"give {want}; got {', '.join(given) or 'nothing'}"])
     torque_sign = _check_settings(position_unit, torque_sign)
+    kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs, variable=variable,
+              channels=channels, stationary=stationary)
+    if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
+        if data is not None:
+            return join_trials([load_identification_data(data=d, **kw) for d in data])
+        pts = list(pt) if isinstance(pt, (list, tuple)) else [pt]
+        uts = list(ut) if isinstance(ut, (list, tuple)) else [ut] * len(pts) if stationary else [ut]
+        if len(pts) != len(uts):
+            raise DataError([f"{len(pts)} PT trials but {len(uts)} UT trials: give them in pairs"])
+        return join_trials([load_identification_data(pt=a, ut=b if not stationary else None, **kw)
+                            for a, b in zip(pts, uts)])
     if data is not None:
         if isinstance(data, PerturbationData):
             return data
         return load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
-                                      target_fs=target_fs)
+                                      target_fs=target_fs, variable=variable, channels=channels)
     trials = []
     for label, item in (("PT", pt), ("UT", ut)):
+        if item is None:
+            continue
         if isinstance(item, Trial):
             trials.append(_to_si(item, position_unit, torque_sign, item.name or label))
         else:
-            trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign))
-    out = pair_trials(trials[0], trials[1], target_fs=target_fs)
+            trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign,
+                                     variable=variable, channels=channels))
+    if stationary:
+        out = stationary_perturbation(trials[0], target_fs=target_fs)
+    else:
+        out = pair_trials(trials[0], trials[1], target_fs=target_fs)
     out.meta.update(position_unit=position_unit, torque_sign=torque_sign)
     return out
 

@@ -28,6 +28,7 @@ from . import equations as eq
 from .basis import basis_from_data
 from .errors import DataError, IdentificationError, InsufficientExcitationError
 from .intrinsic import intrinsic_regressor, two_sided_lags
+from .segments import Segments
 
 # scipy-based modules are imported where they are used, so that `lpvpc identify --help`
 # (which reads the estimator's defaults) starts without scipy.signal.
@@ -112,19 +113,22 @@ class LPVPCEstimator:
         t0 = time.perf_counter()
         timings = {}
         p, y, rho, fs = self._checked(data)
+        seg = Segments.of(data, len(y))  # several trials: nothing crosses a seam (lpvpc.segments)
         delay = int(round(self.reflex_delay * fs))
         if delay < 1:
             raise DataError(f"reflex delay {self.reflex_delay} s is less than one sample at {fs} Hz")
         lags = two_sided_lags(self.irf_lags)
-        dvel = eq.delayed_velocity(p, fs, delay)
+        dvel = seg.map(eq.delayed_velocity, p, fs=fs, delay=delay)
 
         G_i = basis_from_data(rho, self.basis, self.intrinsic_order)
         G_r = basis_from_data(rho, self.basis, self.reflex_order)
         V_b = basis_from_data(dvel, self.velocity_basis, self.velocity_order, extrapolation="linear")
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
-        Psi_i = intrinsic_regressor(p, Gi_val, lags)
+        Psi_i = seg.map(intrinsic_regressor, p, Gi_val, lags=lags)
         U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
         design = None
+        if self.effects and len(seg) > 1:
+            raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
         if self.effects:  # extended model: the effects' columns join the intrinsic regressor
             from .effects import EffectDesign, signals_from_data
 
@@ -137,7 +141,7 @@ class LPVPCEstimator:
         timings["regressors"] = time.perf_counter() - t0
 
         t = time.perf_counter()
-        sub = po_moesp(U_r, Psi_i, y, self.horizon)
+        sub = po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
         timings["moesp"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -151,8 +155,8 @@ class LPVPCEstimator:
             orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2, 3})
             orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
         orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity
-        refinement = PoleRefinement(U_r, Psi_i, y) if self.refine else None
-        fits = {m: self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation) for m in orders}
+        refinement = PoleRefinement(U_r, Psi_i, y, segments=seg) if self.refine else None
+        fits = {m: self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg) for m in orders}
         n = len(y)
         bic = {m: n * np.log(f["rss"] / n) + f["n_params"] * np.log(n) for m, f in fits.items()}
         m_best = min(bic, key=bic.get)
@@ -162,7 +166,7 @@ class LPVPCEstimator:
         n_base = len(lags) * G_i.size  # the rest of theta_i belongs to effects
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
         causal = list(range(0, (self.causal_lags if self.causal_lags is not None else self.irf_lags + 2) + 1))
-        S_c = eq.causal_signals(p, fs, causal)
+        S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal)
         Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
         H_causal = np.linalg.lstsq(Psi_c, Psi_i[:, :n_base] @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
 
@@ -181,12 +185,15 @@ class LPVPCEstimator:
 
             finish_extended_fit(design, model, best["theta_i"][n_base:], Psi_i[:, :n_base], y)
             sig = {"signals": design.signals}
-        pred = model.predict(p, rho, warn=False, **sig)
+        def predicted(causal):  # trial by trial
+            return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
+
         timings["total"] = time.perf_counter() - t0
         model.fit = {
-            "vaf": vaf(y, pred.total),
-            "vaf_causal": vaf(y, model.predict(p, rho, causal=True, warn=False, **sig).total),
+            "vaf": vaf(y, predicted(False)),
+            "vaf_causal": vaf(y, predicted(True)),
             "n_samples": int(n),
+            "n_trials": len(seg),
             "velocity_p99": float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else V_b.hi,
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
@@ -203,7 +210,7 @@ class LPVPCEstimator:
         return self
 
     # ------------------------------------------------------------------------------------
-    def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation):
+    def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None):
         from .linalg import triangular_factor
         from .reflex import fit_hammerstein, reflex_regressor
 
@@ -211,7 +218,7 @@ class LPVPCEstimator:
         moesp_poles = np.linalg.eigvals(A)
         if refinement is not None:
             A, C, _ = refinement.refine(A)
-        blocks = reflex_regressor(U_r, A, C)
+        blocks = reflex_regressor(U_r, A, C, segments)
         # Every fit below is a least-squares problem in the columns of [Psi_r, Psi_i, y]:
         # solved on their triangular factor, at ~100 rows instead of N, with the same
         # solutions and residual norms.

@@ -22,12 +22,13 @@ def reflex_input_regressor(velocity_basis, rho_basis):
     return (velocity_basis[:, :, None] * rho_basis[:, None, :]).reshape(n, -1)
 
 
-def reflex_regressor(U_r, A, C):
+def reflex_regressor(U_r, A, C, segments=None):
     """Psi_r (eq. 25) computed by filtering, not by explicit sums.
 
     Block i < m holds U_r filtered by C (zI - A)^-1 e_i (the response of the output to
     state i's input); the last block is U_r itself (the D term). theta_r = [B; d] kron Omega
-    (eq. 26) so Psi_r @ theta_r is the reflex torque.
+    (eq. 26) so Psi_r @ theta_r is the reflex torque. With ``segments`` (trials joined end
+    to end, :mod:`lpvpc.segments`) the filters start from rest in each trial.
     """
     m = A.shape[0]
     blocks = []
@@ -35,7 +36,8 @@ def reflex_regressor(U_r, A, C):
         e_i = np.zeros((m, 1))
         e_i[i] = 1.0
         num, den = scipy.signal.ss2tf(A, e_i, C, np.zeros((1, 1)))
-        blocks.append(scipy.signal.lfilter(num[0], den, U_r, axis=0))
+        filt = lambda u, num=num, den=den: scipy.signal.lfilter(num[0], den, u, axis=0)  # noqa: E731
+        blocks.append(filt(U_r) if segments is None else segments.map(filt, U_r))
     blocks.append(U_r)
     return blocks
 

@@ -24,6 +24,7 @@ import scipy.signal
 
 from .errors import IdentificationError, InsufficientExcitationError
 from .linalg import CHUNK_ROWS, fold_rows, orthonormal_range
+from .segments import Segments
 
 
 @dataclass
@@ -58,39 +59,52 @@ def hankel_rows(u_future, u_past, y, start: int, stop: int, s: int):
     return out
 
 
-def streamed_r(u_future, u_past, y, s: int, chunk: int | None = None):
+def streamed_r(u_future, u_past, y, s: int, chunk: int | None = None, segments=None):
     """Triangular factor R of the QR of the transposed block Hankel matrix, streamed:
-    chunks of its rows are built and folded into R one at a time."""
+    chunks of its rows are built and folded into R one at a time. With ``segments``
+    (:class:`lpvpc.segments.Segments`) each trial contributes the rows that lie inside it:
+    no row spans a seam."""
     n_cols = s * (u_future.shape[1] + u_past.shape[1] + 2)
-    n_rows = len(y) - 2 * s + 1
     chunk = chunk or max(4 * n_cols, CHUNK_ROWS)
-    R = None
-    for start in range(0, n_rows, chunk):
-        R = fold_rows(R, hankel_rows(u_future, u_past, y, start, min(start + chunk, n_rows), s))
+    R, pending = None, []
+    for a, b in (segments if segments is not None else [(0, len(y))]):
+        n_rows = (b - a) - 2 * s + 1
+        for start in range(0, max(n_rows, 0), chunk):
+            rows = hankel_rows(u_future[a:b], u_past[a:b], y[a:b], start, min(start + chunk, n_rows), s)
+            if R is None:  # the first fold needs at least as many rows as columns
+                pending.append(rows)
+                if sum(len(r) for r in pending) < n_cols:
+                    continue
+                rows, pending = np.vstack(pending), []
+            R = fold_rows(R, rows)
     return R
 
 
-def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None) -> SubspaceResult:
+def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None, segments=None) -> SubspaceResult:
     """PO-MOESP for one output.
 
     u_state: (N, n_r) inputs that drive the state; u_feedthrough: (N, n_f) inputs that act
-    only through the feedthrough; y: (N,) output; horizon: number of block rows s.
+    only through the feedthrough; y: (N,) output; horizon: number of block rows s;
+    segments: trials joined end to end (:class:`lpvpc.segments.Segments`; None: one record).
     """
     y = np.asarray(y, dtype=float)
     s = int(horizon)
     u_future = np.hstack([u_state, u_feedthrough])
     n_cols = s * (u_future.shape[1] + u_state.shape[1] + 2)
-    if len(y) - 2 * s + 1 < n_cols:
+    lengths = [b - a for a, b in segments] if segments is not None else [len(y)]
+    if sum(max(n - 2 * s + 1, 0) for n in lengths) < n_cols:
         raise InsufficientExcitationError(
-            f"too few samples for subspace identification: {len(y)} samples, need at least "
-            f"{n_cols + 2 * s - 1} for horizon {s} with {u_future.shape[1]} inputs"
+            f"too few samples for subspace identification: {len(y)} samples"
+            + (f" in {len(lengths)} trials" if len(lengths) > 1 else "")
+            + f", need at least {n_cols + 2 * s - 1} for horizon {s} with {u_future.shape[1]} inputs"
         )
     # Scale every column to unit RMS: the QR is then well balanced between positions
     # (~0.02 rad), basis values (~1) and torques (~N m).
     scale_f = _rms(u_future)
     scale_p = _rms(u_state)
     scale_y = _rms(y[:, None])[0]
-    R = streamed_r(np.asfortranarray(u_future / scale_f), np.asfortranarray(u_state / scale_p), y / scale_y, s, chunk)
+    R = streamed_r(np.asfortranarray(u_future / scale_f), np.asfortranarray(u_state / scale_p), y / scale_y, s, chunk,
+                   segments)
     L = R.T
     n_f = s * u_future.shape[1]
     n_w = s * (u_state.shape[1] + 1)
@@ -146,8 +160,10 @@ class PoleRefinement:
     cost m extra residuals per step.
     """
 
-    def __init__(self, u_state, fixed_regressor, y):
+    def __init__(self, u_state, fixed_regressor, y, segments=None):
         self.u = np.asfortranarray(u_state)  # lfilter runs along columns
+        # Trials joined end to end: filters and delays restart in each (lpvpc.segments).
+        self.segments = segments if segments is not None else Segments((), len(y))
         self.Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
         self.y_perp = y - self.Q0 @ (self.Q0.T @ y)
         self._cache = (None, None)
@@ -174,8 +190,9 @@ class PoleRefinement:
             return self._cache[1]
         fit = None
         if np.all(np.abs(np.roots(np.r_[1.0, den])) < 0.999):
-            W = scipy.signal.lfilter([1.0], np.r_[1.0, den], self.u, axis=0)
-            X = _delays(W, len(den))
+            a = np.r_[1.0, den]
+            W = self.segments.map(lambda x: scipy.signal.lfilter([1.0], a, x, axis=0), self.u)
+            X = self.segments.map(_delays, W, m=len(den))
             B = self.Q0.T @ X
             G = X.T @ X - B.T @ B
             scale = np.sqrt(np.maximum(np.diag(G), 0.0))
@@ -208,13 +225,14 @@ class PoleRefinement:
             return np.zeros((len(self.y_perp), m))
         W, X, B, r, G_pinv = fit["W"], fit["X"], fit["B"], fit["r"], fit["G_pinv"]
         a = np.r_[1.0, den]
-        Vc = scipy.signal.lfilter([1.0], a, W @ fit["coef"].reshape(m, -1).T, axis=0)
-        z = sum(_delay(Vc[:, j - 1], j) for j in range(1, m + 1))  # -dX_k c = q^-k z
-        S = np.column_stack([_delay(z, k) for k in range(1, m + 1)])
+        seg = self.segments
+        Vc = seg.map(lambda x: scipy.signal.lfilter([1.0], a, x, axis=0), W @ fit["coef"].reshape(m, -1).T)
+        z = sum(seg.map(_delay, Vc[:, j - 1], lag=j) for j in range(1, m + 1))  # -dX_k c = q^-k z
+        S = np.column_stack([seg.map(_delay, z, lag=k) for k in range(1, m + 1)])
         S -= self.Q0 @ (self.Q0.T @ S)
-        n = len(r)
-        g = scipy.signal.lfilter([1.0], a, r[::-1])[::-1]  # F^T r
-        corr = {lag: W[: n - lag].T @ g[lag:] for lag in range(2, 2 * m + 1)}  # (q^-lag V)^T r
+        g = seg.map(lambda x: scipy.signal.lfilter([1.0], a, x[::-1])[::-1], r)  # F^T r
+        corr = {lag: sum(W[i : j - lag].T @ g[i + lag : j] for i, j in seg)  # (q^-lag V)^T r
+                for lag in range(2, 2 * m + 1)}
         H = np.column_stack([np.concatenate([corr[j + k] for j in range(1, m + 1)]) for k in range(1, m + 1)])
         return S + self._perp_x(X, B, G_pinv @ (H - X.T @ S))
 

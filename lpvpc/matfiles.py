@@ -1,0 +1,402 @@
+"""MATLAB ``.mat`` files: the lab's ``nldat`` objects, plain arrays and structs, any version.
+
+A file is read into *records*: named groups of equally sampled channels.
+
+- an ``nldat`` object (the lab's format: a MATLAB class object, classdef or old-style, or a
+  struct with the same fields) is one record: ``dataSet`` (N x channels) with channel
+  names from ``chanNames``, sample period ``domainIncr`` (s), start ``domainStart`` (s);
+- a struct's vector fields form one record (nested structs and objects are records of
+  their own, named ``outer.inner``); a scalar field ``fs``/``Fs`` (Hz) or ``dt``/``Ts`` (s)
+  gives its sample period;
+- a matrix variable (N x k) is a record whose channels are its columns ``1`` .. ``k``;
+- the file's top-level vectors form one record (named ``(top level)``), e.g. ``time``,
+  ``position``, ``torque`` as earlier versions of this package read them.
+
+Which channels are position, torque, ... is chosen by :func:`select_channels`: by name when
+the caller says so (``channels={"position": "pos1"}``, ``variable="z_df"``), otherwise
+automatically when only one choice fits; an ambiguous or empty choice is one DataError that
+lists the variables and channels found. MATLAB v4/v5/v7 and v7.3 (HDF5) files are read with
+``mat-io`` (which reads class objects; ``scipy.io.loadmat`` cannot), plain v5 files with
+``scipy.io`` as a fallback. Units are not converted here (see :mod:`lpvpc.data`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DataError
+
+TOP_LEVEL = "(top level)"
+# Channel names (case-insensitive) a role is recognised by when the caller names none. An
+# exact name wins; otherwise a unique name containing one of the patterns.
+ROLE_NAMES = {
+    "time": ("time", "t"),
+    "position": ("position",),
+    "torque": ("torque",),
+    "scheduling": ("scheduling",),
+    "emg": ("emg",),
+    "emg_ut": ("emg_ut",),
+    "command": ("command",),
+}
+ROLE_PATTERNS = {
+    "position": ("pos", "angle"),
+    "torque": ("tq", "torque", "trq", "moment"),
+    "scheduling": ("sched", "rho"),
+}
+# A record of this name holds the scheduling variable in the lab's files ('sv' of the pilot).
+SCHEDULING_RECORDS = ("sv", "scheduling")
+RATE_FIELDS = {"fs": "rate", "samplingrate": "rate", "sampling_rate": "rate", "dt": "period", "ts": "period",
+               "domainincr": "period"}
+
+
+@dataclass
+class Record:
+    """Equally long channels (name -> 1-D float array) of one variable of a .mat file,
+    with the sample period (s) and start time (s) when the file says them."""
+
+    name: str
+    kind: str  # "nldat", "struct", "matrix" or "variables"
+    channels: dict = field(default_factory=dict)
+    period: float | None = None
+    start: float = 0.0
+    time: np.ndarray | None = None  # explicit sample times (nldat domainValues), if any
+
+    @property
+    def n(self) -> int:
+        lengths = {len(x) for x in self.channels.values()}
+        return lengths.pop() if len(lengths) == 1 else 0
+
+    def describe(self) -> str:
+        """e.g. ``z_df (nldat, 60000 samples at 1000 Hz: pos1, tq1)``."""
+        lengths = sorted({len(x) for x in self.channels.values()})
+        size = f"{lengths[0]} samples" if len(lengths) == 1 else "samples " + "/".join(map(str, lengths))
+        rate = f" at {1.0 / self.period:.6g} Hz" if self.period else ""
+        return f"{self.name} ({self.kind}, {size}{rate}: {', '.join(self.channels) or 'no channels'})"
+
+    def times(self) -> np.ndarray | None:
+        """Sample times (s) from the record's domain, or None if it has none."""
+        if self.time is not None:
+            return self.time
+        if self.period:
+            return self.start + np.arange(self.n) * self.period
+        return None
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_mat(path) -> list[Record]:
+    """Every record of a .mat file (see the module notes). Raises DataError if the file
+    cannot be read as a MATLAB file."""
+    path = Path(path)
+    raw = _load(path)
+    records: list[Record] = []
+    top = Record(TOP_LEVEL, "variables")
+    for name, value in raw.items():
+        if name.startswith("__"):
+            continue
+        if _is_vector(value):
+            top.channels[name] = _as_vector(value)
+        elif _is_scalar(value) and name.lower() in RATE_FIELDS:
+            _set_rate(top, name, value)
+        else:
+            records += _records(name, value)
+    if top.channels:
+        records.insert(0, top)
+    return records
+
+
+def _load(path: Path) -> dict:
+    try:
+        with warnings.catch_warnings():  # mat-io sets a pandas option pandas 3 warns about
+            warnings.simplefilter("ignore")
+            import matio
+    except ImportError as exc:  # mat-io needs Python 3.11: plain v5 files still read with scipy
+        first = f"MATLAB class objects and v7.3 files need the mat-io package (Python >= 3.11): {exc}"
+    else:
+        try:
+            return matio.load_from_mat(str(path))
+        except Exception as exc:  # mat-io raises many kinds; scipy may still read a plain v5 file
+            first = f"{type(exc).__name__}: {exc}"
+    try:
+        import scipy.io
+
+        return scipy.io.loadmat(str(path))
+    except Exception as exc:
+        raise DataError([f"cannot read MATLAB file: {first}"], source=str(path)) from exc
+
+
+def _is_numeric(x) -> bool:
+    return isinstance(x, np.ndarray) and x.dtype.fields is None and (
+        np.issubdtype(x.dtype, np.number) or x.dtype == bool) and not np.iscomplexobj(x)
+
+
+def _is_vector(x) -> bool:
+    return _is_numeric(x) and x.size >= 2 and x.size == max(x.shape)
+
+
+def _is_scalar(x) -> bool:
+    return _is_numeric(x) and x.size == 1
+
+
+def _as_vector(x) -> np.ndarray:
+    return np.asarray(x, dtype=float).ravel()
+
+
+def _set_rate(record: Record, name: str, value) -> None:
+    v = float(np.asarray(value, dtype=float).ravel()[0])
+    if np.isfinite(v) and v > 0:
+        record.period = 1.0 / v if RATE_FIELDS[name.lower()] == "rate" else v
+
+
+def _fields(value) -> dict | None:
+    """Fields of a struct, a class object (classdef: its properties; old-style: its
+    fields) or None if ``value`` is neither."""
+    props = getattr(value, "properties", None)
+    if isinstance(props, dict):
+        return props
+    if isinstance(value, np.ndarray) and value.dtype.fields is not None and value.size == 1:
+        item = value.ravel()[0]
+        return {k: item[k] for k in value.dtype.names}
+    return None
+
+
+def _class_name(value) -> str:
+    return str(getattr(value, "classname", "") or "struct")
+
+
+def _records(name: str, value) -> list[Record]:
+    fields = _fields(value)
+    if fields is not None:
+        if "dataSet" in fields:
+            return [_nldat(name, fields, _class_name(value))]
+        rec = Record(name, _class_name(value))
+        nested = []
+        for key, v in fields.items():
+            if _is_vector(v):
+                rec.channels[key] = _as_vector(v)
+            elif _is_scalar(v) and key.lower() in RATE_FIELDS:
+                _set_rate(rec, key, v)
+            elif _is_numeric(v) and v.ndim == 2 and min(v.shape) > 1:
+                nested.append(_matrix(f"{name}.{key}", v))
+            else:
+                nested += _records(f"{name}.{key}", v)
+        return ([rec] if rec.channels else []) + nested
+    if _is_numeric(value) and value.ndim == 2 and min(value.shape) > 1:
+        return [_matrix(name, value)]
+    return []  # text, cells, function handles, empty arrays: nothing to read
+
+
+def _matrix(name: str, value) -> Record:
+    x = np.asarray(value, dtype=float)
+    if x.shape[0] < x.shape[1]:  # channels in rows (MATLAB users store both ways)
+        x = x.T
+    return Record(name, "matrix", {str(j + 1): x[:, j].copy() for j in range(x.shape[1])})
+
+
+def _strings(value) -> list[str]:
+    """Every string in a (nested) MATLAB char/cell/string array, in order."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, bytes):
+        return [value.decode("utf-8", "replace")]
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "US":  # char arrays arrive as arrays of whole strings
+            return [_strings(s)[0] for s in value.ravel().tolist()]
+        if value.dtype == object:
+            out = []
+            for item in value.ravel(order="F"):
+                out += _strings(item)
+            return out
+    return []
+
+
+def _nldat(name: str, fields: dict, kind: str) -> Record:
+    data = np.asarray(fields["dataSet"])
+    rec = Record(name, kind)
+    if not _is_numeric(data) or data.size == 0:
+        return rec
+    if data.ndim == 3 and data.shape[2] == 1:
+        data = data[:, :, 0]
+    if data.ndim == 1:
+        data = data[:, None]
+    if data.ndim != 2:
+        raise DataError([f"variable '{name}': dataSet of shape {data.shape} (several realizations) is not "
+                         f"supported; save one realization per variable"])
+    names = _strings(fields.get("chanNames"))
+    if len(names) != data.shape[1] or len(set(names)) != len(names):
+        names = [str(j + 1) for j in range(data.shape[1])]
+    rec.channels = {c: np.asarray(data[:, j], dtype=float) for j, c in enumerate(names)}
+    incr = np.asarray(fields.get("domainIncr", np.nan), dtype=float).ravel()
+    if incr.size == 1 and np.isfinite(incr[0]) and incr[0] > 0:
+        rec.period = float(incr[0])
+    start = np.asarray(fields.get("domainStart", 0.0), dtype=float).ravel()
+    rec.start = float(start[0]) if start.size == 1 and np.isfinite(start[0]) else 0.0
+    values = np.asarray(fields.get("domainValues", np.nan), dtype=float).ravel()
+    if values.size == data.shape[0] and np.all(np.isfinite(values)):  # unevenly sampled nldat
+        rec.time = values
+    return rec
+
+
+# --------------------------------------------------------------------------- choosing channels
+
+
+def found(records) -> str:
+    """One-line summary of the variables and channels of a file."""
+    return "; ".join(r.describe() for r in records) or "nothing readable (no numeric vectors, matrices or nldat objects)"
+
+
+def _match(records, spec: str, source: str, role: str):
+    """(record, channel) named by ``spec``: a channel name, ``variable.channel``, a
+    variable holding one channel, or a column number of the only record."""
+    spec_l = spec.strip().lower()
+    hits = [(r, c) for r in records for c in r.channels if c.lower() == spec_l]
+    if not hits:
+        for r in records:
+            for c in r.channels:
+                if f"{r.name}.{c}".lower() == spec_l:
+                    hits.append((r, c))
+    if not hits:
+        hits = [(r, next(iter(r.channels))) for r in records if r.name.lower() == spec_l and len(r.channels) == 1]
+    if len(hits) == 1:
+        return hits[0]
+    if not hits:
+        raise DataError([f"no channel '{spec}' for {role} (found: {found(records)})"], source=source)
+    where = ", ".join(f"{r.name}.{c}" for r, c in hits)
+    raise DataError([f"channel '{spec}' for {role} is in several variables ({where}); name it as "
+                     f"VARIABLE.CHANNEL or choose the variable"], source=source)
+
+
+def _candidates(records, role, used):
+    names = ROLE_NAMES.get(role, ())
+    exact = [(r, c) for r in records for c in r.channels if c.lower() in names and (r.name, c) not in used]
+    if exact or role not in ROLE_PATTERNS:
+        return exact
+    pats = ROLE_PATTERNS[role]
+    return [(r, c) for r in records for c in r.channels
+            if (r.name, c) not in used and any(p in c.lower() for p in pats)]
+
+
+def _scheduling_candidates(records, used, home):
+    hits = _candidates(records, "scheduling", used)
+    if hits:
+        return hits
+    hits = [(r, c) for r in records for c in r.channels if (r.name, c) not in used
+            and r.name.lower().split(".")[-1] in SCHEDULING_RECORDS
+            and (len(r.channels) == 1 or any(p in c.lower() for p in ROLE_PATTERNS["position"]))]
+    if hits:
+        return hits
+    # The lab's files: the perturbation and the scheduling position sit in different variables.
+    return [(r, c) for r, c in _candidates(records, "position", used) if home is not None and r is not home]
+
+
+def select_channels(records, required, optional=(), *, channels=None, variable=None, source="") -> dict:
+    """Choose the channels of each role and return them as ``{role: array}`` (``time`` in s
+    from a time channel or from the variable's sample period).
+
+    ``required``/``optional``: roles such as "time", "position", "torque", "scheduling",
+    "emg", "command". ``channels`` maps roles to channel names (``"pos1"``,
+    ``"io.posPert1"``, a column number ``"2"``); ``variable`` restricts the search to one
+    variable (record) of the file. Roles not named are found automatically: an exact name
+    (``position``, ``torque``, ...), else a unique name containing ``pos``/``angle``
+    (position), ``tq``/``torque`` (torque), ``sched``/``rho`` (scheduling; in the lab's
+    files the position channel of another variable, e.g. ``sv``); optional roles only by
+    their exact name. Torque is chosen first; position and the optional channels are
+    preferred from the same variable. Raises DataError (one line, listing what was found)
+    when a required channel is missing or a choice is ambiguous.
+    """
+    channels = dict(channels or {})
+    unknown = sorted(set(channels) - set(required) - set(optional))
+    if unknown:
+        raise DataError([f"unknown channel role(s) {', '.join(unknown)} (roles: {', '.join((*required, *optional))})"],
+                        source=source)
+    if not any(r.channels for r in records):
+        raise DataError([f"no usable channel: the file holds {found(records)}"], source=source)
+    pool = records
+    if variable is not None:
+        pool = [r for r in records if r.name == variable] or [r for r in records if r.name.lower() == variable.lower()]
+        if len(pool) != 1:
+            raise DataError([f"no variable '{variable}' with channels (found: {found(records)})"], source=source)
+    chosen: dict[str, tuple] = {}
+    used: set = set()
+    for role, spec in channels.items():
+        rec, c = _match(pool if variable is not None and "." not in str(spec) else records, str(spec), source, role)
+        chosen[role] = (rec, c)
+        used.add((rec.name, c))
+    order = [r for r in ("torque", "position", "scheduling", "time") if r in required or r in optional]
+    order += [r for r in (*required, *optional) if r not in order]
+    for role in order:
+        if role in chosen:
+            continue
+        home = chosen.get("torque", chosen.get("position", (None,)))[0]
+        if role not in required:  # optional channels only by their exact name: no guessing
+            hits = [h for h in _candidates(pool, role, used) if h[1].lower() in ROLE_NAMES.get(role, ())]
+        elif role == "scheduling":
+            hits = _scheduling_candidates(pool, used, home)
+        else:
+            hits = _candidates(pool, role, used)
+        if len(hits) > 1 and home is not None:
+            mine = [h for h in hits if h[0] is home]
+            hits = mine or hits
+        if role == "time" and not hits:
+            continue  # from the record's sample period below
+        if len(hits) == 1:
+            chosen[role] = hits[0]
+            used.add((hits[0][0].name, hits[0][1]))
+        elif role in required:
+            raise DataError([_choice_problem(role, hits, pool, variable)], source=source)
+        # an optional channel that is absent or ambiguous is not read
+    return _assemble(chosen, required, source, records)
+
+
+def _choice_problem(role, hits, pool, variable) -> str:
+    if not hits:
+        what = f"in variable '{variable}'" if variable else "in the file"
+        return (f"no {role} channel found {what} (found: {found(pool)}); name it with "
+                f"channels={{'{role}': NAME}} (--channel {role}=NAME)")
+    records = {h[0].name for h in hits}
+    listed = ", ".join(f"{r.name}.{c}" if r.name != TOP_LEVEL else c for r, c in hits)
+    hint = ("choose the variable with variable=NAME (--variable NAME)" if len(records) > 1 and variable is None
+            else f"name it with channels={{'{role}': NAME}} (--channel {role}=NAME)")
+    return f"ambiguous {role} channel: {listed}; {hint} (found: {found(pool)})"
+
+
+def _assemble(chosen, required, source, records) -> dict:
+    table = {role: rec.channels[c] for role, (rec, c) in chosen.items()}
+    used_records = {id(rec): rec for rec, _ in chosen.values()}.values()
+    if "time" in required and "time" not in table:
+        domains = [rec for rec in used_records if rec.times() is not None]
+        if not domains:
+            raise DataError([f"no time: no 'time' channel and no sample period in "
+                             f"{', '.join(r.name for r in used_records)} (found: {found(records)})"], source=source)
+        table["time"] = domains[0].times()
+    # Channels taken from different variables must describe the same samples.
+    periods = {rec.name: rec.period for rec in used_records if rec.period}
+    if periods and max(periods.values()) > min(periods.values()) * (1 + 1e-9):
+        listed = ", ".join(f"{k} {1 / v:.6g} Hz" for k, v in periods.items())
+        raise DataError([f"the chosen variables differ in sampling rate: {listed}"], source=source)
+    return table
+
+
+def parse_channel_options(items) -> dict:
+    """``["position=pos1", "torque=io.tqPert1"]`` -> ``{"position": "pos1", ...}`` (the
+    CLI's repeated ``--channel ROLE=NAME``). Raises ValueError naming a malformed item."""
+    out = {}
+    for item in items or ():
+        role, sep, name = str(item).partition("=")
+        role = role.strip().lower()
+        if not sep or not role or not name.strip():
+            raise ValueError(f"expected ROLE=NAME, got {item!r}")
+        if role in out:
+            raise ValueError(f"channel role '{role}' given twice")
+        out[role] = name.strip()
+    return out
+
+
+def is_mat(path) -> bool:
+    return Path(path).suffix.lower() == ".mat"
+
