@@ -111,7 +111,13 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
 
 
 def _data_inputs(args) -> dict:
-    return {"DATA": args.data, "--pt": args.pt, "--ut": args.ut}
+    from .data import split_variable  # "file.mat:VARIABLE" is the file file.mat
+
+    out = {}
+    for label, value in (("DATA", args.data), ("--pt", args.pt), ("--ut", args.ut)):
+        for i, v in enumerate(_listed(value)):  # several trials: every file
+            out[label if i == 0 else f"{label} #{i + 1}"] = str(split_variable(v)[0])
+    return out
 
 
 def check_report_folder(folder, markers, force) -> None:

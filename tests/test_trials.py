@@ -137,6 +137,12 @@ def test_cli_several_pairs_and_their_errors(tmp_path, capsys):
         assert status == 2 and len(lines) == 1 and lines[0].startswith("lpvpc: error: "), res.err
         assert expected in lines[0]
         assert not out.exists()
+    # an output path that is one of the trials' files is refused, whichever trial it is
+    before = pairs[1][1].read_bytes()
+    assert main(["identify", "--pt", str(pairs[0][0]), "--ut", str(pairs[0][1]), "--pt", str(pairs[1][0]),
+                 "--ut", str(pairs[1][1]), "-o", str(pairs[1][1])]) == 2
+    assert "is the input --ut #2" in capsys.readouterr().err
+    assert pairs[1][1].read_bytes() == before
 
 
 # --------------------------------------------------------------------------- joint identification
