@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean chromium
+.PHONY: demo test bench clean chromium libtbb
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,7 +17,7 @@ demo: $(STAMP)
 
 # One BLAS thread, as the CLI and demo use: identification's many small least-squares
 # problems run faster single-threaded (benchmarks/results/identify.txt).
-test: $(STAMP) chromium
+test: $(STAMP) chromium libtbb
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) -m pytest -q
 
 bench: $(STAMP)
@@ -33,3 +33,10 @@ chromium:
 	@if [ -x /usr/bin/chromium ]; then echo "chromium: $$(/usr/bin/chromium --version 2>/dev/null)"; else \
 	  SUDO=; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
 	  $$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; fi
+
+# Debian's libtbb12, which ECOS (ecospy, a test dependency) needs to load: the portable SSP's
+# engine test (tests/test_ssp.py) skips ECOS with the reason when it is missing.
+libtbb:
+	@if ldconfig -p 2>/dev/null | grep -q 'libtbb.so.12'; then echo "libtbb12: installed"; else \
+	  SUDO=; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y libtbb12; fi

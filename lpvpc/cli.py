@@ -389,6 +389,8 @@ def cmd_validate(args) -> int:
               f"part {w['vaf_perturbation']:.2f} % (two-input model {w['vaf_two_input']:.2f} %)")
     if result.files.get("ssp"):
         print(f"ssp:         {Path(result.files['ssp']).resolve()}")
+    if result.files.get("portable_ssp"):
+        print(f"ssp:         {Path(result.files['portable_ssp']).resolve()} (libcosim, ECOS)")
     print(f"result:      {'pass' if result.passed else 'FAIL'}")
     return 0 if result.passed else 1
 

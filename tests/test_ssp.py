@@ -223,3 +223,69 @@ def test_missing_fmu_is_a_clear_error(setup, tmp_path):
         (tmp_path / "bad.fmu").write_bytes(b"not a zip")
         write_ssp(target, setup["model_fmu"].path, tmp_path / "bad.fmu", stop_time=1.0, communication_step=0.01)
     assert not target.exists()
+
+
+# --------------------------------------------------------------------------- the portable SSP
+
+
+@pytest.fixture(scope="module")
+def portable(subject, model, tmp_path_factory):
+    """``validate`` (default settings: exact FMI 2.0 model FMU, band-limited commands, the
+    model torque loading the PT actuator) on the first 20 s of the novel record: its report
+    folder holds the portable SSP."""
+    pair, n = subject["novel_pair"], int(SHORT_S * 1000)
+    pt, ut = (Trial(t.time[:n], t.position[:n], t.torque[:n], {k: v[:n] for k, v in t.channels.items()}, name=t.name)
+              for t in (pair.pt, pair.ut))
+    folder = tmp_path_factory.mktemp("portable")
+    result = validate(model, pt, ut, folder / "report", measure_load_effect=False)
+    return {"result": result, "ssp": result.files["portable_ssp"], "measured": load_record(model, pt, ut).measured}
+
+
+def test_portable_ssp_connects_elements_only_and_states_parameters_and_steps(portable):
+    from lpvpc.validation.ssp import OSP_NAMESPACE, PARAMETER_SET
+
+    ssp = portable["ssp"]
+    assert portable["result"].metrics["cosim"]["portable_ssp"] == ssp.name
+    ns = {**SSD_NAMESPACES, "osp": OSP_NAMESPACE}
+    with zipfile.ZipFile(ssp) as zf:
+        assert sorted(zf.namelist()) == ["SystemStructure.ssd", "resources/actuator.fmu", "resources/model.fmu",
+                                         "resources/record.fmu"]
+        root = ET.fromstring(zf.read("SystemStructure.ssd"))
+    system = root.find("ssd:System", ns)
+    assert system.find("ssd:Connectors", ns) is None and system.find("ssd:ParameterBindings", ns) is None
+    conns = system.findall("ssd:Connections/ssd:Connection", ns)
+    assert conns and all(c.get("startElement") and c.get("endElement") for c in conns)
+    ends = {(c.get("endElement"), c.get("endConnector")) for c in conns}
+    assert {("model", "position"), ("model", "scheduling"), ("actuator_pt", "load_torque"),
+            ("actuator_ut", "command"), ("actuator_pt", "command")} <= ends
+    steps = {c.get("name"): float(c.find(".//osp:StepSizeHint", ns).get("value"))
+             for c in system.findall("ssd:Elements/ssd:Component", ns)}
+    assert steps == {"record": 1e-3, "actuator_ut": 1e-3, "actuator_pt": 1e-3, "model": 1e-2}
+    base = root.find("ssd:DefaultExperiment//osp:FixedStepAlgorithm", ns)
+    assert float(base.get("baseStepSize")) == 1e-3
+    for comp in ("actuator_ut", "actuator_pt"):
+        el = system.find(f"ssd:Elements/ssd:Component[@name='{comp}']", ns)
+        pset = el.find("ssd:ParameterBindings/ssd:ParameterBinding/ssd:ParameterValues/ssv:ParameterSet", ns)
+        assert pset.get("name") == PARAMETER_SET
+        names = {p.get("name") for p in pset.findall("ssv:Parameters/ssv:Parameter", ns)}
+        assert {"servo_bandwidth", "servo_damping", "initial_position"} <= names
+
+
+@pytest.mark.parametrize("engine", ["libcosim", "ecos"])
+def test_portable_ssp_runs_in_libcosim_and_ecos_like_the_harness(portable, engine):
+    """The engine loads the archive as it is and runs it; its model torque (the exact FMU's,
+    latency L removed) is within 1 VAF point of the harness's co-simulation."""
+    from lpvpc.model import vaf
+    from lpvpc.validation.engines import available, run_portable_ssp
+
+    why = available(engine)
+    if why:
+        pytest.skip(why)
+    m = portable["result"].metrics
+    L = m["cosim"]["model_fmu_latency_samples"]
+    meas = portable["measured"]
+    y = run_portable_ssp(portable["ssp"], engine)[L:L + meas.n]
+    got = vaf(meas.torque, y)
+    print(f"{engine}: model torque VAF {got:.2f} % (harness co-simulation {m['vaf_cosim']:.2f} %)")
+    assert len(y) == meas.n
+    assert abs(got - m["vaf_cosim"]) < 1.0

@@ -50,6 +50,9 @@ __all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROU
 DEFAULT_ROUTE_TOLERANCE = 1e-9
 #: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`validation.ssp`).
 SSP_FILE = "cosimulation.ssp"
+#: The same set-up for engines that only connect outputs to inputs (libcosim, ECOS): every
+#: signal the master computes is done by a record-player FMU (:func:`validation.ssp.write_portable_ssp`).
+PORTABLE_SSP_FILE = "cosimulation_portable.ssp"
 #: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
 CALIBRATION_WARN_VAF = 99.0
 
@@ -563,7 +566,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         wj = whole_joint if isinstance(whole_joint, WholeJointModel) else WholeJointModel.load(whole_joint)
         metrics["whole_joint"], wj_traces = evaluate_whole_joint(wj, record, fmu_dir, model_fmu.fmi_version)
         timing["whole_joint"] = time.perf_counter() - t0
-    ssp_path = None
+    ssp_path = portable = None
     if write_report:
         # the same set-up for other co-simulation tools (SSP 1.0, FMUs included)
         from .ssp import instance_parameters, write_ssp
@@ -573,6 +576,15 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
                              parameters=instance_parameters(params, drive.command_ut[0], drive.command_pt[0]),
                              signals=tuple(signals or ()), wiring=cos.connections)
         metrics["cosim"]["ssp"] = SSP_FILE
+        # the same set-up with every harness signal in an FMU, for libcosim and ECOS as they are
+        from .ssp import portable_ssp_from_run
+
+        t0 = time.perf_counter()
+        portable = portable_ssp_from_run(report_dir / PORTABLE_SSP_FILE, model_fmu, act_fmu, drive,
+                                         instance_parameters(params, drive.command_ut[0], drive.command_pt[0]),
+                                         settings, latency, fmu_dir / "record_fmi2.fmu")
+        metrics["cosim"]["portable_ssp"] = PORTABLE_SSP_FILE if portable else None
+        timing["portable_ssp"] = time.perf_counter() - t0
     result = ValidationResult(metrics=metrics, report_dir=report_dir)
     if write_report:
         from .report import write_report as _write
@@ -585,6 +597,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
                 "unloaded": unloaded, "actuator_replay": rec, "whole_joint": wj_traces})
         timing["report"] = time.perf_counter() - t0
         result.files["ssp"] = ssp_path
+        result.files["portable_ssp"] = portable
     timing["total"] = time.perf_counter() - t_all
     if write_report:
         from .report import write_metrics

@@ -616,4 +616,6 @@ def write_report(result, *, model, record, predictions) -> dict:
                                "figures": [f"figures/{n}" for n in figs]}
     if result.metrics["cosim"].get("ssp"):
         result.metrics["files"]["ssp"] = result.metrics["cosim"]["ssp"]
+    if result.metrics["cosim"].get("portable_ssp"):
+        result.metrics["files"]["portable_ssp"] = result.metrics["cosim"]["portable_ssp"]
     return {"report": path, "figures": figs}
