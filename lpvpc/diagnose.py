@@ -682,6 +682,11 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
 
         raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
                         source=getattr(data, "source", None) or None)
+    if getattr(data, "segments", ()):  # its blocked cross-validation runs along one record
+        from .errors import DataError
+
+        raise DataError(f"the diagnosis takes one trial; got {len(data.segments)} joined trials",
+                        source=getattr(data, "source", None) or None)
     sig = signals_from_data(data)
     pred = model.predict(data.position, data.scheduling, warn=False, signals=sig)
     y = np.asarray(data.torque, dtype=float)

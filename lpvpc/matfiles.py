@@ -9,6 +9,8 @@ A file is read into *records*: named groups of equally sampled channels.
   their own, named ``outer.inner``); a scalar field ``fs``/``Fs`` (Hz) or ``dt``/``Ts`` (s)
   gives its sample period;
 - a matrix variable (N x k) is a record whose channels are its columns ``1`` .. ``k``;
+- the elements of cell arrays and of arrays of objects or structs are records named
+  ``name{k}`` and ``name(k)`` (several trials kept in one variable);
 - the file's top-level vectors form one record (named ``(top level)``), e.g. ``time``,
   ``position``, ``torque`` as earlier versions of this package read them.
 
@@ -143,6 +145,10 @@ def _is_scalar(x) -> bool:
     return _is_numeric(x) and x.size == 1
 
 
+def _is_matrix(x) -> bool:
+    return _is_numeric(x) and x.ndim == 2 and min(x.shape) > 1
+
+
 def _as_vector(x) -> np.ndarray:
     return np.asarray(x, dtype=float).ravel()
 
@@ -170,6 +176,16 @@ def _class_name(value) -> str:
 
 
 def _records(name: str, value) -> list[Record]:
+    if isinstance(value, np.ndarray) and value.size > 1 and (value.dtype == object or value.dtype.fields):
+        # cells (name{k}) and arrays of objects or structs (name(k)), e.g. several nldat trials
+        open_, close = ("(", ")") if getattr(value, "classname", None) or value.dtype.fields else ("{", "}")
+        items = value.ravel(order="F")
+        out = []
+        for k in range(items.size):
+            item = items[k] if value.dtype.fields is None else items[k : k + 1]
+            out += [_matrix(f"{name}{open_}{k + 1}{close}", item)] if _is_matrix(item) else \
+                _records(f"{name}{open_}{k + 1}{close}", item)
+        return out
     fields = _fields(value)
     if fields is not None:
         if "dataSet" in fields:
@@ -181,12 +197,12 @@ def _records(name: str, value) -> list[Record]:
                 rec.channels[key] = _as_vector(v)
             elif _is_scalar(v) and key.lower() in RATE_FIELDS:
                 _set_rate(rec, key, v)
-            elif _is_numeric(v) and v.ndim == 2 and min(v.shape) > 1:
+            elif _is_matrix(v):
                 nested.append(_matrix(f"{name}.{key}", v))
             else:
                 nested += _records(f"{name}.{key}", v)
         return ([rec] if rec.channels else []) + nested
-    if _is_numeric(value) and value.ndim == 2 and min(value.shape) > 1:
+    if _is_matrix(value):
         return [_matrix(name, value)]
     return []  # text, cells, function handles, empty arrays: nothing to read
 

@@ -135,6 +135,20 @@ def test_pilot_format_perturbation_file_equals_csv(tmp_path):
     assert c.data_hash == a.data_hash
 
 
+def test_cell_of_nldat_trials_as_several_trials(tmp_path):
+    """Trials kept as a cell array of nldat objects (or an object array): each is a variable
+    trials{k} (trials(k)); a list of them is one joint identification's data."""
+    xs = [stationary_trial(8, 0.1), stationary_trial(9, 0.1, n=2000)]
+    cell = np.empty((1, 2), dtype=object)
+    cell[0, 0], cell[0, 1] = (nldat(x, ["pos1", "tq1"], 1 / FS) for x in xs)
+    path = write_mat(tmp_path / "cell.mat", {"trials": cell})
+    assert [r.name for r in read_mat(path)] == ["trials{1}", "trials{2}"]
+    joint = load_identification_data(pt=[f"{path}:trials{{1}}", f"{path}:trials{{2}}"], stationary=True)
+    assert joint.segments == ((0, 300), (300, 500))
+    np.testing.assert_allclose(joint.scheduling[:300], xs[0][:, 0].mean(), atol=1e-12)
+    np.testing.assert_allclose(joint.scheduling[300:], xs[1][:, 0].mean(), atol=1e-12)
+
+
 # --------------------------------------------------------------------------- plain arrays, structs, v7.3
 
 

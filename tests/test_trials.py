@@ -193,3 +193,11 @@ def test_two_halves_as_two_trials_match_the_whole_record(subject, model):
 
     assert abs(novel_vaf(joint) - novel_vaf(model)) < 0.15
     assert np.max(np.abs(K - K_whole) / np.abs(K_whole)) < 0.02
+
+
+def test_diagnosis_refuses_joined_trials(model):
+    from lpvpc.diagnose import diagnose
+
+    joint = join_trials([_data(400, 1), _data(400, 2)])
+    with pytest.raises(DataError, match="the diagnosis takes one trial; got 2 joined trials"):
+        diagnose(model, joint)
