@@ -16,13 +16,11 @@ import io
 import logging
 import math
 import os
-import struct
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import scipy.io
 import scipy.signal
 
 from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning

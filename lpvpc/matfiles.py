@@ -106,7 +106,10 @@ def read_mat(path) -> list[Record]:
         elif _is_scalar(value) and name.lower() in RATE_FIELDS:
             _set_rate(top, name, value)
         else:
-            records += _records(name, value)
+            try:
+                records += _records(name, value)
+            except DataError as exc:
+                raise DataError(exc.problems, source=str(path)) from None
     if top.channels:
         records.insert(0, top)
     return records
@@ -267,8 +270,8 @@ def found(records) -> str:
 
 
 def _match(records, spec: str, source: str, role: str):
-    """(record, channel) named by ``spec``: a channel name, ``variable.channel``, a
-    variable holding one channel, or a column number of the only record."""
+    """(record, channel) named by ``spec``: a channel name (a matrix's columns are named
+    ``1``, ``2``, ...), ``variable.channel``, or a variable holding one channel."""
     spec_l = spec.strip().lower()
     hits = [(r, c) for r in records for c in r.channels if c.lower() == spec_l]
     if not hits:
@@ -355,6 +358,8 @@ def select_channels(records, required, optional=(), *, channels=None, variable=N
             hits = _scheduling_candidates(pool, used, home)
         else:
             hits = _candidates(pool, role, used)
+        if role == "time" and home is not None and home.times() is not None:
+            hits = [h for h in hits if h[0] is home]  # the chosen variable's own time axis
         if len(hits) > 1 and home is not None:
             mine = [h for h in hits if h[0] is home]
             hits = mine or hits

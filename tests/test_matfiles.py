@@ -19,7 +19,6 @@ from lpvpc.data import (
     load_perturbation_file,
     load_trial,
     pair_trials,
-    write_perturbation_csv,
 )
 from lpvpc.errors import DataError
 from lpvpc.matfiles import read_mat
