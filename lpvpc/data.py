@@ -39,6 +39,11 @@ ANGLE_CHANNELS = ("position", "command", "scheduling")
 JITTER_TOLERANCE = 1e-3
 # Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
 RATE_TOLERANCE = 1e-4
+# A stationary trial (no UT) holds one operating position: its mean over STATIONARY_WINDOW s
+# spans at most STATIONARY_MAX_SPAN rad (the lab's trials: 0.026-0.028 rad; a passive-movement
+# trajectory: about 0.6 rad).
+STATIONARY_WINDOW = 2.0
+STATIONARY_MAX_SPAN = 0.1
 # Below this variance (rad^2) of the PT-UT position there is no perturbation to identify from.
 MIN_PERTURBATION_VARIANCE = 1e-12
 # scipy recommends decimating in stages when the factor exceeds 13.
@@ -697,6 +702,13 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
     problems = trial_problems(pt)
     if problems:
         raise DataError(problems, source=pt.name or "PT")
+    w = int(round(STATIONARY_WINDOW * pt.fs))
+    if len(pt.position) > w > 0:  # a moving trial read as stationary would be nonsense
+        slow = np.convolve(pt.position, np.ones(w) / w, mode="valid")
+        if np.ptp(slow) > STATIONARY_MAX_SPAN:
+            raise DataError([f"not a stationary trial: its {STATIONARY_WINDOW:g}-s mean position spans "
+                             f"{np.ptp(slow):.3f} rad (more than {STATIONARY_MAX_SPAN:g} rad for one operating "
+                             f"position); give the UT trial recorded with it instead"], source=pt.name or "PT")
     op, tq0 = float(np.mean(pt.position)), float(np.mean(pt.torque))
     ut = Trial(np.asarray(pt.time, dtype=float), np.full(len(pt.time), op), np.full(len(pt.time), tq0), {},
                "constant operating point")

@@ -111,6 +111,15 @@ def test_stationary_trial_without_ut(lab_file):
         load_identification_data(pt=path, ut=path, variable="z_pf", stationary=True)
 
 
+def test_moving_trial_is_not_read_as_stationary(tmp_path):
+    x = stationary_trial(10, n=6000)
+    x[:, 0] += 0.3 * np.sin(2 * np.pi * np.arange(6000) / 6000)  # a slow movement of +-0.3 rad
+    path = write_mat(tmp_path / "moving.mat", {"z": nldat(x, ["pos1", "tq1"], 1 / FS)})
+    with pytest.raises(DataError, match=r"not a stationary trial: its 2-s mean position spans 0\.[45]\d\d rad "
+                                        r"\(more than 0\.1 rad"):
+        load_identification_data(pt=path, stationary=True)
+
+
 def test_pilot_format_perturbation_file_equals_csv(tmp_path):
     """The pilot trial's format: nldat 'io' (posPert1, tqPert1: PT - UT) and 'sv' (the
     scheduling position), found without options; the same data as a CSV file."""
