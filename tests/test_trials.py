@@ -7,11 +7,17 @@ import pytest
 
 from lpvpc import equations as eq
 from lpvpc.cli import main
-from lpvpc.data import PerturbationData, join_trials, load_identification_data, pair_trials
+from lpvpc.data import (
+    PerturbationData,
+    join_trials,
+    load_identification_data,
+    pair_trials,
+    write_perturbation_csv,
+)
 from lpvpc.errors import DataError
 from lpvpc.identify import identify
 from lpvpc.intrinsic import intrinsic_regressor
-from lpvpc.model import vaf
+from lpvpc.model import LPVPCModel, vaf
 from lpvpc.segments import Segments
 from lpvpc.simulate import simulate_pair
 from lpvpc.subspace import hankel_rows, streamed_r
@@ -124,6 +130,16 @@ def test_cli_several_pairs_and_their_errors(tmp_path, capsys):
     status, res = run("--pt", pairs[0][0], "--ut", pairs[0][1], "--pt", pairs[1][0], "--ut", pairs[1][1])
     assert status == 0, res.err
     assert "2 trials, 600 samples" in res.out
+    # the same trials as perturbation files (PT - UT formed), several DATA arguments
+    files = []
+    for i, (p, u) in enumerate(pairs):
+        files.append(tmp_path / f"pert{i}.csv")
+        write_perturbation_csv(load_identification_data(pt=p, ut=u), files[-1])
+    first = LPVPCModel.load(out)
+    status, res = run(*files)
+    assert status == 0, res.err
+    assert "2 trials, 600 samples" in res.out
+    assert LPVPCModel.load(out).provenance["data_hash"] == first.provenance["data_hash"]
     for argv, expected in [
         (["--pt", pairs[0][0], "--ut", pairs[0][1], "--pt", slow[0], "--ut", slow[1]],
          "trials differ in sampling rate: trial 1 (PT=a_PT, UT=a_UT) 1000 Hz, trial 2 (PT=slow_PT, UT=slow_UT) 500 Hz"),
