@@ -57,8 +57,9 @@ RATE_FIELDS = {"fs": "rate", "samplingrate": "rate", "sampling_rate": "rate", "d
 
 @dataclass
 class Record:
-    """Equally long channels (name -> 1-D float array) of one variable of a .mat file,
-    with the sample period (s) and start time (s) when the file says them."""
+    """The channels (name -> 1-D float array) of one variable of a .mat file, with the
+    sample period (s) and start time (s) when the file says them. Channels of unequal
+    length are kept as found (the trial checks report them)."""
 
     name: str
     kind: str  # "nldat", "struct", "matrix" or "variables"
@@ -74,7 +75,7 @@ class Record:
 
     def describe(self) -> str:
         """e.g. ``z_df (nldat, 60000 samples at 1000 Hz: pos1, tq1)``."""
-        lengths = sorted({len(x) for x in self.channels.values()})
+        lengths = sorted({len(x) for x in self.channels.values()}) or [0]
         size = f"{lengths[0]} samples" if len(lengths) == 1 else "samples " + "/".join(map(str, lengths))
         rate = f" at {1.0 / self.period:.6g} Hz" if self.period else ""
         return f"{self.name} ({self.kind}, {size}{rate}: {', '.join(self.channels) or 'no channels'})"
