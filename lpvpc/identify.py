@@ -105,13 +105,18 @@ class LPVPCEstimator:
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
         """Identify the model from :class:`lpvpc.data.PerturbationData` (or any object with
-        ``position``, ``torque``, ``scheduling`` arrays and ``fs``)."""
+        ``position``, ``torque``, ``scheduling`` arrays and ``fs``), or from a list of them:
+        several trials fitted jointly (:func:`lpvpc.data.join_trials`)."""
         from .model import LPVPCModel, vaf
         from .reflex import reflex_input_regressor
         from .subspace import PoleRefinement, candidate_orders, po_moesp
 
         t0 = time.perf_counter()
         timings = {}
+        if isinstance(data, (list, tuple)):
+            from .data import join_trials
+
+            data = join_trials(data)
         p, y, rho, fs = self._checked(data)
         seg = Segments.of(data, len(y))  # several trials: nothing crosses a seam (lpvpc.segments)
         delay = int(round(self.reflex_delay * fs))

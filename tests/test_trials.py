@@ -177,7 +177,7 @@ def test_order_of_trials_does_not_matter():
     pieces = _pieces(pair_trials(pair.pt, pair.ut), 4)
     grid = np.linspace(-0.3, 0.1, 21)
     order = (2, 0, 3, 1)
-    a = identify(join_trials(pieces))
+    a = identify(pieces)  # a list of trials is joined
     b = identify(join_trials([pieces[i] for i in order]))
     Ka, Kb = a.elastic_stiffness(grid), b.elastic_stiffness(grid)
     assert a.fit["n_trials"] == 4 and a.state_order == b.state_order
