@@ -1,12 +1,17 @@
 """Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick]).
 
-1. False alarms: data without a hidden effect, 12 noise seeds: is any candidate significant?
+1. False alarms: data without a hidden effect, 20 noise seeds: is any candidate significant?
 2. Detection: each catalog effect hidden in the subject (settings candidates: the model is
    fitted with a wrong setting), 5 seeds each: rank and significance of the hidden
    effect; the improve loop's held-out VAF against the base model's on data without the
    effect (same seed).
 3. Effects outside the catalog: which signal and pathway the diagnosis names.
 4. Speed: diagnosis of a 2-minute record with the whole catalog (median of 3 runs).
+5. Real data (../shared/real/pilot_ident.csv, skipped when absent; torque sign -1): a short
+   held-out part (32 s) and a long one, and the improve ladder.
+
+The virtual subject is the realistic one (lpvpc.simulate): EMG envelopes in volts with
+reflex-evoked bursts in the perturbed trial, tonic activation in both, measurement noise.
 
 Identification on the 2-minute multilevel record (seed s), diagnosis and VAF on the
 2-minute novel record (seed s + 1), 100 Hz, SNR 18 dB. Writes
@@ -37,7 +42,7 @@ from lpvpc.simulate import EFFECTS, simulate_pair  # noqa: E402
 warnings.simplefilter("ignore")
 
 QUICK = "--quick" in sys.argv
-H0_SEEDS = range(3) if QUICK else range(12)
+H0_SEEDS = range(3) if QUICK else range(20)
 EFFECT_SEEDS = range(2) if QUICK else range(5)
 
 # hidden truth -> (simulator effects, estimator settings of the user's model, expected candidate)
@@ -48,6 +53,9 @@ SCENARIOS = {
     "background_activation": (("background_activation",), {}, "background_activation"),
     "position_dependent_reflex_dynamics": (("position_dependent_reflex_dynamics",), {},
                                            "position_dependent_reflex_dynamics"),
+    "reflex_habituation": (("reflex_habituation",), {}, "reflex_habituation"),
+    "activation_reflex_gain": (("activation_reflex_gain",), {}, "activation_reflex_gain"),
+    "amplitude_dependent_stiffness": (("amplitude_dependent_stiffness",), {}, "amplitude_dependent_stiffness"),
     "position_dependent_reflex_dynamics, 3x range (not the simulator's)": (
         ("strong_reflex_dynamics",), {}, "position_dependent_reflex_dynamics"),
     "wrong reflex delay (model 80 ms, subject 40 ms)": ((), {"reflex_delay": 0.08}, "reflex_delay"),
@@ -84,13 +92,6 @@ EFFECTS["strong_reflex_dynamics"] = ("reflex low-pass wn 5.3-48 rad/s (benchmark
 
 
 # Effects outside the catalog, added to the perturbed trial's torque (1 kHz, before pairing).
-def cubic_stiffness(pair):
-    """Stiffness falls with perturbation amplitude: -8000 p^3 N m (p in rad)."""
-    p = pair.pt.position - pair.ut.position
-    pt = pair.pt
-    return Trial(pt.time, pt.position, pt.torque - 8000.0 * p**3, dict(pt.channels), pt.name), pair.ut
-
-
 def reflex_by_slow_velocity(pair):
     """Reflex gain 1 + 0.6 tanh(v_slow / 0.05): larger while the slow movement stretches
     the muscle (fusimotor set), smaller while it shortens."""
@@ -101,9 +102,67 @@ def reflex_by_slow_velocity(pair):
 
 
 OUT_OF_CATALOG = {
-    "amplitude-dependent stiffness (-8000 p^3)": (cubic_stiffness, ("position", "intrinsic")),
     "reflex gain modulated by slow velocity": (reflex_by_slow_velocity, ("scheduling_velocity", "reflex")),
+    "position-dependent reflex delay (simulator, 30-50 ms)": ("position_dependent_reflex_delay",
+                                                              ("scheduling", "reflex")),
 }
+
+
+REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "pilot_ident.csv"
+
+
+def real_data(say):
+    """Section 5: the pilot trial split inside itself (torque sign -1)."""
+    from lpvpc.data import PerturbationData, load_perturbation_file
+    from lpvpc.diagnose import format_table
+    from lpvpc.errors import LpvpcError
+
+    say("## 5. Real data: pilot_ident.csv split inside it (torque sign -1)")
+    say("")
+    path = REAL if REAL.is_file() else Path("/work/shared/real/pilot_ident.csv")
+    if not path.is_file():
+        say("skipped: ../shared/real/pilot_ident.csv not present")
+        return
+    data = load_perturbation_file(path, torque_sign=-1.0)
+
+    def cut(a, b):
+        a, b = int(a * data.fs), int(b * data.fs)
+        extra = {k: v[a:b] for k, v in data.extra.items()}
+        return PerturbationData(data.position[a:b], data.torque[a:b], data.scheduling[a:b], data.fs, extra,
+                                f"pilot_ident.csv {a / data.fs:.0f}-{b / data.fs:.0f} s", data.meta)
+
+    T = data.n / data.fs
+    for label, (ia, ib), (ha, hb) in (("short held-out part (32 s)", (0, T - 32), (T - 32, T)),
+                                      ("long held-out part", (0, T / 2), (T / 2, T))):
+        ident, held = cut(ia, ib), cut(ha, hb)
+        model = identify(ident)
+        say(f"### {label}: identified on {ia:.0f}-{ib:.0f} s, diagnosed on {ha:.0f}-{hb:.0f} s")
+        say("")
+        try:
+            d = diagnose(model, held)
+        except LpvpcError as exc:
+            say(f"refused: {exc}")
+            say("")
+            continue
+        gains = [c.vaf_gain for c in d.candidates if c.available]
+        say(f"model VAF {d.vaf:.2f} %, design {d.design}, base {d.surrogate_vaf:.2f} %; gains "
+            f"{min(gains):+.2f}..{max(gains):+.2f} pp (bound: +-{100 - d.surrogate_vaf:.2f} pp, the unexplained share)")
+        say("```")
+        say(format_table(d, 8))
+        say("```")
+        say(f"answer: {d.answer()}")
+        for note in d.notes():
+            say(f"note: {note}")
+        say("")
+        if label.startswith("long"):
+            ladder = improve(ident, held)
+            say("improve ladder on the long part:")
+            say("```")
+            say(ladder.table())
+            say("```")
+            say(f"final held-out VAF {ladder.final.heldout_vaf:.2f} % vs base {ladder.rungs[0].heldout_vaf:.2f} % "
+                f"({ladder.stopped})")
+            say("")
 
 
 def main():
@@ -177,7 +236,7 @@ def main():
     say("|---|---|---|---|---|---|---|---|---|")
     for name, (modify, expected) in OUT_OF_CATALOG.items():
         for seed in EFFECT_SEEDS:
-            ident, novel = pairs(seed, modify=modify)
+            ident, novel = (pairs(seed, (modify,)) if isinstance(modify, str) else pairs(seed, modify=modify))
             d = diagnose(identify(ident), novel)
             top = d.dependence[0]
             hit = (top["signal"], top["pathway"]) == expected
@@ -206,6 +265,8 @@ def main():
     t0 = time.perf_counter()
     identify(ident)
     say(f"for scale: one identification of the same record {time.perf_counter() - t0:.2f} s")
+    say("")
+    real_data(say)
     say("")
     say(f"total benchmark time {time.perf_counter() - t_all:.0f} s{' (--quick)' if QUICK else ''}")
     out = Path(__file__).parent / "results" / ("diagnose_quick.txt" if QUICK else "diagnose.txt")

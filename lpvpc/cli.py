@@ -421,6 +421,8 @@ def cmd_diagnose(args) -> int:
           f"with {diag.settings['folds']}-fold blocked cross-validation: {diag.surrogate_vaf:.2f} %")
     print(format_table(diag))
     print(f"answer:    {diag.answer()}")
+    for note in diag.notes():
+        print(f"note:      {note}")
     pos = diag.where["position"]["bins"]
     worst = max(pos, key=lambda b: b["residual_rms"]) if pos else None
     if worst:
@@ -715,7 +717,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL.json")
     _add_data_args(p, "instead of --pt/--ut")
     p.add_argument("--json", metavar="DIAGNOSIS.json", help="write the diagnosis (candidates in rank order)")
-    p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.md, diagnosis.json and residual.png")
+    p.add_argument("--report", metavar="DIR", help="write DIR/report.html (self-contained), diagnosis.json, "
+                                                   "diagnosis.md and the figures")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")
     _add_convention_args(p, from_model=True)
@@ -723,7 +726,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("improve", help="fit, diagnose, add the top significant effect, refit, until none is left",
                        description="The improve loop on an identification record and a held-out record; writes "
-                                   "DIR/improve.md with the ladder of models (held-out VAF and RMSE), residual "
+                                   "DIR/report.html (and improve.md) with the ladder of models (held-out VAF and RMSE), residual "
                                    "plots before and after each step, and each step's diagnosis.")
     p.add_argument("--pt", required=True, metavar="PT", help="identification perturbed trial")
     p.add_argument("--ut", required=True, metavar="UT", help="identification unperturbed trial")

@@ -47,6 +47,8 @@ Two questions (see :func:`diagnose`):
 
 from __future__ import annotations
 
+import base64
+import html
 import json
 import time
 from dataclasses import dataclass, field
@@ -69,6 +71,11 @@ BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
 MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains are never called significant
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
 OUTSIDE_RATIO = 1.5  # a signal probe this many times better than the top candidate: say so
+LEAK_R2 = 0.2  # a signal this well explained by the model's reflex drive is not used to name an effect
+MIN_RECORD_S = 20.0  # s: shorter records are refused (10 folds of 2 s, each a few perturbation steps)
+SANE_DROP = 2.0  # pp: a refitted base this much below the model's own VAF is not trusted (short/narrow record)
+RANGE_TOL = 0.02  # fraction of the identified range: scheduling beyond it counts as outside
+MAX_OUTSIDE = 0.5  # records with more samples outside the identified range are refused
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -87,23 +94,34 @@ class BlockCV:
     combinations are handled, not refused).
     """
 
-    def __init__(self, y, folds=FOLDS):
-        self.y = np.asarray(y, dtype=float)
+    def __init__(self, y, folds=FOLDS, mask=None, interleave=None):
+        """``mask``: boolean (N,), samples left out of every fit and score (rows zeroed).
+        ``interleave``: None (K contiguous folds) or a block length in samples: blocks of
+        that length are dealt to the folds in turn, so every fold holds parts of the whole
+        record (on a short record each position level is then seen by the other folds too)."""
+        self.w = None if mask is None else np.asarray(mask, dtype=float)
+        self.y = np.asarray(y, dtype=float) * (1.0 if self.w is None else self.w)
         n = len(self.y)
         self.edges = np.linspace(0, n, folds + 1).astype(int)
+        if interleave:
+            fold_of = (np.arange(n) // int(interleave)) % folds
+            self.parts = [np.flatnonzero(fold_of == f) for f in range(folds)]
+        else:
+            self.parts = [slice(a, b) for a, b in zip(self.edges[:-1], self.edges[1:])]
         self.K = folds
+        self.ridge = RIDGE
         self.blocks = {}
         self._cross = {}
         self._yb = {}
-        self.yy = np.array([self.y[a:b] @ self.y[a:b] for a, b in self._slices()])
+        self.yy = np.array([self.y[ix] @ self.y[ix] for ix in self.parts])
 
-    def _slices(self):
-        return list(zip(self.edges[:-1], self.edges[1:]))
 
     def add(self, name, X):
         X = np.asarray(X, dtype=float)
         if X.ndim == 1:
             X = X[:, None]
+        if self.w is not None:
+            X = X * self.w[:, None]
         s = np.sqrt(np.mean(X**2, axis=0))
         s[s == 0] = 1.0
         self.blocks[name] = X / s
@@ -116,13 +134,13 @@ class BlockCV:
         if (b, a) in self._cross:
             return np.transpose(self._cross[(b, a)], (0, 2, 1))
         A, B = self.blocks[a], self.blocks[b]
-        self._cross[(a, b)] = np.stack([A[i:j].T @ B[i:j] for i, j in self._slices()])
+        self._cross[(a, b)] = np.stack([A[ix].T @ B[ix] for ix in self.parts])
         return self._cross[(a, b)]
 
     def _ycross(self, a):
         if a not in self._yb:
             A = self.blocks[a]
-            self._yb[a] = np.stack([A[i:j].T @ self.y[i:j] for i, j in self._slices()])
+            self._yb[a] = np.stack([A[ix].T @ self.y[ix] for ix in self.parts])
         return self._yb[a]
 
     def fold_systems(self, names):
@@ -133,20 +151,23 @@ class BlockCV:
 
     def fit(self, names):
         """Held-out residual (N,) and training RSS per fold for the blocks ``names``."""
+        if not names:  # nothing fitted: the target itself
+            return self.y.copy(), self.yy.sum() - self.yy
         G_f, b_f = self.fold_systems(names)
         G_all, b_all, yy_all = G_f.sum(0), b_f.sum(0), self.yy.sum()
         resid = np.empty_like(self.y)
         rss_train = np.empty(self.K)
         X = np.hstack([self.blocks[a] for a in names])
-        for f, (i, j) in enumerate(self._slices()):
+        for f, ix in enumerate(self.parts):
             G, b = G_all - G_f[f], b_all - b_f[f]
-            beta = _solve_psd(G, b)
-            resid[i:j] = self.y[i:j] - X[i:j] @ beta
+            beta = _solve_psd(G, b, self.ridge)
+            resid[ix] = self.y[ix] - X[ix] @ beta
             rss_train[f] = (yy_all - self.yy[f]) - 2 * beta @ b + beta @ G @ beta
         return resid, rss_train
 
 
 RIDGE = 1e-8  # relative to the largest eigenvalue of the (column-scaled) Gram matrix
+FIXED_RIDGE = 1e-4  # the fixed design's candidates model a small residual: shrink them toward the model
 
 
 def _solve_psd(G, b, ridge=RIDGE):
@@ -191,15 +212,31 @@ class Surrogate:
     own effect terms, if any) and ``reflex`` (:meth:`reflex_block` at the model's delay).
     """
 
-    def __init__(self, model, data, folds=FOLDS):
+    def __init__(self, model, data, folds=FOLDS, *, design="refit", mask=None, prediction=None):
+        """``design``: "refit" (the model's structure refitted with every candidate) or
+        "fixed" (the model held as it is: candidates are fitted to its residual, which
+        holds on records too short or narrow to refit the whole structure; settings
+        candidates then add their columns instead of replacing the model's).
+        ``mask``: samples left out (e.g. outside the identified range); ``prediction``:
+        the model's torque on the data (needed by the fixed design)."""
         self.model = model
         self.data = data
+        self.design = design
         self.p = np.asarray(data.position, dtype=float)
         self.rho = np.asarray(data.scheduling, dtype=float)
         self.fs = float(data.fs)
         self.signals = signals_from_data(data)
-        self.cv = BlockCV(data.torque, folds)
         self.L = -min(model.lags)
+        self.z = None
+        y = np.asarray(data.torque, dtype=float)
+        yin = y if mask is None else y[np.asarray(mask, dtype=bool)]
+        self.sst = float(np.sum((yin - yin.mean()) ** 2))  # of the measured torque: VAF gains are relative to it
+        if design == "fixed":
+            self.cv = BlockCV(y - prediction, folds, mask, interleave=int(round(BLOCK_S * self.fs)))
+            self.cv.ridge = FIXED_RIDGE
+            self.base = []
+            return
+        self.cv = BlockCV(y, folds, mask)
         self.base = ["intrinsic", "reflex"]
         self.cv.add("intrinsic", self.intrinsic_block(model.lags, model.intrinsic_basis))
         self.cv.add("reflex", self.reflex_block(model.delay, model.velocity_basis, model.reflex_rho_basis))
@@ -210,7 +247,13 @@ class Surrogate:
             X_r, _ = design.reflex_columns(model)
             self.cv.add("effects", np.hstack([design.columns, X_r]))
             self.base.insert(1, "effects")
-        self.z = None
+
+    def with_change(self, blocks, repl):
+        """Blocks after a settings change ``repl`` ({base block: replacement}): replaced in
+        the refit design, added in the fixed one."""
+        if self.design == "fixed":
+            return list(blocks) + [v for v in repl.values() if v not in blocks]
+        return [repl.get(b, b) for b in blocks]
 
     def intrinsic_block(self, lags, basis: Basis):
         return _kron_rows(eq.lagged(self.p, lags), basis.evaluate(self.rho))
@@ -251,10 +294,15 @@ class CandidateResult:
     available: bool = True
     reason: str = ""
     signals: tuple = ()
+    conditional_gain: float = float("nan")  # pp over the base plus the candidates ranked above it
+    given: tuple = ()  # the candidates ranked above it that the conditional gain is over
+    blocks: dict | None = None  # surrogate blocks: {"add": name} or {"replace": {base: block}}
+    residual: np.ndarray | None = None  # held-out residual of its (marginal) fit
 
     def to_dict(self) -> dict:
         d = {"effect": self.effect, "kind": self.kind, "pathway": self.pathway,
-             "vaf_gain": _r(self.vaf_gain), "significant": bool(self.significant),
+             "vaf_gain": _r(self.vaf_gain), "conditional_gain": _r(self.conditional_gain),
+             "given": list(self.given), "significant": bool(self.significant),
              "p_value": _g(self.p_value), "t": _r(self.t, 3), "n_params": int(self.n_params),
              "explanation": self.explanation, "available": bool(self.available)}
         if self.variant is not None:
@@ -328,13 +376,47 @@ def _setting_variants(sur: Surrogate, name):
     return out
 
 
-def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S):
+def reflex_leak(sur: Surrogate, x) -> float:
+    """R^2 of signal ``x`` explained by the model's reflex drive (the drive z at lags 0..5
+    samples and the reflex states, plus a constant): how much of the signal is what the
+    reflex itself does. A perturbed trial's raw EMG carries reflex-evoked bursts and scores
+    high; a background activation taken between the bursts scores near zero."""
+    z = np.asarray(sur.reflex_drive(), dtype=float)
+    m = sur.model
+    X = np.column_stack([np.ones_like(z), eq.lagged(z, list(range(6))), eq.state_trajectory(m.A, m.B, z)])
+    x = np.asarray(x, dtype=float)
+    if sur.cv.w is not None:
+        X, x = X[sur.cv.w > 0], x[sur.cv.w > 0]
+    xc = x - x.mean()
+    if xc @ xc <= 0:
+        return 0.0
+    beta = np.linalg.lstsq(X, x, rcond=None)[0]
+    r = x - X @ beta
+    return float(max(0.0, 1.0 - (r @ r) / (xc @ xc)))
+
+
+def signal_leaks(sur: Surrogate) -> dict:
+    """{signal: R^2 explained by the model's reflex drive} for the measured channels an
+    effect may read (EMG-derived ones)."""
+    return {k: round(reflex_leak(sur, sur.signals[k]), 4) for k in ("emg", "emg_ut", "activation")
+            if k in sur.signals}
+
+
+def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
+                     leaks=None):
     """Fit and score every candidate on the surrogate; returns (results in rank order,
-    base held-out residual)."""
+    base held-out residual).
+
+    Marginal scores first (each candidate over the base). A candidate reading a signal
+    that the model's reflex drive explains (``leaks``, R^2 >= LEAK_R2) is not named.
+    Then the conditional ranking: the best significant candidate joins the base, the
+    others are re-scored over it, and so on; a candidate whose gain disappears given the
+    ones above it is no longer significant (its signal was a proxy for theirs)."""
     cv = sur.cv
     y = cv.y
-    sst = float(np.sum((y - y.mean()) ** 2))
+    sst = sur.sst
     r0, rss0 = cv.fit(sur.base)
+    leaks = leaks if leaks is not None else signal_leaks(sur)
     have = {fe.name for fe in sur.model.effects}
     names = candidates if candidates is not None else [n for n in CATALOG if n not in have] + list(SETTINGS)
     results = []
@@ -350,9 +432,14 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
             cv.add(name, X)
             r1, _ = cv.fit(sur.base + [name])
             res.n_params = X.shape[1]
+            res.blocks = {"add": name}
         else:
-            s = SETTINGS[name]
-            res = CandidateResult(name, "setting", s.pathway, s.explanation)
+            st = SETTINGS[name]
+            res = CandidateResult(name, "setting", st.pathway, st.explanation)
+            if sur.design == "fixed":
+                res.available, res.reason = False, "a settings change needs the model refitted: not with the model held fixed"
+                results.append(res)
+                continue
             variants = _setting_variants(sur, name)
             if not variants:
                 res.available, res.reason = False, "no admissible variant (e.g. IRF lags must stay below the reflex delay)"
@@ -360,29 +447,88 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
                 continue
             fits = []
             for v, repl in variants:
-                blocks = [repl.get(b, b) for b in sur.base]
+                blocks = sur.with_change(sur.base, repl)
                 r, rss = cv.fit(blocks)
                 n_par = sum(cv.blocks[b].shape[1] for b in blocks)
-                fits.append((v, r, rss, n_par))
+                fits.append((v, r, rss, n_par, repl))
             # Nested selection: in each fold the variant with the least training error
             # predicts the held-out fold (no held-out data are used to choose).
             r1 = np.empty_like(y)
             chosen = []
-            for f, (i, j) in enumerate(cv._slices()):
+            for f, ix in enumerate(cv.parts):
                 k = int(np.argmin([ft[2][f] for ft in fits]))
                 chosen.append(k)
-                r1[i:j] = fits[k][1][i:j]
+                r1[ix] = fits[k][1][ix]
             k_best = max(set(chosen), key=chosen.count)
             res.variant = fits[k_best][0]
+            res.blocks = {"replace": fits[k_best][4]}
             res.n_params = fits[k_best][3] - sum(cv.blocks[b].shape[1] for b in sur.base)
         res.vaf_gain = 100.0 * float(r0 @ r0 - r1 @ r1) / sst
+        res.conditional_gain = res.vaf_gain
         res.t, res.p_value = paired_test(r0, r1, sur.fs, block_s)
+        res.residual = r1
         results.append(res)
     n_tested = max(1, sum(r.available for r in results))
+    level = alpha / n_tested
     for r in results:
-        r.significant = bool(r.available and r.vaf_gain >= min_gain and r.p_value <= alpha / n_tested)
-    results.sort(key=lambda r: (not r.available, -(r.vaf_gain if np.isfinite(r.vaf_gain) else -1e9)))
-    return results, r0
+        r.significant = bool(r.available and r.vaf_gain >= min_gain and r.p_value <= level)
+        leaky = [f"{k} (R^2 {leaks[k]:.2f})" for k in r.signals if leaks.get(k, 0.0) >= LEAK_R2]
+        if r.significant and leaky:
+            r.significant = False
+            r.reason = (f"not named: its signal {', '.join(leaky)} is largely explained by the model's own reflex "
+                        f"drive, so its gain may be reflex misfit")
+    order = _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s)
+    rest = sorted((r for r in results if r not in order),
+                  key=lambda r: (not r.available, -(r.vaf_gain if np.isfinite(r.vaf_gain) else -1e9)))
+    return order + rest, r0
+
+
+def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> list:
+    """Forward selection among the significant candidates: returns them in the order they
+    join the base; the ones that lose significance given those above are marked."""
+    cv = sur.cv
+    base, r_base = list(sur.base), r0
+    pool = [r for r in results if r.significant]
+    chosen = []
+    replaced = set()
+    while pool:
+        scored = []
+        for r in pool:
+            if chosen:
+                if "add" in r.blocks:
+                    blocks = base + [r.blocks["add"]]
+                else:
+                    if set(r.blocks["replace"]) & replaced:  # the same block as a change above
+                        r.significant = False
+                        r.reason = f"changes the same part of the model as {chosen[-1].effect}, ranked above"
+                        continue
+                    blocks = sur.with_change(base, r.blocks["replace"])
+                r1, _ = cv.fit(blocks)
+                r.conditional_gain = 100.0 * float(r_base @ r_base - r1 @ r1) / sst
+                r.t, r.p_value = paired_test(r_base, r1, sur.fs, block_s)
+                r.given = tuple(c.effect for c in chosen)
+            else:
+                r1 = r.residual
+            scored.append((r, r1))
+        pool = [r for r, _ in scored]
+        if not scored:
+            break
+        best, r1 = max(scored, key=lambda t: t[0].conditional_gain)
+        if not (best.conditional_gain >= min_gain and best.p_value <= level):
+            for r in pool:
+                r.significant = False
+                r.reason = (f"explained by {', '.join(c.effect for c in chosen)} ranked above: "
+                            f"+{r.conditional_gain:.2f} pp given them")
+            break
+        chosen.append(best)
+        pool.remove(best)
+        if "add" in best.blocks:
+            base = base + [best.blocks["add"]]
+        else:
+            base = sur.with_change(base, best.blocks["replace"])
+            replaced |= set(best.blocks["replace"])
+        r_base = r1
+    return chosen
 
 
 # --------------------------------------------------------------------------- signal dependence
@@ -416,9 +562,11 @@ def candidate_signals(sur: Surrogate) -> dict:
         "scheduling_velocity": (sur.signals["scheduling_velocity"], "slow-movement velocity (rad/s)"),
         "trial_time": (sur.signals["trial_time"], "time in the trial (s)"),
     }
-    for k in ("emg", "emg_ut"):
+    for k, text in (("emg", "EMG of the perturbed trial, as recorded (reflex bursts included)"),
+                    ("emg_ut", "EMG of the unperturbed trial"),
+                    ("activation", "background activation (perturbed trial's EMG between reflex bursts)")):
         if k in sur.signals:
-            out[k] = (sur.signals[k], f"{k} channel (normalised activation)")
+            out[k] = (sur.signals[k], text)
     return out
 
 
@@ -429,12 +577,14 @@ FORMS = {
 }
 
 
-def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None) -> list:
+def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, leaks=None) -> list:
     """Cross-validated VAF gain of probes (signal x form) over the surrogate base, in
-    descending order: [{signal, form, pathway, vaf_gain, t, p_value, description}]."""
+    descending order: [{signal, form, pathway, vaf_gain, t, p_value, description, leak}]
+    (``leak``: R^2 of the signal explained by the model's reflex drive, EMG channels)."""
+    leaks = leaks or {}
     cv = sur.cv
     y = cv.y
-    sst = float(np.sum((y - y.mean()) ** 2))
+    sst = sur.sst
     if r0 is None:
         r0, _ = cv.fit(sur.base)
     m = sur.model
@@ -460,7 +610,8 @@ def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None) -> 
                                                      "neither (tonic)" if name in ("emg", "emg_ut", "trial_time") else
                                                      "intrinsic")
             out.append({"signal": name, "form": form, "pathway": pathway, "description": desc,
-                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _g(pv)})
+                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _g(pv),
+                        **({"leak": leaks[name]} if name in leaks else {})})
     out.sort(key=lambda d: -d["vaf_gain"])
     return out[:top] if top else out
 
@@ -613,6 +764,11 @@ class Diagnosis:
     timings: dict = field(default_factory=dict)
     residual: np.ndarray | None = None
     prediction: np.ndarray | None = None
+    design: str = "refit"
+    design_reason: str = ""
+    coverage: dict = field(default_factory=dict)
+    leaks: dict = field(default_factory=dict)
+    base_residual: np.ndarray | None = None  # held-out (cross-validated) residual of the surrogate base
 
     @property
     def significant(self) -> list:
@@ -626,7 +782,8 @@ class Diagnosis:
     def answer(self) -> str:
         """One paragraph: the missing effect, or the signal and pathway the residual depends on."""
         top = self.top
-        dep = self.dependence[0] if self.dependence else None
+        usable = [d for d in self.dependence if d.get("leak", 0.0) < LEAK_R2]
+        dep = usable[0] if usable else None
         if dep is not None:
             level = self.settings.get("alpha", ALPHA) / len(self.dependence)  # Bonferroni over the probes
             if not (dep["vaf_gain"] is not None and dep["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN)
@@ -637,8 +794,15 @@ class Diagnosis:
                      f"(held-out VAF +{dep['vaf_gain']:.2f} pp, p = {dep['p_value']:.1e})")
         if top is not None:
             extra = f" ({', '.join(f'{k}={v:g}' for k, v in top.variant.items())})" if top.variant else ""
-            text = (f"Missing: {top.effect}{extra}, {top.pathway} pathway: held-out VAF +{top.vaf_gain:.2f} pp "
+            carried = (f"carried by the {top.pathway} pathway"
+                       + (f" and the signal{'s' if len(top.signals) > 1 else ''} {', '.join(top.signals)}"
+                          if top.signals else ""))
+            text = (f"Missing: {top.effect}{extra}, {carried}: held-out VAF +{top.vaf_gain:.2f} pp "
                     f"(p = {top.p_value:.1e}). {top.explanation}")
+            more = self.significant[1:]
+            if more:
+                text += " Also significant given the ones before: " + "; ".join(
+                    f"{c.effect}{_variant_text(c.variant)} ({c.pathway}, +{c.conditional_gain:.2f} pp)" for c in more) + "."
             if dep is not None and dep["vaf_gain"] > OUTSIDE_RATIO * top.vaf_gain:
                 text += (f" But it explains only part of the structure: the residual depends more on {where}; "
                          f"the missing effect may lie outside the catalog.")
@@ -646,6 +810,22 @@ class Diagnosis:
         if dep is not None:
             return f"No catalog effect explains the residual. It depends most on {where}."
         return "Nothing significant: no candidate effect or signal explains a meaningful part of the residual."
+
+    def notes(self) -> list:
+        """What the reader must know about this diagnosis's design and data (sentences)."""
+        out = []
+        if self.design == "fixed":
+            out.append(f"Model held fixed: {self.design_reason} Each candidate was fitted to the model's residual "
+                       f"alone (cross-validated); gains are relative to the model as it is.")
+        if self.coverage.get("outside_fraction", 0) > 0:
+            c = self.coverage
+            out.append(f"{100 * c['outside_fraction']:.1f} % of the samples ({c['outside_samples']}) have a scheduling "
+                       f"value outside the identified range [{c['identified_range'][0]:+.3f}, "
+                       f"{c['identified_range'][1]:+.3f}] rad; they were left out of every fit and score.")
+        leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
+        if leaky:
+            out.append(f"Explained by the model's reflex drive, not used to name an effect: {', '.join(leaky)}.")
+        return out
 
     def to_dict(self) -> dict:
         return {
@@ -658,6 +838,11 @@ class Diagnosis:
             "rmse": _r(self.rmse, 6),
             "surrogate_cv_vaf": _r(self.surrogate_vaf, 3),
             "answer": self.answer(),
+            "design": self.design,
+            "design_reason": self.design_reason,
+            "notes": self.notes(),
+            "coverage": self.coverage,
+            "signal_leak_r2": self.leaks,
             "candidates": [c.to_dict() for c in self.candidates],
             "signal_dependence": self.dependence,
             "where": self.where,
@@ -670,11 +855,60 @@ class Diagnosis:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
 
 
+def _variant_text(v) -> str:
+    return f" ({', '.join(f'{k}={x:g}' for k, x in v.items())})" if v else ""
+
+
+def record_coverage(model, data) -> dict:
+    """Length and scheduling coverage of a record against what a diagnosis needs."""
+    rho = np.asarray(data.scheduling, dtype=float)
+    lo, hi = (float(v) for v in model.scheduling_range)
+    tol = RANGE_TOL * (hi - lo)
+    outside = (rho < lo - tol) | (rho > hi + tol)
+    span = (float(np.clip(rho.min(), lo, hi)), float(np.clip(rho.max(), lo, hi)))
+    return {"duration_s": len(rho) / float(data.fs), "min_duration_s": MIN_RECORD_S,
+            "identified_range": [lo, hi], "record_range": [float(rho.min()), float(rho.max())],
+            "covered_fraction_of_range": (span[1] - span[0]) / (hi - lo) if hi > lo else 1.0,
+            "outside_fraction": float(outside.mean()), "outside_samples": int(outside.sum()),
+            "max_outside_fraction": MAX_OUTSIDE, "outside_mask": outside}
+
+
+def check_record(model, data) -> dict:
+    """Coverage of ``data`` (:func:`record_coverage`); raises InsufficientExcitationError
+    (one line naming what is missing) when the record is too short or mostly outside the
+    identified range for any diagnosis to hold."""
+    from .errors import InsufficientExcitationError
+
+    cov = record_coverage(model, data)
+    src = getattr(data, "source", "") or "data"
+    if cov["duration_s"] < MIN_RECORD_S:
+        raise InsufficientExcitationError(
+            f"{src}: record too short for a diagnosis: {cov['duration_s']:.1f} s; it needs at least {MIN_RECORD_S:g} s "
+            f"({FOLDS} cross-validation folds of >= {MIN_RECORD_S / FOLDS:g} s)")
+    if cov["outside_fraction"] > MAX_OUTSIDE:
+        lo, hi = cov["identified_range"]
+        raise InsufficientExcitationError(
+            f"{src}: {100 * cov['outside_fraction']:.0f} % of the samples have a scheduling value outside the "
+            f"model's identified range [{lo:+.3f}, {hi:+.3f}] rad (at most {100 * MAX_OUTSIDE:.0f} % allowed): "
+            f"diagnose on a record within the range the model was identified on")
+    return cov
+
+
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
-             candidates=None, dependence=True) -> Diagnosis:
+             candidates=None, dependence=True, design="auto") -> Diagnosis:
     """Diagnose ``model`` on ``data`` (:class:`lpvpc.data.PerturbationData`, ideally not used
     to fit the model). ``candidates``: names to score (default: the whole catalog and all
-    settings candidates, minus effects the model already has)."""
+    settings candidates, minus effects the model already has).
+
+    ``design``: "refit" (the model's structure refitted with each candidate, blocked
+    cross-validation), "fixed" (the model held, candidates fitted to its residual) or
+    "auto": refit, unless the refitted base's cross-validated VAF falls more than
+    SANE_DROP pp below the model's own VAF on these data (a record too short or too narrow
+    for the structure: each fold holds positions the others do not visit), then fixed.
+    Records shorter than MIN_RECORD_S or mostly outside the identified range are refused
+    (InsufficientExcitationError); samples outside the range are left out of the scores."""
+    if design not in ("auto", "refit", "fixed"):
+        raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()
     timings = {}
     if abs(float(data.fs) - float(model.fs)) > 1e-6 * model.fs:
@@ -687,30 +921,55 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
 
         raise DataError(f"the diagnosis takes one trial; got {len(data.segments)} joined trials",
                         source=getattr(data, "source", None) or None)
+    cov = check_record(model, data)
+    outside = cov.pop("outside_mask")
+    mask = ~outside if outside.any() else None
     sig = signals_from_data(data)
     pred = model.predict(data.position, data.scheduling, warn=False, signals=sig)
     y = np.asarray(data.torque, dtype=float)
     resid = y - pred.total
+    inside = ~outside
+    model_vaf_inside = vaf(y[inside], pred.total[inside])
     timings["predict"] = time.perf_counter() - t0
     t = time.perf_counter()
-    sur = Surrogate(model, data, folds)
-    results, r0 = score_candidates(sur, candidates=candidates, min_gain=min_gain, alpha=alpha, block_s=block_s)
+    reason = ""
+    sur = Surrogate(model, data, folds, design="fixed" if design == "fixed" else "refit", mask=mask,
+                    prediction=pred.total)
+    if design == "fixed":
+        reason = "requested."
+    if design == "auto":
+        r0, _ = sur.cv.fit(sur.base)
+        base_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
+        if base_vaf < model_vaf_inside - SANE_DROP:
+            reason = (f"refitting the model's structure on this record ({cov['duration_s']:.0f} s, "
+                      f"{100 * cov['covered_fraction_of_range']:.0f} % of the identified range) gives a "
+                      f"cross-validated VAF of {base_vaf:.1f} % against {model_vaf_inside:.1f} % for the model itself "
+                      f"(a refit needs longer records that visit every position in several folds).")
+            sur = Surrogate(model, data, folds, design="fixed", mask=mask, prediction=pred.total)
+    timings["design"] = time.perf_counter() - t
+    t = time.perf_counter()
+    leaks = signal_leaks(sur)
+    results, r0 = score_candidates(sur, candidates=candidates, min_gain=min_gain, alpha=alpha, block_s=block_s,
+                                   leaks=leaks)
     timings["candidates"] = time.perf_counter() - t
     t = time.perf_counter()
-    dep = signal_dependence(sur, r0, block_s=block_s) if dependence else []
+    dep = signal_dependence(sur, r0, block_s=block_s, leaks=leaks) if dependence else []
     timings["dependence"] = time.perf_counter() - t
     t = time.perf_counter()
     where = where_it_fails(model, data, resid, signals=sig)
     timings["where"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
-    sst = float(np.sum((y - y.mean()) ** 2))
+    # refit: the structure refitted (cross-validated); fixed: the model itself on the samples scored
+    surrogate_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
     return Diagnosis(
         model_hash=model.model_hash, data_source=getattr(data, "source", "") or "", n_samples=len(y), fs=float(data.fs),
-        vaf=vaf(y, pred.total), rmse=float(np.sqrt(np.mean(resid**2))), surrogate_vaf=100 * (1 - float(r0 @ r0) / sst),
+        vaf=vaf(y, pred.total), rmse=float(np.sqrt(np.mean(resid**2))), surrogate_vaf=surrogate_vaf,
         candidates=results, dependence=dep, where=where,
-        settings={"folds": folds, "min_gain": min_gain, "alpha": alpha, "block_s": block_s,
+        settings={"folds": folds, "min_gain": min_gain, "alpha": alpha, "block_s": block_s, "design": design,
+                  "leak_r2": LEAK_R2,
                   "test": "paired one-sided t on held-out squared residuals, 2-s batch means, Bonferroni over candidates"},
-        timings=timings, residual=resid, prediction=pred.total)
+        timings=timings, residual=resid, prediction=pred.total, design=sur.design, design_reason=reason,
+        coverage=cov, leaks=leaks, base_residual=r0)
 
 
 # --------------------------------------------------------------------------- report
@@ -729,8 +988,44 @@ def format_table(diag: Diagnosis, n=None) -> str:
     return "\n".join(lines)
 
 
+def _html_page(title, body) -> str:
+    """A self-contained HTML page in the validate report's style (images inline)."""
+    from .validation.report import _CSS
+
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><meta name="viewport" '
+            f'content="width=device-width, initial-scale=1"><title>{html.escape(title)}</title>'
+            f'<style>{_CSS}.wide{{overflow-x:auto}}</style></head><body>{body}</body></html>\n')
+
+
+def _html_img(path: Path, caption: str) -> str:
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(caption)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def candidates_html(diag: Diagnosis, n=None) -> str:
+    """The ranked candidates as an HTML table (significant ones first, in conditional order)."""
+    from .validation.report import _e, _table
+
+    rows = []
+    for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
+        name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
+        if not c.available:
+            rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a", _e(c.reason)])
+            continue
+        cond = (f"{c.conditional_gain:+.3f}" + (f" (given {', '.join(c.given)})" if c.given else "")
+                if c.significant else "–")
+        rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
+                     '<span class="pass">YES</span>' if c.significant else "no", _e(c.reason)])
+    return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
+                                          "p", "significant", "note"], rows, left=(1, 2, 3, 5, 8)) + "</div>"
+
+
 def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
-    """Markdown report with the ranking, where the model fails, and residual plots."""
+    """Report folder: ``report.html`` (self-contained: the answer, the ranked candidates,
+    residual before/after the top candidate, where the model fails, signal dependence),
+    ``diagnosis.md`` (the same in markdown), ``diagnosis.json`` and the figures. Returns
+    the path of report.html."""
     from . import plotting
 
     folder = Path(folder)
@@ -743,6 +1038,17 @@ def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
     figs = folder / "residual.png"
     fig.savefig(figs, dpi=100)
     plt.close(fig)
+    change = None
+    first = next((c for c in diag.candidates if c.available and c.residual is not None), None)
+    if first is not None and diag.base_residual is not None:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 3.6))
+        plotting.plot_residual_change(data.time, data.torque, diag.base_residual, first.residual,
+                                      labels=("model (cross-validated)", f"+ {first.effect}"), fs=data.fs, axes=axes)
+        fig.tight_layout()
+        change = folder / "residual_change.png"
+        fig.savefig(change, dpi=100)
+        plt.close(fig)
+    _write_html(diag, folder / "report.html", title, figs, change, first)
     w = diag.where
     lines = [f"# {title}", "", f"Model `{diag.model_hash[:12]}` on `{diag.data_source}` ({diag.n_samples} samples at "
              f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; model structure refitted with "
@@ -773,6 +1079,47 @@ def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
         lines.append(f"- with {k}: max |c| = {c['max_abs']} at lag {c['at_lag_s']:+.3f} s "
                      f"(99 % band +-{c['band_99']}{', OUTSIDE' if c['outside_band'] else ''})")
     lines += ["", f"![residual]({Path(figs).name})", ""]
-    path = folder / "diagnosis.md"
-    path.write_text("\n".join(lines))
-    return path
+    (folder / "diagnosis.md").write_text("\n".join(lines))
+    return folder / "report.html"
+
+
+def diagnosis_html(diag: Diagnosis, figs=None, change=None, first=None, *, level=2) -> str:
+    """The body of a diagnosis (used by the diagnose report and by each step of the improve
+    report)."""
+    from .validation.report import _e, _table
+
+    h = f"h{level}"
+    c = diag.coverage
+    parts = [f"<p>Model <code>{_e(diag.model_hash[:12])}</code> on <code>{_e(diag.data_source)}</code>: "
+             f"{diag.n_samples} samples at {diag.fs:g} Hz ({c.get('duration_s', 0):.1f} s, "
+             f"{100 * c.get('covered_fraction_of_range', 1):.0f} % of the identified range); VAF {diag.vaf:.2f} %, "
+             f"RMSE {diag.rmse:.4g} N m; design <b>{_e(diag.design)}</b> "
+             f"({'structure refitted' if diag.design == 'refit' else 'model held fixed'}, "
+             f"{diag.settings['folds']}-fold blocked cross-validation): base {diag.surrogate_vaf:.2f} %.</p>",
+             f"<{h}>Answer</{h}>", f"<p class=\"what\">{_e(diag.answer())}</p>"]
+    for note in diag.notes():
+        parts.append(f'<p class="flag">{_e(note)}</p>')
+    parts += [f"<{h}>Candidates, ranked</{h}>",
+              "<p class=\"small\">Gain: held-out VAF gain over the base (pp). Significant candidates are ranked by "
+              "what each adds given the ones above it (conditional gain); a candidate is significant when its p-value "
+              f"is below {diag.settings['alpha']} / number of candidates and its gain at least "
+              f"{diag.settings['min_gain']} pp.</p>", candidates_html(diag)]
+    if change is not None:
+        parts.append(_html_img(change, f"Held-out residual of the model (cross-validated base) and with "
+                                       f"{first.effect} added: before and after, over time and as spectra"))
+    if diag.dependence:
+        rows = [[_e(d["signal"]), _e(FORMS[d["form"]]), _e(d["pathway"]), f"{d['vaf_gain']:+.3f}", f"{d['p_value']:.1e}",
+                 "–" if "leak" not in d else f"{d['leak']:.2f}"] for d in diag.dependence[:8]]
+        parts += [f"<{h}>Which signal the residual depends on (top 8)</{h}>",
+                  '<div class="wide">' + _table(["signal", "form", "pathway", "gain (pp)", "p",
+                                                 "R² by reflex drive"], rows, left=(0, 1, 2)) + "</div>"]
+    if figs is not None:
+        parts += [f"<{h}>Where the model fails</{h}>",
+                  _html_img(figs, "Residual over time, by position and velocity, by frequency band, its "
+                                  "cross-correlation with the input, and the candidates' gains")]
+    return "\n".join(parts)
+
+
+def _write_html(diag, path, title, figs, change, first):
+    body = f"<h1>{html.escape(title)}</h1>" + diagnosis_html(diag, figs, change, first)
+    Path(path).write_text(_html_page(title, body))

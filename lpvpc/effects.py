@@ -63,8 +63,11 @@ from .errors import DataError
 SIGNALS = {
     "trial_time": ("s", "time since the start of the trial"),
     "scheduling_velocity": ("rad/s", "velocity of the slow (unperturbed) movement, d rho / dt"),
-    "emg": ("1", "normalised EMG envelope (background activation) in the perturbed trial"),
-    "emg_ut": ("1", "normalised EMG envelope in the unperturbed reference trial"),
+    "emg": ("1", "EMG envelope of the perturbed trial as recorded (tonic activation AND reflex bursts)"),
+    "emg_ut": ("1", "EMG envelope of the unperturbed reference trial (tonic activation)"),
+    "activation": ("1", "background activation of the perturbed trial: its EMG envelope in the quiet "
+                        "windows before perturbation steps, interpolated and low-passed "
+                        "(background_emg; the reflex bursts excluded)"),
 }
 #: Order of the extra inputs in the CasADi step and the FMU.
 SIGNAL_ORDER = tuple(SIGNALS)
@@ -74,11 +77,14 @@ FRICTION_SCALES = (0.01, 0.03, 0.1)  # rad/s: velocity scales of the smoothed fr
 DIRECTION_V_MIN = 0.05  # rad/s: slower movement does not change the remembered direction
 DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the latch
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
+QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
+ACTIVATION_CUTOFF = 1.0  # Hz: low-pass of the background activation estimate
 
 
 class Context:
     """Signals available to effect terms at a sample (CasADi) or over a record (numpy
-    (N, 1) columns). Attributes: ``rho``, ``velocity`` (perturbation, rad/s), the extra
+    (N, 1) columns). Attributes: ``rho``, ``position`` and ``velocity`` (perturbation, rad,
+    rad/s), the extra
     inputs of :data:`SIGNALS` that were given, ``direction`` (slow-movement memory, -1..1),
     ``x`` (list of m reflex states), ``z`` (reflex drive), ``w`` (list of m second-cascade
     states)."""
@@ -117,6 +123,7 @@ class Effect:
     channel_order: int | None = None  # rho basis order of the channel-scheduled IRF (None: the intrinsic one)
     feature_constant: bool = True  # False: the features' rho basis without its constant function
     kind: str = "effect"
+    subject: str | None = None  # name of the virtual-subject counterpart in lpvpc.simulate.EFFECTS (None: same name)
 
     @property
     def uses_reflex(self) -> bool:
@@ -124,7 +131,7 @@ class Effect:
 
 
 def _background_features(c, ops, options):
-    out = [c.emg]
+    out = [c.activation]
     if options.get("emg_ut"):
         out.append(c.emg_ut)
     return out
@@ -141,6 +148,35 @@ def _reflex_dynamics_features(c, ops, options):
             + [c.w[i] - (kappa[i] * ck) * c.z for i in range(len(kappa))])
 
 
+def _reflex_output_features(c):
+    """The reflex pathway's output in linear-in-parameters form: its states and drive."""
+    return list(c.x) + [c.z]
+
+
+def _habituation_features(c, ops, options):
+    """Reflex states and drive times time (min) and time squared: a reflex gain that changes
+    smoothly over the trial (z is slow next to time, so gain x LP(z) = LP(gain x z))."""
+    tm = c.trial_time * (1.0 / DRIFT_TIME_SCALE)
+    base = _reflex_output_features(c)
+    return [f * tm for f in base] + [f * (tm * tm) for f in base]
+
+
+def _activation_reflex_features(c, ops, options):
+    """Reflex states and drive times the background activation."""
+    return [f * c.activation for f in _reflex_output_features(c)]
+
+
+def _amplitude_features(c, ops, options):
+    """p |p| and p^3 of the perturbation position p (rad): the elastic torque of a stiffness
+    that changes with the size of the displacement (first even and odd correction terms)."""
+    p = c.position
+    return [p * ops.fmax(p, -p), p * p * p]
+
+
+# Each entry names its pathway, the signals its regressor reads (``signals``, ``derived``)
+# and its term (``channels``: an IRF scheduled by those signals; ``features``: static or
+# reflex-state features). Its virtual-subject counterpart is the entry of the same name in
+# lpvpc.simulate.EFFECTS (``subject``).
 CATALOG: dict[str, Effect] = {
     e.name: e
     for e in (
@@ -182,15 +218,44 @@ CATALOG: dict[str, Effect] = {
         ),
         Effect(
             "background_activation", "intrinsic",
-            "Background muscle activation (measured as EMG) adds short-range stiffness and "
+            "Background muscle activation (the EMG between reflex bursts) adds short-range stiffness and "
             "tonic torque: the activation is a further scheduling variable of the intrinsic "
             "impulse response.",
-            signals=("emg",),
+            signals=("activation",),
             optional_signals=("emg_ut",),
-            channels=lambda c, o: [c.emg],
+            channels=lambda c, o: [c.activation],
             features=_background_features,
             feature_order=0,
-            feature_names=lambda opt: ["tonic torque (emg)"] + (["tonic torque (emg_ut)"] if opt.get("emg_ut") else []),
+            feature_names=lambda opt: ["tonic torque (activation)"] + (["tonic torque (emg_ut)"] if opt.get("emg_ut") else []),
+        ),
+        Effect(
+            "activation_reflex_gain", "reflex",
+            "Background muscle activation (the EMG between reflex bursts) raises the reflex gain "
+            "(motoneuron excitability): the reflex torque is scaled by the activation.",
+            signals=("activation",),
+            derived=("reflex",),
+            features=_activation_reflex_features,
+            feature_order=0,
+            feature_names=lambda opt: [f"reflex state x{i} * activation" for i in range(opt["m"])] + ["reflex drive z * activation"],
+        ),
+        Effect(
+            "reflex_habituation", "reflex",
+            "The reflex gain changes during the trial (habituation, fatigue of the reflex loop): the "
+            "reflex torque is scaled by a smooth function of the time since the trial started.",
+            signals=("trial_time",),
+            derived=("reflex",),
+            features=_habituation_features,
+            feature_order=0,
+            feature_names=lambda opt: [f"{n} * t{k}" for k in ("", "^2")
+                                       for n in [f"reflex state x{i}" for i in range(opt["m"])] + ["reflex drive z"]],
+        ),
+        Effect(
+            "amplitude_dependent_stiffness", "intrinsic",
+            "Stiffness depends on the size of the perturbation (short-range stiffness of muscle and "
+            "tissue falls with amplitude): the elastic torque is not linear in the displacement.",
+            features=_amplitude_features,
+            feature_order=3,
+            feature_names=lambda opt: ["p |p|", "p^3"],
         ),
         Effect(
             "position_dependent_reflex_dynamics", "reflex",
@@ -401,7 +466,47 @@ def signals_from_data(data) -> dict:
     for k in ("emg", "emg_ut"):
         if k in extra:
             out[k] = np.asarray(extra[k], dtype=float)
+    if "emg" in out:
+        out["activation"] = background_emg(out["emg"], data.position, data.fs)
     return default_signals(data.scheduling, data.fs, out)
+
+
+def quiet_mask(position, fs, after=QUIET_AFTER_STEP) -> np.ndarray:
+    """True where no perturbation movement happened in the last ``after`` s: samples whose
+    EMG holds no reflex-evoked burst (the burst comes ~40 ms after a velocity pulse and
+    lasts as long as the pulse, plus the envelope's smoothing). Moving: |velocity| above
+    10 % of its 99th percentile (at least 0.02 rad/s)."""
+    v = np.abs(eq.velocity(np.asarray(position, dtype=float), fs))
+    moving = v > max(0.1 * np.percentile(v, 99), 0.02) if len(v) else v > 0
+    k = max(1, int(round(after * fs)))
+    # samples since the last moving one
+    idx = np.arange(len(v))
+    last = np.maximum.accumulate(np.where(moving, idx, -10 * k))
+    return idx - last > k
+
+
+def background_emg(emg, position, fs, *, cutoff=ACTIVATION_CUTOFF) -> np.ndarray:
+    """Background activation from the perturbed trial's EMG envelope (same unit as ``emg``):
+    its values in the quiet windows before perturbation steps (:func:`quiet_mask`),
+    linearly interpolated across the bursts and low-passed (zero-phase, ``cutoff`` Hz).
+    What the reflex drives is left out, so the estimate does not correlate with the
+    reflex torque. With fewer than 5 % quiet samples (no step-like perturbation) the
+    slow envelope of the whole EMG is returned; the diagnosis then checks whether it is
+    explained by the reflex drive before using it."""
+    import scipy.signal
+
+    emg = np.asarray(emg, dtype=float)
+    n = len(emg)
+    q = quiet_mask(position, fs)
+    if q.sum() >= max(0.05 * n, 3):
+        idx = np.flatnonzero(q)
+        x = np.interp(np.arange(n), idx, emg[idx])
+    else:
+        x = emg.copy()
+    if n > 30 and cutoff < fs / 2:
+        b, a = scipy.signal.butter(2, cutoff, fs=fs)
+        x = scipy.signal.filtfilt(b, a, x, padlen=min(n - 1, 3 * int(fs / cutoff)))
+    return x
 
 
 def check_signals(signals: dict, needed, n: int, source="data"):
@@ -425,7 +530,7 @@ def record_context(position, scheduling, fs, signals, *, velocity=None, derived=
     reflex-derived signals are needed."""
     col = lambda a: np.asarray(a, dtype=float).reshape(-1, 1)  # noqa: E731
     vel = eq.velocity(position, fs) if velocity is None else velocity
-    ctx = {"rho": col(scheduling), "velocity": col(vel)}
+    ctx = {"rho": col(scheduling), "velocity": col(vel), "position": col(position)}
     for k, v in signals.items():
         ctx[k] = col(v)
     if "direction" in derived:

@@ -199,7 +199,7 @@ def state_layout(model, variant="causal") -> StateLayout:
     lags = model.causal_lags if variant == "causal" else model.lags
     # history index i means pos(k - i); i = 0 is the current input.
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
-    if _effect_signals(model) or _effect_states(model):
+    if getattr(model, "effects", None):
         needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
     return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d,
                        signals=_effect_signals(model), effect_states=tuple(_effect_states(model)))
@@ -369,10 +369,10 @@ def step_function(model, variant="causal", parametric=False, name=None):
     x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
 
     eff_next = eff_state
-    if lay.signals or lay.effect_states:  # extended model: effect terms (lpvpc.effects)
+    if getattr(model, "effects", None):  # extended model: effect terms (lpvpc.effects)
         v_j = vel if variant == "causal" else eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
         tq_ei, tq_er, eff_next = _effect_torques(model, variant, c, lay, ops, signals, rho, v_j, sig, x, z,
-                                                 eff_state)
+                                                 eff_state, p_at(lat))
         tq_i, tq_r = tq_i + tq_ei, tq_r + tq_er
 
     if lat > 0:  # nothing is defined before the record starts: hold x = 0, output 0
@@ -403,14 +403,14 @@ def step_function(model, variant="causal", parametric=False, name=None):
     )
 
 
-def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig, x, z, eff_state):
+def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig, x, z, eff_state, p_j):
     """Effect torques of an extended model at sample j (intrinsic, reflex) and the next
     effect states; the terms come from :func:`lpvpc.effects.effect_term`."""
     import casadi as ca
 
     from . import effects as fx
 
-    ctx = {"rho": rho, "velocity": v_j, **sig}
+    ctx = {"rho": rho, "velocity": v_j, "position": p_j, **sig}
     nxt = []
     k = 0
     states = list(lay.effect_states)

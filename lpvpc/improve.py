@@ -210,6 +210,44 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
                       "```", format_table(r.diagnosis, 5), "```", ""]
         if r.kept:
             prev = r
-    path = folder / "improve.md"
-    path.write_text("\n".join(lines))
+    (folder / "improve.md").write_text("\n".join(lines))
+    path = folder / "report.html"
+    path.write_text(_html(ladder, heldout, folder))
     return path
+
+
+def _html(ladder: Ladder, heldout, folder: Path) -> str:
+    """Self-contained HTML: the ladder (table and plot), and per step the change, the
+    residual before and after it, and the diagnosis that chose the next step."""
+    from .diagnose import _html_img, _html_page, diagnosis_html
+    from .validation.report import _e, _table
+
+    first, last = ladder.rungs[0], ladder.final
+    rows = []
+    for r in ladder.rungs:
+        top = r.diagnosis.top if r.diagnosis is not None else None
+        nxt = "–" if not r.kept else ("none" if top is None else f"{top.effect}{_variant_text(top.variant)} "
+                                                                f"(+{top.vaf_gain:.2f} pp, {top.pathway})")
+        rows.append([str(r.index), _e(r.label) + ("" if r.kept else " <b>(not kept)</b>"), f"{r.heldout_vaf:.2f}",
+                     f"{r.heldout_rmse:.4f}", f"{r.fit_vaf:.2f}", _e(nxt)])
+    parts = ["<h1>Improve: the model ladder</h1>",
+             f"<p>Each model is identified on the identification record and judged on the held-out record "
+             f"<code>{_e(getattr(heldout, 'source', ''))}</code>; held-out VAF {first.heldout_vaf:.2f} % &rarr; "
+             f"{last.heldout_vaf:.2f} % (RMSE {first.heldout_rmse:.4f} &rarr; {last.heldout_rmse:.4f} N m). "
+             f"Stopped: {_e(ladder.stopped)}.</p>",
+             '<div class="wide">' + _table(["step", "model", "held-out VAF (%)", "RMSE (N m)", "identification VAF (%)",
+                                            "next (top significant candidate)"], rows, left=(1, 5)) + "</div>",
+             _html_img(folder / "ladder.png", "Held-out VAF and RMSE of each model on the ladder")]
+    for r in ladder.rungs:
+        parts.append(f"<h2>Step {r.index}: {_e(r.label)}{'' if r.kept else ' (not kept)'}</h2>")
+        parts.append(f"<p>held-out VAF {r.heldout_vaf:.2f} %, RMSE {r.heldout_rmse:.4f} N m; identification VAF "
+                     f"{r.fit_vaf:.2f} %; fit {r.fit_time:.1f} s"
+                     + (f", diagnosis {r.diagnosis_time:.1f} s" if r.diagnosis is not None else "") + ".</p>")
+        if r.change.get("effect"):
+            parts.append(f"<p class=\"what\">{_e(CATALOG[r.change['effect']].explanation)}</p>")
+        png = folder / f"residual_step{r.index}.png"
+        if png.is_file():
+            parts.append(_html_img(png, f"Held-out residual before and after step {r.index}"))
+        if r.diagnosis is not None:
+            parts.append(diagnosis_html(r.diagnosis, level=3))
+    return _html_page("lpvpc improve report", "\n".join(parts))

@@ -20,9 +20,14 @@ The chain, one function per physical element::
     reflex_torque    = LP_2nd( G(theta) * max(vel(t - delay) - th(theta), 0) )
     torque           = intrinsic + reflex + coloured_noise
 
-Effects the base LPV-PC model does not contain (fatigue drift, friction, direction-
-dependent stiffness, background activation, position-dependent reflex dynamics) are
-switchable by name through the :data:`EFFECTS` registry.
+    emg              = envelope(tonic + activation + reflex drive / emg_reflex_torque) + noise
+
+Both trials record an EMG envelope (V): tonic activation in both, reflex-evoked bursts
+(~40 ms after each velocity pulse, with the reflex's gain and threshold) in the perturbed
+one, measurement noise. Effects the base LPV-PC model does not contain are switchable by
+name through the :data:`EFFECTS` registry; each has its diagnosis-catalog counterpart of
+the same name in :data:`lpvpc.effects.CATALOG` (``position_dependent_reflex_delay`` is
+deliberately outside the catalog).
 
 Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
 :func:`write_dataset`, :data:`EFFECTS`, and the element functions
@@ -106,6 +111,12 @@ class SubjectParams:
     # actuator: a stiff hydraulic position servo
     servo_wn: float = 2 * math.pi * 25.0  # rad/s (25 Hz): closed-loop natural frequency
     servo_zeta: float = 0.7  # 1, closed-loop damping
+    # EMG (a rectified, smoothed envelope of the plantarflexors' surface EMG, as the lab records it)
+    emg_tonic: float = 0.08  # 1, tonic (background) activation present in both trials
+    emg_reflex_torque: float = 15.0  # N m of reflex drive per unit of reflex-evoked activation
+    emg_volts: float = 300e-6  # V of envelope at full activation (1.0)
+    emg_noise: float = 0.015  # 1, RMS of the envelope's measurement noise (activation units)
+    emg_cutoff: float = 30.0  # Hz, envelope low-pass (rectify, then 2nd-order Butterworth)
     # torque sensor / background noise
     noise_cutoff: float = 20.0  # Hz, cut-off of the 2nd-order Butterworth that colours the noise
     noise_order: int = 2  # order of that filter
@@ -450,7 +461,7 @@ def _tv_lowpass(z, wn, zeta: float, fs: float) -> np.ndarray:
 
 
 def reflex_torque(theta, vel, fs: float, params: SubjectParams | None = None, *,
-                  gain_scale=1.0, wn=None):
+                  gain_scale=1.0, wn=None, delay=None):
     """Stretch-reflex torque (N m) of a joint moving with ``vel`` (rad/s) at ``theta`` (rad).
 
     Velocity delayed by ``reflex_delay`` (the stretch-reflex loop), half-wave rectified
@@ -459,12 +470,17 @@ def reflex_torque(theta, vel, fs: float, params: SubjectParams | None = None, *,
     trajectory transitions fire it too), then the unit-DC-gain 2nd-order low-pass
     (``reflex_wn``, ``reflex_zeta``: muscle activation/contraction dynamics). ``gain_scale``
     multiplies G; ``wn`` (array, rad/s) replaces the constant natural frequency with a
-    time-varying one (an effect the LPV-PC model does not contain).
+    time-varying one and ``delay`` (array, s) the constant delay with a time-varying one
+    (effects the LPV-PC model does not contain).
 
     Returns ``(torque, z)``.
     """
     p = params or SubjectParams()
-    dvel = delay_signal(vel, p.reflex_delay, fs)
+    if delay is None:
+        dvel = delay_signal(vel, p.reflex_delay, fs)
+    else:  # vel(t - delay(t)), linear interpolation, vel[0] before the start
+        t = np.arange(len(vel)) / fs
+        dvel = np.interp(t - np.asarray(delay, dtype=float), t, np.asarray(vel, dtype=float))
     z = gain_scale * p.reflex_gain(theta) * np.maximum(dvel - p.reflex_threshold(theta), 0.0)
     if wn is None:
         b, a = reflex_lowpass_coefficients(p.reflex_wn, p.reflex_zeta, fs)
@@ -503,8 +519,9 @@ class TrialState:
     (True for PT), ``fs`` (Hz), ``params``, ``rng`` (this trial's own random stream).
     Modify: ``stiffness_scale`` (multiplies E and K), ``viscosity_scale`` (multiplies B), ``reflex_gain_scale`` (multiplies G),
     ``extra_torque`` (N m, added to the intrinsic torque), ``reflex_wn`` (None or array
-    rad/s: time-varying reflex natural frequency), ``channels`` (extra recorded channels,
-    e.g. 'emg').
+    rad/s: time-varying reflex natural frequency), ``reflex_delay`` (None or array s:
+    time-varying reflex delay), ``activation`` (1: background activation added to the
+    tonic level; it shows in the trial's EMG), ``channels`` (extra recorded channels).
     """
 
     t: np.ndarray
@@ -523,6 +540,8 @@ class TrialState:
     reflex_gain_scale: np.ndarray = None
     extra_torque: np.ndarray = None
     reflex_wn: np.ndarray | None = None
+    reflex_delay: np.ndarray | None = None
+    activation: np.ndarray = None
     channels: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -532,16 +551,26 @@ class TrialState:
                 setattr(self, name, np.ones(n))
         if self.extra_torque is None:
             self.extra_torque = np.zeros(n)
+        if self.activation is None:
+            self.activation = np.zeros(n)
 
 
 def _effect_drift(s: TrialState) -> dict:
-    """Fatigue / habituation: stiffness and reflex gain decay linearly in time,
-    -30 % over 120 s (floored at 10 % of the initial value)."""
+    """Intrinsic fatigue / thixotropy: stiffness decays linearly in time, -30 % over
+    120 s (floored at 10 % of the initial value). The reflex is untouched (its own
+    time-varying gain is ``reflex_habituation``)."""
     rate = 0.30 / 120.0  # 1/s
     scale = np.maximum(1.0 - rate * s.t, 0.1)
     s.stiffness_scale *= scale
-    s.reflex_gain_scale *= scale
-    return {"rate_per_s": rate, "floor": 0.1, "applies_to": ["K", "reflex_gain"]}
+    return {"rate_per_s": rate, "floor": 0.1, "applies_to": ["K"]}
+
+
+def _effect_reflex_habituation(s: TrialState) -> dict:
+    """Reflex habituation: the reflex gain falls exponentially toward 30 % of its initial
+    value with a 40-s time constant (-67 % after 2 min); intrinsic stiffness untouched."""
+    final, tau = 0.3, 40.0  # 1, s
+    s.reflex_gain_scale *= final + (1.0 - final) * np.exp(-s.t / tau)
+    return {"final_fraction": final, "time_constant_s": tau, "applies_to": ["reflex_gain"]}
 
 
 def _effect_nonlinear_viscosity(s: TrialState) -> dict:
@@ -570,32 +599,75 @@ def _effect_direction_dependent_stiffness(s: TrialState) -> dict:
     return {"increase_after_moving_toward_df": gain, "velocity_threshold": v_min, "time_constant": tau}
 
 
+def _slow_activation(s: TrialState, cutoff=0.05) -> np.ndarray:
+    """A slowly varying background activation a(t) in [0, 1], mostly low (~0.1) with bursts
+    toward 0.9: unit-variance noise low-passed at ``cutoff`` Hz, a = (1 + tanh(x - 1)) / 2.
+    Each trial has its own (activation is not reproducible between trials)."""
+    b, a = signal.butter(2, cutoff, fs=s.fs)
+    lead = int(20 * s.fs)  # discard the filter's start-up so a(t) is stationary from t = 0
+    x = signal.lfilter(b, a, s.rng.standard_normal(len(s.t) + lead))[lead:]
+    x /= max(np.std(x), 1e-12)
+    return 0.5 * (1.0 + np.tanh(x - 1.0))
+
+
 def _effect_background_activation(s: TrialState) -> dict:
-    """Slowly varying background activation a(t) in [0, 1], recorded as channel 'emg'
-    (normalised EMG envelope), mostly low (~0.1) with bursts toward 0.9.
+    """Slowly varying background activation a(t) (see :func:`_slow_activation`), own per
+    trial; it adds to the tonic level in the trial's EMG.
 
     Physiology: active fibres add short-range stiffness proportional to activation, acting
     on fast length changes about the slowly moving operating point (cross-bridges
     re-attach during slow movement, so the slow trajectory is not resisted). Hence the
     elastic torque of perturbations is scaled by (1 + a): a(t) * [E(theta) - E(theta_slow)]
     is added, i.e. K_eff = (1 + a) K for the perturbation. Viscosity is scaled by (1 + a)
-    too, and a tonic active (plantarflexing, resists dorsiflexion: positive) torque
-    ``tonic * a`` is added. Each trial has its own a(t): activation is not reproducible
-    between trials, so PT - UT also keeps a slow residual ``tonic * (a_PT - a_UT)``."""
+    too, a tonic active (plantarflexing, resists dorsiflexion: positive) torque
+    ``tonic * a`` is added, and the motoneuron pool's excitability raises the reflex gain
+    by (1 + a) as well (activation raises intrinsic stiffness and reflex gain alike).
+    PT - UT keeps a slow residual ``tonic * (a_PT - a_UT)``."""
     cutoff, tonic = 0.05, 2.0  # Hz (slow), N m at full activation
-    b, a = signal.butter(2, cutoff, fs=s.fs)
-    lead = int(20 * s.fs)  # discard the filter's start-up so a(t) is stationary from t = 0
-    x = signal.lfilter(b, a, s.rng.standard_normal(len(s.t) + lead))[lead:]
-    x /= max(np.std(x), 1e-12)
-    act = 0.5 * (1.0 + np.tanh(x - 1.0))
+    act = _slow_activation(s, cutoff)
     pr = s.params
     s.extra_torque += act * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta)) + tonic * act
     s.viscosity_scale *= 1.0 + act
-    s.channels["emg"] = act
+    s.reflex_gain_scale *= 1.0 + act
+    s.activation += act
     return {"cutoff_hz": cutoff, "tonic_torque": tonic,
             "mapping": "a = 0.5*(1+tanh(x-1)), x unit-variance noise low-passed at cutoff_hz",
-            "perturbation_stiffness_scale": "1 + a", "viscosity_scale": "1 + a",
+            "perturbation_stiffness_scale": "1 + a", "viscosity_scale": "1 + a", "reflex_gain_scale": "1 + a",
             "independent_per_trial": True}
+
+
+def _effect_activation_reflex_gain(s: TrialState) -> dict:
+    """Background activation (as in ``background_activation``, in the EMG) that raises only
+    the reflex gain, by (1 + 1.5 a): motoneuron excitability without a measurable change of
+    intrinsic stiffness (e.g. a weak contraction of a muscle whose fibres add little
+    short-range stiffness at the joint)."""
+    gain = 1.5
+    act = _slow_activation(s)
+    s.reflex_gain_scale *= 1.0 + gain * act
+    s.activation += act
+    return {"reflex_gain_scale": f"1 + {gain} a", "independent_per_trial": True}
+
+
+def _effect_amplitude_dependent_stiffness(s: TrialState) -> dict:
+    """Short-range stiffness that falls with the perturbation's amplitude: the elastic
+    torque of the displacement p = theta - theta_slow is scaled by 1 - |p| / 0.12 rad
+    (-33 % at the PRALDS's 0.04 rad), a known property of joint tissue. Only the
+    perturbed trial has p != 0."""
+    p0 = 0.12  # rad
+    pr = s.params
+    p = s.theta - s.slow_theta
+    s.extra_torque -= np.minimum(np.abs(p) / p0, 0.9) * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta))
+    return {"stiffness_scale": "1 - |p| / 0.12 rad", "p0": p0}
+
+
+def _effect_position_dependent_reflex_delay(s: TrialState) -> dict:
+    """The reflex delay varies with position: 40 ms + 10 ms * (theta + 0.1) / 0.3 (30 ms at
+    -0.4 rad, 50 ms at +0.2 rad). The LPV-PC model has one delay. (Not in the diagnosis
+    catalog: an effect outside it.)"""
+    slope = 0.010 / 0.3  # s/rad
+    s.reflex_delay = s.params.reflex_delay + slope * (s.theta + 0.1)
+    return {"delay_formula": "reflex_delay + 0.0333 s/rad * (theta + 0.1)", "delay_at_-0.4": 0.030,
+            "delay_at_+0.2": 0.050}
 
 
 def _effect_position_dependent_reflex_dynamics(s: TrialState) -> dict:
@@ -614,18 +686,25 @@ def _effect_position_dependent_reflex_dynamics(s: TrialState) -> dict:
 #: parameters (recorded in ``truth['effects']``). To add an effect: write such a function
 #: and add one line here.
 EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
-    "drift": ("stiffness and reflex gain decay linearly, -30 % over 2 min (fatigue/habituation)",
-              _effect_drift),
+    "drift": ("stiffness decays linearly, -30 % over 2 min (intrinsic fatigue)", _effect_drift),
+    "reflex_habituation": ("reflex gain decays exponentially to 30 % (time constant 40 s)",
+                           _effect_reflex_habituation),
     "nonlinear_viscosity": ("Coulomb-like friction 0.4*tanh(v/0.02) N m on undelayed velocity",
                             _effect_nonlinear_viscosity),
     "direction_dependent_stiffness": ("K +25 % after the slow trajectory moved toward "
                                       "dorsiflexion (torque-angle hysteresis)",
                                       _effect_direction_dependent_stiffness),
-    "background_activation": ("slow background activation a(t) (channel 'emg'), own per trial: "
-                              "K of perturbations and B scaled by 1+a, tonic torque 2a N m",
+    "background_activation": ("slow background activation a(t) (in the EMG), own per trial: K of "
+                              "perturbations, B and reflex gain scaled by 1+a, tonic torque 2a N m",
                               _effect_background_activation),
+    "activation_reflex_gain": ("slow background activation a(t) (in the EMG) scaling the reflex gain "
+                               "only, by 1+1.5a", _effect_activation_reflex_gain),
+    "amplitude_dependent_stiffness": ("perturbation stiffness falls with amplitude, 1-|p|/0.12 rad",
+                                      _effect_amplitude_dependent_stiffness),
     "position_dependent_reflex_dynamics": ("reflex low-pass wn varies with position (10.7-24 rad/s)",
                                            _effect_position_dependent_reflex_dynamics),
+    "position_dependent_reflex_delay": ("reflex delay varies with position, 30-50 ms (not in the "
+                                        "diagnosis catalog)", _effect_position_dependent_reflex_delay),
 }
 
 
@@ -648,8 +727,8 @@ def _check_effects(effects) -> tuple:
 class SimulatedPair:
     """A simulated PT/UT pair at the output rate.
 
-    ``pt``, ``ut``: noisy trials (channel 'command', plus 'emg' with background
-    activation); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
+    ``pt``, ``ut``: noisy trials (channels 'command' and 'emg', the EMG envelope
+    in ``emg_unit``); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
     ``truth``: JSON-serialisable parameters, curves and measured quantities;
     ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
     'ut_intrinsic', 'ut_reflex'.
@@ -678,9 +757,37 @@ def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
     info = {name: EFFECTS[name][1](st) for name in effects}
     tq_i = intrinsic_torque(theta, vel, acc, params, stiffness_scale=st.stiffness_scale,
                             viscosity_scale=st.viscosity_scale, extra=st.extra_torque)
-    tq_r, _ = reflex_torque(theta, vel, fs, params, gain_scale=st.reflex_gain_scale, wn=st.reflex_wn)
-    return {"theta": theta, "vel": vel, "intrinsic": tq_i, "reflex": tq_r,
-            "channels": st.channels, "effects": info}
+    tq_r, z = reflex_torque(theta, vel, fs, params, gain_scale=st.reflex_gain_scale, wn=st.reflex_wn,
+                            delay=st.reflex_delay)
+    return {"theta": theta, "vel": vel, "intrinsic": tq_i, "reflex": tq_r, "reflex_drive": z,
+            "activation": params.emg_tonic + st.activation, "channels": st.channels, "effects": info}
+
+
+#: EMG units of :func:`simulate_pair` and the factor from volts.
+EMG_UNITS = {"V": 1.0, "mV": 1e3, "uV": 1e6}
+
+
+def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
+                 params: SubjectParams | None = None) -> np.ndarray:
+    """The recorded EMG envelope (V) of one trial.
+
+    Muscle activity = background activation (tonic level plus any slow activation, the
+    same in both trials' kind) + reflex-evoked activation: the reflex drive z (N m; the
+    delayed, rectified, position-gained velocity, so the bursts come ~40 ms after each
+    velocity pulse with the reflex's own gain and threshold) divided by
+    ``emg_reflex_torque``. Rectified-EMG envelope: a 2nd-order Butterworth low-pass at
+    ``emg_cutoff`` Hz, plus measurement noise (the rectified amplifier noise: |low-passed
+    white noise|, ``emg_noise`` RMS), times ``emg_volts``. A perturbed trial's EMG therefore
+    correlates with the reflex torque; an unperturbed trial's shows the tonic part (and
+    small bursts when the slow movement is fast enough to fire the reflex).
+    """
+    p = params or SubjectParams()
+    act = np.asarray(activation, dtype=float) + np.asarray(reflex_drive, dtype=float) / p.emg_reflex_torque
+    b, a = signal.butter(2, p.emg_cutoff, fs=fs)
+    env = act[0] + signal.lfilter(b, a, act - act[0])
+    noise = np.abs(signal.lfilter(b, a, rng.standard_normal(len(act))))
+    noise *= p.emg_noise / max(_rms(noise), 1e-300)
+    return p.emg_volts * (env + noise)
 
 
 def _rms(x):
@@ -690,7 +797,7 @@ def _rms(x):
 def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: float = 120.0,
                   fs_out: float = 1000.0, snr_db: float = 18.0,
                   perturbation_amplitude: float = 0.04, params: SubjectParams | None = None,
-                  effects=()) -> SimulatedPair:
+                  effects=(), emg_unit: str = "V") -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
     ``trajectory``: "multilevel" (identification) or "novel" (held-out shapes that also
@@ -702,8 +809,12 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     noise)), exact at the output rate (``inf`` or ``None``: no noise).
     ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``effects``:
     names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
-    quantisation is negligible next to the torque noise).
+    quantisation is negligible next to the torque noise). Both trials carry channel
+    'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
+    in ``emg_unit`` ("V", "mV" or "uV").
     """
+    if emg_unit not in EMG_UNITS:
+        raise ValueError(f"unknown EMG unit {emg_unit!r}; use one of {sorted(EMG_UNITS)}")
     if trajectory not in _TRAJECTORIES:
         raise ValueError(f"unknown trajectory {trajectory!r}; use one of {sorted(_TRAJECTORIES)}")
     effects = _check_effects(effects)
@@ -719,12 +830,15 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     code, make_traj = _TRAJECTORIES[trajectory]
     ss = np.random.SeedSequence([int(seed), code])
     r_traj, r_pert, r_npt, r_nut, r_ept, r_eut = (np.random.default_rng(s) for s in ss.spawn(6))
+    r_mpt, r_mut = (np.random.default_rng(s) for s in ss.spawn(2))  # EMG noise (after the others: same streams)
 
     traj = make_traj(duration, fs, r_traj)
     pert = pralds(duration, fs, r_pert, amplitude=perturbation_amplitude)
     cmd = {"UT": traj, "PT": traj + pert}
     ut = _simulate_trial(cmd["UT"], None, False, fs, params, effects, r_eut)
     pt = _simulate_trial(cmd["PT"], ut, True, fs, params, effects, r_ept)
+    for sim, r in ((ut, r_mut), (pt, r_mpt)):
+        sim["channels"]["emg"] = EMG_UNITS[emg_unit] * emg_envelope(sim["activation"], sim["reflex_drive"], fs, r, params)
 
     def out(x):  # to the output rate
         return decimate_signal(x, q)
@@ -777,8 +891,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         "effects": eff_truth,
         "noise_scale": scale,
         "position_noise": 0.0,
-        "units": {"time": "s", "position": "rad", "torque": "N m", "command": "rad",
-                  "emg": "1 (normalised activation)"},
+        "units": {"time": "s", "position": "rad", "torque": "N m", "command": "rad", "emg": emg_unit},
+        "emg_unit": emg_unit,
         # measured on this record at the output rate; RMS values are about zero
         "measured": {
             "snr_db": float(10 * np.log10(np.var(d_clean) / np.var(d_noisy - d_clean)))
@@ -833,7 +947,7 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
     params = params or SubjectParams()
     paths, truth = {}, {"params": params.to_dict(), "curves": params.curves(),
                         "units": {"time": "s", "position": "rad", "torque": "N m",
-                                  "command": "rad", "emg": "1 (normalised activation)"}}
+                                  "command": "rad", "emg": "V"}}
     for key, kind in (("ident", "multilevel"), ("novel", "novel")):
         pair = simulate_pair(kind, seed=seed, duration=duration, fs_out=fs_out, snr_db=snr_db,
                              params=params, effects=effects)

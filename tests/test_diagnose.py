@@ -6,6 +6,7 @@ which runs the same checks over more seeds (12 for false alarms, 5 per effect).
 """
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -57,6 +58,9 @@ SCENARIOS = {
     "background_activation": (("background_activation",), {}, "background_activation", 0),
     "position_dependent_reflex_dynamics": (("position_dependent_reflex_dynamics",), {},
                                            "position_dependent_reflex_dynamics", 0),
+    "reflex_habituation": (("reflex_habituation",), {}, "reflex_habituation", 1),
+    "activation_reflex_gain": (("activation_reflex_gain",), {}, "activation_reflex_gain", 0),
+    "amplitude_dependent_stiffness": (("amplitude_dependent_stiffness",), {}, "amplitude_dependent_stiffness", 0),
     "wrong_reflex_delay": ((), {"reflex_delay": 0.08}, "reflex_delay", 0),
     "irf_too_short": ((), {"irf_lags": 1}, "irf_length", 0),
     "intrinsic_order_too_low": ((), {"intrinsic_order": 2}, "intrinsic_basis_order", 2),
@@ -131,12 +135,12 @@ def test_diagnosis_json_and_where_it_fails(tmp_path):
     cands = j["candidates"]
     for c in cands:
         assert {"effect", "vaf_gain", "significant", "explanation"} <= set(c)
-    gains = [c["vaf_gain"] for c in cands if c["available"]]
-    assert gains == sorted(gains, reverse=True)
+    rest = [c["vaf_gain"] for c in cands if c["available"] and not c["significant"]]
+    assert rest == sorted(rest, reverse=True)  # after the significant ones (conditional order)
     assert cands[0]["effect"] == "drift" and cands[0]["significant"] is True
-    assert {c["effect"] for c in cands} >= {"drift", "reflex_delay", "irf_length", "background_activation"}
-    unavailable = [c for c in cands if not c["available"]]
-    assert [c["effect"] for c in unavailable] == ["background_activation"] and "emg" in unavailable[0]["reason"]
+    assert {c["effect"] for c in cands} >= {"drift", "reflex_delay", "irf_length", "background_activation",
+                                           "reflex_habituation", "activation_reflex_gain"}
+    assert j["design"] == "refit" and j["signal_leak_r2"]["emg"] > 0.5 > j["signal_leak_r2"]["activation"]
     # where: the model fitted to a drifting subject has an average stiffness, so its
     # relative error is largest at the start or the end of the trial
     bins = j["where"]["time"]["bins"]
@@ -182,8 +186,11 @@ def test_improve_report(tmp_path):
     assert [r.label for r in ladder.rungs] == ["base model", "+ nonlinear_viscosity"]
     assert ladder.stopped == "nothing significant left"
     path = write_ladder(ladder, novel, tmp_path / "imp")
-    text = path.read_text()
+    text = (tmp_path / "imp" / "improve.md").read_text()
     assert "held-out VAF" in text and "ladder.png" in text and "residual_step1.png" in text
+    page = path.read_text()
+    assert path.name == "report.html" and "Step 1: + nonlinear_viscosity" in page
+    assert page.count("data:image/png;base64,") >= 3 and not re.search(r'(src|href)="(https?:)?//', page)
     j = json.loads((tmp_path / "imp" / "ladder.json").read_text())
     assert [s["heldout_vaf"] for s in j["steps"]] == sorted(s["heldout_vaf"] for s in j["steps"])
 
@@ -204,5 +211,96 @@ def test_cli_diagnose_and_improve(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "+ direction_dependent_stiffness" in out and "nothing significant left" in out
     assert (tmp_path / "imp" / "improve.md").is_file() and (tmp_path / "final.json").is_file()
+    assert (tmp_path / "imp" / "report.html").is_file() and (tmp_path / "drep" / "report.html").is_file()
     assert main(["diagnose", str(tmp_path / "missing.json"), "--pt", str(paths["novel_PT"]),
                  "--ut", str(paths["novel_UT"])]) == 2
+
+
+def test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature():
+    """The perturbed trial's EMG carries reflex bursts (simulate.emg_envelope); the raw
+    channel is explained by the model's reflex drive, the background activation taken
+    between the bursts is not, and a reflex effect is not blamed on activation."""
+    from lpvpc.diagnose import Surrogate, signal_leaks
+
+    model, novel, d = clean(0)
+    leaks = signal_leaks(Surrogate(model, novel))
+    assert leaks["emg"] > 0.5 and leaks["activation"] < 0.05 and leaks["emg_ut"] < 0.05
+    ident, novel = _pairs(0, ("position_dependent_reflex_dynamics",))
+    d = diagnose(identify(ident), novel)
+    assert not {c.effect for c in d.significant} & {"background_activation", "activation_reflex_gain"}
+
+
+def test_candidate_reading_a_leaking_signal_is_not_named(monkeypatch):
+    """A candidate whose signal the reflex drive explains (here: the activation feature
+    replaced by the raw perturbed-trial EMG) is refused with the reason, not named."""
+    from lpvpc import effects as fx
+
+    real = fx.background_emg
+    monkeypatch.setattr(fx, "background_emg", lambda emg, position, fs, **kw: np.asarray(emg, dtype=float))
+    ident, novel = _pairs(0, ("position_dependent_reflex_dynamics",))
+    d = diagnose(identify(ident), novel)
+    assert d.leaks["activation"] > 0.5
+    act = next(c for c in d.candidates if c.effect == "activation_reflex_gain")
+    assert not act.significant
+    assert real is not fx.background_emg
+
+
+def test_conditional_ranking_names_both_pathways_of_activation():
+    """Activation that scales intrinsic stiffness AND reflex gain: the intrinsic entry is
+    ranked first, the reflex one is re-scored given it; the answer names pathway and signal."""
+    ident, novel = _pairs(0, ("background_activation",))
+    d = diagnose(identify(ident), novel)
+    top = d.candidates[0]
+    assert top.effect == "background_activation" and top.significant
+    assert "intrinsic pathway and the signal activation" in d.answer()
+    for c in d.significant[1:]:
+        assert c.given[0] == "background_activation" and c.conditional_gain >= d.settings["min_gain"]
+
+
+def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path, capsys):
+    model, novel, _ = clean(0)
+    from lpvpc.data import PerturbationData
+    from lpvpc.errors import InsufficientExcitationError
+
+    def cut(data, a, b):
+        extra = {k: v[a:b] for k, v in data.extra.items()}
+        return PerturbationData(data.position[a:b], data.torque[a:b], data.scheduling[a:b], data.fs, extra,
+                                data.source, data.meta)
+
+    with pytest.raises(InsufficientExcitationError, match=r"too short for a diagnosis: 15.0 s.*at least 20 s"):
+        diagnose(model, cut(novel, 0, 1500))
+    d = diagnose(model, cut(novel, 0, 3200), design="fixed")
+    assert d.design == "fixed" and d.notes()[0].startswith("Model held fixed")
+    assert d.surrogate_vaf == pytest.approx(vaf(cut(novel, 0, 3200).torque, d.prediction), abs=0.5)
+    assert all(abs(c.vaf_gain) <= 100 - d.surrogate_vaf for c in d.candidates if c.available)
+    assert not d.significant
+    # mostly outside the identified range: refused
+    lo, hi = model.scheduling_range
+    far = cut(novel, 0, 3200)
+    far.scheduling[:] = hi + 0.2
+    with pytest.raises(InsufficientExcitationError, match="outside the model's identified range"):
+        diagnose(model, far)
+
+
+def test_diagnose_and_improve_reports_render_in_chromium(tmp_path):
+    """report.html of diagnose and improve: self-contained, every figure loads, nothing
+    wider than the 1280-px page (tests/report_browser.py). Screenshots go to
+    $LPVPC_SCREENSHOT_DIR when set."""
+    import os
+    from pathlib import Path
+
+    from report_browser import assert_layout_ok, check_page
+
+    shots = Path(os.environ.get("LPVPC_SCREENSHOT_DIR") or tmp_path)
+    ident, novel = _pairs(0, ("background_activation",))
+    ladder = improve(ident, novel, max_steps=2)
+    page = write_ladder(ladder, novel, tmp_path / "imp")
+    d = ladder.rungs[0].diagnosis
+    rep = write_report(d, novel, tmp_path / "diag")
+    text = rep.read_text()
+    assert "Candidates, ranked" in text and "background_activation" in text and "residual" in text
+    check = check_page(rep, shots / "diagnose_report.png")
+    assert_layout_ok(check, n_images=2)
+    n_img = page.read_text().count("<img")
+    check = check_page(page, shots / "improve_report.png")
+    assert_layout_ok(check, n_images=n_img)

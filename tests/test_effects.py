@@ -31,14 +31,22 @@ def rich():
 
 
 def test_catalog_entries_are_documented():
+    from lpvpc.simulate import EFFECTS as SUBJECT_EFFECTS
+
     assert {"drift", "nonlinear_viscosity", "direction_dependent_stiffness", "background_activation",
-            "position_dependent_reflex_dynamics"} <= set(fx.CATALOG)
+            "position_dependent_reflex_dynamics", "reflex_habituation", "activation_reflex_gain",
+            "amplitude_dependent_stiffness"} <= set(fx.CATALOG)
+    # symmetric over pathways: time-varying gain and activation scaling in both
+    assert {fx.CATALOG[n].pathway for n in ("drift", "reflex_habituation")} == {"intrinsic", "reflex"}
+    assert {fx.CATALOG[n].pathway for n in ("background_activation", "activation_reflex_gain")} == {"intrinsic", "reflex"}
     assert {"reflex_delay", "irf_length", "intrinsic_basis_order", "reflex_basis_order"} <= set(fx.SETTINGS)
     for name, e in {**fx.CATALOG, **fx.SETTINGS}.items():
         assert e.name == name and e.pathway in ("intrinsic", "reflex")
         assert e.explanation.endswith(".") and len(e.explanation) > 40
         assert set(e.signals) <= set(fx.SIGNALS)
         assert fx.describe(name) == e.explanation
+    for name, e in fx.CATALOG.items():  # every entry has its virtual-subject counterpart
+        assert (e.subject or name) in SUBJECT_EFFECTS
 
 
 def test_unknown_effects_are_refused():
@@ -63,7 +71,7 @@ def test_direction_memory_latches_through_holds():
 def test_extended_model_fits_predicts_and_needs_its_channels(rich):
     data, model = rich
     assert [fe.name for fe in model.effects] == list(ALL)
-    assert model.signals == ("trial_time", "scheduling_velocity", "emg", "emg_ut")
+    assert model.signals == ("trial_time", "scheduling_velocity", "emg_ut", "activation")
     assert model.settings["effects"] == list(ALL)
     sig = fx.signals_from_data(data)
     pred = model.predict(data.position, data.scheduling, signals=sig, warn=False)
@@ -71,7 +79,7 @@ def test_extended_model_fits_predicts_and_needs_its_channels(rich):
     assert np.allclose(pred.total, pred.intrinsic + pred.reflex)
     assert vaf(data.torque, pred.total) == pytest.approx(model.fit["vaf"])
     assert model.fit["vaf"] > identify(data).fit["vaf"] + 5  # background activation is a large effect
-    with pytest.raises(DataError, match="channel 'emg'.*missing"):
+    with pytest.raises(DataError, match="channel 'activation'.*missing"):
         model.predict(data.position, data.scheduling, signals={"emg_ut": sig["emg_ut"]}, warn=False)
 
 
@@ -100,7 +108,7 @@ def test_extended_casadi_step_matches_numpy(rich, variant, tmp_path):
     s = {k: v[:n] for k, v in sig.items()}
     path = export.export_casadi(model, tmp_path / "m.casadi", variant=variant)
     meta = json.loads((tmp_path / "m.casadi.json").read_text())
-    assert meta["inputs"][-4:] == ["trial_time", "scheduling_velocity", "emg", "emg_ut"]
+    assert meta["inputs"][-4:] == ["trial_time", "scheduling_velocity", "emg_ut", "activation"]
     assert meta["effects"] == list(ALL)
     import casadi
 
@@ -126,8 +134,8 @@ def test_extended_fmu_takes_the_extra_channels_as_inputs(rich, tmp_path):
     md = read_model_description(str(fmu))
     inputs = {v.name: v for v in md.modelVariables if v.causality == "input"}
     assert list(inputs) == ["position", "scheduling", "velocity", "acceleration", "trial_time",
-                            "scheduling_velocity", "emg", "emg_ut"]
-    assert inputs["emg"].unit == "1" and inputs["trial_time"].unit == "s"
+                            "scheduling_velocity", "emg_ut", "activation"]
+    assert inputs["activation"].unit == "1" and inputs["trial_time"].unit == "s"
     assert "drift_H_causal_0_0" in {v.name for v in md.modelVariables}
     n = 1500
     rows = export.replay_inputs(model, data.position[:n], data.scheduling[:n], "causal",
@@ -184,6 +192,12 @@ def test_cli_identify_with_effects(tmp_path, capsys):
     assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
                  "--effect", "stiction"]) == 2
     assert "unknown effect 'stiction'" in capsys.readouterr().err
+    from lpvpc.data import load_trial, write_trial_csv
+
+    for key in ("ident_PT", "ident_UT"):  # a recording without EMG
+        tr = load_trial(paths[key])
+        tr.channels.pop("emg")
+        write_trial_csv(tr, paths[key])
     assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
                  "--effect", "background_activation"]) == 2
-    assert "channel 'emg'" in capsys.readouterr().err
+    assert "channel 'activation'" in capsys.readouterr().err
