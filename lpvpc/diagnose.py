@@ -437,7 +437,7 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
             st = SETTINGS[name]
             res = CandidateResult(name, "setting", st.pathway, st.explanation)
             if sur.design == "fixed":
-                res.available, res.reason = False, "a settings change needs the model refitted: not with the model held fixed"
+                res.available, res.reason = False, "needs a refit (model held fixed)"
                 results.append(res)
                 continue
             variants = _setting_variants(sur, name)
@@ -943,8 +943,9 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         if base_vaf < model_vaf_inside - SANE_DROP:
             reason = (f"refitting the model's structure on this record ({cov['duration_s']:.0f} s, "
                       f"{100 * cov['covered_fraction_of_range']:.0f} % of the identified range) gives a "
-                      f"cross-validated VAF of {base_vaf:.1f} % against {model_vaf_inside:.1f} % for the model itself "
-                      f"(a refit needs longer records that visit every position in several folds).")
+                      f"cross-validated VAF of {base_vaf:.1f} % against {model_vaf_inside:.1f} % for the model itself: "
+                      f"the record is too short or narrow for a refit (each fold must see positions the others "
+                      f"visit too), or a large missing effect makes the refit unstable.")
             sur = Surrogate(model, data, folds, design="fixed", mask=mask, prediction=pred.total)
     timings["design"] = time.perf_counter() - t
     t = time.perf_counter()

@@ -249,5 +249,8 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
         if png.is_file():
             parts.append(_html_img(png, f"Held-out residual before and after step {r.index}"))
         if r.diagnosis is not None:
-            parts.append(diagnosis_html(r.diagnosis, level=3))
+            sub = folder / f"step{r.index}"
+            parts.append(diagnosis_html(r.diagnosis, sub / "residual.png", sub / "residual_change.png"
+                                        if (sub / "residual_change.png").is_file() else None,
+                                        next((c for c in r.diagnosis.candidates if c.available), None), level=3))
     return _html_page("lpvpc improve report", "\n".join(parts))

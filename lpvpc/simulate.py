@@ -661,13 +661,13 @@ def _effect_amplitude_dependent_stiffness(s: TrialState) -> dict:
 
 
 def _effect_position_dependent_reflex_delay(s: TrialState) -> dict:
-    """The reflex delay varies with position: 40 ms + 10 ms * (theta + 0.1) / 0.3 (30 ms at
-    -0.4 rad, 50 ms at +0.2 rad). The LPV-PC model has one delay. (Not in the diagnosis
+    """The reflex delay varies with position: 40 ms + 15 ms * (theta + 0.1) / 0.3 (25 ms at
+    -0.4 rad, 55 ms at +0.2 rad). The LPV-PC model has one delay. (Not in the diagnosis
     catalog: an effect outside it.)"""
-    slope = 0.010 / 0.3  # s/rad
+    slope = 0.015 / 0.3  # s/rad
     s.reflex_delay = s.params.reflex_delay + slope * (s.theta + 0.1)
-    return {"delay_formula": "reflex_delay + 0.0333 s/rad * (theta + 0.1)", "delay_at_-0.4": 0.030,
-            "delay_at_+0.2": 0.050}
+    return {"delay_formula": "reflex_delay + 0.05 s/rad * (theta + 0.1)", "delay_at_-0.4": 0.025,
+            "delay_at_+0.2": 0.055}
 
 
 def _effect_position_dependent_reflex_dynamics(s: TrialState) -> dict:
@@ -703,7 +703,7 @@ EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
                                       _effect_amplitude_dependent_stiffness),
     "position_dependent_reflex_dynamics": ("reflex low-pass wn varies with position (10.7-24 rad/s)",
                                            _effect_position_dependent_reflex_dynamics),
-    "position_dependent_reflex_delay": ("reflex delay varies with position, 30-50 ms (not in the "
+    "position_dependent_reflex_delay": ("reflex delay varies with position, 25-55 ms (not in the "
                                         "diagnosis catalog)", _effect_position_dependent_reflex_delay),
 }
 

@@ -56,7 +56,7 @@ def extended(tmp_path_factory):
 def test_extended_model_validates_through_every_route(extended):
     m, model = extended["metrics"], extended["model"]
     assert extended["rc"] == 0, extended["err"]
-    assert tuple(model.signals) == ("scheduling_velocity", "emg", "emg_ut")
+    assert tuple(model.signals) == ("scheduling_velocity", "emg_ut", "activation")
     assert m["model_signals"] == list(model.signals)
 
     # the offline VAF of the model on the same record (files read back as validate does)
@@ -94,7 +94,7 @@ def test_extended_model_without_its_signals_would_fail_offline(extended):
     folder, model = extended["folder"], extended["model"]
     held = load_identification_data(pt=folder / "PT.csv", ut=folder / "UT.csv", target_fs=model.fs)
     sig = signals_from_data(held)
-    flat = {**sig, "emg": np.zeros(held.n), "emg_ut": np.zeros(held.n)}
+    flat = {**sig, "activation": np.zeros(held.n), "emg_ut": np.zeros(held.n)}
     with_sig = vaf(held.torque, model.predict(held.position, held.scheduling, signals=sig, warn=False).total)
     without = vaf(held.torque, model.predict(held.position, held.scheduling, signals=flat, warn=False).total)
     assert with_sig - without > 10.0
