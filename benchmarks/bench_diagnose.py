@@ -132,8 +132,9 @@ def real_data(say):
                                 f"pilot_ident.csv {a / data.fs:.0f}-{b / data.fs:.0f} s", data.meta)
 
     T = data.n / data.fs
-    for label, (ia, ib), (ha, hb) in (("short held-out part (32 s)", (0, T - 32), (T - 32, T)),
-                                      ("long held-out part", (0, T / 2), (T / 2, T))):
+    for label, (ia, ib), (ha, hb) in (("short part (32 s, held out)", (0, T - 32), (T - 32, T)),
+                                      ("shortest accepted part (20 s, held out)", (0, T - 20), (T - 20, T)),
+                                      ("long part (the whole 74 s, cross-validated inside)", (0, T), (0, T))):
         ident, held = cut(ia, ib), cut(ha, hb)
         model = identify(ident)
         say(f"### {label}: identified on {ia:.0f}-{ib:.0f} s, diagnosed on {ha:.0f}-{hb:.0f} s")
@@ -154,9 +155,9 @@ def real_data(say):
         for note in d.notes():
             say(f"note: {note}")
         say("")
-        if label.startswith("long"):
+        if label.startswith("short part"):
             ladder = improve(ident, held)
-            say("improve ladder on the long part:")
+            say("improve ladder (identification 0-42 s, held out 42-74 s):")
             say("```")
             say(ladder.table())
             say("```")

@@ -76,6 +76,7 @@ MIN_RECORD_S = 20.0  # s: shorter records are refused (10 folds of 2 s, each a f
 SANE_DROP = 2.0  # pp: a refitted base this much below the model's own VAF is not trusted (short/narrow record)
 RANGE_TOL = 0.02  # fraction of the identified range: scheduling beyond it counts as outside
 MAX_OUTSIDE = 0.5  # records with more samples outside the identified range are refused
+TRANSFER_GAP = 10.0  # pp: a refitted structure this much better than the model itself is worth a note
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -822,6 +823,11 @@ class Diagnosis:
             out.append(f"{100 * c['outside_fraction']:.1f} % of the samples ({c['outside_samples']}) have a scheduling "
                        f"value outside the identified range [{c['identified_range'][0]:+.3f}, "
                        f"{c['identified_range'][1]:+.3f}] rad; they were left out of every fit and score.")
+        if self.design == "refit" and self.surrogate_vaf - self.vaf > TRANSFER_GAP:
+            out.append(f"The model explains {self.vaf:.1f} % of these data, its structure refitted on them "
+                       f"{self.surrogate_vaf:.1f} % (cross-validated): the candidates are judged on the structure; "
+                       f"the model's own parameters do not carry over to this record (identification record too "
+                       f"short or different from it).")
         leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
         if leaky:
             out.append(f"Explained by the model's reflex drive, not used to name an effect: {', '.join(leaky)}.")
