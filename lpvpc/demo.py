@@ -16,7 +16,7 @@
 8. runs the improve loop on a data set with a hidden effect (direction-dependent
    stiffness, OUTDIR/data_hidden): fit, diagnose on the held-out record, add the effect
    the diagnosis names, refit, until nothing significant is left; prints the error
-   falling and writes OUTDIR/improve/improve.md.
+   falling and writes OUTDIR/improve/report.html (and improve.md).
 
 Units: rad, rad/s, N m, N m/rad, s.
 """
