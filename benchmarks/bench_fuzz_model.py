@@ -1,6 +1,6 @@
 """Fuzz benchmark of the model loader (lpvpc.modelfile): random mutations of a real model file.
 
-    python benchmarks/bench_fuzz_model.py [--model model.json] [--cases 5000] [--seed 0]
+    python benchmarks/bench_fuzz_model.py [--model model.json] [--cases 5000] [--seed 0] [--no-limits]
 
 Without ``--model`` it identifies a model from the virtual subject (seed 0, 60 s
 multilevel record at 100 Hz). Each case mutates the model's JSON tree (a value replaced
@@ -10,6 +10,11 @@ to a file and loads it with ``LPVPCModel.load`` (the path every command takes). 
 passes when it either loads, and then predicts a finite torque on a short record, or is
 refused with a one-line :class:`~lpvpc.errors.ModelFileError`; anything else (another
 exception, a multi-line message, a non-finite prediction) is counted as a traceback.
+
+It then measures what the largest model the limits let through costs (:mod:`lpvpc.modelfile`:
+MAX_LAG, MAX_DELAY, MAX_BASIS_ORDER, MAX_STATE_ORDER at 1 kHz): the CasADi and FMU export
+times of both variants, and the peak memory (tracemalloc) of predicting a 5-minute record
+with it, in blocks (the default) and as one block (what prediction did before).
 Prints a table and writes it to ``benchmarks/results/fuzz_model.txt``.
 """
 
@@ -152,6 +157,69 @@ def fuzz(base: dict, n_cases: int = 5000, seed: int = 0) -> dict:
     return out
 
 
+def limits_model(base: dict) -> dict:
+    """``base`` grown to every limit of lpvpc.modelfile (a stable reflex, small coefficients)."""
+    from lpvpc import modelfile as mf
+
+    d = copy.deepcopy(base)
+    rng = np.random.default_rng(0)
+    L, o, m = mf.MAX_LAG, mf.MAX_BASIS_ORDER, mf.MAX_STATE_ORDER
+    d["fs"] = 1000.0
+    d.pop("effects", None)
+    d["format_version"] = 1
+    d["intrinsic"].update(lags=list(range(-L, L + 1)), causal_lags=list(range(0, L + 3)),
+                          H=(0.01 * rng.standard_normal((2 * L + 1, o + 1))).tolist(),
+                          H_causal=(0.01 * rng.standard_normal((L + 5, o + 1))).tolist())
+    d["intrinsic"]["basis"]["order"] = o
+    d["reflex"].update(delay=mf.MAX_DELAY, Omega=(0.01 * rng.standard_normal((o + 1, o + 1))).tolist(),
+                       A=(np.diag(np.full(m, 0.5)) + np.diag(np.full(m - 1, 0.1), 1)).tolist(),
+                       B=[0.1] * m, C=[1.0] + [0.0] * (m - 1))
+    d["reflex"]["velocity_basis"]["order"] = o
+    d["reflex"]["rho_basis"]["order"] = o
+    return d
+
+
+def at_the_limits(base: dict, minutes: float = 5.0) -> list:
+    """Table lines: export times and prediction memory of :func:`limits_model`."""
+    import tracemalloc
+
+    from lpvpc import equations as eq
+    from lpvpc import export
+    from lpvpc.model import LPVPCModel
+
+    model = LPVPCModel.from_dict(limits_model(base), "limits model")
+    lines = [f"{'model at the limits':>28}: {len(model.lags)} lags, causal lags 0..{max(model.causal_lags)}, delay "
+             f"{model.delay} samples, basis orders {model.intrinsic_basis.order}, state order {model.state_order}, "
+             f"{export.parameter_vector(model, 'exact').size} coefficients (exact) at {model.fs:g} Hz"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for variant in ("causal", "exact"):
+            t0 = time.perf_counter()
+            export.export_casadi(model, Path(tmp) / f"{variant}.casadi", variant=variant)
+            t1 = time.perf_counter()
+            export.export_fmu(model, Path(tmp) / f"{variant}.fmu", variant=variant)
+            t2 = time.perf_counter()
+            lines.append(f"{'export ' + variant:>28}: CasADi {t1 - t0:.2f} s, FMU {t2 - t1:.2f} s")
+    n = int(minutes * 60 * model.fs)
+    position, scheduling = _record(n)
+    scheduling = np.clip(scheduling, -0.3, 0.1)
+    for label, cells in (("in blocks (default)", eq.BLOCK_CELLS), ("one block (before)", 10**12)):
+        saved, eq.BLOCK_CELLS = eq.BLOCK_CELLS, cells
+        try:
+            tracemalloc.start()
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                model.predict(position, scheduling)
+            elapsed = time.perf_counter() - t0
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+            eq.BLOCK_CELLS = saved
+        lines.append(f"{'predict ' + label:>28}: peak {peak / 2**20:.0f} MB, {elapsed:.2f} s for {n} samples "
+                     f"({minutes:g} min at {model.fs:g} Hz)")
+    return lines
+
+
 def _virtual_subject_model(tmp):
     from lpvpc.data import load_identification_data, write_trial_csv
     from lpvpc.identify import identify
@@ -170,6 +238,7 @@ def main():
     ap.add_argument("--cases", type=int, default=5000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "fuzz_model.txt"))
+    ap.add_argument("--no-limits", action="store_true", help="skip the export and prediction at the limits")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         base = json.loads(Path(args.model).read_text()) if args.model else _virtual_subject_model(tmp)
@@ -188,6 +257,8 @@ def main():
         f"{'slowest case':>28}: {r['slowest_s'] * 1000:.0f} ms (load + two predictions of 300 samples)",
         f"{'total':>28}: {elapsed:.1f} s",
     ]
+    if not args.no_limits:
+        lines += ["", *at_the_limits(base)]
     for case, what, msg in r["tracebacks"][:10]:
         lines += ["", f"case {case} ({what}):", msg]
     text = "\n".join(lines) + "\n"

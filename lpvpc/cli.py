@@ -306,6 +306,7 @@ def cmd_whole_joint(args) -> int:
     from .data import load_trial
     from .model import LPVPCModel
 
+    check_outputs({"MODEL": args.model, "--ut": args.ut}, {"-o": args.out, "--fmu": args.fmu, "--casadi": args.casadi})
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
@@ -348,7 +349,8 @@ def cmd_validate(args) -> int:
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
     check_outputs({"MODEL": args.model, "--pt": args.pt, "--ut": args.ut, "--fmu": args.fmu,
-                   "--actuator-fmu": args.actuator_fmu}, {}, {"--report": args.report})
+                   "--actuator-fmu": args.actuator_fmu, "--whole-joint": getattr(args, "whole_joint", None)}, {},
+                  {"--report": args.report})
     check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
     settings = CosimSettings(coupling=args.coupling)
     result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,

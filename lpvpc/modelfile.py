@@ -455,3 +455,24 @@ def check_model_dict(d, source: str = "model") -> None:
     if problems:
         raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems[:4])
                              + (f"; and {len(problems) - 4} more" if len(problems) > 4 else ""))
+
+
+def check_whole_joint_dict(d: dict, source: str = "whole-joint model") -> None:
+    """The whole-joint file's own fields (its embedded model goes through
+    :func:`check_model_dict`): the quasi-static curve (a basis and its coefficients) and
+    the low-pass cutoff, a number in (0, fs/2) Hz."""
+    problems = []
+    try:
+        qs = _dict(d.get("quasi_static"), "quasi_static", problems, required=True)
+        n = _basis(qs.get("basis"), "quasi_static.basis", problems)
+        _shape(_array(qs.get("coefficients"), "quasi_static.coefficients", problems, 1, [0]), (n,),
+               "quasi_static.coefficients", problems)
+        fs = d.get("model", {}).get("fs") if isinstance(d.get("model"), dict) else None
+        nyquist = fs / 2 if _is_number(fs) and _isfinite(fs) and fs > 0 else MAX_FS / 2
+        cutoff = _number(d.get("cutoff"), "cutoff", problems, lo=0.0, hi=nyquist, limit="fs/2")
+        if cutoff is not None and not 0 < cutoff < nyquist:
+            problems.append(f"cutoff = {cutoff!r} Hz outside (0, {nyquist:g}) (fs/2)")
+    except _Refused:
+        pass
+    if problems:
+        raise ModelFileError(f"{source}: corrupt whole-joint model file: " + "; ".join(problems[:4]))

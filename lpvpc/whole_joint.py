@@ -136,6 +136,9 @@ class WholeJointModel:
         if not isinstance(d, dict) or d.get("format") != FORMAT or d.get("format_version") != FORMAT_VERSION:
             raise ModelFileError(f"{source}: not an lpvpc whole-joint model file (format {FORMAT!r} version "
                                  f"{FORMAT_VERSION})")
+        from .modelfile import check_whole_joint_dict
+
+        check_whole_joint_dict(d, source)  # its own fields; the embedded model: LPVPCModel.from_dict
         try:
             qs = d["quasi_static"]
             return cls(model=LPVPCModel.from_dict(d["model"], source), curve_basis=Basis.from_dict(qs["basis"]),
@@ -145,15 +148,15 @@ class WholeJointModel:
             raise ModelFileError(f"{source}: corrupt whole-joint model file ({type(exc).__name__}: {exc})") from None
 
     def save(self, path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        from .outputs import write_text
+
+        write_text(path, json.dumps(self.to_dict(), indent=1))  # temporary file + rename
 
     @classmethod
     def load(cls, path) -> "WholeJointModel":
-        try:
-            d = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise ModelFileError(f"{path}: cannot read whole-joint model ({exc})") from None
-        return cls.from_dict(d, str(path))
+        from .modelfile import read_model_file
+
+        return cls.from_dict(read_model_file(path), str(path))  # a regular file, size, nesting, JSON
 
 
 def _checked_angle(angle) -> np.ndarray:

@@ -216,6 +216,9 @@ OUTPUT_CASES = {
                             "model.json"),
     "validate-report-holds-model": (["validate", "model.json", "--pt", "PT.csv", "--ut", "UT.csv", "--report", "."],
                                     "inside the output folder"),
+    "whole-joint-o-model": (["whole-joint", "model.json", "--ut", "UT.csv", "-o", "model.json"], "model.json"),
+    "whole-joint-fmu-ut": (["whole-joint", "model.json", "--ut", "UT.csv", "-o", "w.json", "--fmu", "UT.csv"],
+                           "UT.csv"),
     "improve-o-heldout": (["improve", "--pt", "PT.csv", "--ut", "UT.csv", "--heldout-pt", "PT.csv", "--heldout-ut",
                            "UT.csv", "--report", "rep", "--max-steps", "0", "-o", "UT.csv"], "UT.csv"),
 }
@@ -473,3 +476,19 @@ def test_prediction_in_blocks_equals_the_whole_record(causal, subject, model, mo
         np.testing.assert_allclose(parts.total, whole.total, rtol=0, atol=1e-12 * np.max(np.abs(whole.total)))
         for k in whole.effects:
             np.testing.assert_allclose(parts.effects[k], whole.effects[k], rtol=0, atol=1e-12)
+
+
+def test_hostile_whole_joint_file_refused(model, subject, tmp_path):
+    from lpvpc.whole_joint import WholeJointModel, fit_whole_joint
+
+    d = fit_whole_joint(model, subject["ident_pair"].ut).to_dict()
+    for change, words in ((_set(("quasi_static", "basis", "order"), 10**6), "MAX_BASIS_ORDER"),
+                          (_set(("cutoff",), True), "cutoff"), (_set(("cutoff",), 1e9), "cutoff"),
+                          (_set(("quasi_static", "coefficients"), [1e300]), "MAX_ABS_VALUE"),
+                          (_set(("model", "reflex", "delay"), 10**9), "MAX_DELAY")):
+        bad = copy.deepcopy(d)
+        change(bad)
+        with pytest.raises(ModelFileError, match=words):
+            WholeJointModel.from_dict(json.loads(json.dumps(bad)), "w.json")
+    with pytest.raises(ModelFileError, match="regular file"):
+        WholeJointModel.load("/dev/zero")
