@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import math
 import os
 import signal
 import sys
@@ -508,6 +509,17 @@ def _positive_float(text):
     return x
 
 
+def _rate(text):
+    """--fs of identify/improve: a finite rate in Hz, or 0 (keep the file's rate)."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(x) and x >= 0):
+        raise argparse.ArgumentTypeError(f"must be a positive rate in Hz, or 0 to keep the file's rate: {text!r}")
+    return x
+
+
 def _sign(text):
     try:
         x = float(text)
@@ -621,7 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-iter", type=int, metavar="N",
                    help=f"separable least-squares iterations (default {d['max_iter']})")
     _add_convention_args(p, from_model=False)
-    p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
+    p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
@@ -743,7 +755,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
                    help="effects the starting model already has (repeatable)")
     _add_convention_args(p, from_model=False)
-    p.add_argument("--fs", type=float, default=100.0, metavar="HZ",
+    p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
     p.set_defaults(func=cmd_improve)
     return parser

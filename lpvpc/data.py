@@ -76,7 +76,10 @@ def write_trial_csv(trial: Trial, path) -> None:
     """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``."""
     names = ["time", "position", "torque"] + [c for c in OPTIONAL_CHANNELS if c in trial.channels]
     cols = [trial.time, trial.position, trial.torque] + [trial.channels[c] for c in names[3:]]
-    np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    from .outputs import atomic_path
+
+    with atomic_path(path) as tmp:  # temporary file + rename
+        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
 
 
 # --------------------------------------------------------------------------- checks

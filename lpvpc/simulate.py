@@ -922,14 +922,17 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
 
 
 def _save_truth_npz(path, pair: SimulatedPair):
+    from .outputs import atomic_path
+
     c = pair.components
-    np.savez_compressed(
-        path, time=pair.pt.time,
-        pt_position=pair.pt.position, ut_position=pair.ut.position,
-        pt_torque_clean=pair.pt_clean.torque, ut_torque_clean=pair.ut_clean.torque,
-        perturbation_intrinsic=c["pt_intrinsic"] - c["ut_intrinsic"],
-        perturbation_reflex=c["pt_reflex"] - c["ut_reflex"],
-        **c)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a file object: savez adds no suffix
+        np.savez_compressed(
+            fh, time=pair.pt.time,
+            pt_position=pair.pt.position, ut_position=pair.ut.position,
+            pt_torque_clean=pair.pt_clean.torque, ut_torque_clean=pair.ut_clean.torque,
+            perturbation_intrinsic=c["pt_intrinsic"] - c["ut_intrinsic"],
+            perturbation_reflex=c["pt_reflex"] - c["ut_reflex"],
+            **c)
 
 
 def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: float = 18.0,
@@ -960,6 +963,8 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
         paths[f"truth_{key}"] = p
         truth[key] = pair.truth
     p = out_dir / "truth.json"
-    p.write_text(json.dumps(truth, indent=1))
+    from .outputs import write_text
+
+    write_text(p, json.dumps(truth, indent=1))
     paths["truth"] = p
     return paths

@@ -492,3 +492,12 @@ def test_hostile_whole_joint_file_refused(model, subject, tmp_path):
             WholeJointModel.from_dict(json.loads(json.dumps(bad)), "w.json")
     with pytest.raises(ModelFileError, match="regular file"):
         WholeJointModel.load("/dev/zero")
+
+
+@pytest.mark.parametrize("fs", ["-5", "nan", "inf"])
+def test_identify_rate_must_be_a_rate(fs, capsys):
+    from lpvpc.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "x.csv", "-o", "m.json", "--fs", fs])
+    assert exc.value.code == 2 and "--fs" in capsys.readouterr().err
