@@ -167,10 +167,13 @@ def limits_model(base: dict) -> dict:
     d["fs"] = 1000.0
     d.pop("effects", None)
     d["format_version"] = 1
+    # the largest intrinsic order for which all coefficients stay within MAX_COEFFICIENTS
+    rest = (o + 1) ** 2 + m * m + 2 * m + 1
+    oi = min(o, (mf.MAX_COEFFICIENTS - rest) // ((2 * L + 1) + (L + 5)) - 1)
     d["intrinsic"].update(lags=list(range(-L, L + 1)), causal_lags=list(range(0, L + 3)),
-                          H=(0.01 * rng.standard_normal((2 * L + 1, o + 1))).tolist(),
-                          H_causal=(0.01 * rng.standard_normal((L + 5, o + 1))).tolist())
-    d["intrinsic"]["basis"]["order"] = o
+                          H=(0.01 * rng.standard_normal((2 * L + 1, oi + 1))).tolist(),
+                          H_causal=(0.01 * rng.standard_normal((L + 5, oi + 1))).tolist())
+    d["intrinsic"]["basis"]["order"] = oi
     d["reflex"].update(delay=mf.MAX_DELAY, Omega=(0.01 * rng.standard_normal((o + 1, o + 1))).tolist(),
                        A=(np.diag(np.full(m, 0.5)) + np.diag(np.full(m - 1, 0.1), 1)).tolist(),
                        B=[0.1] * m, C=[1.0] + [0.0] * (m - 1))
@@ -189,16 +192,23 @@ def at_the_limits(base: dict, minutes: float = 5.0) -> list:
 
     model = LPVPCModel.from_dict(limits_model(base), "limits model")
     lines = [f"{'model at the limits':>28}: {len(model.lags)} lags, causal lags 0..{max(model.causal_lags)}, delay "
-             f"{model.delay} samples, basis orders {model.intrinsic_basis.order}, state order {model.state_order}, "
-             f"{export.parameter_vector(model, 'exact').size} coefficients (exact) at {model.fs:g} Hz"]
+             f"{model.delay} samples, basis orders {model.intrinsic_basis.order} (intrinsic) and "
+             f"{model.velocity_basis.order}, state order {model.state_order}, "
+             f"{sum(a.size for a in (model.H, model.H_causal, model.Omega, model.A, model.B, model.C)) + 1} "
+             f"coefficients in the file, at {model.fs:g} Hz"]
+    ordinary = LPVPCModel.from_dict(base, "base model")
     with tempfile.TemporaryDirectory() as tmp:
         for variant in ("causal", "exact"):
-            t0 = time.perf_counter()
-            export.export_casadi(model, Path(tmp) / f"{variant}.casadi", variant=variant)
-            t1 = time.perf_counter()
-            export.export_fmu(model, Path(tmp) / f"{variant}.fmu", variant=variant)
-            t2 = time.perf_counter()
-            lines.append(f"{'export ' + variant:>28}: CasADi {t1 - t0:.2f} s, FMU {t2 - t1:.2f} s")
+            times = []
+            for m in (ordinary, model):
+                t0 = time.perf_counter()
+                export.export_casadi(m, Path(tmp) / f"{variant}.casadi", variant=variant)
+                t1 = time.perf_counter()
+                export.export_fmu(m, Path(tmp) / f"{variant}.fmu", variant=variant)
+                times.append((t1 - t0, time.perf_counter() - t1))
+            (c0, f0), (c1, f1) = times
+            lines.append(f"{'export ' + variant:>28}: CasADi {c1:.2f} s, FMU {f1:.2f} s at the limits; the "
+                         f"ordinary model {c0:.2f} s, {f0:.2f} s (FMU x{f1 / f0:.1f})")
     n = int(minutes * 60 * model.fs)
     position, scheduling = _record(n)
     scheduling = np.clip(scheduling, -0.3, 0.1)

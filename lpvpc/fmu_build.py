@@ -31,6 +31,7 @@ import hashlib
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -43,7 +44,7 @@ from pathlib import Path
 from typing import Sequence
 
 from lpvpc.errors import ExportError
-from lpvpc.outputs import file_mode
+from lpvpc.outputs import file_mode, signals_held
 
 __all__ = [
     "FmuVariable",
@@ -595,6 +596,29 @@ def _existing_guid(fmu_path: Path) -> str | None:
 # ----------------------------------------------------------------------------- build
 
 
+def _compile(cmd, workdir, timeout) -> subprocess.CompletedProcess:
+    """Run the compiler in its own process group with its temporary files in ``workdir``.
+    On any exception (timeout, Ctrl-C, SIGTERM) the whole group (driver, cc1, as, ld) is
+    stopped before the exception goes on, so nothing writes into a folder being removed."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "TMPDIR": str(workdir)})
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException:
+        for sig, wait in ((signal.SIGTERM, 5.0), (signal.SIGKILL, None)):  # SIGTERM: gcc removes its files
+            try:
+                os.killpg(proc.pid, sig)
+                proc.wait(timeout=wait)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+            except ProcessLookupError:
+                break
+        proc.wait()
+        raise
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
 def check_built_fmu(folder, model_identifier: str) -> None:
     """Check an unpacked FMU before it is written: fmpy loads its shared library, which must
     export every FMI function of its interface (``fmi2Instantiate``, ``fmi2DoStep``, ... or
@@ -669,7 +693,9 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
     platform_dir = _platform_dir(fmi_version)
     target.parent.mkdir(parents=True, exist_ok=True)
 
-    with tempfile.TemporaryDirectory(prefix=f".{model_identifier}-", dir=target.parent) as tmp:
+    with signals_held():  # a signal cannot fall between creating the build folder and owning it
+        build_dir = tempfile.TemporaryDirectory(prefix=f".{model_identifier}-", dir=target.parent)
+    with build_dir as tmp:
         stage = Path(tmp).absolute() / "fmu"
         src_dir = stage / "sources"
         bin_dir = stage / "binaries" / platform_dir
@@ -691,7 +717,7 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
         cmd = [cc, *_BASE_CFLAGS, f"-I{src_dir}", f"-I{fmi_headers_dir()}", *extra_cflags,
                *[str(src_dir / n) for n in c_sources], "-o", str(library), *_LDFLAGS]
         try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+            proc = _compile(cmd, tmp, timeout=600)
         except subprocess.TimeoutExpired as exc:
             raise ExportError(f"compiling {model_identifier} timed out after {exc.timeout} s") from exc
         if proc.returncode != 0 or not library.is_file():

@@ -21,6 +21,8 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
                         :mod:`lpvpc.effects`; they need the extra input signals named there
 
 Floats are written with Python's shortest round-trip representation, so save/load is exact.
+A file is checked against this format and its limits (:mod:`lpvpc.modelfile`) before
+anything is built from it.
 
 Out-of-range behaviour: scheduling values outside the identified range are clamped to
 the nearest boundary (the model holds its boundary dynamics) and an

@@ -34,11 +34,11 @@ from .errors import ModelFileError
 MAX_FILE_BYTES = 8 * 1024 * 1024  # bytes read from a model file (the default model is ~6 KB)
 MAX_NESTING_DEPTH = 32  # JSON nesting (a model needs 5)
 MAX_FS = 100_000.0  # Hz: sampling rate
-MAX_LAG = 128  # samples: |lag| of the two-sided intrinsic IRF (the causal IRF: MAX_LAG + 2, its default)
-MAX_DELAY = 500  # samples: reflex delay (0.5 s at 1 kHz)
+MAX_LAG = 100  # samples: |lag| of the two-sided intrinsic IRF (the causal IRF: MAX_LAG + 2, its default)
+MAX_DELAY = 250  # samples: reflex delay (250 ms at 1 kHz; ankle reflexes: 40-120 ms)
 MAX_BASIS_ORDER = 12  # order of every basis (scheduling, velocity, effects)
 MAX_STATE_ORDER = 12  # order m of the reflex linear dynamics
-MAX_COEFFICIENTS = 5_000  # identified coefficients in all arrays (each becomes an FMU parameter)
+MAX_COEFFICIENTS = 4_000  # identified coefficients in all arrays (each becomes an FMU parameter)
 MAX_ABS_VALUE = 1e9  # magnitude of any coefficient and basis range bound (SI units)
 MIN_BASIS_SPAN = 1e-10  # hi - lo of a basis range
 MAX_SPECTRAL_RADIUS = 1.0  # reflex dynamics A: all eigenvalues strictly inside the unit circle

@@ -97,15 +97,18 @@ def atomic_path(path):
     """Yield a temporary path beside ``path``; on success it is renamed over ``path``
     (mode :func:`file_mode`), on any exception (also KeyboardInterrupt) removed."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = None
     try:
+        with signals_held():  # no signal between creating the file and owning it
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+            tmp = Path(name)
+            os.close(fd)
         yield tmp
         os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
 
 
@@ -123,7 +126,7 @@ def write_bytes(path, data: bytes) -> Path:
 
 # --------------------------------------------------------------------------- folders
 @contextmanager
-def _signals_held():
+def signals_held():
     """Hold SIGINT and SIGTERM over a few renames (delivered right after)."""
     held = {signal.SIGINT, signal.SIGTERM}
     try:
@@ -146,15 +149,18 @@ def staged_folder(folder):
         raise NotADirectoryError(20, "not a folder", str(folder))
     parent = folder.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=TEMP_SUFFIX, dir=parent))
+    stage = None
     try:
+        with signals_held():  # no signal between creating the folder and owning it
+            stage = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=TEMP_SUFFIX, dir=parent))
         os.chmod(stage, folder_mode())
         yield stage
     except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
         raise
     old = None
-    with _signals_held():
+    with signals_held():
         if folder.is_dir():
             old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", suffix=TEMP_SUFFIX, dir=parent))
             os.rmdir(old)

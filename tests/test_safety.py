@@ -348,7 +348,7 @@ def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
     import signal
 
     d = copy.deepcopy(base)
-    d["reflex"]["delay"] = 400  # within the limits; a longer compile, easier to interrupt
+    d["reflex"]["delay"] = 250  # MAX_DELAY: a longer compile, easier to interrupt
     (tmp_path / "model.json").write_text(json.dumps(d))
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
