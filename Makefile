@@ -35,7 +35,8 @@ chromium:
 	  $$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; fi
 
 # Debian's libtbb12, which ECOS (ecospy, a test dependency) needs to load: the portable SSP's
-# engine test (tests/test_ssp.py) skips ECOS with the reason when it is missing.
+# engine test (tests/test_ssp.py) and tests/test_fmu_engines.py skip ECOS with the reason when
+# it is missing.
 libtbb:
 	@if ldconfig -p 2>/dev/null | grep -q 'libtbb.so.12'; then echo "libtbb12: installed"; else \
 	  SUDO=; [ "$$(id -u)" = 0 ] || SUDO=sudo; \

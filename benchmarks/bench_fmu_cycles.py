@@ -1,6 +1,8 @@
 """FMU wrapper benchmark: memory over 2000 instantiate/reset/free cycles, build time, step rate.
 
-Uses the actuator FMU (FMI 2 and FMI 3) through fmpy's FMU2Slave / FMU3Slave:
+Uses the actuator FMU (FMI 2 and FMI 3; the wrapper's direct mode) and the exported model
+FMUs (sampled and exact variants, FMI 2 and 3; the wrapper's sampled mode) through fmpy's
+FMU2Slave / FMU3Slave:
 
 - instance cycles: library loaded once; instantiate, initialize, step, get/serialize/
   deserialize/free an FMU state, reset, initialize, step, terminate, free instance;
@@ -36,7 +38,22 @@ from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 from lpvpc.actuator import build_actuator_fmu  # noqa: E402
 
-CMD = 4
+CMD = 4  # the actuator's command; the model FMUs' position has the same value reference
+
+
+def model_fmus(tmp: Path) -> dict:
+    """{(variant, fmi): path} of the model FMUs of a model identified on the virtual subject."""
+    from lpvpc import export as ex
+    from lpvpc.data import load_identification_data, write_trial_csv
+    from lpvpc.identify import identify
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=0)
+    write_trial_csv(pair.pt, tmp / "PT.csv")
+    write_trial_csv(pair.ut, tmp / "UT.csv")
+    model = identify(load_identification_data(pt=tmp / "PT.csv", ut=tmp / "UT.csv"))
+    return {(v, f): ex.export_fmu(model, tmp / f"model_{v}_{f}.fmu", fmi_version=f, variant=v)
+            for v in ("sampled", "exact") for f in (2, 3)}
 
 
 def rss_mb() -> float:
@@ -184,6 +201,17 @@ def main(argv=None):
                 start, marks, dt = fn(v, unzipdir, md, args.cycles)
                 out(f"{v:>4} {kind:<10} {start:>8.2f} " + " ".join(f"{m:>8.2f}" for m in marks) +
                     f" {marks[-1] - start:>+8.2f} {1000 * dt / args.cycles:>9.3f}")
+        out()
+
+        out(f"## Memory, model FMUs (sampled mode): {args.cycles} instance cycles (after 50 warm-up); RSS in MB")
+        out(f"{'FMU':<12} {'start':>8} {'25%':>8} {'50%':>8} {'75%':>8} {'100%':>8} {'growth':>8} {'ms/cycle':>9}")
+        for (variant, v), path in model_fmus(tmp).items():
+            md = read_model_description(str(path))
+            assert {v.name: v.valueReference for v in md.modelVariables}["position"] == CMD
+            unzipdir = extract(str(path), unzipdir=str(tmp / f"m_{variant}_{v}"))
+            start, marks, dt = instance_cycles(v, unzipdir, md, args.cycles)
+            out(f"{variant + ' ' + str(v):<12} {start:>8.2f} " + " ".join(f"{m:>8.2f}" for m in marks) +
+                f" {marks[-1] - start:>+8.2f} {1000 * dt / args.cycles:>9.3f}")
         out()
 
         out("## Step rate (actuator, 1 ms internal step)")

@@ -288,7 +288,7 @@ def cmd_export(args) -> int:
         if exc.name != f"{__package__}.export":
             raise
         raise LpvpcError("export is not available in this installation (module lpvpc.export missing)") from None
-    variant = "exact" if args.exact else "causal"
+    variant = "exact" if args.exact else args.variant
     if args.casadi:
         t0 = time.perf_counter()
         path = export.export_casadi(model, args.casadi, variant=variant)
@@ -660,8 +660,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the CasADi step function")
     p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
-    p.add_argument("--exact", action="store_true",
-                   help="exact two-sided IRF, output delayed by L+1 samples (default: causal, no latency)")
+    p.add_argument("--variant", choices=("sampled", "causal", "exact"), default="sampled",
+                   help="sampled (default): inputs position and scheduling only, derivatives inside, latency 1 "
+                        "sample, the same timing in every co-simulation master (README: timing contract); "
+                        "causal: also velocity and acceleration inputs, no latency when the master sets inputs "
+                        "before reading outputs (closed loop with an actuator that supplies them); exact: the "
+                        "two-sided IRF, latency L samples")
+    p.add_argument("--exact", action="store_true", help="same as --variant exact")
     p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
                    help="cs: co-simulation (default); me: Model Exchange, sampled with a time event every 1/fs "
                         "(for tools that import Model Exchange only)")
@@ -683,7 +688,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fail (exit 1) when vaf, vaf_fmu or vaf_cosim is below X percent")
     p.add_argument("--fmu", metavar="F.fmu", help="validate this model FMU, either variant (default: export one, "
                                                   "see --fmu-variant)")
-    p.add_argument("--fmu-variant", choices=("exact", "causal"), default="exact",
+    p.add_argument("--fmu-variant", choices=("exact", "causal", "sampled"), default="exact",
                    help="model FMU to export and validate: exact (the identified two-sided model; its declared "
                         "latency is removed when comparing; default) or causal (latency-free, for closed loop)")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the exported FMUs (default 2)")

@@ -44,6 +44,11 @@ def central_velocity(pos_ahead, pos_behind, fs):
     return (pos_ahead - pos_behind) * (0.5 * fs)
 
 
+def central_acceleration(pos_ahead, pos_here, pos_behind, fs):
+    """Acceleration (rad/s^2) at k from pos(k+1), pos(k) and pos(k-1) (central second difference)."""
+    return (pos_ahead - 2.0 * pos_here + pos_behind) * fs**2
+
+
 def reflex_drive(velocity_basis, rho_basis, Omega, ops=NUMPY):
     """Output z of the reflex static nonlinearity f(dvel, rho).
 
@@ -89,7 +94,7 @@ def velocity(position, fs):
 def acceleration(position, fs):
     """Central second-difference acceleration (rad/s^2) of a whole record."""
     p = _padded(position)
-    return (p[2:] - 2.0 * p[1:-1] + p[:-2]) * fs**2
+    return central_acceleration(p[2:], p[1:-1], p[:-2], fs)
 
 
 def causal_signals(position, fs, lags, vel=None, acc=None):

@@ -102,6 +102,9 @@ __all__ = [
     "trajectory_function",
     "replay_inputs",
     "export_fmu",
+    "DEFAULT_FMU_VARIANT",
+    "ticks_per_sample",
+    "fmu_constants",
     "fmu_variables",
     "fmu_parameter_name",
     "fmu_description",
@@ -111,7 +114,9 @@ __all__ = [
     "model_source_dir",
 ]
 
-VARIANTS = ("causal", "exact")
+VARIANTS = ("sampled", "causal", "exact")
+#: The FMU ``lpvpc export --fmu`` makes: positions in, for any co-simulation master.
+DEFAULT_FMU_VARIANT = "sampled"
 
 STATE_INPUT = "state"
 OUTPUT_NAMES = ("next_state", "torque", "torque_intrinsic", "torque_reflex")
@@ -120,6 +125,12 @@ OUTPUT_NAMES = ("next_state", "torque", "torque_intrinsic", "torque_reflex")
 def _check_variant(variant):
     if variant not in VARIANTS:
         raise ExportError(f"unknown export variant {variant!r}; choose one of {VARIANTS}")
+
+
+def _irf(variant) -> str:
+    """The intrinsic IRF a variant runs: "causal" (H_causal with velocity and acceleration
+    terms; causal and sampled) or "exact" (the two-sided H)."""
+    return "exact" if variant == "exact" else "causal"
 
 
 def input_names(variant="causal", parametric=False, model=None):
@@ -189,6 +200,8 @@ class StateLayout:
 def latency_samples(model, variant="causal") -> int:
     """Output delay of the exported step in samples: 0 for causal, L for exact."""
     _check_variant(variant)
+    if variant == "sampled":
+        return 1  # the central differences of sample k need position k + 1
     return 0 if variant == "causal" else max(0, -min(model.lags))
 
 
@@ -196,9 +209,11 @@ def state_layout(model, variant="causal") -> StateLayout:
     _check_variant(variant)
     d = int(model.delay)
     lat = latency_samples(model, variant)
-    lags = model.causal_lags if variant == "causal" else model.lags
+    lags = model.causal_lags if _irf(variant) == "causal" else model.lags
     # history index i means pos(k - i); i = 0 is the current input.
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
+    if variant == "sampled":
+        needed += [lat + 1]  # central differences at j = k - 1
     if getattr(model, "effects", None):
         needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
     return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d,
@@ -210,8 +225,8 @@ def state_layout(model, variant="causal") -> StateLayout:
 def _coefficient_blocks(model, variant):
     """(name, array) for each identified coefficient block the variant uses."""
     _check_variant(variant)
-    H_name = "H_causal" if variant == "causal" else "H"
-    H = model.H_causal if variant == "causal" else model.H
+    H_name = "H_causal" if _irf(variant) == "causal" else "H"
+    H = model.H_causal if _irf(variant) == "causal" else model.H
     return [
         (H_name, np.atleast_2d(np.asarray(H, dtype=float))),
         ("Omega", np.atleast_2d(np.asarray(model.Omega, dtype=float))),
@@ -219,7 +234,7 @@ def _coefficient_blocks(model, variant):
         ("B", np.asarray(model.B, dtype=float).reshape(-1)),
         ("C", np.asarray(model.C, dtype=float).reshape(-1)),
         ("D", np.array([float(model.D)])),
-    ] + [blk for fe in getattr(model, "effects", ()) for blk in fe.coefficient_blocks(variant)]
+    ] + [blk for fe in getattr(model, "effects", ()) for blk in fe.coefficient_blocks(_irf(variant))]
 
 
 def parameter_vector(model, variant="causal") -> np.ndarray:
@@ -247,7 +262,7 @@ def parameter_info(model, variant="causal") -> list:
     FMI unit names ("" where a coefficient has no physical unit of its own, e.g. the
     reflex nonlinearity scale, which is shared between Omega and B, C, D)."""
     out = []
-    lags = model.causal_lags if variant == "causal" else model.lags
+    lags = model.causal_lags if _irf(variant) == "causal" else model.lags
     for name, a in _coefficient_blocks(model, variant):
         if name in ("H", "H_causal"):
             rows = [f"lag {l}" for l in lags]
@@ -303,7 +318,8 @@ def step_function(model, variant="causal", parametric=False, name=None):
     variant).size``), ``position`` (rad), ``scheduling`` (rad), and for ``"causal"``
     ``velocity`` (rad/s) and ``acceleration`` (rad/s^2); ``params`` when ``parametric``.
     Outputs: ``next_state``, ``torque``, ``torque_intrinsic``, ``torque_reflex`` (N m) of
-    sample k (causal) or k - L (exact). Start from ``state = 0``.
+    sample k (causal), k - 1 (sampled: its central differences need position k) or k - L
+    (exact). Start from ``state = 0``.
     """
     import casadi as ca
 
@@ -352,8 +368,11 @@ def step_function(model, variant="causal", parametric=False, name=None):
     sig = {n: (v if lat == 0 else sig_hist[n][lat - 1]) for n, v in sig_in.items()}  # signals at j
 
     # Intrinsic pathway at sample j.
-    if variant == "causal":
-        signals = ops.hcat([p_at(int(l)) for l in model.causal_lags] + [vel, acc])
+    if variant == "sampled":  # velocity and acceleration at j from positions j+1, j, j-1
+        vel = eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
+        acc = eq.central_acceleration(p_at(lat - 1), p_at(lat), p_at(lat + 1), fs)
+    if _irf(variant) == "causal":
+        signals = ops.hcat([p_at(lat + int(l)) for l in model.causal_lags] + [vel, acc])
         H = c["H_causal"]
     else:
         signals = ops.hcat([p_at(lat + int(l)) for l in model.lags])
@@ -370,7 +389,7 @@ def step_function(model, variant="causal", parametric=False, name=None):
 
     eff_next = eff_state
     if getattr(model, "effects", None):  # extended model: effect terms (lpvpc.effects)
-        v_j = vel if variant == "causal" else eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
+        v_j = vel if _irf(variant) == "causal" else eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
         tq_ei, tq_er, eff_next = _effect_torques(model, variant, c, lay, ops, signals, rho, v_j, sig, x, z,
                                                  eff_state, p_at(lat))
         tq_i, tq_r = tq_i + tq_ei, tq_r + tq_er
@@ -385,10 +404,11 @@ def step_function(model, variant="causal", parametric=False, name=None):
 
     next_state = ca.vertcat(
         pos,
-        pos_hist[: lay.n_pos - 1],
-        *([rho_in, rho_hist[: lay.n_sched - 1]] if lay.n_sched else []),
+        *([pos_hist[: lay.n_pos - 1]] if lay.n_pos > 1 else []),  # (an empty SX slice is 1x1, not 0x1)
+        *([rho_in] if lay.n_sched else []),
+        *([rho_hist[: lay.n_sched - 1]] if lay.n_sched > 1 else []),
         x_next,
-        *[v for n in lay.signals for v in ([sig_in[n], sig_hist[n][: lat - 1]] if lat else [])],
+        *[v for n in lay.signals for v in ([sig_in[n]] + ([sig_hist[n][: lat - 1]] if lat > 1 else []) if lat else [])],
         eff_next,
         ca.fmin(seen + 1.0, float(lay.start)),
     )
@@ -434,9 +454,9 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
     tq_i = tq_r = 0.0
     for fe in model.effects:
         coef = {}
-        for name, _ in fe.coefficient_blocks(variant):
+        for name, _ in fe.coefficient_blocks(_irf(variant)):
             coef["Theta" if name.endswith("_Theta") else "H"] = c[name]
-        tq = fx.effect_term(fe, context, position_signals, Gi, "causal" if variant == "causal" else "two_sided",
+        tq = fx.effect_term(fe, context, position_signals, Gi, "causal" if _irf(variant) == "causal" else "two_sided",
                             ops, coef)
         if fe.effect.pathway == "reflex":
             tq_r = tq_r + tq
@@ -630,11 +650,35 @@ def write_system_c(functions, folder) -> list:
     return paths
 
 
+def ticks_per_sample(model) -> int:
+    """Base ticks per sample period of the sampled FMU: the tick closest to 1 ms that
+    divides the period (10 at 100 Hz), so that masters can step at about 1 ms."""
+    return max(1, int(round(1.0 / (float(model.fs) * 1e-3))))
+
+
+def fmu_constants(model, variant="causal"):
+    """Constant outputs that state the timing contract in the FMU itself: ``latency`` (s,
+    the delay of a sample's torque in sample periods times the period) and
+    ``sample_period`` (s)."""
+    from .fmu_build import FmuVariable
+
+    T = 1.0 / float(model.fs)
+    lat = latency_samples(model, variant)
+    when = (f"the torque of sample k is the output from the end of the communication step that starts at sample "
+            f"time k + {lat} (inputs taken at sample times)" if variant != "causal" else
+            "no delay: outputs have direct feedthrough of the inputs of the same communication point")
+    return [FmuVariable("latency", "output", "s", f"output latency: {lat} sample(s) of {T!r} s; {when}",
+                        lat * T, dependencies=[]),
+            FmuVariable("sample_period", "output", "s", "model sample period 1/fs", T, dependencies=[])]
+
+
 def fmu_variables(model, variant="causal"):
     """(outputs, inputs, parameters) as :class:`lpvpc.fmu_build.FmuVariable` lists."""
     from .fmu_build import FmuVariable
 
     _, _, _, deps = system_functions(model, variant)
+    if variant != "causal":  # sampled mode: outputs are held samples, none depends on the current inputs
+        deps = {name: [] for name in deps}
     outputs = [FmuVariable(name, "output", "N.m", text, dependencies=deps[name])
                for name, text in _OUTPUT_INFO.items()]
     info = dict(_INPUT_INFO)
@@ -657,11 +701,24 @@ def fmu_description(model, variant="causal") -> str:
     lat = latency_samples(model, variant)
     text = (f"LPV parallel-cascade ankle stiffness model exported by lpvpc {__version__}; "
             f"model sha256 {model.model_hash}; variant {variant}; sample rate {model.fs!r} Hz. ")
-    if variant == "causal":
-        text += ("Causal intrinsic IRF with current velocity and acceleration inputs: no added latency. ")
+    if variant == "sampled":
+        T = 1.0 / float(model.fs)
+        text += (f"Inputs are positions only; velocity and acceleration are computed inside (central differences, "
+                 f"as identified), so the torque of sample k needs position k + 1: latency 1 sample ({T!r} s). "
+                 f"Timing contract: the model is sampled at t_start + k*{T!r} s; a communication step that starts "
+                 f"at a sample time takes the inputs set at its start, and from its end the outputs are the torque "
+                 f"of the previous sample (held; no direct feedthrough, the same in every master). Step at the "
+                 f"DefaultExperiment step ({T / ticks_per_sample(model)!r} s) or any divisor of the sample period "
+                 f"that is a multiple of it. ")
+    elif variant == "causal":
+        text += ("Causal intrinsic IRF with current velocity and acceleration inputs: no added latency when the "
+                 "master sets the inputs before reading the outputs. ")
     else:
-        text += (f"Exact two-sided intrinsic IRF: outputs are the torque of {lat} samples earlier "
-                 f"(latency {lat / model.fs!r} s); 0 before that. ")
+        T = 1.0 / float(model.fs)
+        text += (f"Exact two-sided intrinsic IRF: latency {lat} samples ({lat * T!r} s). Timing contract: the model "
+                 f"is sampled at t_start + k*{T!r} s; a communication step that starts at a sample time takes the "
+                 f"inputs set at its start, and from its end the outputs are the torque of {lat} samples earlier "
+                 f"(held; 0 before that; no direct feedthrough). ")
     text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad is clamped to it. "
              "Parameters: identified coefficients (row-major, see variable descriptions).")
     if getattr(model, "effects", None):
@@ -680,9 +737,16 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
 
     Variables: inputs ``position``, ``scheduling`` (rad) and, for ``"causal"``,
     ``velocity`` (rad/s), ``acceleration`` (rad/s2); outputs ``torque``,
-    ``torque_intrinsic``, ``torque_reflex`` (N.m); the identified coefficients as fixed
-    parameters (:func:`fmu_parameter_name` of :func:`parameter_names`). Step size 1/fs;
-    communication steps must be multiples of it (inputs held over a longer step).
+    ``torque_intrinsic``, ``torque_reflex`` (N.m); constant outputs ``latency`` and
+    ``sample_period`` (s, :func:`fmu_constants`); the identified coefficients as fixed
+    parameters (:func:`fmu_parameter_name` of :func:`parameter_names`).
+
+    ``"sampled"`` (what ``lpvpc export --fmu`` makes): sampled every 1/fs s, communication
+    steps are multiples of the base tick 1/(fs * :func:`ticks_per_sample`) (1 ms at 100 Hz,
+    the DefaultExperiment step); outputs are the torque of the previous sample from the end
+    of the step that starts at a sample time (see :func:`fmu_description`). ``"causal"`` and
+    ``"exact"``: step size 1/fs, communication steps multiples of it, outputs with direct
+    feedthrough of the current inputs.
     ``timings`` (a dict) receives ``codegen``, ``compile`` and ``total`` seconds.
     ``fmi_type="me"``: a Model Exchange FMU of the same model instead, sampled with a time
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
@@ -705,8 +769,8 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
         try:
             out = build_fmu(
                 path,
-                model_identifier=("lpvpc_model" if variant == "causal" else "lpvpc_model_exact")
-                + ("_me" if fmi_type == "me" else ""),
+                model_identifier={"sampled": "lpvpc_model", "causal": "lpvpc_model_causal",
+                                  "exact": "lpvpc_model_exact"}[variant] + ("_me" if fmi_type == "me" else ""),
                 system_sources=[model_source_dir() / "model_system.c", *generated],
                 nx=state_layout(model, variant).size,
                 step_size=1.0 / float(model.fs),
@@ -720,6 +784,9 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
                 reuse_existing=reuse_existing,
                 timings=build_timings,
                 interface=fmi_type,
+                # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the position-input variants
+                ticks_per_sample=ticks_per_sample(model) if variant != "causal" and fmi_type == "cs" else 0,
+                constants=fmu_constants(model, variant),
             )
         except ExportError:
             raise

@@ -27,7 +27,7 @@ def _run(step, n, model, position, scheduling, variant, params=None):
 
 
 def _reference(model, position, scheduling, variant):
-    p = model.predict(position, scheduling, causal=variant == "causal", warn=False)
+    p = model.predict(position, scheduling, causal=variant != "exact", warn=False)
     return {"torque": p.total, "torque_intrinsic": p.intrinsic, "torque_reflex": p.reflex}
 
 
@@ -39,7 +39,7 @@ def _rel_errors(out, ref, latency):
 
 
 @pytest.mark.parametrize("parametric", [False, True], ids=["baked", "parametric"])
-@pytest.mark.parametrize("variant", ["causal", "exact"])
+@pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])
 def test_mapaccum_matches_numpy_on_two_minute_record(model, subject, variant, parametric):
     data = subject["ident"]
     n = data.n
@@ -54,6 +54,8 @@ def test_mapaccum_matches_numpy_on_two_minute_record(model, subject, variant, pa
         assert lat == -min(model.lags) > 0
         # before the record starts nothing is defined: the output is zero
         assert np.all(out["torque"].ravel()[:lat] == 0.0)
+    elif variant == "sampled":  # central differences of sample k need position k + 1
+        assert lat == 1 and out["torque"].ravel()[0] == 0.0
     else:
         assert lat == 0
 
@@ -65,7 +67,9 @@ def test_step_interface(model):
     exact = ex.step_function(model, "exact", parametric=True)
     assert exact.name_in() == ["state", "position", "scheduling", "params"]
     assert exact.size1_in("params") == len(ex.parameter_vector(model, "exact"))
-    for variant, f in (("causal", causal), ("exact", exact)):
+    sampled = ex.step_function(model, "sampled")
+    assert sampled.name_in() == ["state", "position", "scheduling"]
+    for variant, f in (("causal", causal), ("exact", exact), ("sampled", sampled)):
         lay = ex.state_layout(model, variant)
         assert f.size1_in("state") == f.size1_out("next_state") == lay.size == len(lay.describe())
     with pytest.raises(ExportError, match="unknown export variant 'lookahead'"):
@@ -112,7 +116,7 @@ def test_parametric_step_follows_its_parameters(model, subject):
 def test_one_definition_of_the_equations(model, monkeypatch):
     """The step is built from lpvpc.equations (no second copy of the model equations)."""
     called = []
-    for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity"):
+    for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity", "central_acceleration"):
         original = getattr(eq, name)
 
         def spy(*args, _original=original, _name=name, **kwargs):
@@ -123,10 +127,12 @@ def test_one_definition_of_the_equations(model, monkeypatch):
     for variant in ex.VARIANTS:
         called.clear()
         ex.step_function(model, variant)
-        assert sorted(called) == ["central_velocity", "intrinsic_torque", "reflex_drive", "reflex_step"]
+        inside = ["central_acceleration", "central_velocity"] if variant == "sampled" else []  # derivatives inside
+        assert sorted(called) == sorted(["central_velocity", "intrinsic_torque", "reflex_drive", "reflex_step"]
+                                        + inside)
 
 
-@pytest.mark.parametrize("variant", ["causal", "exact"])
+@pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])
 def test_random_record_nonzero_start_and_scheduling_out_of_range(model, variant):
     """A record that starts away from zero (the velocity before the record is 0, as in
     equations.delayed_velocity) and scheduling far outside the identified range (clamped)."""
@@ -164,7 +170,7 @@ def test_trajectory_function_rejects_bad_length(model):
         ex.trajectory_function(ex.step_function(model), 0)
 
 
-@pytest.mark.parametrize("variant", ["causal", "exact"])
+@pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])
 def test_saved_function_runs_with_casadi_alone(model, subject, tmp_path, variant):
     """export_casadi writes the step; a process that imports only casadi and numpy loads
     it, builds the mapaccum and runs the 2-minute record."""

@@ -25,7 +25,7 @@ from lpvpc import export as ex
 from lpvpc.model import vaf
 
 TOL = 1e-9
-BUILDS = [("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
+BUILDS = [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
 
 
 @pytest.fixture(scope="module")
@@ -85,17 +85,26 @@ class Sim:
     def refs(self, names):
         return [self.vr[n] for n in names]
 
+    @property
+    def sampled(self):  # the wrapper's sampled mode: the sampled and exact variants
+        return self.md.coSimulation.modelIdentifier != "lpvpc_model_causal"
+
     def replay(self, inputs, t0=0.0, h=0.01):
-        """inputs: {name: array}; returns (n, 3) torque, torque_intrinsic, torque_reflex."""
+        """inputs: {name: array}; returns (n, 3) torque, torque_intrinsic, torque_reflex: read
+        before doStep (direct feedthrough), or after it for the sampled FMU (row k then holds
+        the torque of sample k - 1, its declared latency)."""
         names = list(inputs)
         U = np.column_stack([inputs[k] for k in names])
         ins, outs = self.refs(names), self.refs(ex.OUTPUT_NAMES[1:])
         Y = np.empty((len(U), 3))
         for k in range(len(U)):
             self.set(ins, list(U[k]))
+            if self.sampled:
+                self.slave.doStep(t0 + k * h, h)
             Y[k] = self.get(outs)
             assert np.all(np.isfinite(Y[k])), (k, Y[k])
-            self.slave.doStep(t0 + k * h, h)
+            if not self.sampled:
+                self.slave.doStep(t0 + k * h, h)
         return Y
 
     def free(self):
@@ -108,7 +117,7 @@ def _inputs(model, position, scheduling, variant):
 
 
 def _ref(model, position, scheduling, variant):
-    p = model.predict(position, scheduling, causal=variant == "causal", warn=False)
+    p = model.predict(position, scheduling, causal=variant != "exact", warn=False)
     return np.column_stack([p.total, p.intrinsic, p.reflex])
 
 
@@ -153,12 +162,18 @@ def test_model_description(model, fmus, variant, fmi):
     path, _, timings = fmus[(variant, fmi)]
     md = read_model_description(path)
     assert md.fmiVersion == ("2.0" if fmi == 2 else "3.0")
-    assert float(md.defaultExperiment.stepSize) == pytest.approx(1.0 / model.fs, rel=1e-15)
+    tick = 1.0 / model.fs / (ex.ticks_per_sample(model) if variant != "causal" else 1)
+    assert float(md.defaultExperiment.stepSize) == pytest.approx(tick, rel=1e-15)
     assert f"lpvpc {__version__}" in md.description and model.model_hash in md.description
     variables = {v.name: v for v in md.modelVariables}
     expected_inputs = ["position", "scheduling"] + (["velocity", "acceleration"] if variant == "causal" else [])
     assert [v.name for v in md.modelVariables if v.causality == "input"] == expected_inputs
-    assert [v.name for v in md.modelVariables if v.causality == "output"] == list(ex.OUTPUT_NAMES[1:])
+    assert [v.name for v in md.modelVariables if v.causality == "output"] == list(ex.OUTPUT_NAMES[1:]) + [
+        "latency", "sample_period"]
+    # the timing contract as declared constant outputs
+    assert variables["latency"].variability == "constant" and variables["latency"].unit == "s"
+    assert float(variables["latency"].start) == pytest.approx(ex.latency_samples(model, variant) / model.fs)
+    assert float(variables["sample_period"].start) == pytest.approx(1.0 / model.fs)
     assert {variables[n].unit for n in ("position", "scheduling")} == {"rad"}
     assert all(variables[n].unit == "N.m" for n in ex.OUTPUT_NAMES[1:])
     if variant == "causal":
@@ -172,7 +187,7 @@ def test_model_description(model, fmus, variant, fmi):
     root = ET.fromstring(zipfile.ZipFile(path).read("modelDescription.xml"))
     latency = float(root.find(".//Latency").get("seconds"))
     assert latency == pytest.approx(ex.latency_samples(model, variant) / model.fs)
-    if variant == "exact":
+    if variant != "causal":
         assert latency > 0 and "latency" in md.description
     else:
         assert latency == 0.0
@@ -184,7 +199,7 @@ def test_fmpy_validation_reports_nothing(fmus, variant, fmi):
     assert validate_fmu(str(fmus[(variant, fmi)][0])) == []
 
 
-@pytest.mark.parametrize("variant,fmi", [("causal", 2), ("causal", 3), ("exact", 2)])
+@pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3), ("causal", 2), ("exact", 2)])
 def test_fmutool_check_passes(fmus, variant, fmi):
     exe = Path(sys.executable).parent / "fmutool"
     if not exe.exists():
@@ -218,10 +233,12 @@ def test_fmpy_compile_rebuilds_from_sources(model, subject, fmus, tmp_path, vari
     assert err < TOL
 
 
-@pytest.mark.parametrize("fmi", [2, 3])
-def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, fmi):
-    path, unzipdir, _ = fmus[("causal", fmi)]
+@pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3),
+                                         ("exact", 2)])
+def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fmi):
+    path, unzipdir, _ = fmus[(variant, fmi)]
     h = 1.0 / model.fs
+    tick = h / (ex.ticks_per_sample(model) if variant != "causal" else 1)
     sim = Sim(path, unzipdir)
     errors = lambda: [m for s, m in sim.log if s >= 3]  # noqa: E731
 
@@ -239,15 +256,17 @@ def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, fmi):
     expect_error(sim.slave.doStep, 0.5, h, match="does not match the FMU time")
     expect_error(sim.slave.doStep, 0.0, 0.0, match="must be > 0")
     expect_error(sim.slave.doStep, 0.0, -h, match="must be > 0")
-    expect_error(sim.slave.doStep, 0.0, 1.5 * h, match="not an integer multiple")
+    expect_error(sim.slave.doStep, 0.0, 1.5 * tick, match="not an integer multiple")
     expect_error(sim.set, [pos], [math.nan], match="not finite")
     expect_error(sim.get, [9999], match="unknown value reference")
     expect_error(sim.set, [sim.vr["D"]], [1.0], match="fixed parameter")  # after initialization
+    expect_error(sim.set, [sim.vr["latency"]], [0.0], match="cannot be set")  # a constant output
     # the wrong calls left the instance unchanged: it still reproduces the prediction
     data_pos, data_rho = np.full(5, 0.02), np.zeros(5)
-    Y = sim.replay(_inputs(model, data_pos, data_rho, "causal"), h=h)
-    ref = _ref(model, data_pos, data_rho, "causal")
-    assert np.max(np.abs(Y - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
+    Y = sim.replay(_inputs(model, data_pos, data_rho, variant), h=h)
+    ref = _ref(model, data_pos, data_rho, variant)
+    lat = ex.latency_samples(model, variant)
+    assert np.max(np.abs(Y[lat:] - ref[:5 - lat])) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
     # a step of several sample periods is fine (inputs held)
     sim.slave.doStep(5 * h, 3 * h)
     sim.free()

@@ -83,7 +83,7 @@ from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["CosimSettings", "CosimResult", "ActuatorDrive", "run_cosimulation", "connections",
            "to_rate", "band_limit", "feedforward_command", "calibrate_servo", "ACTUATOR_INPUTS", "ACTUATOR_OUTPUTS",
-           "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_variant_inputs", "hold_tail"]
+           "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_fmu_sampled", "model_variant_inputs", "hold_tail"]
 
 ACTUATOR_INPUTS = ("command", "load_torque")
 ACTUATOR_OUTPUTS = ("position", "velocity", "acceleration")
@@ -92,9 +92,21 @@ MODEL_OUTPUTS = ("torque", "torque_intrinsic", "torque_reflex")
 
 
 def model_fmu_variant(info: FMUInfo) -> str:
-    """"causal" when the model FMU takes velocity and acceleration inputs, else "exact"
-    (the two-sided model, outputs delayed by its declared latency; lpvpc.export)."""
-    return "causal" if info.variables.get("velocity", (None, None))[1] == "input" else "exact"
+    """"causal" when the model FMU takes velocity and acceleration inputs; "sampled" when it
+    runs the causal IRF on positions alone (parameters ``H_causal_*``; latency 1 sample);
+    else "exact" (the two-sided model, outputs delayed by its declared latency). lpvpc.export."""
+    if info.variables.get("velocity", (None, None))[1] == "input":
+        return "causal"
+    return "sampled" if any(n.startswith("H_causal_") for n in info.variables) else "exact"
+
+
+def model_fmu_sampled(info: FMUInfo) -> bool:
+    """True for an FMU in the wrapper's sampled mode (lpvpc.export's sampled and exact
+    variants): its outputs are those of earlier samples, held, read after a step."""
+    md = info.model_description
+    period = next((float(v.start) for v in getattr(md, "modelVariables", ()) if v.name == "sample_period"), None)
+    step = getattr(getattr(md, "defaultExperiment", None), "stepSize", None)
+    return period is not None and step is not None and float(step) < period * (1 - 1e-9)
 
 
 def model_variant_inputs(variant: str) -> tuple:
@@ -359,10 +371,11 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     settings = (settings or CosimSettings()).check()
     params = dict(actuator_parameters or {})
     variant = model_fmu_variant(model_fmu)
-    exact = variant == "exact"
+    sampled = model_fmu_sampled(model_fmu)
+    exact = variant in ("exact", "sampled")  # positions in, outputs of earlier samples: no loop
     if exact != (latency > 0):
         raise FMUError(f"model FMU {model_fmu.path.name}: variant {variant} with latency {latency} samples (an exact "
-                       "FMU has a latency > 0, a causal one none)")
+                       "or sampled FMU has a latency > 0, a causal one none)")
     r, h = drive.ratio, drive.step
     H = r * h
     K = drive.n_model
@@ -451,13 +464,21 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
             tk = k * H
             if exact:  # the model first: its output loads the PT actuator over [t(k), t(k+1)]
                 u = (Yp[i0, 0] - Yu[i0, 0], Yu[i0, 0], *S[k])
-                y = model_outputs(u, tk)
+                if sampled:  # processes sample k at the step's start; then holds the torque of k - 1
+                    m_in.set(u)
+                    mod.do_step(tk, H)
+                    y = m_out.get()
+                    if not np.isfinite(y).all():
+                        _check_finite(y, "model", MODEL_OUTPUTS, tk + H)
+                else:
+                    y = model_outputs(u, tk)
                 guess = y[0] if model_loads else 0.0
                 run_actuator(ut, a_in[0], a_out[0], cmd_u, load_u, 0.0, Yu, i0)
                 run_actuator(pt, a_in[1], a_out[1], cmd_p, load_u, guess, Yp, i0)
                 check_actuators(i0)
                 ins[k], tq[k], load_model[k] = u, y, guess
-                mod.do_step(tk, H)
+                if not sampled:
+                    mod.do_step(tk, H)
                 continue
             run_actuator(ut, a_in[0], a_out[0], cmd_u, load_u, 0.0, Yu, i0)
             # first guess of the torque over [t(k), t(k+1)]: the last one (delay), or its

@@ -39,7 +39,8 @@ from lpvpc.outputs import staged_folder
 
 from . import compare as cmp
 from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
-                    band_limit, calibrate_servo, feedforward_command, model_fmu_variant, run_cosimulation, to_rate)
+                    band_limit, calibrate_servo, feedforward_command, model_fmu_sampled, model_fmu_variant, run_cosimulation,
+                    to_rate)
 from .fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
 from .routes import casadi_routes, fmu_replay, model_fmu_inputs, offline_routes
 
@@ -128,7 +129,13 @@ def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
         raise FMUError(f"model FMU {info.path}: exported from model {declared[:12]}, not from this model "
                        f"({model.model_hash[:12]}); export it again or pass the matching model file")
     h = 1.0 / model.fs
-    if info.step_size is not None and abs(info.step_size - h) > 1e-9 * h:
+    if model_fmu_sampled(info):  # steps at a base tick that divides the sample period
+        period = next(float(v.start) for v in info.model_description.modelVariables if v.name == "sample_period")
+        ratio = h / info.step_size
+        if abs(period - h) > 1e-9 * h or abs(ratio - round(ratio)) > 1e-6:
+            raise FMUError(f"model FMU {info.path}: sample period {period:g} s (tick {info.step_size:g} s) does not "
+                           f"match the model's sample period {h:g} s")
+    elif info.step_size is not None and abs(info.step_size - h) > 1e-9 * h:
         raise FMUError(f"model FMU {info.path}: step size {info.step_size:g} s differs from the model's sample "
                        f"period {h:g} s")
 
@@ -388,8 +395,9 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     # -- comparison ---------------------------------------------------------------------
     y = meas.torque
     preds = {"numpy": off["numpy"].total, "fmu": rep["torque"], "cosim": cos.torque}
-    fmu_form = (f"exact two-sided, latency of {latency} samples removed" if variant == "exact"
-                else "causal, no latency")
+    fmu_form = {"exact": f"exact two-sided, latency of {latency} samples removed",
+                "sampled": f"sampled, positions in, latency of {latency} sample removed"}.get(variant,
+                                                                                              "causal, no latency")
     routes = {
         "numpy": ("offline numpy prediction, two-sided intrinsic IRF (the identified model)", off["numpy"].total),
         "numpy_causal": ("offline numpy prediction, causal intrinsic IRF (what the causal FMU runs)",

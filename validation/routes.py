@@ -26,7 +26,7 @@ import numpy as np
 from lpvpc import export as ex
 from lpvpc.errors import FMUError, OutOfRangeWarning
 
-from .cosim import MODEL_OUTPUTS, hold_tail, model_fmu_variant, model_variant_inputs
+from .cosim import MODEL_OUTPUTS, hold_tail, model_fmu_sampled, model_fmu_variant, model_variant_inputs
 from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["offline_routes", "casadi_routes", "fmu_replay", "model_fmu_inputs"]
@@ -84,17 +84,21 @@ def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) ->
     U = np.column_stack([np.ravel(rows[name]) for name in inputs])
     h = 1.0 / model.fs
     Y = np.empty((len(U), 3))
+    sampled = model_fmu_sampled(model_fmu)  # outputs read after the step (held samples)
     with FMUInstance(model_fmu, "model_replay") as inst:
         inst.initialize(0.0)
         pin, pout = inst.port(inputs, "input"), inst.port(MODEL_OUTPUTS, "output")
         t0 = time.perf_counter()
         for k in range(len(U)):
             pin.set(U[k])
+            if sampled:
+                inst.do_step(k * h, h)
             y = Y[k] = pout.get()
             if not (isfinite(y[0]) and isfinite(y[1]) and isfinite(y[2])):
                 raise FMUError(f"model_replay ({model_fmu.path.name}): output {MODEL_OUTPUTS} = {y} (not finite) at "
                                f"t = {k * h:.6g} s although the FMU reported OK")
-            inst.do_step(k * h, h)
+            if not sampled:
+                inst.do_step(k * h, h)
         elapsed = time.perf_counter() - t0
     Y = Y[lat:]
     return {"torque": Y[:, 0], "torque_intrinsic": Y[:, 1], "torque_reflex": Y[:, 2], "seconds": elapsed}

@@ -10,8 +10,17 @@
  * the wrapper, so `fmpy compile` rebuilds from the same files.
  *
  * Semantics (FMI 2 and FMI 3)
- *   - inputs u are set at communication point t_k; outputs read at t_k are g(x, u, p)
- *     with the current inputs (direct feedthrough);
+ *   - direct mode (SYS_TICKS_PER_SAMPLE 0, the default): inputs u are set at communication
+ *     point t_k; outputs read at t_k are g(x, u, p) with the current inputs (direct
+ *     feedthrough);
+ *   - sampled mode (SYS_TICKS_PER_SAMPLE N >= 1): the system is sampled every SYS_STEP s
+ *     (sample times t_start + k SYS_STEP); communication steps are integer multiples of the
+ *     base tick SYS_STEP / N. A communication step that starts at a sample time processes
+ *     that sample with the inputs set at its start (y = g(x, u, p), then x = f(x, u, p));
+ *     a longer step processes every later sample it crosses with the same inputs held. The
+ *     outputs are those of the last processed sample, held (0 before the first): they do
+ *     not depend on the inputs of the current communication point, so every master, whether
+ *     it reads outputs before or after setting the next inputs, sees the same values;
  *   - DoStep(t_k, h): h > 0, |t_k - time| <= 1e-9 * max(1, |time|), h an integer
  *     multiple n of SYS_STEP (relative tolerance 1e-9), n <= SYS_MAX_STEPS (the declared
  *     maximum communication step, so one call's work is bounded); applies n updates with the
@@ -28,7 +37,8 @@
  *     no mutable global data.
  *
  * Value references: 0 time (FMI 3 only; unknown in FMI 2), outputs 1..NY,
- * inputs NY+1..NY+NU, parameters NY+NU+1..NY+NU+NP. Units are SI (see modelDescription.xml).
+ * inputs NY+1..NY+NU, parameters NY+NU+1..NY+NU+NP, then SYS_NC constant outputs (values
+ * SYS_CONST_VALUES, e.g. a declared latency). Units are SI (see modelDescription.xml).
  *
  * The including wrapper defines, before #include "cs_core.h":
  *   CsCallbacks       struct of its importer callbacks (logger, environment, memory), a
@@ -58,12 +68,24 @@
 #define VR_OUT0 1u
 #define VR_IN0 (VR_OUT0 + (unsigned)SYS_NY)
 #define VR_PAR0 (VR_IN0 + (unsigned)SYS_NU)
-#define VR_END (VR_PAR0 + (unsigned)SYS_NP)
+#define VR_CON0 (VR_PAR0 + (unsigned)SYS_NP)
+#define VR_END (VR_CON0 + (unsigned)SYS_NC)
 #define VR_MIN (CS_HAS_TIME_VR ? VR_TIME : VR_OUT0)
 
 #ifndef SYS_MAX_STEPS
 #define SYS_MAX_STEPS 1000000 /* internal steps one doStep may take (the declared maximum step) */
 #endif
+#ifndef SYS_TICKS_PER_SAMPLE
+#define SYS_TICKS_PER_SAMPLE 0 /* direct mode */
+#endif
+#ifndef SYS_NC
+#define SYS_NC 0 /* constant outputs (e.g. the declared latency) */
+#define SYS_CONST_VALUES {0.0}
+#define SYS_CONST_NAMES {""}
+#endif
+#define SAMPLED (SYS_TICKS_PER_SAMPLE > 0)
+/* the unit of communication steps: the base tick (sampled) or the internal step (direct) */
+#define CS_TICK (SAMPLED ? (double)SYS_STEP / (double)SYS_TICKS_PER_SAMPLE : (double)SYS_STEP)
 #define TIME_TOL 1e-9 /* relative tolerance on the communication point */
 #define STEP_TOL 1e-9 /* relative tolerance on h being a multiple of SYS_STEP */
 
@@ -95,9 +117,12 @@ typedef struct {
     double time;
     int32_t mode;
     int32_t x_ready; /* x holds x0(p) (before step mode: parameters may still change) */
+    double y_held[DIM(SYS_NY)]; /* sampled mode: outputs of the last processed sample */
+    int32_t phase;              /* sampled mode: base ticks since the last sample time, 0..N-1 */
+    int32_t pad2;
 } CoreState;
 
-#define STATE_VERSION 1u
+#define STATE_VERSION 2u
 
 typedef struct {
     char magic[8];
@@ -128,6 +153,8 @@ static const double input_defaults[DIM(SYS_NU)] = SYS_INPUT_DEFAULTS;
 static const char *const output_names[DIM(SYS_NY)] = SYS_OUTPUT_NAMES;
 static const char *const input_names[DIM(SYS_NU)] = SYS_INPUT_NAMES;
 static const char *const param_names[DIM(SYS_NP)] = SYS_PARAM_NAMES;
+static const double const_values[DIM(SYS_NC)] = SYS_CONST_VALUES;
+static const char *const const_names[DIM(SYS_NC)] = SYS_CONST_NAMES;
 
 /* ------------------------------------------------------------------ helpers */
 
@@ -230,8 +257,10 @@ static void describe_vr(CsValueReference vr, char *buf, size_t n)
         snprintf(buf, n, "output '%s' (vr %u)", output_names[vr - VR_OUT0], (unsigned)vr);
     else if (vr >= VR_IN0 && vr < VR_PAR0)
         snprintf(buf, n, "input '%s' (vr %u)", input_names[vr - VR_IN0], (unsigned)vr);
-    else if (vr >= VR_PAR0 && vr < VR_END)
+    else if (vr >= VR_PAR0 && vr < VR_CON0)
         snprintf(buf, n, "parameter '%s' (vr %u)", param_names[vr - VR_PAR0], (unsigned)vr);
+    else if (vr >= VR_CON0 && vr < VR_END)
+        snprintf(buf, n, "constant output '%s' (vr %u)", const_names[vr - VR_CON0], (unsigned)vr);
     else
         snprintf(buf, n, "vr %u", (unsigned)vr);
 }
@@ -283,6 +312,11 @@ static int ensure_outputs(Instance *c, const char *fn)
     int rc, bad;
     if (c->y_valid) return 1;
     if (!ensure_state(c, fn)) return 0;
+    if (SAMPLED) { /* the last processed sample's outputs (checked finite when computed) */
+        memcpy(c->y, c->s.y_held, sizeof c->y);
+        c->y_valid = 1;
+        return 1;
+    }
     rc = sys_output(c->s.x, c->s.u, c->s.p, c->y);
     if (rc != 0) {
         log_error(c, "%s: sys_output failed (code %d) at t = %.17g.", fn, rc, c->s.time);
@@ -470,8 +504,10 @@ static CsStatus cs_get_real(Instance *c, const char *fn, const CsValueReference 
             values[i] = c->y[r - VR_OUT0];
         } else if (r < VR_PAR0) {
             values[i] = c->s.u[r - VR_IN0];
-        } else {
+        } else if (r < VR_CON0) {
             values[i] = c->s.p[r - VR_PAR0];
+        } else {
+            values[i] = const_values[r - VR_CON0];
         }
     }
     return CS_OK;
@@ -490,7 +526,7 @@ static CsStatus cs_set_real(Instance *c, const char *fn, const CsValueReference 
         CsValueReference r = vr[i];
         if (!known_vr(c, fn, r)) return CS_ERROR;
         describe_vr(r, what, sizeof what);
-        if (r < VR_IN0) {
+        if (r < VR_IN0 || r >= VR_CON0) {
             log_error(c, "%s: %s cannot be set.", fn, what);
             return CS_ERROR;
         }
@@ -585,6 +621,15 @@ static int valid_state(const Instance *c, const FmuState *st, const char *fn)
     }
     if (!all_finite(s->p, SYS_NP, &bad)) {
         log_error(c, "%s: the FMU state's parameter '%s' = %g is not finite.", fn, param_names[bad], s->p[bad]);
+        return 0;
+    }
+    if (!all_finite(s->y_held, SYS_NY, &bad)) {
+        log_error(c, "%s: the FMU state's held output '%s' = %g is not finite.", fn, output_names[bad],
+                  s->y_held[bad]);
+        return 0;
+    }
+    if (s->phase < 0 || s->phase >= (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1) || s->pad2 != 0) {
+        log_error(c, "%s: the FMU state has an invalid sample phase %d.", fn, (int)s->phase);
         return 0;
     }
     return 1;
@@ -693,7 +738,7 @@ static CsStatus cs_deserialize_state(Instance *c, const char *fn, const void *by
 
 static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
 {
-    double nsteps, x_next[DIM(SYS_NX)];
+    double nsteps, x_next[DIM(SYS_NX)], y_new[DIM(SYS_NY)];
     CoreState saved;
     long long n, k;
     int rc, bad;
@@ -713,37 +758,60 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
                   fn, t, c->s.time);
         return CS_ERROR;
     }
-    nsteps = h / (double)SYS_STEP;
+    nsteps = h / CS_TICK;
     if (nsteps > (double)SYS_MAX_STEPS + 0.5) {
         log_error(c, "%s: communicationStepSize = %g s is larger than this FMU's maximum communication step "
-                     "%g s (%d internal steps of %g s; the bound keeps one doStep short).",
-                  fn, h, (double)SYS_MAX_STEPS * (double)SYS_STEP, SYS_MAX_STEPS, (double)SYS_STEP);
+                     "%g s (%d steps of %g s; the bound keeps one doStep short).",
+                  fn, h, (double)SYS_MAX_STEPS * CS_TICK, SYS_MAX_STEPS, CS_TICK);
         return CS_ERROR;
     }
     n = (long long)(nsteps + 0.5);
-    if (n < 1 || fabs(h - (double)n * (double)SYS_STEP) > STEP_TOL * h) {
-        log_error(c, "%s: communicationStepSize = %.17g s is not an integer multiple of the internal "
-                     "step %.17g s (ratio %.12g).",
-                  fn, h, (double)SYS_STEP, nsteps);
+    if (n < 1 || fabs(h - (double)n * CS_TICK) > STEP_TOL * h) {
+        log_error(c, "%s: communicationStepSize = %.17g s is not an integer multiple of the %s %.17g s "
+                     "(ratio %.12g).",
+                  fn, h, SAMPLED ? "base tick" : "internal step", CS_TICK, nsteps);
         return CS_ERROR;
     }
 
     saved = c->s;
     for (k = 0; k < n; k++) {
+        if (SAMPLED && c->s.phase != 0) { /* between sample times: nothing to compute */
+            c->s.phase = (int32_t)((c->s.phase + 1) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1));
+            continue;
+        }
+        if (SAMPLED) {
+            rc = sys_output(c->s.x, c->s.u, c->s.p, y_new);
+            if (rc != 0) {
+                log_error(c, "%s: sys_output failed (code %d) at the sample time t = %.17g; the instance stays at "
+                             "t = %.17g.",
+                          fn, rc, t + (double)k * CS_TICK, t);
+                goto fail;
+            }
+            if (!all_finite(y_new, SYS_NY, &bad)) {
+                log_error(c, "%s: output '%s' (vr %u) became %g (not finite) at the sample time t = %.17g; the "
+                             "instance stays at t = %.17g.",
+                          fn, output_names[bad], (unsigned)(VR_OUT0 + bad), y_new[bad], t + (double)k * CS_TICK, t);
+                goto fail;
+            }
+        }
         rc = sys_update(c->s.x, c->s.u, c->s.p, x_next);
         if (rc != 0) {
-            log_error(c, "%s: sys_update failed (code %d) at t = %.17g (internal step %lld of %lld); "
+            log_error(c, "%s: sys_update failed (code %d) at t = %.17g (step %lld of %lld); "
                          "the instance stays at t = %.17g.",
-                      fn, rc, t + (double)k * (double)SYS_STEP, k + 1, n, t);
+                      fn, rc, t + (double)k * CS_TICK, k + 1, n, t);
             goto fail;
         }
         if (!all_finite(x_next, SYS_NX, &bad)) {
-            log_error(c, "%s: state x[%d] became %g (not finite) at t = %.17g (internal step %lld of %lld); "
+            log_error(c, "%s: state x[%d] became %g (not finite) at t = %.17g (step %lld of %lld); "
                          "the instance stays at t = %.17g.",
-                      fn, bad, x_next[bad], t + (double)(k + 1) * (double)SYS_STEP, k + 1, n, t);
+                      fn, bad, x_next[bad], t + (double)(k + 1) * CS_TICK, k + 1, n, t);
             goto fail;
         }
         memcpy(c->s.x, x_next, sizeof(double) * (size_t)SYS_NX);
+        if (SAMPLED) {
+            memcpy(c->s.y_held, y_new, sizeof(double) * (size_t)SYS_NY);
+            c->s.phase = (int32_t)((c->s.phase + 1) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1));
+        }
     }
     c->s.time = t + h;
     c->y_valid = 0;
