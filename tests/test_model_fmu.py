@@ -380,3 +380,45 @@ def test_replay_helper_signals_match_equations(model):
     rows = _inputs(model, x, x, "causal")
     assert np.array_equal(rows["velocity"], eq.velocity(x, model.fs))
     assert np.array_equal(rows["acceleration"], eq.acceleration(x, model.fs))
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_sampled_fmu_any_multiple_of_the_base_tick(model, subject, fmus, fmi):
+    """canHandleVariableCommunicationStepSize is true: a random sequence of communication
+    steps, each a multiple of the 1-ms base tick (some ending between sample times, some
+    spanning several), follows the timing contract exactly: each sample takes the inputs
+    set at the start of the step that contains its time, and after a step ending at t the
+    output is the torque of sample ceil((t - L) / T) - 1."""
+    data = subject["novel"].segment(0, 400)
+    path, unzipdir, _ = fmus[("sampled", fmi)]
+    sim = Sim(path, unzipdir).initialize()
+    assert sim.md.coSimulation.canHandleVariableCommunicationStepSize
+    T = 1.0 / model.fs
+    N = ex.ticks_per_sample(model)
+    tick = T / N
+    rng = np.random.default_rng(5)
+    ins, outs = sim.refs(["position", "scheduling"]), sim.refs(["torque"])
+    used = np.full(len(data.position), -1)  # record index whose inputs sample k took
+    ticks, log = 0, []
+    while ticks < (len(data.position) - 2) * N:
+        j = ticks // N  # the record sample at or before this communication point
+        sim.set(ins, [data.position[j], data.scheduling[j]])
+        n = int(rng.choice([1, 2, 3, 5, 7, 10, 13, 25]))
+        for s in range(ticks, ticks + n):  # samples whose time lies in [t, t + h)
+            if s % N == 0:
+                used[s // N] = j
+        sim.slave.doStep(ticks * tick, n * tick)
+        ticks += n
+        log.append((ticks * tick, sim.get(outs)[0]))
+    sim.free()
+    k_max = int(np.max(np.nonzero(used >= 0)))
+    pos, rho = data.position[used[:k_max + 1]], data.scheduling[used[:k_max + 1]]
+    expected = model.predict(pos, rho, causal=True, warn=False).total  # what the samples saw
+    L = ex.latency_samples(model, "sampled") * T
+    checked = 0
+    for t, y in log:
+        k = int(math.ceil((t - L) / T - 1e-6)) - 1
+        if 0 <= k < k_max:  # sample k's torque needs sample k + 1's position
+            assert abs(y - expected[k]) < 1e-9 * np.max(np.abs(expected)), (t, k, y, expected[k])
+            checked += 1
+    assert checked > 100 and np.any(used[:k_max] != np.arange(k_max))  # stale inputs did occur
