@@ -1,7 +1,7 @@
 """FMU wrapper benchmark: memory over 2000 instantiate/reset/free cycles, build time, step rate.
 
 Uses the actuator FMU (FMI 2 and FMI 3; the wrapper's direct mode) and the exported model
-FMUs (sampled and exact variants, FMI 2 and 3; the wrapper's sampled mode) through fmpy's
+FMUs (sampled variant: the wrapper's sampled mode; exact: direct mode; FMI 2 and 3) through fmpy's
 FMU2Slave / FMU3Slave:
 
 - instance cycles: library loaded once; instantiate, initialize, step, get/serialize/
@@ -203,7 +203,8 @@ def main(argv=None):
                     f" {marks[-1] - start:>+8.2f} {1000 * dt / args.cycles:>9.3f}")
         out()
 
-        out(f"## Memory, model FMUs (sampled mode): {args.cycles} instance cycles (after 50 warm-up); RSS in MB")
+        out(f"## Memory, model FMUs (sampled: sampled mode; exact: direct): {args.cycles} instance cycles "
+            f"(after 50 warm-up); RSS in MB")
         out(f"{'FMU':<12} {'start':>8} {'25%':>8} {'50%':>8} {'75%':>8} {'100%':>8} {'growth':>8} {'ms/cycle':>9}")
         for (variant, v), path in model_fmus(tmp).items():
             md = read_model_description(str(path))

@@ -664,9 +664,9 @@ def fmu_constants(model, variant="causal"):
 
     T = 1.0 / float(model.fs)
     lat = latency_samples(model, variant)
-    when = (f"the torque of sample k is the output from the end of the communication step that starts at sample "
-            f"time k + {lat} (inputs taken at sample times)" if variant != "causal" else
-            "no delay: outputs have direct feedthrough of the inputs of the same communication point")
+    when = ("the torque of sample k is the output from the end of the communication step that starts at sample "
+            "time k + 1 (inputs taken at sample times)" if variant == "sampled" else
+            "outputs have direct feedthrough of the inputs set at the same communication point")
     return [FmuVariable("latency", "output", "s", f"output latency: {lat} sample(s) of {T!r} s; {when}",
                         lat * T, dependencies=[]),
             FmuVariable("sample_period", "output", "s", "model sample period 1/fs", T, dependencies=[])]
@@ -677,7 +677,7 @@ def fmu_variables(model, variant="causal"):
     from .fmu_build import FmuVariable
 
     _, _, _, deps = system_functions(model, variant)
-    if variant != "causal":  # sampled mode: outputs are held samples, none depends on the current inputs
+    if variant == "sampled":  # sampled mode: outputs are held samples, none depends on the current inputs
         deps = {name: [] for name in deps}
     outputs = [FmuVariable(name, "output", "N.m", text, dependencies=deps[name])
                for name, text in _OUTPUT_INFO.items()]
@@ -714,11 +714,8 @@ def fmu_description(model, variant="causal") -> str:
         text += ("Causal intrinsic IRF with current velocity and acceleration inputs: no added latency when the "
                  "master sets the inputs before reading the outputs. ")
     else:
-        T = 1.0 / float(model.fs)
-        text += (f"Exact two-sided intrinsic IRF: latency {lat} samples ({lat * T!r} s). Timing contract: the model "
-                 f"is sampled at t_start + k*{T!r} s; a communication step that starts at a sample time takes the "
-                 f"inputs set at its start, and from its end the outputs are the torque of {lat} samples earlier "
-                 f"(held; 0 before that; no direct feedthrough). ")
+        text += (f"Exact two-sided intrinsic IRF: outputs are the torque of {lat} samples earlier "
+                 f"(latency {lat / model.fs!r} s) with direct feedthrough of the current inputs; 0 before that. ")
     text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad is clamped to it. "
              "Parameters: identified coefficients (row-major, see variable descriptions).")
     if getattr(model, "effects", None):
@@ -746,7 +743,8 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     the DefaultExperiment step); outputs are the torque of the previous sample from the end
     of the step that starts at a sample time (see :func:`fmu_description`). ``"causal"`` and
     ``"exact"``: step size 1/fs, communication steps multiples of it, outputs with direct
-    feedthrough of the current inputs.
+    feedthrough of the current inputs (for masters that set inputs before reading outputs,
+    such as :mod:`lpvpc.validation`).
     ``timings`` (a dict) receives ``codegen``, ``compile`` and ``total`` seconds.
     ``fmi_type="me"``: a Model Exchange FMU of the same model instead, sampled with a time
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
@@ -784,8 +782,8 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
                 reuse_existing=reuse_existing,
                 timings=build_timings,
                 interface=fmi_type,
-                # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the position-input variants
-                ticks_per_sample=ticks_per_sample(model) if variant != "causal" and fmi_type == "cs" else 0,
+                # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the default variant
+                ticks_per_sample=ticks_per_sample(model) if variant == "sampled" and fmi_type == "cs" else 0,
                 constants=fmu_constants(model, variant),
             )
         except ExportError:

@@ -86,8 +86,8 @@ class Sim:
         return [self.vr[n] for n in names]
 
     @property
-    def sampled(self):  # the wrapper's sampled mode: the sampled and exact variants
-        return self.md.coSimulation.modelIdentifier != "lpvpc_model_causal"
+    def sampled(self):  # the wrapper's sampled mode: the default (sampled) variant
+        return self.md.coSimulation.modelIdentifier == "lpvpc_model"
 
     def replay(self, inputs, t0=0.0, h=0.01):
         """inputs: {name: array}; returns (n, 3) torque, torque_intrinsic, torque_reflex: read
@@ -162,7 +162,7 @@ def test_model_description(model, fmus, variant, fmi):
     path, _, timings = fmus[(variant, fmi)]
     md = read_model_description(path)
     assert md.fmiVersion == ("2.0" if fmi == 2 else "3.0")
-    tick = 1.0 / model.fs / (ex.ticks_per_sample(model) if variant != "causal" else 1)
+    tick = 1.0 / model.fs / (ex.ticks_per_sample(model) if variant == "sampled" else 1)
     assert float(md.defaultExperiment.stepSize) == pytest.approx(tick, rel=1e-15)
     assert f"lpvpc {__version__}" in md.description and model.model_hash in md.description
     variables = {v.name: v for v in md.modelVariables}
@@ -238,7 +238,7 @@ def test_fmpy_compile_rebuilds_from_sources(model, subject, fmus, tmp_path, vari
 def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fmi):
     path, unzipdir, _ = fmus[(variant, fmi)]
     h = 1.0 / model.fs
-    tick = h / (ex.ticks_per_sample(model) if variant != "causal" else 1)
+    tick = h / (ex.ticks_per_sample(model) if variant == "sampled" else 1)
     sim = Sim(path, unzipdir)
     errors = lambda: [m for s, m in sim.log if s >= 3]  # noqa: E731
 

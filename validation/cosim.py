@@ -101,8 +101,8 @@ def model_fmu_variant(info: FMUInfo) -> str:
 
 
 def model_fmu_sampled(info: FMUInfo) -> bool:
-    """True for an FMU in the wrapper's sampled mode (lpvpc.export's sampled and exact
-    variants): its outputs are those of earlier samples, held, read after a step."""
+    """True for an FMU in the wrapper's sampled mode (lpvpc.export's sampled variant): its
+    outputs are those of earlier samples, held, read after a step."""
     md = info.model_description
     period = next((float(v.start) for v in getattr(md, "modelVariables", ()) if v.name == "sample_period"), None)
     step = getattr(getattr(md, "defaultExperiment", None), "stepSize", None)
