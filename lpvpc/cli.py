@@ -41,7 +41,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import LpvpcError, OutOfRangeWarning, UnitWarning
+from .errors import LpvpcError, LpvpcWarning
 from .outputs import atomic_path, check_outputs, staged_folder, write_text
 
 PROG = "lpvpc"
@@ -212,12 +212,37 @@ def cmd_identify(args) -> int:
     vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
     print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
     print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
+    for line in _physical_summary(model):
+        print(line)
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
     print(f"time:        {elapsed:.2f} s")
     print(f"model:       {args.output} (hash {model.model_hash[:12]})")
     return 0
+
+
+def _physical_summary(model) -> list:
+    """Lines of the identified physiology: K(theta) at five positions, viscosity, reflex gain
+    and threshold at the ends of the range, basis orders (what a user checks first)."""
+    import numpy as np
+
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo, hi, 5) if hi - lo > 1e-6 else np.array([lo])
+    K, B = model.elastic_stiffness(rho), model.viscosity(rho)
+    gain, thr = model.reflex_gain_threshold(rho[[0, -1]])
+    at = lambda v, r: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, r))  # noqa: E731
+    fs_velocity = model.fs
+    bias = " (threshold biased: rectifier seen on 100 Hz-rate velocity)" if fs_velocity < 500 else ""
+    s = model.settings
+    return [
+        f"stiffness:   K(theta) {at(K, rho)} N m/rad",
+        f"viscosity:   B {B.min():.2f}..{B.max():.2f} N m s/rad",
+        f"reflex gain: {gain[0]:.2f} at {rho[0]:+.3f} .. {gain[-1]:.2f} at {rho[-1]:+.3f} N m s/rad; threshold "
+        f"{thr[0]:.3f} .. {thr[-1]:.3f} rad/s{bias}",
+        f"orders:      IRF lags {model.lags[0]}..{model.lags[-1]}, basis orders in position {s.get('intrinsic_order')} "
+        f"(intrinsic), {s.get('reflex_order')} (reflex), velocity {s.get('velocity_order')}",
+    ]
 
 
 def cmd_predict(args) -> int:
@@ -609,8 +634,10 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Identify an LPV-PC model (subspace method) and save it as JSON.")
     _add_data_args(p, "instead of --pt/--ut", several=True)
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--irf-length", type=_positive_float, metavar="S",
+                   help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g})")
     p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
-                   help=f"intrinsic IRF spans lags -L..L samples (default {d['irf_lags']})")
+                   help="intrinsic IRF spans lags -L..L samples (overrides --irf-length)")
     p.add_argument("--basis", choices=("chebyshev", "legendre", "gaussian"),
                    help=f"basis family in the scheduling variable (default {d['basis']})")
     p.add_argument("--intrinsic-order", type=int, metavar="N",
@@ -777,7 +804,7 @@ def _effect_names():
 
 def _show_warning(original):
     def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, (OutOfRangeWarning, UnitWarning)):
+        if issubclass(category, LpvpcWarning):
             print(f"{PROG}: warning: {_one_line(message)}", file=sys.stderr)
         else:
             original(message, category, filename, lineno, file, line)
@@ -839,8 +866,7 @@ def _run(args) -> int:
     if getattr(args, "verbose", False):
         _show_notes()
     with warnings.catch_warnings():
-        warnings.simplefilter("always", OutOfRangeWarning)
-        warnings.simplefilter("always", UnitWarning)
+        warnings.simplefilter("always", LpvpcWarning)
         warnings.showwarning = _show_warning(warnings.showwarning)
         try:
             return args.func(args)

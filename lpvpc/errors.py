@@ -58,9 +58,23 @@ class FMUError(LpvpcError, RuntimeError):
     exit_status = 2
 
 
-class OutOfRangeWarning(UserWarning):
+class LpvpcWarning(UserWarning):
+    """Base class of the warnings lpvpc issues on purpose (the CLI prints each as one line)."""
+
+
+class OutOfRangeWarning(LpvpcWarning):
     """Scheduling or velocity values lie outside the range the model was identified on."""
 
 
-class UnitWarning(UserWarning):
+class UnitWarning(LpvpcWarning):
     """Values look like they are in other units than the ones declared (e.g. degrees)."""
+
+
+class PhysiologyWarning(LpvpcWarning):
+    """An identified model is physiologically implausible (e.g. negative elastic stiffness
+    over most of the range: usually a reversed torque sign convention)."""
+
+
+class StationaryWarning(LpvpcWarning):
+    """The scheduling variable does not vary: a position-independent (LTI) parallel cascade
+    was identified instead of the LPV model."""

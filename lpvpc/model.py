@@ -184,6 +184,15 @@ class LPVPCModel:
         """Low-frequency intrinsic gain K(rho) in N m/rad: the sum of the IRF weights."""
         return self.irf_weights(rho).sum(axis=1)
 
+    def viscosity(self, rho):
+        """Intrinsic viscosity B(rho) in N m s/rad: minus the first moment of the IRF
+        (sum_l h_l e^{-s l T} = K + B s + I s^2 + ... for slow inputs)."""
+        return -(self.irf_weights(rho) @ np.asarray(self.lags, dtype=float)) / self.fs
+
+    def inertia(self, rho):
+        """Intrinsic inertia I(rho) in kg m^2: half the second moment of the IRF times T^2."""
+        return 0.5 * (self.irf_weights(rho) @ np.asarray(self.lags, dtype=float) ** 2) / self.fs**2
+
     def intrinsic_frequency_response(self, freqs, rho):
         """Complex intrinsic frequency response (N m/rad), shape (len(rho), len(freqs)) (Fig. 4)."""
         w = 2 * np.pi * np.asarray(freqs, dtype=float) / self.fs

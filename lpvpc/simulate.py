@@ -742,7 +742,14 @@ class SimulatedPair:
     components: dict
 
 
-_TRAJECTORIES = {"multilevel": (0, multilevel_trajectory), "novel": (1, novel_trajectory)}
+def stationary_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
+                          position: float = -0.1) -> np.ndarray:
+    """One operating position held for the whole trial (rad; a stationary experiment)."""
+    return np.full(_n_samples(duration, fs), float(position))
+
+
+_TRAJECTORIES = {"multilevel": (0, multilevel_trajectory), "novel": (1, novel_trajectory),
+                 "stationary": (2, stationary_trajectory)}
 
 
 def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
@@ -800,8 +807,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
                   effects=(), emg_unit: str = "V") -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
-    ``trajectory``: "multilevel" (identification) or "novel" (held-out shapes that also
-    leave the identified range briefly). ``seed`` selects all random streams (trajectory,
+    ``trajectory``: "multilevel" (identification), "novel" (held-out shapes that also
+    leave the identified range briefly) or "stationary" (one position, -0.1 rad). ``seed`` selects all random streams (trajectory,
     PRALDS, noise, effects); the novel trajectory uses a different stream than the
     multilevel one for the same seed. ``duration`` s; ``fs_out`` Hz must divide 1000
     (1000: no decimation; 100: ``scipy.signal.decimate(q=10, ftype='fir', zero_phase=True)``).

@@ -154,7 +154,7 @@ def test_save_load_round_trips_exactly(model, model_file, subject):
     assert loaded.model_hash == model.model_hash
     d = loaded.to_dict()
     assert d["provenance"]["data_hash"] == subject["ident"].data_hash
-    assert d["settings"]["irf_lags"] == 3 and d["fs"] == 100.0
+    assert d["settings"]["irf_lags"] == 4 and d["fs"] == 100.0  # irf_length 0.04 s at 100 Hz
 
 
 @pytest.mark.parametrize(
@@ -201,11 +201,11 @@ def test_zero_perturbation_is_insufficient_excitation():
         identify(_data(position=np.zeros(3000)))
 
 
-def test_constant_scheduling_makes_the_regressor_rank_deficient(subject):
+def test_constant_scheduling_with_forced_lpv_orders_is_rank_deficient(subject):
     d = subject["ident"]
     const = PerturbationData(position=d.position, torque=d.torque, scheduling=np.full(d.n, -0.1), fs=d.fs)
     with pytest.raises(InsufficientExcitationError, match="rank-deficient intrinsic regressor: rank"):
-        identify(const, state_order=2)
+        identify(const, state_order=2, stationary_range=0.0)  # automatic LTI switched off
 
 
 def test_non_finite_identification_data_names_channel_and_index():
@@ -238,3 +238,41 @@ def test_identify_with_hinge_velocity_basis(subject):
     got = vaf(subject["novel"].torque, predict_quiet(model, subject["novel"]).total)
     assert got > ceiling - 1.0, f"hinge basis: novel VAF {got:.2f} % vs ceiling {ceiling:.2f} %"
     assert LPVPCModel.from_dict(json.loads(json.dumps(model.to_dict()))).velocity_basis.family == "hinge"
+
+
+# -- physiology and stationary trials (issue 10) --------------------------------------------
+def test_reversed_torque_sign_warns_with_the_option_to_use(subject):
+    from lpvpc.errors import PhysiologyWarning
+
+    d = subject["ident"]
+    flipped = PerturbationData(position=d.position, torque=-d.torque, scheduling=d.scheduling, fs=d.fs)
+    with pytest.warns(PhysiologyWarning, match=r"negative over 100 % .*--torque-sign -1"):
+        m = identify(flipped, state_order=2)
+    assert np.all(m.elastic_stiffness(central_rho(m)) < 0)
+
+
+def test_correct_torque_sign_gives_no_physiology_warning(model):
+    from lpvpc.errors import PhysiologyWarning
+    from lpvpc.identify import check_physiology
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysiologyWarning)
+        check_physiology(model)
+
+
+def test_stationary_trial_identifies_the_lti_cascade():
+    from lpvpc.errors import StationaryWarning
+
+    pair = simulate_pair("stationary", seed=3, duration=60.0)
+    d = pair_trials(pair.pt, pair.ut)
+    k = int(0.7 * d.n)
+    with pytest.warns(StationaryWarning, match="position-independent \\(LTI\\) parallel cascade"):
+        m = identify(d.segment(0, k))
+    assert m.fit["stationary"] and m.settings["intrinsic_order"] == m.settings["reflex_order"] == 0
+    held = d.segment(k, None)
+    clean = pair_trials(pair.pt_clean, pair.ut_clean).segment(k, None)
+    ceiling = vaf(held.torque, clean.torque)
+    got = vaf(held.torque, m.predict(held.position, held.scheduling, warn=False).total)
+    assert got > ceiling - 1.5, f"held-out VAF {got:.2f} % vs noise ceiling {ceiling:.2f} %"
+    K = m.elastic_stiffness([-0.1])[0]
+    assert abs(K / TRUTH.K(-0.1) - 1) < 0.15, f"K {K:.1f} vs truth {TRUTH.K(-0.1):.1f} N m/rad"
