@@ -565,11 +565,12 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
         if z is None:
             z = model.reflex_drive(position, scheduling)
         reflex = (model.A, model.B, model.C, z)
+    if causal:  # the causal form's inputs as replayed into the FMU: the model's stencil unless given
+        v_est, a_est = eq.derivatives(position, model.fs, model.causal_derivatives)
+        velocity = v_est if velocity is None else velocity
+        acceleration = a_est if acceleration is None else acceleration
     ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex)
     lags = model.causal_lags if causal else model.lags
-    if causal:
-        velocity = eq.velocity(position, model.fs) if velocity is None else velocity
-        acceleration = eq.acceleration(position, model.fs) if acceleration is None else acceleration
     Gi = model.intrinsic_basis.evaluate(scheduling)
     out = {fe.name: (fe.effect.pathway, np.zeros(n)) for fe in model.effects}
     for a, b in eq.blocks(n, len(lags) + 2):  # bounded memory for any record length
@@ -633,10 +634,10 @@ def effect_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
     return Basis(family=family, order=effect.feature_order, lo=rho_basis.lo, hi=rho_basis.hi)
 
 
-def causal_irf(position, fs, causal_lags, sched_values, two_sided_torque):
+def causal_irf(position, fs, causal_lags, sched_values, two_sided_torque, stencil="central3"):
     """Causal IRF coefficients (Lc + 3, n_s) fitted to a two-sided IRF torque (as the
-    base model's H_causal)."""
-    S_c = eq.causal_signals(position, fs, causal_lags)
+    base model's H_causal; ``stencil`` of the velocity and acceleration as the model's)."""
+    S_c = eq.causal_signals(position, fs, causal_lags, stencil=stencil)
     Psi_c = _kron_rows(S_c, sched_values)
     return np.linalg.lstsq(Psi_c, two_sided_torque, rcond=None)[0].reshape(S_c.shape[1], sched_values.shape[1])
 
@@ -701,7 +702,7 @@ class EffectDesign:
             blocks.append((e.name, "static", static.shape[1]))
         return np.hstack(cols), blocks
 
-    def fitted(self, theta, blocks, causal_lags) -> list:
+    def fitted(self, theta, blocks, causal_lags, stencil="central3") -> list:
         """FittedEffect terms from the coefficients of ``blocks`` (in column order)."""
         out, offset = {}, 0
         for name, kind, width in blocks:
@@ -715,7 +716,7 @@ class EffectDesign:
                 fe.H = H
                 sched = np.column_stack([c * self.channel_values[name] for c in e.channels(self._ctx, NUMPY)])
                 two_sided = eq.intrinsic_torque(eq.lagged(self.position, self.lags), sched, H)
-                fe.H_causal = causal_irf(self.position, self.fs, causal_lags, sched, two_sided)
+                fe.H_causal = causal_irf(self.position, self.fs, causal_lags, sched, two_sided, stencil)
             else:
                 fe.Theta = coef.reshape(-1, self.bases[name].size - (0 if e.feature_constant else 1))
         return [out[n] for n in self.names if n in out]
@@ -727,7 +728,7 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
     if there are reflex-pathway effects, re-solve the intrinsic part, the intrinsic effects
     and the reflex effects jointly with the identified reflex held. Updates ``model``
     (H, H_causal, effects) in place."""
-    effects = design.fitted(theta_effects, design.blocks, model.causal_lags)
+    effects = design.fitted(theta_effects, design.blocks, model.causal_lags, model.causal_derivatives)
     if design.reflex_effects:
         model.effects = []
         X_r, blocks_r = design.reflex_columns(model)
@@ -738,10 +739,11 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         theta = np.linalg.lstsq(X / scale, y - tq_r, rcond=None)[0] / scale
         n_b = Psi_i_base.shape[1]
         model.H = theta[:n_b].reshape(model.H.shape)
-        model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val, Psi_i_base @ theta[:n_b])
+        model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val, Psi_i_base @ theta[:n_b],
+                                    model.causal_derivatives)
         n_e = design.columns.shape[1]
         effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
-                                design.blocks + blocks_r, model.causal_lags)
+                                design.blocks + blocks_r, model.causal_lags, model.causal_derivatives)
     model.effects = effects
     if "effects" in model.settings:  # JSON form (a list), so that save/load round-trips exactly
         model.settings["effects"] = list(model.settings["effects"])

@@ -539,16 +539,16 @@ def trajectory_function(step_or_path, n: int):
 
 
 def replay_inputs(model, position, scheduling, variant="causal", signals=None) -> dict:
-    """Named rows for :func:`trajectory_function` from a record (velocity/acceleration as
-    central differences for the causal variant, as in ``model.predict(causal=True)``).
+    """Named rows for :func:`trajectory_function` from a record (velocity/acceleration by
+    the model's difference stencil for the causal variant, as in ``model.predict(causal=True)``).
     ``signals``: the extra channels of an extended model (as for ``model.predict``;
     ``trial_time`` and ``scheduling_velocity`` default as there)."""
     position = np.asarray(position, dtype=float)
     scheduling = np.asarray(scheduling, dtype=float)
     args = {"position": position[None, :], "scheduling": scheduling[None, :]}
     if variant == "causal":
-        args["velocity"] = eq.velocity(position, model.fs)[None, :]
-        args["acceleration"] = eq.acceleration(position, model.fs)[None, :]
+        vel, acc = eq.derivatives(position, model.fs, model.causal_derivatives)
+        args["velocity"], args["acceleration"] = vel[None, :], acc[None, :]
     names = _effect_signals(model)
     if names:
         from .effects import check_signals, default_signals

@@ -56,6 +56,11 @@ class LPVPCEstimator:
     min_state_order, max_state_order : range of orders considered when choosing.
     horizon : block rows s of the MOESP Hankel matrices.
     causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
+    causal_derivatives : offline velocity/acceleration estimate of the causal form,
+        "central3" (3-point differences; default: what the validation harness's
+        co-simulation master supplies) or "central5" (5-point: on the lab's pilot trial the
+        causal form then loses 1.2 instead of 4.3 points; needs p(k+2)): see
+        :data:`lpvpc.equations.DERIVATIVE_STENCILS`.
     refine : refine the MOESP poles by variable projection (see module docstring).
     tol, max_iter : stopping rule of the separable least squares.
     stationary_range : when the scheduling variable spans less than this (rad), the trial is
@@ -87,10 +92,12 @@ class LPVPCEstimator:
         effects: tuple = (),
         irf_length: float = 0.040,
         stationary_range: float = 0.010,
+        causal_derivatives: str = "central3",
     ):
         self.irf_lags = irf_lags
         self.irf_length = irf_length
         self.stationary_range = stationary_range
+        self.causal_derivatives = causal_derivatives
         self.basis = basis
         self.intrinsic_order = intrinsic_order
         self.reflex_order = reflex_order
@@ -111,7 +118,7 @@ class LPVPCEstimator:
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
-            "effects", "irf_length", "stationary_range")}
+            "effects", "irf_length", "stationary_range", "causal_derivatives")}
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -190,7 +197,7 @@ class LPVPCEstimator:
         n_base = len(lags) * G_i.size  # the rest of theta_i belongs to effects
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
         causal = list(range(0, (self.causal_lags if self.causal_lags is not None else L + 2) + 1))
-        S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal)
+        S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
         Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
         H_causal = np.linalg.lstsq(Psi_c, Psi_i[:, :n_base] @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
 
@@ -198,7 +205,7 @@ class LPVPCEstimator:
         model = LPVPCModel(
             fs=fs, lags=lags, H=H, intrinsic_basis=G_i, causal_lags=causal, H_causal=H_causal, delay=delay,
             velocity_basis=V_b, reflex_rho_basis=G_r, Omega=hf.omega.reshape(V_b.size, G_r.size),
-            A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d,
+            A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
             settings={**self.get_params(), "irf_lags": L, **rho_orders},  # as used at this rate and range
             provenance=_provenance(data),
             conventions=_conventions(data),

@@ -8,7 +8,8 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
     fs                  sampling rate (Hz) the model runs at
     intrinsic           {"lags": [-L..L], "H": n_lags x n_i (N m/rad), "basis": Basis,
                          "causal_lags": [0..Lc], "H_causal": (Lc + 3) x n_i: lags 0..Lc,
-                         then velocity and acceleration at k}
+                         then velocity and acceleration at k, "derivatives": their
+                         offline estimate, "central3" or "central5" (absent: central3)}
     reflex              {"delay": samples, "velocity_basis": Basis, "rho_basis": Basis,
                          "Omega": n_v x n_r, "A": m x m, "B": m, "C": m, "D": scalar}
     identified_ranges   {"scheduling": [lo, hi] (rad), "velocity": [lo, hi] (rad/s)}
@@ -83,6 +84,7 @@ class LPVPCModel:
     conventions: dict = field(default_factory=dict)
     fit: dict = field(default_factory=dict)
     effects: list = field(default_factory=list)  # lpvpc.effects.FittedEffect terms (extended models)
+    causal_derivatives: str = "central3"  # stencil of the causal form's velocity/acceleration
 
     # -- prediction ---------------------------------------------------------------------
     @property
@@ -112,7 +114,8 @@ class LPVPCModel:
 
         ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
         velocity and acceleration) that the default FMU runs without latency; velocity
-        (rad/s) and acceleration (rad/s^2) default to central differences of ``position``.
+        (rad/s) and acceleration (rad/s^2) default to the model's difference stencil of
+        ``position`` (``causal_derivatives``: 5-point central for new models).
         The default uses the identified two-sided IRF. ``signals``: the extra channels an
         extended model needs (``self.signals``; e.g. ``{"emg": ...}``), N samples each;
         ``trial_time`` defaults to k / fs and ``scheduling_velocity`` to the gradient of
@@ -141,10 +144,11 @@ class LPVPCModel:
                 stacklevel=2,
             )
         lags, H = (self.causal_lags, self.H_causal) if causal else (self.lags, self.H)
-        if causal:  # whole-record differences, unless given
-            velocity = eq.velocity(position, self.fs) if velocity is None else np.asarray(velocity, dtype=float)
-            acceleration = (eq.acceleration(position, self.fs) if acceleration is None
-                            else np.asarray(acceleration, dtype=float))
+        if causal:  # whole-record differences by the model's stencil, unless given
+            v_est, a_est = (eq.derivatives(position, self.fs, self.causal_derivatives)
+                            if velocity is None or acceleration is None else (None, None))
+            velocity = v_est if velocity is None else np.asarray(velocity, dtype=float)
+            acceleration = a_est if acceleration is None else np.asarray(acceleration, dtype=float)
         Gi = self.intrinsic_basis.evaluate(scheduling)
         tq_i = np.zeros(len(position))
         for a, b in eq.blocks(len(position), H.shape[0]):  # bounded memory for any record length
@@ -257,6 +261,7 @@ class LPVPCModel:
                 "basis": self.intrinsic_basis.to_dict(),
                 "causal_lags": list(map(int, self.causal_lags)),
                 "H_causal": self.H_causal.tolist(),
+                "derivatives": self.causal_derivatives,
             },
             "reflex": {
                 "delay": int(self.delay),
@@ -293,6 +298,7 @@ class LPVPCModel:
                 intrinsic_basis=Basis.from_dict(intr["basis"]),
                 causal_lags=[int(x) for x in intr["causal_lags"]],
                 H_causal=np.array(intr["H_causal"], dtype=float),
+                causal_derivatives=intr.get("derivatives", "central3"),  # files before it: central3
                 delay=int(refl["delay"]),
                 velocity_basis=Basis.from_dict(refl["velocity_basis"]),
                 reflex_rho_basis=Basis.from_dict(refl["rho_basis"]),
@@ -324,6 +330,8 @@ class LPVPCModel:
             problems.append(f"intrinsic H_causal has shape {self.H_causal.shape}, expected {(len(self.causal_lags) + 2, n_i)}")
         if min(self.causal_lags, default=0) < 0:
             problems.append("causal_lags must be non-negative")
+        if self.causal_derivatives not in eq.DERIVATIVE_STENCILS:
+            problems.append(f"intrinsic derivatives {self.causal_derivatives!r} is not one of {eq.DERIVATIVE_STENCILS}")
         if self.Omega.shape != (n_v, n_r):
             problems.append(f"reflex Omega has shape {self.Omega.shape}, expected {(n_v, n_r)}")
         if m < 1 or self.A.shape != (m, m) or self.B.shape != (m,) or self.C.shape != (m,):

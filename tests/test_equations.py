@@ -1,6 +1,7 @@
 """The shared model equations: record edges."""
 
 import numpy as np
+import pytest
 
 from lpvpc import equations as eq
 
@@ -23,3 +24,17 @@ def test_held_end_removes_the_spurious_step_from_the_two_sided_prediction(model,
     err = d.torque - model.predict(d.position, d.scheduling, warn=False).total
     assert abs(d.position[-1]) > 0.005
     assert np.max(np.abs(err[-4:])) < 4 * np.std(err)
+
+
+def test_five_point_derivatives_are_exact_for_quartics_inside_the_record():
+    fs = 100.0
+    t = np.arange(40) / fs
+    p = 0.3 * t**4 - 0.2 * t**3 + t**2 - 0.5 * t
+    v, a = eq.derivatives(p, fs, "central5")
+    inner = slice(2, -2)
+    np.testing.assert_allclose(v[inner], (1.2 * t**3 - 0.6 * t**2 + 2 * t - 0.5)[inner], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a[inner], (3.6 * t**2 - 1.2 * t + 2)[inner], rtol=0, atol=1e-7)
+    v3, a3 = eq.derivatives(p, fs, "central3")
+    assert np.array_equal(v3, eq.velocity(p, fs)) and np.array_equal(a3, eq.acceleration(p, fs))
+    with pytest.raises(ValueError, match="unknown derivative stencil"):
+        eq.derivatives(p, fs, "spline")

@@ -276,3 +276,28 @@ def test_stationary_trial_identifies_the_lti_cascade():
     assert got > ceiling - 1.5, f"held-out VAF {got:.2f} % vs noise ceiling {ceiling:.2f} %"
     K = m.elastic_stiffness([-0.1])[0]
     assert abs(K / TRUTH.K(-0.1) - 1) < 0.15, f"K {K:.1f} vs truth {TRUTH.K(-0.1):.1f} N m/rad"
+
+
+def test_model_files_from_before_the_derivative_stencil_load_as_three_point(model, model_file, tmp_path, subject):
+    d = json.loads(model_file.read_text())
+    assert d["intrinsic"].pop("derivatives") == model.causal_derivatives
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(d))
+    loaded = LPVPCModel.load(old)
+    assert loaded.causal_derivatives == "central3"
+    nv = subject["novel"]
+    got = predict_quiet(loaded, nv, causal=True).total
+    from lpvpc import equations as eq
+
+    vel, acc = eq.velocity(nv.position, nv.fs), eq.acceleration(nv.position, nv.fs)
+    np.testing.assert_array_equal(got, predict_quiet(model, nv, causal=True, velocity=vel, acceleration=acc).total)
+
+
+def test_five_point_causal_form_is_closer_to_the_two_sided_model(subject, model):
+    m5 = identify(subject["ident"], causal_derivatives="central5")
+    assert m5.causal_derivatives == "central5" and LPVPCModel.from_dict(m5.to_dict()).causal_derivatives == "central5"
+    nv = subject["novel"]
+    two = vaf(nv.torque, predict_quiet(m5, nv).total)
+    c3 = vaf(nv.torque, predict_quiet(model, nv, causal=True).total)
+    c5 = vaf(nv.torque, predict_quiet(m5, nv, causal=True).total)
+    assert two - c5 < two - c3 and two - c5 < 0.3, (two, c3, c5)

@@ -113,7 +113,7 @@ def test_validate_writes_report_metrics_and_figures(full):
     assert "report:" in full["out"] and "result:      pass" in full["out"]
 
 
-def test_vaf_of_every_route_against_the_noise_ceiling(full, subject):
+def test_vaf_of_every_route_against_the_noise_ceiling(full, subject, model):
     """The noise ceiling is the VAF of the true noise-free perturbation torque on the same
     noisy record."""
     m = full["metrics"]
@@ -124,7 +124,7 @@ def test_vaf_of_every_route_against_the_noise_ceiling(full, subject):
     # of L samples removed when comparing, and in the loop its torque loads the actuator L
     # steps late) with the command band-limited to the model's band: all three routes land
     # within 1 point (measured: ceiling 98.21, vaf 97.9, vaf_fmu = vaf, vaf_cosim 97.8).
-    assert m["cosim"]["model_fmu_variant"] == "exact" and m["cosim"]["model_fmu_latency_samples"] == 3
+    assert m["cosim"]["model_fmu_variant"] == "exact" and m["cosim"]["model_fmu_latency_samples"] == model.lags[-1]
     assert m["cosim"]["settings"]["band_limit_command"] is True
     assert m["vaf_fmu"] == pytest.approx(m["vaf"], abs=1e-9)
     assert m["vaf_fmu"] >= ceiling - 1.0, (m["vaf_fmu"], ceiling)
@@ -374,7 +374,7 @@ def test_exact_fmu_in_the_loop_loads_the_actuator_with_its_latency(full, short, 
     drive = _drive(short)
     r = run_cosimulation(m_ex, act, drive, actuator_parameters=full["metrics"]["cosim"]["actuator_parameters"],
                          latency=lat)
-    assert r.variant == "exact" and r.latency == lat == 3
+    assert r.variant == "exact" and r.latency == lat == model.lags[-1]
     assert len(r.torque) == drive.n_model and np.all(np.isfinite(r.torque))
     assert np.array_equal(r.load_pt_model[lat:], r.torque[:-lat]) and np.all(r.load_pt_model[:lat] == 0.0)
     assert "model.velocity" not in dict(r.connections)
