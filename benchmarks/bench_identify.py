@@ -7,6 +7,10 @@
   range(Psi_r)) versus the literal formula with explicit pseudo-inverses and the N x N
   projector, at N = 12,000: time ratio and largest difference.
 
+- issue 10's speed floor: identification against a bare least-squares solve of the same
+  regressor, and load + identify from 1 kHz files against 100 Hz files (``--floor`` runs
+  only this, into benchmarks/results/identify_floor.txt).
+
 Run: python benchmarks/bench_identify.py   (writes benchmarks/results/identify.txt)
 """
 
@@ -60,7 +64,8 @@ def projection_comparison():
     est = LPVPCEstimator()
     p, y, rho = data.position, data.torque, data.scheduling
     dvel = eq.delayed_velocity(p, data.fs, 4)
-    Psi_i = intrinsic_regressor(p, basis_from_data(rho, "chebyshev", est.intrinsic_order).evaluate(rho), two_sided_lags(est.irf_lags))
+    Psi_i = intrinsic_regressor(p, basis_from_data(rho, "chebyshev", est.intrinsic_order).evaluate(rho),
+                                two_sided_lags(est.resolved_lags(data.fs)))
     U_r = reflex_input_regressor(basis_from_data(dvel, "chebyshev", est.velocity_order, "linear").evaluate(dvel),
                                  basis_from_data(rho, "chebyshev", est.reflex_order).evaluate(rho))
     A = np.array([[1.8, 1.0], [-0.82, 0.0]])
@@ -79,9 +84,71 @@ def projection_comparison():
             "max_rel_diff": float(np.max(np.abs(fast - direct)) / np.max(np.abs(direct)))}
 
 
+def _median_time(fn, runs=3):
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)), out
+
+
+def speed_floor() -> list:
+    """Issue 10's speed floor, measured in one run: (a) identification of a 2-minute 100 Hz
+    record against a bare least-squares solve of the same regressor (the intrinsic Psi_i and
+    the reflex Psi_r built with the identified A, C: everything the identification estimates
+    once the reflex poles are known); (b) the whole load + identify from 1 kHz files against
+    the same from 100 Hz files of the same record."""
+    import tempfile
+
+    from lpvpc import equations as eq
+    from lpvpc.data import load_identification_data, write_trial_csv
+    from lpvpc.identify import identify
+    from lpvpc.intrinsic import intrinsic_regressor
+    from lpvpc.reflex import reflex_input_regressor, reflex_regressor
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=0, duration=120.0, fs_out=1000.0)
+    pair100 = simulate_pair("multilevel", seed=0, duration=120.0, fs_out=100.0)
+    lines = []
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = {}
+        for tag, pr in (("1k", pair), ("100", pair100)):
+            paths[tag] = (Path(tmp) / f"PT_{tag}.csv", Path(tmp) / f"UT_{tag}.csv")
+            write_trial_csv(pr.pt, paths[tag][0])
+            write_trial_csv(pr.ut, paths[tag][1])
+
+        def from_files(tag):
+            d = load_identification_data(pt=paths[tag][0], ut=paths[tag][1])
+            return d, identify(d)
+
+        for _ in range(2):  # alternate, so that load changes hit both alike
+            t100, (data, model) = _median_time(lambda: from_files("100"))
+            t1k, (data1k, model1k) = _median_time(lambda: from_files("1k"))
+    t_ident, _ = _median_time(lambda: identify(data))
+    p, y, rho, fs = data.position, data.torque, data.scheduling, data.fs
+    dvel = eq.delayed_velocity(p, fs, model.delay)
+    Psi_i = intrinsic_regressor(p, model.intrinsic_basis.evaluate(rho), model.lags)
+    U_r = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
+    X = np.hstack([Psi_i] + reflex_regressor(U_r, model.A, model.C[None, :]))
+    t_ls, _ = _median_time(lambda: np.linalg.lstsq(X, y, rcond=None))
+    lines.append(f"Speed floor (issue 10), one run, medians of 3: identify a 2-minute 100 Hz record {t_ident:.2f} s; "
+                 f"bare least-squares solve of its regressor ({X.shape[0]} x {X.shape[1]}, numpy lstsq) {t_ls:.3f} s: "
+                 f"ratio {t_ident / t_ls:.1f}x (floor 3x)")
+    lines.append(f"From files, load + identify: 100 Hz CSV {t100:.2f} s, 1 kHz CSV (decimated to 100 Hz) {t1k:.2f} s: "
+                 f"ratio {t1k / t100:.2f}x (floor 3x); same model rate {model1k.fs:g} Hz, VAF {model1k.fit['vaf']:.2f} / "
+                 f"{model.fit['vaf']:.2f} %")
+    return lines
+
+
 def main():
     if len(sys.argv) > 2 and sys.argv[1] == "--one":
         one_length(float(sys.argv[2]))
+        return
+    if len(sys.argv) > 1 and sys.argv[1] == "--floor":
+        text = "\n".join(speed_floor()) + "\n"
+        print(text)
+        (ROOT / "benchmarks" / "results" / "identify_floor.txt").write_text(text)
         return
     from lpvpc.identify import identify
 
@@ -112,6 +179,7 @@ def main():
     pc = projection_comparison()
     lines.append(f"Projection (27)-(28) at N = {pc['n']}: lpvpc {1000 * pc['t_lpvpc_s']:.1f} ms, literal pinv formula "
                  f"{pc['t_pinv_s']:.2f} s, ratio {pc['ratio']:.0f}x, max relative difference {pc['max_rel_diff']:.1e}")
+    lines += [""] + speed_floor()
     # Timings depend on what else runs on the machine: record the conditions with them.
     lines += ["", f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
                   f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "

@@ -28,6 +28,7 @@ import stat
 
 import numpy as np
 
+from .equations import DERIVATIVE_STENCILS
 from .errors import ModelFileError
 
 # --------------------------------------------------------------------------- limits
@@ -277,6 +278,8 @@ def _check_intrinsic(x, where, problems, d, budget):
     _shape(_array(s.get("H"), f"{where}.H", problems, 2, budget), (len(lags), n_i), f"{where}.H", problems)
     _shape(_array(s.get("H_causal"), f"{where}.H_causal", problems, 2, budget), (len(causal) + 2, n_i),
            f"{where}.H_causal", problems)
+    if s.get("derivatives", "central3") not in DERIVATIVE_STENCILS:  # absent in older files: central3
+        problems.append(f"{where}.derivatives = {_show(s.get('derivatives'))} is not one of {DERIVATIVE_STENCILS}")
 
 
 def _check_reflex(x, where, problems, d, budget):
