@@ -2,11 +2,11 @@
 
 Data: ``experimental_data.mat`` of the lab's public recordings (MATLAB ``nldat`` objects
 ``z_df``, ``z_pf``, ``z_df2``, ``z_df3``, ``z_pf2``; channels ``pos1``, ``tq1``; 1 kHz;
-read with the ``mat-io`` package). A stationary trial has no UT trial; two constructions
-of the perturbation data are run:
+read by the package's .mat reader, which uses the ``mat-io`` package). A stationary trial
+has no UT trial; two constructions of the perturbation data are run:
 
-- "means removed": perturbation = position - its mean, torque as recorded, scheduling
-  = the mean position (constant);
+- "means removed": the package's stationary reading (``lpvpc.data.stationary_perturbation``,
+  ``--stationary``): position and torque minus their means, scheduling = the mean position;
 - "0.3 Hz trend removed": the slow part of position and torque (zero-phase 2nd-order
   Butterworth below 0.3 Hz) plays the UT trial's role and is subtracted from both.
 
@@ -37,7 +37,7 @@ sys.path.insert(0, str(HERE))
 from flexible_fit import FlexibleFit  # noqa: E402
 from real_data import require  # noqa: E402
 
-from lpvpc.data import PerturbationData, Trial, decimate_trial  # noqa: E402
+from lpvpc.data import PerturbationData, Trial, decimate_trial, load_trial, stationary_perturbation  # noqa: E402
 from lpvpc.errors import StationaryWarning  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
@@ -47,29 +47,25 @@ TREND_HZ = 0.3
 
 
 def load(path):
+    """The trials through the package's own .mat reader (lpvpc.data.load_trial: nldat objects
+    via mat-io), torque negated."""
     try:
-        import matio
+        import matio  # noqa: F401
     except ImportError:
         print("skipped: the mat-io package is not installed (pip install mat-io)")
         sys.exit(0)
-    mat = matio.load_from_mat(str(path))
-    out = {}
-    for name in NAMES:
-        props = mat[name].properties
-        x = np.asarray(props["dataSet"], dtype=float)
-        out[name] = (x[:, 0], -x[:, 1], float(np.ravel(props["domainIncr"])[0]))
-    return out
+    return {name: load_trial(path, variable=name, channels={"position": "pos1", "torque": "tq1"}, torque_sign=-1)
+            for name in NAMES}
 
 
-def perturbation(pos, tq, T, construction, name):
-    if construction == "means removed":
-        p, y = pos - pos.mean(), tq
-    else:
-        b, a = scipy.signal.butter(2, TREND_HZ, fs=1.0 / T)
-        p, y = pos - scipy.signal.filtfilt(b, a, pos), tq - scipy.signal.filtfilt(b, a, tq)
-    t = np.arange(len(pos)) * T
-    low = decimate_trial(Trial(t, p, y, {"scheduling": np.full_like(pos, pos.mean())}, name=name), 100.0)
-    return PerturbationData(low.position, low.torque, low.channels["scheduling"], 100.0, source=name)
+def perturbation(trial, construction):
+    if construction == "means removed":  # the package's stationary reading (lpvpc.data.stationary_perturbation)
+        return stationary_perturbation(trial, target_fs=100.0)
+    pos, tq = trial.position, trial.torque
+    b, a = scipy.signal.butter(2, TREND_HZ, fs=trial.fs)
+    p, y = pos - scipy.signal.filtfilt(b, a, pos), tq - scipy.signal.filtfilt(b, a, tq)
+    low = decimate_trial(Trial(trial.time, p, y, {"scheduling": np.full_like(pos, pos.mean())}, name=trial.name), 100.0)
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], 100.0, source=trial.name)
 
 
 def main():
@@ -81,8 +77,8 @@ def main():
     for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
         diffs = []
         for name in NAMES:
-            pos, tq, T = trials[name]
-            d = perturbation(pos, tq, T, construction, name)
+            d = perturbation(trials[name], construction)
+            pos = trials[name].position
             k = int(0.7 * d.n)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
