@@ -600,7 +600,7 @@ def _add_data_args(p, what, several: bool = False):
                    help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
     p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
                    help="channel of a .mat file for a role (position, torque, scheduling, time, emg, command), "
-                        "e.g. --channel torque=tq1 or --channel scheduling=sv.'Ankle Position (rad)' (repeatable)")
+                        "e.g. --channel torque=tq1 or --channel 'scheduling=sv.Ankle Position (rad)' (repeatable)")
 
 
 def build_parser() -> argparse.ArgumentParser:
