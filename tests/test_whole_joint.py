@@ -136,3 +136,44 @@ def test_cli_whole_joint_writes_model_and_fmu(subject, model_file, tmp_path):
         rc = main(["whole-joint", str(model_file), "--ut", str(subject["folder"] / "ident_UT.csv"),
                    "-o", str(tmp_path / "wj2.json"), "--cutoff", "70"])
     assert rc == 2 and err.getvalue().startswith("lpvpc: error: ") and "cutoff" in err.getvalue()
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_whole_joint_fmu_refuses_wrong_calls_and_survives_cycles(wj, tmp_path, fmi):
+    """The whole-joint FMU runs on the project's wrapper: wrong calls return an error status and
+    log why (NaN angle, a step that is not a multiple of 1/fs, a parameter after initialization);
+    200 instantiate/initialize/step/free cycles keep memory bounded."""
+    import os
+
+    from lpvpc.errors import FMUError
+    from lpvpc.validation.fmu import FMUInstance, inspect_fmu
+
+    info = inspect_fmu(W.export_whole_joint_fmu(wj, tmp_path / "wj.fmu", fmi), "whole-joint FMU")
+    h = 1.0 / wj.fs
+    with FMUInstance(info, "wrong") as inst:
+        inst.initialize()
+        angle = inst.vrs(["angle"])
+        with pytest.raises(FMUError, match="not finite"):
+            inst.set(angle, [float("nan")])
+        with pytest.raises(FMUError, match="fixed parameter"):
+            inst.set(inst.vrs(["cutoff"]), [1.0])
+        with pytest.raises(FMUError, match="integer multiple"):
+            inst.do_step(0.0, 1.5 * h)
+
+    def rss():
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+    def cycle():
+        with FMUInstance(info, "cycle") as inst:
+            inst.initialize()
+            inst.set(inst.vrs(["angle"]), [0.05])
+            inst.do_step(0.0, h)
+            assert np.isfinite(inst.get(inst.vrs(["torque"]))[0])
+
+    for _ in range(20):
+        cycle()
+    before = rss()
+    for _ in range(200):
+        cycle()
+    assert rss() - before < 5 * 2**20
