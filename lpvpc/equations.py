@@ -114,7 +114,12 @@ def derivatives(position, fs, stencil="central3"):
         raise ValueError(f"unknown derivative stencil {stencil!r}; choose one of {DERIVATIVE_STENCILS}")
     p = np.asarray(position, dtype=float)
     q = np.concatenate([[0.0, 0.0], p, [p[-1], p[-1]]]) if len(p) else np.zeros(4)
-    m2, m1, c, p1, p2 = (q[i:i + len(p)] for i in range(5))
+    return five_point_derivatives(*(q[i:i + len(p)] for i in range(5)), fs)
+
+
+def five_point_derivatives(m2, m1, c, p1, p2, fs):
+    """(velocity rad/s, acceleration rad/s^2) at k from pos(k-2), pos(k-1), pos(k), pos(k+1),
+    pos(k+2): fourth-order central differences (arrays, floats or CasADi symbols)."""
     vel = (8.0 * (p1 - m1) - (p2 - m2)) * (fs / 12.0)
     acc = (16.0 * (p1 + m1) - (p2 + m2) - 30.0 * c) * (fs**2 / 12.0)
     return vel, acc

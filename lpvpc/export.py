@@ -200,8 +200,8 @@ class StateLayout:
 def latency_samples(model, variant="causal") -> int:
     """Output delay of the exported step in samples: 0 for causal, L for exact."""
     _check_variant(variant)
-    if variant == "sampled":
-        return 1  # the central differences of sample k need position k + 1
+    if variant == "sampled":  # the differences of sample k need position k + 1 (5-point: k + 2)
+        return 2 if getattr(model, "causal_derivatives", "central3") == "central5" else 1
     return 0 if variant == "causal" else max(0, -min(model.lags))
 
 
@@ -213,7 +213,7 @@ def state_layout(model, variant="causal") -> StateLayout:
     # history index i means pos(k - i); i = 0 is the current input.
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
     if variant == "sampled":
-        needed += [lat + 1]  # central differences at j = k - 1
+        needed += [2 * lat]  # differences at j = k - lat reach back to j - lat
     if getattr(model, "effects", None):
         needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
     return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d,
@@ -368,7 +368,9 @@ def step_function(model, variant="causal", parametric=False, name=None):
     sig = {n: (v if lat == 0 else sig_hist[n][lat - 1]) for n, v in sig_in.items()}  # signals at j
 
     # Intrinsic pathway at sample j.
-    if variant == "sampled":  # velocity and acceleration at j from positions j+1, j, j-1
+    if variant == "sampled" and lat == 2:  # the model's 5-point stencil, positions j-2..j+2
+        vel, acc = eq.five_point_derivatives(p_at(4), p_at(3), p_at(2), p_at(1), p_at(0), fs)
+    elif variant == "sampled":  # velocity and acceleration at j from positions j+1, j, j-1
         vel = eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
         acc = eq.central_acceleration(p_at(lat - 1), p_at(lat), p_at(lat + 1), fs)
     if _irf(variant) == "causal":

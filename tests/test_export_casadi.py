@@ -215,3 +215,19 @@ def test_export_casadi_unwritable_path(model, tmp_path):
     blocker.write_text("")
     with pytest.raises(ExportError, match="could not save"):
         ex.export_casadi(model, blocker / "sub" / "model.casadi")
+
+
+def test_sampled_step_of_a_five_point_model_matches_its_causal_form(subject):
+    """A model identified with causal_derivatives="central5": the sampled step computes the
+    same 5-point differences (positions j-2..j+2) and so lags the numpy causal form by 2."""
+    from lpvpc.identify import identify
+
+    data = subject["ident"].segment(0, 6000)
+    m5 = identify(data, causal_derivatives="central5", state_order=2)
+    seg = subject["novel"].segment(0, 3000)
+    step = ex.step_function(m5, "sampled")
+    out = _run(step, seg.n, m5, seg.position, seg.scheduling, "sampled")
+    lat = ex.latency_samples(m5, "sampled")
+    assert lat == 2 and out["torque"].ravel()[0] == 0.0
+    errors = _rel_errors(out, _reference(m5, seg.position, seg.scheduling, "sampled"), lat)
+    assert max(errors.values()) < TOL, errors
