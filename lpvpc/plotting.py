@@ -202,6 +202,9 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=7, velocity=None, trut
     ax.set_ylabel("steady reflex torque (N m)")
     ax.set_title("reflex nonlinearity" + (" (dashed: truth)" if truth is not None else ""))
     ax.legend(title="position", fontsize="small", loc="upper left")
+    if model.fs < 500:  # 20 ms velocity pulses are smoothed at this rate (benchmarks: reflex_observability)
+        ax.text(0.98, 0.02, f"seen on {model.fs:g} Hz velocity: the threshold is biased (a soft rectifier)",
+                transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
     return ax
 
 

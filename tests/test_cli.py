@@ -349,6 +349,7 @@ def test_plotting_functions_draw(run_dir, model_file):
 
         ax = plotting.plot_reflex_nonlinearity(model, truth=params)
         assert len(ax.lines) >= 14 and _has_data(ax)
+        assert any("threshold is biased" in t.get_text() for t in ax.texts)  # 100 Hz model: said where shown
         ax = plotting.plot_reflex_irf(model, truth=params)
         assert _has_data(ax) and np.all(np.isfinite(ax.lines[0].get_ydata()))
 
