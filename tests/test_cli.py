@@ -370,3 +370,35 @@ def test_help_imports_no_heavy_module(argv):
             "    assert e.code == 0, e.code\nprint(sorted(m for m in %r if m in sys.modules))" % (argv, heavy))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]", out[-300:]
+
+
+def test_identify_prints_the_physiology_and_warns_on_a_reversed_torque_sign(run_dir, capsys, tmp_path):
+    """identify prints K(theta), viscosity, reflex gain and threshold, orders and the VAF; the
+    same data with the torque sign reversed (--torque-sign -1 on a correctly signed file)
+    give a negative stiffness and one warning line naming the option."""
+    data = run_dir / "data"
+    args = ["identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "--state-order", "2"]
+    status, out, err = _run(args + ["-o", tmp_path / "m.json"], capsys)
+    assert status == 0 and "warning" not in err
+    for key in ("stiffness:   K(theta)", "viscosity:   B", "reflex gain:", "threshold", "orders:      IRF lags -4..4",
+                "on the identification data"):
+        assert key in out, (key, out)
+    K = [float(x.split(" at ")[0]) for x in out.split("K(theta) ")[1].split(" N m/rad")[0].split(", ")]
+    assert len(K) == 5 and min(K) > 0
+    status, out, err = _run(args + ["-o", tmp_path / "flipped.json", "--torque-sign", "-1"], capsys)
+    assert status == 0
+    lines = [ln for ln in err.splitlines() if ln.startswith("lpvpc: warning:")]
+    assert len(lines) == 1 and "negative" in lines[0] and "--torque-sign 1" in lines[0]
+
+
+def test_identify_stationary_trial_says_it_fits_the_lti_cascade(capsys, tmp_path):
+    from lpvpc.data import pair_trials, write_perturbation_csv
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("stationary", seed=2, duration=40.0)
+    write_perturbation_csv(pair_trials(pair.pt, pair.ut), tmp_path / "stationary.csv")
+    status, out, err = _run(["identify", tmp_path / "stationary.csv", "-o", tmp_path / "m.json"], capsys)
+    assert status == 0
+    lines = [ln for ln in err.splitlines() if ln.startswith("lpvpc: warning:")]
+    assert len(lines) == 1 and "position-independent (LTI) parallel cascade" in lines[0]
+    assert LPVPCModel.load(tmp_path / "m.json").settings["intrinsic_order"] == 0
