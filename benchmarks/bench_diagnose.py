@@ -103,7 +103,7 @@ def reflex_by_slow_velocity(pair):
 
 OUT_OF_CATALOG = {
     "reflex gain modulated by slow velocity": (reflex_by_slow_velocity, ("scheduling_velocity", "reflex")),
-    "position-dependent reflex delay (simulator, 30-50 ms)": ("position_dependent_reflex_delay",
+    "position-dependent reflex delay (simulator, 25-55 ms)": ("position_dependent_reflex_delay",
                                                               ("scheduling", "reflex")),
 }
 
