@@ -218,8 +218,7 @@ def run(outdir) -> int:
             model, curves["theta"], curves["K"], plt.figure(figsize=(7, 5)).gca()),
     }
     for name, draw in figures.items():
-        axes = draw()
-        fig = np.ravel(axes)[0].figure
+        fig = draw()
         fig.tight_layout()
         fig.savefig(figdir / name, dpi=110)
         plt.close(fig)

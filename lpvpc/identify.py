@@ -114,7 +114,9 @@ class LPVPCEstimator:
         self.refine = refine
         self.effects = effects
 
-    def get_params(self) -> dict:
+    def get_params(self, deep: bool = True) -> dict:
+        """The estimator's settings as a dict (scikit-learn convention; ``deep`` is ignored:
+        no nested estimators)."""
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
@@ -125,6 +127,32 @@ class LPVPCEstimator:
         if self.irf_lags is not None:
             return int(self.irf_lags)
         return max(1, int(round(self.irf_length * fs)))
+
+    def set_params(self, **params) -> "LPVPCEstimator":
+        """Change settings (names as in ``__init__``); returns self. Unknown names raise
+        ValueError naming them; the fitted model, if any, is kept until the next fit."""
+        unknown = sorted(set(params) - set(self.get_params()))
+        if unknown:
+            raise ValueError(f"unknown estimator setting(s) {unknown}; valid: {sorted(self.get_params())}")
+        for k, v in params.items():
+            setattr(self, k, v)
+        return self
+
+    def predict(self, data):
+        """Predicted torque (N m) of the fitted model for a data object (or any object with
+        ``position`` and ``scheduling`` in rad and ``fs`` in Hz)."""
+        return self._fitted().predict(data).total
+
+    def score(self, data) -> float:
+        """VAF (%) of the fitted model's prediction of ``data.torque`` (N m)."""
+        from .model import vaf
+
+        return vaf(np.asarray(data.torque, dtype=float), self.predict(data))
+
+    def _fitted(self):
+        if not hasattr(self, "model_"):
+            raise IdentificationError("this LPVPCEstimator is not fitted yet: call fit(data) first")
+        return self.model_
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
@@ -219,6 +247,15 @@ class LPVPCEstimator:
         def predicted(causal):  # trial by trial
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
+        if design is None:  # intervals (lpvpc.uncertainty); extended models carry none
+            from .reflex import reflex_regressor
+            from .uncertainty import fit_uncertainty
+
+            t = time.perf_counter()
+            model.uncertainty = fit_uncertainty(model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y,
+                                                np.append(hf.b, hf.d), hf.omega, best["theta_i"], U_r, best["A"],
+                                                truncated_irf(p, Gi_val, L, seg), segments=seg)
+            timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {
             "vaf": vaf(y, predicted(False)),
@@ -226,6 +263,7 @@ class LPVPCEstimator:
             "n_samples": int(n),
             "n_trials": len(seg),
             "velocity_p99": float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else V_b.hi,
+            "data_density": data_density(rho, dvel, G_i, V_b),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
             "singular_values": sub.singular_values.tolist(),
@@ -313,6 +351,25 @@ class LPVPCEstimator:
                 f"({n_intrinsic} intrinsic, {n_reflex} reflex nonlinearity); need at least {need} "
                 f"(reduce basis orders, IRF lags or MOESP horizon, or record longer)"
             )
+
+
+def data_density(rho, dvel, rho_basis, velocity_basis, n_rho: int = 16, n_vel: int = 48) -> dict:
+    """Joint histogram of scheduling (rad) and delayed velocity (rad/s) over the identified
+    ranges: where the data determine the model (figures draw only there)."""
+    counts, e_r, e_v = np.histogram2d(rho, dvel, bins=[np.linspace(rho_basis.lo, rho_basis.hi, n_rho + 1),
+                                                       np.linspace(velocity_basis.lo, velocity_basis.hi, n_vel + 1)])
+    return {"scheduling_edges": e_r.tolist(), "velocity_edges": e_v.tolist(), "counts": counts.astype(int).tolist()}
+
+
+def truncated_irf(position, rho_basis_values, L, segments=None):
+    """(lags, Psi_i) of the IRF one lag shorter on each side (None for L = 0), built trial
+    by trial: the structural term of the intrinsic intervals (lpvpc.uncertainty)."""
+    if L < 1:
+        return None
+    lags = two_sided_lags(L - 1)
+    if segments is None:
+        return lags, intrinsic_regressor(position, rho_basis_values, lags)
+    return lags, segments.map(intrinsic_regressor, position, rho_basis_values, lags=lags)
 
 
 def project_out_and_solve(Psi_r, Psi_i, y):

@@ -85,6 +85,7 @@ class LPVPCModel:
     fit: dict = field(default_factory=dict)
     effects: list = field(default_factory=list)  # lpvpc.effects.FittedEffect terms (extended models)
     causal_derivatives: str = "central3"  # stencil of the causal form's velocity/acceleration
+    uncertainty: dict = field(default_factory=dict)  # lpvpc.uncertainty.fit_uncertainty (empty: no intervals)
 
     # -- prediction ---------------------------------------------------------------------
     @property
@@ -108,9 +109,12 @@ class LPVPCModel:
 
         return model_signals(self)
 
-    def predict(self, position, scheduling, *, causal: bool = False, velocity=None, acceleration=None,
+    def predict(self, position, scheduling=None, *, causal: bool = False, velocity=None, acceleration=None,
                 warn: bool = True, signals: dict | None = None) -> Prediction:
-        """Torque for a perturbation position record (rad) and its scheduling record (rad).
+        """Torque (N m) for a perturbation position record (rad) and its scheduling record
+        (rad), or for a loaded data object: ``model.predict(data)`` with the
+        :class:`lpvpc.data.PerturbationData` that ``load_identification_data`` returns
+        (its ``position``, ``scheduling``, extra signals; its ``fs`` must be the model's).
 
         ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
         velocity and acceleration) that the default FMU runs without latency; velocity
@@ -121,6 +125,8 @@ class LPVPCModel:
         ``trial_time`` defaults to k / fs and ``scheduling_velocity`` to the gradient of
         ``scheduling``.
         """
+        if scheduling is None:
+            position, scheduling, signals = self._unpack_data(position, signals)
         extra_signals = signals  # (the name ``signals`` is reused below for the IRF inputs)
         position = np.asarray(position, dtype=float)
         scheduling = np.asarray(scheduling, dtype=float)
@@ -169,6 +175,36 @@ class LPVPCModel:
                     tq_i = tq_i + tq
         return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside,
                           effects={k: v[1] for k, v in parts.items()})
+
+    def _unpack_data(self, data, signals):
+        if not (hasattr(data, "position") and hasattr(data, "scheduling")):
+            raise DataError("predict needs position and scheduling arrays (rad), or a data object with "
+                            f"'position' and 'scheduling' (got {type(data).__name__} without a scheduling record)")
+        fs = getattr(data, "fs", None)
+        if fs is not None and abs(float(fs) - self.fs) > 1e-9 * self.fs:
+            raise DataError(f"data sampled at {float(fs):g} Hz, the model runs at {self.fs:g} Hz: load the data "
+                            f"with target_fs={self.fs:g}")
+        if signals is None and self.effects:
+            from .effects import signals_from_data
+
+            signals = signals_from_data(data)
+        return data.position, data.scheduling, signals
+
+    def export_fmu(self, path, fmi_version: int = 2, variant: str = "causal", **options):
+        """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
+        path. Thin method over :func:`lpvpc.export.export_fmu` (which documents variables,
+        units and ``variant``: ``"causal"`` runs without latency, ``"exact"`` is the
+        two-sided IRF delayed by L + 1 samples)."""
+        from .export import export_fmu
+
+        return export_fmu(self, path, fmi_version=fmi_version, variant=variant, **options)
+
+    def export_casadi(self, path, variant: str = "causal"):
+        """Save the model's CasADi step function to ``path`` (``casadi.Function.load``
+        reads it back); returns the path. See :func:`lpvpc.export.export_casadi`."""
+        from .export import export_casadi
+
+        return export_casadi(self, path, variant=variant)
 
     def reflex_drive(self, position, scheduling):
         """Output z(k) of the reflex static nonlinearity for a whole record."""
@@ -225,6 +261,11 @@ class LPVPCModel:
         impulse[0] = 1.0
         return np.arange(n) / self.fs, self._reflex_filter(impulse)
 
+    def rectifier_velocity_grid(self, n_velocity: int = 200):
+        """Velocities (rad/s) over which the rectifier is fitted, and the p99 top used."""
+        v_top = self.fit.get("velocity_p99", self.velocity_range[1])
+        return np.linspace(0.0, v_top, n_velocity), v_top
+
     def reflex_gain_threshold(self, rho, n_velocity: int = 200):
         """Fit a half-wave rectifier G * max(v - th, 0) + c to the identified nonlinearity.
 
@@ -233,21 +274,65 @@ class LPVPCModel:
         (where the data determine the curve; the sparse extreme tail bends polynomials).
         """
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
-        v_top = self.fit.get("velocity_p99", self.velocity_range[1])
-        v = np.linspace(0.0, v_top, n_velocity)
-        curves = self.reflex_nonlinearity(v, rho)
-        gains, thresholds = [], []
-        for f in curves:
-            best = None
-            for th in v[:-5]:
-                X = np.column_stack([np.maximum(v - th, 0.0), np.ones_like(v)])
-                coef, res, *_ = np.linalg.lstsq(X, f, rcond=None)
-                sse = float(np.sum((X @ coef - f) ** 2))
-                if best is None or sse < best[0]:
-                    best = (sse, coef[0], th)
-            gains.append(best[1])
-            thresholds.append(best[2])
-        return np.array(gains), np.array(thresholds)
+        v, _ = self.rectifier_velocity_grid(n_velocity)
+        return rectifier_fit(v, self.reflex_nonlinearity(v, rho))
+
+    # -- intrinsic mechanics from the IRF's moments ----------------------------------------
+    def viscosity(self, rho):
+        """Intrinsic viscosity B(rho) (N m s/rad): minus the first moment of the IRF weights,
+        -sum_l l h_l(rho) / fs (the velocity term of sum_l h_l p(k - l) expanded in l)."""
+        from .uncertainty import lag_moment_weights
+
+        return self.irf_weights(rho) @ lag_moment_weights(self, "viscosity")
+
+    def inertia(self, rho):
+        """Intrinsic inertia I(rho) (kg m^2): the second moment sum_l (l / fs)^2 h_l(rho) / 2."""
+        from .uncertainty import lag_moment_weights
+
+        return self.irf_weights(rho) @ lag_moment_weights(self, "inertia")
+
+    # -- confidence intervals (lpvpc.uncertainty; stored in the model file) -----------------
+    @property
+    def has_intervals(self) -> bool:
+        """True when the model carries the covariance the ``*_interval`` methods need."""
+        return bool(self.uncertainty)
+
+    def elastic_stiffness_interval(self, theta, level: float = 0.95):
+        """(lower, upper) arrays (N m/rad) of the ``level`` confidence interval of K(theta)
+        at positions ``theta`` (rad). HAC covariance of the final least squares (correlated
+        residuals respected); see :mod:`lpvpc.uncertainty` for what it leaves out."""
+        return _interval_pair(self, "stiffness", theta, level)
+
+    def viscosity_interval(self, theta, level: float = 0.95):
+        """(lower, upper) arrays (N m s/rad) of the confidence interval of the viscosity."""
+        return _interval_pair(self, "viscosity", theta, level)
+
+    def inertia_interval(self, theta, level: float = 0.95):
+        """(lower, upper) arrays (kg m^2) of the confidence interval of the inertia."""
+        return _interval_pair(self, "inertia", theta, level)
+
+    def reflex_gain_interval(self, theta, level: float = 0.95):
+        """(lower, upper) arrays (N m s/rad) of the confidence interval of the reflex
+        rectifier gain at positions ``theta`` (rad) (percentiles over parameter draws)."""
+        from .uncertainty import reflex_interval
+
+        return reflex_interval(self, theta, level)[0]
+
+    def reflex_threshold_interval(self, theta, level: float = 0.95):
+        """(lower, upper) arrays (rad/s) of the confidence interval of the reflex velocity
+        threshold (at 100 Hz the threshold is poorly observable: expect wide intervals)."""
+        from .uncertainty import reflex_interval
+
+        return reflex_interval(self, theta, level)[1]
+
+    def vaf_interval(self, level: float = 0.95):
+        """(lower, upper) VAF (%) on the identification record, moving-block bootstrap."""
+        from .uncertainty import _stored, vaf_interval
+
+        v = _stored(self)["vaf"]
+        if abs(level - v["level"]) < 1e-12:
+            return v["lower"], v["upper"]
+        raise ValueError(f"the model file stores the {v['level']:.0%} VAF interval only, not {level}")
 
     # -- persistence ---------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -282,6 +367,8 @@ class LPVPCModel:
         }
         if self.effects:
             d["effects"] = [fe.to_dict() for fe in self.effects]
+        if self.uncertainty:
+            d["uncertainty"] = self.uncertainty
         return d
 
     @classmethod
@@ -311,6 +398,7 @@ class LPVPCModel:
                 provenance=d.get("provenance", {}),
                 conventions=d.get("conventions", {}),
                 fit=d.get("fit", {}),
+                uncertainty=d.get("uncertainty") or {},
             )
             if d.get("effects"):
                 from .effects import FittedEffect
@@ -372,6 +460,37 @@ class LPVPCModel:
         d = self.to_dict()
         core = {k: d[k] for k in ("fs", "intrinsic", "reflex", "effects") if k in d}
         return hashlib.sha256(json.dumps(core, sort_keys=True).encode()).hexdigest()
+
+
+def _interval_pair(model, quantity, theta, level):
+    from .uncertainty import intrinsic_interval
+
+    _, lo, hi = intrinsic_interval(model, quantity, theta, level)
+    return lo, hi
+
+
+def rectifier_fit(v, curves):
+    """Least-squares half-wave rectifier G * max(v - th, 0) + c for each row of ``curves``
+    (N m) over velocities ``v`` (rad/s, ascending); th searched over v[:-5].
+    Returns (G in N m s/rad, th in rad/s), one per row.
+
+    >>> v = np.linspace(0, 2, 201)
+    >>> g, th = rectifier_fit(v, 3.0 * np.maximum(v - 0.5, 0)[None, :] + 1.0)
+    >>> float(g[0]), float(th[0])
+    (3.0, 0.5)
+    """
+    v = np.asarray(v, dtype=float)
+    F = np.atleast_2d(np.asarray(curves, dtype=float))
+    ths = v[:-5]
+    A = np.maximum(v[None, :] - ths[:, None], 0.0)
+    A -= A.mean(axis=1, keepdims=True)  # the intercept c, profiled out
+    Fc = F - F.mean(axis=1, keepdims=True)
+    aa = np.einsum("tv,tv->t", A, A)
+    af = A @ Fc.T  # (n_th, n_curves)
+    sse = np.einsum("cv,cv->c", Fc, Fc)[None, :] - af**2 / aa[:, None]
+    k = np.argmin(sse, axis=0)
+    cols = np.arange(F.shape[0])
+    return af[k, cols] / aa[k], ths[k]
 
 
 def vaf(measured, predicted) -> float:

@@ -332,6 +332,67 @@ def _check_fit(x, where, problems, d, budget):
     f = _dict(x, where, problems)
     if "velocity_p99" in f:
         _number(f["velocity_p99"], f"{where}.velocity_p99", problems)
+    if "data_density" in f:  # figures only; its own budget (not FMU parameters)
+        dd = _dict(f["data_density"], f"{where}.data_density", problems, required=True)
+        e_r = _array(dd.get("scheduling_edges"), f"{where}.data_density.scheduling_edges", problems, 1, [0])
+        e_v = _array(dd.get("velocity_edges"), f"{where}.data_density.velocity_edges", problems, 1, [0])
+        counts = _array(dd.get("counts"), f"{where}.data_density.counts", problems, 2, [0])
+        for e, name in ((e_r, "scheduling_edges"), (e_v, "velocity_edges")):
+            if len(e) < 2 or np.any(np.diff(e) <= 0):
+                problems.append(f"{where}.data_density.{name} must be at least 2 increasing values")
+                raise _Refused
+        _shape(counts, (len(e_r) - 1, len(e_v) - 1), f"{where}.data_density.counts", problems)
+        if np.any(counts < 0):
+            problems.append(f"{where}.data_density.counts must be non-negative")
+
+
+MAX_UNCERTAINTY_PARAMETERS = 1_000  # size p of the stored p x p covariance
+
+
+def _check_uncertainty(x, where, problems, d, budget):
+    """The confidence-interval section (:mod:`lpvpc.uncertainty`): parameter counts that
+    match the model, a symmetric p x p covariance with a non-negative diagonal, the
+    truncated IRF and the VAF interval. Its numbers are not FMU parameters: own budget."""
+    u = _dict(x, where, problems)
+    if not u:
+        return
+    par = _dict(u.get("parameters"), f"{where}.parameters", problems, required=True)
+    n = {}
+    for key in ("theta_i", "omega", "bd", "den"):
+        v = par.get(key, 0 if key == "den" else None)
+        n[key] = _integer(v, f"{where}.parameters.{key}", problems, 0, MAX_UNCERTAINTY_PARAMETERS,
+                          "MAX_UNCERTAINTY_PARAMETERS")
+        if n[key] is None:
+            raise _Refused
+    intr, refl = d["intrinsic"], d["reflex"]
+    m = len(refl["B"])
+    expect = {"theta_i": len(intr["H"]) * len(intr["H"][0]), "omega": len(refl["Omega"]) * len(refl["Omega"][0]),
+              "bd": m + 1}
+    for key, val in expect.items():
+        if n[key] != val:
+            problems.append(f"{where}.parameters.{key} = {n[key]} does not match the model ({val})")
+    if n["den"] not in (0, m):
+        problems.append(f"{where}.parameters.den = {n['den']} must be 0 or the state order {m}")
+    if problems:
+        raise _Refused
+    p = sum(n.values())
+    if p > MAX_UNCERTAINTY_PARAMETERS:
+        problems.append(f"{where}: {p} parameters exceed MAX_UNCERTAINTY_PARAMETERS = {MAX_UNCERTAINTY_PARAMETERS}")
+        raise _Refused
+    cov = _array(u.get("covariance"), f"{where}.covariance", problems, 2, [-p * p])
+    _shape(cov, (p, p), f"{where}.covariance", problems)
+    if np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(cov).max())):
+        problems.append(f"{where}.covariance must be symmetric with a non-negative diagonal")
+    if "truncation" in u:
+        t = _dict(u["truncation"], f"{where}.truncation", problems, required=True)
+        lags = _lags(t.get("lags"), f"{where}.truncation.lags", problems, -MAX_LAG)
+        _shape(_array(t.get("H"), f"{where}.truncation.H", problems, 2, [0]), (len(lags), len(intr["H"][0])),
+               f"{where}.truncation.H", problems)
+    v = _dict(u.get("vaf"), f"{where}.vaf", problems, required=True)
+    for key in ("estimate", "lower", "upper"):
+        _number(v.get(key), f"{where}.vaf.{key}", problems)
+    _number(v.get("level"), f"{where}.vaf.level", problems, lo=0.0, hi=1.0, limit="a probability")
+    _number(u.get("block_length_s"), f"{where}.block_length_s", problems, lo=0.0)
 
 
 def _check_effects(x, where, problems, d, budget):
@@ -417,9 +478,10 @@ SECTION_CHECKS = {
     "conventions": _check_conventions,
     "settings": _check_settings,
     "fit": _check_fit,
+    "uncertainty": _check_uncertainty,
 }
 REQUIRED_SECTIONS = ("intrinsic", "reflex")
-DICT_SECTIONS = ("settings", "provenance", "conventions", "fit", "units", "identified_ranges")
+DICT_SECTIONS = ("settings", "provenance", "conventions", "fit", "units", "identified_ranges", "uncertainty")
 
 
 def check_model_dict(d, source: str = "model") -> None:

@@ -1,8 +1,14 @@
 """The paper's figures (Sobhani Tehrani et al., EMBC 2014, Figs. 3-5) and a truth check.
 
 Every function draws into the axes it is given (``ax``) or into a new figure when ``ax``
-is None, and returns the axes it drew into. Nothing here calls ``plt.show()`` or selects
-a backend: scripts and tests choose one (``matplotlib.use("Agg")`` for files).
+is None, and returns the :class:`matplotlib.figure.Figure` it drew into (its axes are
+``fig.axes``). Nothing here calls ``plt.show()`` or selects a backend: scripts and tests
+choose one (``matplotlib.use("Agg")`` for files).
+
+Figures of the identified model show what the data support: confidence bands where the
+model carries intervals (:mod:`lpvpc.uncertainty`), a strip with the density of the
+scheduling variable and delayed velocity seen at identification under Figs. 4 and 5A
+(``model.fit["data_density"]``), and curves only where there were data.
 
 Units: time s, position and scheduling rad, velocity rad/s, torque N m, stiffness and
 intrinsic gain N m/rad, frequency Hz.
@@ -28,10 +34,66 @@ CENTRAL_FRACTION = 0.8
 def _new_axes(ax, **subplot_kw):
     if ax is not None:
         return ax
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
-    _, ax = plt.subplots(subplot_kw=subplot_kw or None)
-    return ax
+    # A Figure outside pyplot's global state: it renders with Agg (fig.savefig) and is
+    # displayed like any figure in a notebook.
+    return Figure(figsize=(7, 5)).add_subplot(**subplot_kw)
+
+
+def _density(model):
+    """The stored joint histogram (scheduling x delayed velocity) or None (older models)."""
+    d = model.fit.get("data_density") if isinstance(model.fit, dict) else None
+    if not d:
+        return None
+    return (np.asarray(d["scheduling_edges"], dtype=float), np.asarray(d["velocity_edges"], dtype=float),
+            np.asarray(d["counts"], dtype=float))
+
+
+def _density_strip(ax, edges, counts, label, log=False):
+    """A strip under ``ax`` (same x axis) with the histogram of the data seen at
+    identification (``log``: log10(1 + count), for peaked distributions); the x label
+    moves to the strip. Returns the strip axes."""
+    strip = ax.inset_axes([0.0, -0.26, 1.0, 0.14], sharex=ax)
+    h = np.log10(1.0 + counts) if log else counts
+    strip.bar(edges[:-1], h, width=np.diff(edges), align="edge", color="0.55", lw=0)
+    strip.set_yticks([])
+    strip.set_ylabel("samples\n(log)" if log else "samples", rotation=0, ha="right", va="center", fontsize="small")
+    strip.set_xlabel(label)
+    strip.set_ylim(0, max(float(np.max(h)), 1.0) * 1.05)
+    ax.set_xlabel("")
+    ax.tick_params(axis="x", labelbottom=False)
+    return strip
+
+
+MIN_SAMPLES = 5  # a curve is drawn through a histogram bin with at least this many samples
+
+
+def _supported(model, rho, velocity):
+    """Mask (len(rho), len(velocity)): True where identification saw data (>= MIN_SAMPLES
+    in the joint histogram bin, or a neighbour bin in position), everywhere for old models."""
+    dens = _density(model)
+    if dens is None:
+        return np.ones((len(rho), len(velocity)), dtype=bool)
+    e_r, e_v, counts = dens
+    # a position between bins is supported by the bins on either side (positions are a
+    # continuum; the histogram is coarse)
+    padded = np.maximum(counts, np.maximum(np.vstack([counts[1:], counts[-1:]]), np.vstack([counts[:1], counts[:-1]])))
+    i = np.clip(np.searchsorted(e_r, rho, side="right") - 1, 0, len(e_r) - 2)
+    j = np.searchsorted(e_v, velocity, side="right") - 1
+    inside = (j >= 0) & (j <= len(e_v) - 2) & (velocity >= e_v[0]) & (velocity <= e_v[-1])
+    j = np.clip(j, 0, len(e_v) - 2)
+    ok = (padded[i][:, j] >= MIN_SAMPLES) & inside[None, :]
+    for row in ok:  # from the slowest to the fastest supported velocity, without holes
+        idx = np.flatnonzero(row)
+        if idx.size:
+            row[idx[0]:idx[-1] + 1] = True
+    return ok
+
+
+def _legend_outside(ax, **kw):
+    """Legend to the right of the axes, never over the curves."""
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small", **kw)
 
 
 def _positions(model, n):
@@ -56,9 +118,11 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
     array of predicted total torque. Layout:
 
     - ``ax`` None: three stacked axes (total, intrinsic, reflex) in ``fig`` (a new figure
-      if ``fig`` is None); returns the array of three axes;
+      if ``fig`` is None);
     - ``ax`` a sequence of three axes: the same, drawn into them;
-    - ``ax`` one axes: everything overlaid in it; returns it.
+    - ``ax`` one axes: everything overlaid in it.
+
+    Returns the figure.
 
     ``window`` = (t0, t1) in s restricts the plot to that interval (the whole record
     is unreadable at 100 Hz over 2 minutes).
@@ -84,12 +148,12 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
         ax.set_xlabel("time (s)")
         ax.set_ylabel("torque (N m)")
         ax.legend(loc="upper right", fontsize="small", ncol=2)
-        return ax
+        return ax.figure
 
     if ax is None:
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
-        fig = fig if fig is not None else plt.figure(figsize=(9, 6.5))
+        fig = fig if fig is not None else Figure(figsize=(9, 6.5))
         axes = fig.subplots(3, 1, sharex=True)
     else:
         axes = np.asarray(ax)
@@ -109,20 +173,22 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
         a.set_ylabel(f"{name} (N m)")
     a2.set_xlabel("time (s)")
     a0.set_title("perturbation torque: measured vs predicted")
-    return axes
+    return a0.figure
 
 
 # --------------------------------------------------------------------------- Fig. 4
 
 
-def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, positions=7):
+def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, positions=7, level=0.95):
     """Intrinsic gain |H(f, rho)| (N m/rad) over frequency 0..fs/2 (Hz) and position (rad)
-    with the elastic stiffness K(rho) = gain at 0 Hz (Fig. 4).
+    with the elastic stiffness K(rho) = gain at 0 Hz (Fig. 4). Returns the figure.
 
     ``kind``:
 
     - "image" (default): colour map of the gain over position (x) and frequency (y); the
-      elastic stiffness K(rho) is drawn on a second y-axis (right, N m/rad);
+      elastic stiffness K(rho) with its ``level`` confidence band (when the model carries
+      intervals) on a second y-axis (right, N m/rad), and under it the density of the
+      scheduling variable seen at identification;
     - "curves": gain vs frequency for ``positions`` positions (the curves start at K(rho));
     - "surface": the paper's 3-D surface; ``ax`` must be a 3-D axes or None.
     """
@@ -136,9 +202,9 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
         ax.set_xlabel("frequency (Hz)")
         ax.set_ylabel("intrinsic gain (N m/rad)")
         ax.set_xlim(freqs[0], freqs[-1])
-        ax.legend(title="position", fontsize="small", loc="upper left")
+        _legend_outside(ax, title="position")
         ax.set_title("intrinsic stiffness gain")
-        return ax
+        return ax.figure
 
     rho = _positions(model, n_rho)
     gain = np.abs(model.intrinsic_frequency_response(freqs, rho))  # (n_rho, n_freq)
@@ -150,7 +216,7 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
         ax.set_ylabel("frequency (Hz)")
         ax.set_zlabel("gain (N m/rad)")
         ax.set_title("intrinsic stiffness gain")
-        return ax
+        return ax.figure
     if kind != "image":
         raise ValueError(f"kind must be 'image', 'curves' or 'surface', got {kind!r}")
 
@@ -162,50 +228,82 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
     positive = gain[gain > 0]
     norm = LogNorm(vmin=positive.min(), vmax=positive.max()) if positive.size else None
     mesh = ax.pcolormesh(rho, freqs, gain.T, shading="auto", cmap="viridis", norm=norm)
-    ax.figure.colorbar(mesh, ax=ax, location="top", label="|H| (N m/rad, log scale)", fraction=0.05, pad=0.02)
-    ax.set_xlabel("position rho (rad)")
+    ax.figure.colorbar(mesh, ax=ax, location="top", label="|H| (N m/rad, log colour scale)", fraction=0.05, pad=0.02)
+    ax.set_xlabel("position rho (rad, + = dorsiflexion)")
     ax.set_ylabel("frequency (Hz)")
     twin = ax.twinx()
-    twin.plot(rho, model.elastic_stiffness(rho), color="w", lw=2.5)
-    twin.plot(rho, model.elastic_stiffness(rho), color="C3", lw=1.5, label="K(rho): gain at 0 Hz")
+    K = model.elastic_stiffness(rho)
+    if model.has_intervals:
+        lo, hi = model.elastic_stiffness_interval(rho, level)
+        twin.fill_between(rho, lo, hi, color="w", alpha=0.55, lw=0)
+        twin.fill_between(rho, lo, hi, color="C3", alpha=0.35, lw=0, label=f"{level:.0%} confidence band")
+    twin.plot(rho, K, color="w", lw=2.5)
+    twin.plot(rho, K, color="C3", lw=1.5, label="K(rho): gain at 0 Hz")
     twin.set_ylabel("elastic stiffness K (N m/rad)", color="C3")
     twin.tick_params(axis="y", colors="C3")
-    twin.set_ylim(bottom=0)
-    twin.legend(loc="upper left", fontsize="small")
-    return ax
+    twin.set_ylim(0, 1.25 * float(np.max(hi if model.has_intervals else K)))
+    twin.legend(loc="upper left", fontsize="small", framealpha=0.85)
+    dens = _density(model)
+    if dens is not None:
+        _density_strip(ax, dens[0], dens[2].sum(axis=1), "position rho (rad, + = dorsiflexion)")
+    return ax.figure
 
 
 # --------------------------------------------------------------------------- Fig. 5
 
 
-def plot_reflex_nonlinearity(model, ax=None, *, positions=7, velocity=None, truth=None):
+def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, truth=None, level=0.95):
     """Reflex static nonlinearity f(v, rho) (N m, steady reflex torque for a constant
     delayed velocity v in rad/s) for ``positions`` positions across the identified range
-    (Fig. 5A). ``velocity`` defaults to the identified velocity range.
+    (Fig. 5A), with ``level`` confidence bands when the model carries intervals and, under
+    it, the density of the delayed velocity seen at identification. Each curve is drawn
+    only where identification saw data at that position and velocity (no polynomial lobes
+    beyond the data). ``velocity`` defaults to the identified velocity range. Returns the
+    figure.
 
     ``truth``: optional object with ``reflex_gain(theta)`` and ``reflex_threshold(theta)``
     (e.g. :class:`lpvpc.simulate.SubjectParams`); its half-wave rectifiers are drawn dashed.
     """
     ax = _new_axes(ax)
-    if velocity is None:
-        velocity = np.linspace(*model.velocity_range, 201)
-    velocity = np.asarray(velocity, dtype=float)
     rho = _positions(model, positions) if np.ndim(positions) == 0 else np.asarray(positions, dtype=float)
+    if velocity is None:
+        velocity = np.linspace(*model.velocity_range, 241)
+        ok = _supported(model, rho, velocity)
+        cols = np.flatnonzero(ok.any(axis=0))
+        if cols.size:  # the axis spans the velocities seen, not the sparse extremes
+            velocity = np.linspace(velocity[cols[0]], velocity[cols[-1]], 241)
+    velocity = np.asarray(velocity, dtype=float)
     curves = model.reflex_nonlinearity(velocity, rho)
-    for r, f, c in zip(rho, curves, _position_colours(len(rho))):
+    ok = _supported(model, rho, velocity)
+    band = None
+    if model.has_intervals:
+        from .uncertainty import nonlinearity_band
+
+        band = nonlinearity_band(model, velocity, rho, level)
+    for k, (r, f, c) in enumerate(zip(rho, curves, _position_colours(len(rho)))):
+        f = np.where(ok[k], f, np.nan)
+        if band is not None:
+            ax.fill_between(velocity, band[0][k], band[1][k], where=ok[k], color=c, alpha=0.18, lw=0)
         ax.plot(velocity, f, color=c, label=f"{r:+.2f} rad")
         if truth is not None:
             g, th = float(truth.reflex_gain(r)), float(truth.reflex_threshold(r))
-            ax.plot(velocity, g * np.maximum(velocity - th, 0.0), color=c, ls="--", lw=0.9)
+            ax.plot(velocity, np.where(ok[k], g * np.maximum(velocity - th, 0.0), np.nan), color=c, ls="--", lw=0.9)
     ax.axhline(0.0, color="0.7", lw=0.6)
     ax.set_xlabel("delayed stretch velocity (rad/s)")
     ax.set_ylabel("steady reflex torque (N m)")
-    ax.set_title("reflex nonlinearity" + (" (dashed: truth)" if truth is not None else ""))
-    ax.legend(title="position", fontsize="small", loc="upper left")
+    extra = [] if band is None else [f"bands: {level:.0%} confidence"]
+    if truth is not None:
+        extra.append("dashed: truth")
+    ax.set_title("reflex nonlinearity" + (f" ({'; '.join(extra)})" if extra else ""), fontsize="medium")
+    _legend_outside(ax, title="position")
     if model.fs < 500:  # 20 ms velocity pulses are smoothed at this rate (benchmarks: reflex_observability)
         ax.text(0.98, 0.02, f"seen on {model.fs:g} Hz velocity: the threshold is biased (a soft rectifier)",
                 transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
-    return ax
+    dens = _density(model)
+    if dens is not None:
+        _density_strip(ax, dens[1], dens[2].sum(axis=0), "delayed stretch velocity (rad/s)", log=True)
+    ax.set_xlim(velocity[0], velocity[-1])
+    return ax.figure
 
 
 def plot_reflex_irf(model, ax=None, *, duration=0.6, truth=None):
@@ -233,18 +331,20 @@ def plot_reflex_irf(model, ax=None, *, duration=0.6, truth=None):
     ax.axhline(0.0, color="0.7", lw=0.6)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("impulse response (1/s, unit static gain)")
+    ax.set_xlim(0.0, t[-1])
     ax.set_title("reflex dynamics")
-    ax.legend(fontsize="small")
-    return ax
+    ax.legend(fontsize="small", loc="upper right")
+    return ax.figure
 
 
 # --------------------------------------------------------------------------- truth check
 
 
-def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None):
+def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None, *, level=0.95):
     """Identified elastic stiffness K(rho) over the identified range against a known
-    K(theta) (N m/rad vs rad); the central 80 % of the identified range, where K is
-    judged, is shaded and the worst error there is given in the legend."""
+    K(theta) (N m/rad vs rad), with its ``level`` confidence band when the model carries
+    intervals; the central 80 % of the identified range, where K is judged, is shaded and
+    the worst error there is given in the legend. Returns the figure."""
     ax = _new_axes(ax)
     truth_theta = np.asarray(truth_theta, dtype=float)
     truth_K = np.asarray(truth_K, dtype=float)
@@ -259,27 +359,35 @@ def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None):
     truth_at = np.interp(rho[central], truth_theta[order], truth_K[order])
     worst = float(np.max(np.abs(K[central] / truth_at - 1))) * 100 if central.any() else float("nan")
     ax.plot(rho, K, color="C0", lw=2, label=f"identified (worst central error {worst:.1f} %)")
-    ax.axvspan(c_lo, c_hi, color="C0", alpha=0.08, label=f"central {CENTRAL_FRACTION:.0%} of identified range")
+    if model.has_intervals:
+        lo_k, hi_k = model.elastic_stiffness_interval(rho, level)
+        ax.fill_between(rho, lo_k, hi_k, color="C0", alpha=0.25, lw=0, label=f"{level:.0%} confidence band")
+    ax.axvspan(c_lo, c_hi, color="C0", alpha=0.06, label=f"central {CENTRAL_FRACTION:.0%} of identified range")
     ax.set_xlabel("position (rad, + = dorsiflexion)")
     ax.set_ylabel("elastic stiffness K (N m/rad)")
     ax.set_title("elastic stiffness vs truth")
     ax.set_ylim(bottom=0)
     ax.legend(fontsize="small", loc="upper left")
-    return ax
+    return ax.figure
 
 
 # --------------------------------------------------------------------------- diagnosis
 
 
-def plot_residual_diagnosis(diag, data, fig=None):
+def plot_residual_diagnosis(diag, data, fig=None, ax=None):
     """Where a model fails (:class:`lpvpc.diagnose.Diagnosis` on ``data``): residual over
     time, residual RMS by position and by perturbation velocity, unexplained share per
     frequency band, and cross-correlation of the residual with the perturbation velocity
-    and the delayed velocity (negative lags: residual leads). Returns the axes (2 x 3)."""
-    import matplotlib.pyplot as plt
+    and the delayed velocity (negative lags: residual leads). ``ax``: a 2 x 3 array of
+    axes to draw into (default: new ones in ``fig``). Returns the figure."""
+    from matplotlib.figure import Figure
 
-    fig = fig or plt.figure(figsize=(13, 7))
-    axes = fig.subplots(2, 3)
+    if ax is not None:
+        axes = np.asarray(ax).reshape(2, 3)
+        fig = axes[0, 0].figure
+    else:
+        fig = fig or Figure(figsize=(13, 7))
+        axes = fig.subplots(2, 3)
     t = np.asarray(data.time) - np.asarray(data.time)[0]
     y, r = np.asarray(data.torque), np.asarray(diag.residual)
     ax = axes[0, 0]
@@ -317,12 +425,13 @@ def plot_residual_diagnosis(diag, data, fig=None):
     ax.axvline(diag.settings.get("min_gain", 0.0), color="k", ls=":", lw=0.8)
     ax.set(xlabel="held-out VAF gain (pp)", title="candidates (green: significant)")
     fig.tight_layout()
-    return axes
+    return fig
 
 
 def plot_ladder(steps, ax=None):
     """Held-out VAF (%) and RMSE (N m) of each model on the improve ladder. ``steps``: list
-    of dicts with ``label``, ``heldout_vaf``, ``heldout_rmse``. Returns (ax, twin ax)."""
+    of dicts with ``label``, ``heldout_vaf``, ``heldout_rmse``. Returns the figure (the
+    RMSE is on a twin axis, ``fig.axes[-1]``)."""
     ax = _new_axes(ax)
     x = np.arange(len(steps))
     ax.plot(x, [s["heldout_vaf"] for s in steps], "o-", color="C0")
@@ -333,17 +442,19 @@ def plot_ladder(steps, ax=None):
     ax.set_xticks(x)
     ax.set_xticklabels([s["label"] for s in steps], rotation=20, ha="right", fontsize=8)
     ax.set_title("improve: the error falls as effects are added")
-    return ax, ax2
+    return ax.figure
 
 
-def plot_residual_change(time, measured, before, after, labels=("before", "after"), fs=None, axes=None):
-    """Residuals (N m) before and after a step of the improve loop: over time and as power
-    spectra. Returns the two axes."""
-    import matplotlib.pyplot as plt
+def plot_residual_change(time, measured, before, after, labels=("before", "after"), fs=None, axes=None, ax=None):
+    """Residuals (N m) before and after a step of the improve loop: over time (s, linear)
+    and as power spectra. ``ax`` (or ``axes``): two axes to draw into. Returns the figure."""
     import scipy.signal
 
+    axes = ax if ax is not None else axes
     if axes is None:
-        _, axes = plt.subplots(1, 2, figsize=(11, 3.5))
+        from matplotlib.figure import Figure
+
+        axes = Figure(figsize=(11, 3.5)).subplots(1, 2)
     t = np.asarray(time) - np.asarray(time)[0]
     ax = axes[0]
     ax.plot(t, before, lw=0.6, color="C3", label=f"residual {labels[0]}")
@@ -357,4 +468,4 @@ def plot_residual_change(time, measured, before, after, labels=("before", "after
         ax.semilogy(f[1:], P[1:], color=c, label=lab)
     ax.set(xlabel="frequency (Hz)", ylabel="PSD (N^2 m^2/Hz)")
     ax.legend(fontsize=8)
-    return axes
+    return ax.figure

@@ -19,6 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from lpvpc.cli import main  # noqa: E402
 from lpvpc.model import LPVPCModel  # noqa: E402
@@ -333,30 +334,42 @@ def test_plotting_functions_draw(run_dir, model_file):
     data = load_identification_data(pt=run_dir / "data" / "ident_PT.csv", ut=run_dir / "data" / "ident_UT.csv")
     pred = model.predict(data.position, data.scheduling)
     try:
-        axes = plotting.plot_torque_fit(data.time, data.torque, pred, window=(5, 15))
-        assert len(axes) == 3 and all(_has_data(a) for a in axes)
+        fig = plotting.plot_torque_fit(data.time, data.torque, pred, window=(5, 15))
+        assert isinstance(fig, Figure) and len(fig.axes) == 3 and all(_has_data(a) for a in fig.axes)
         _, ax = plt.subplots()
-        assert plotting.plot_torque_fit(data.time, data.torque, pred, ax=ax) is ax and len(ax.lines) == 4
-        ax = plotting.plot_torque_fit(data.time, data.torque, pred.total, ax=plt.figure().gca())
-        assert len(ax.lines) == 2
+        assert plotting.plot_torque_fit(data.time, data.torque, pred, ax=ax) is ax.figure and len(ax.lines) == 4
+        fig = plotting.plot_torque_fit(data.time, data.torque, pred.total, ax=plt.figure().gca())
+        assert len(fig.axes[0].lines) == 2
 
         for kind in ("image", "curves", "surface"):
-            ax = plotting.plot_intrinsic_gain(model, kind=kind)
-            assert _has_data(ax), kind
-        ax = plotting.plot_intrinsic_gain(model)
+            fig = plotting.plot_intrinsic_gain(model, kind=kind)
+            assert isinstance(fig, Figure) and _has_data(fig.axes[0]), kind
+        _, ax = plt.subplots()
+        assert plotting.plot_intrinsic_gain(model, ax) is ax.figure
         mesh = ax.collections[0].get_array()
         assert np.all(np.isfinite(mesh)) and np.min(mesh) > 0
+        # K band on the twin axis, the scheduling density in a strip under the image
+        twin = [a for a in ax.figure.axes if a is not ax and a.get_shared_x_axes().joined(a, ax) and a.lines]
+        assert twin and len(twin[0].collections) == 2  # band (white underlay + colour)
+        assert ax.child_axes and ax.child_axes[0].patches  # histogram bars
 
-        ax = plotting.plot_reflex_nonlinearity(model, truth=params)
-        assert len(ax.lines) >= 14 and _has_data(ax)
+        _, ax = plt.subplots()
+        fig = plotting.plot_reflex_nonlinearity(model, ax, truth=params)
+        assert fig is ax.figure and len(ax.lines) >= 10 and _has_data(ax)
         assert any("threshold is biased" in t.get_text() for t in ax.texts)  # 100 Hz model: said where shown
-        ax = plotting.plot_reflex_irf(model, truth=params)
-        assert _has_data(ax) and np.all(np.isfinite(ax.lines[0].get_ydata()))
+        assert ax.get_legend() is not None and ax.get_legend().get_bbox_to_anchor().x0 > ax.bbox.x1 - 1  # outside
+        v_top = model.velocity_range[1]
+        drawn = ax.lines[0].get_xdata()[np.isfinite(ax.lines[0].get_ydata())]
+        assert drawn.max() < v_top  # no curve beyond the data
+        fig = plotting.plot_reflex_irf(model, truth=params)
+        assert _has_data(fig.axes[0]) and np.all(np.isfinite(fig.axes[0].lines[0].get_ydata()))
+        assert fig.axes[0].get_xscale() == "linear"
 
         curves = params.curves()
         _, ax = plt.subplots()
-        assert plotting.plot_stiffness_vs_truth(model, curves["theta"], curves["K"], ax=ax) is ax
+        assert plotting.plot_stiffness_vs_truth(model, curves["theta"], curves["K"], ax=ax) is ax.figure
         assert len(ax.lines) == 2 and "worst central error" in ax.lines[1].get_label()
+        assert any("confidence band" in str(c.get_label()) for c in ax.collections)
     finally:
         plt.close("all")
 

@@ -213,6 +213,14 @@ def test_report_is_self_contained(full):
     assert "<link" not in page
     for title in ("Fig. 3", "Fig. 4", "Fig. 5", "Where the model fails", "Provenance", "Scheduling range"):
         assert title in page
+    # the order a scientist reads: physiology, prediction, software checks, provenance
+    order = [page.index(h) for h in ("<h2>Physiology", "<h2>Prediction", "<h2>Software checks", "<h2>Provenance")]
+    assert order == sorted(order)
+    physiology = page[order[0]:order[1]]
+    assert "elastic stiffness K (N m/rad)" in physiology and "reflex threshold (rad/s)" in physiology
+    assert physiology.count("–") >= 20  # 5 positions x 4 quantities with intervals
+    text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", page)
+    assert not re.search(r"[-+]0\.0+(?![0-9])", text), "a signed zero such as -0.00 in the report"
 
 
 def test_report_renders_in_headless_chromium(full, tmp_path):

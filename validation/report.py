@@ -26,17 +26,19 @@ __all__ = ["write_report", "write_metrics", "FIGURES"]
 
 #: file name -> (section, caption); the order of the report.
 FIGURES = {
-    "fig3_torque.png": "Measured and predicted perturbation torque with the intrinsic and reflex parts (Fig. 3)",
-    "routes.png": "The prediction routes and the co-simulated actuator against the record",
-    "fig4_intrinsic_gain.png": "Identified intrinsic gain over frequency and position, with K(rho) (Fig. 4)",
-    "fig5a_reflex_nonlinearity.png": "Identified reflex static nonlinearity at several positions (Fig. 5A)",
+    "fig4_intrinsic_gain.png": "Identified intrinsic gain over frequency and position, with K(rho), its confidence "
+                               "band and the positions seen at identification (Fig. 4)",
+    "fig5a_reflex_nonlinearity.png": "Identified reflex static nonlinearity at several positions with confidence "
+                                     "bands, drawn where identification saw data (Fig. 5A)",
     "fig5b_reflex_irf.png": "Impulse response of the identified reflex dynamics (Fig. 5B)",
+    "fig3_torque.png": "Measured and predicted perturbation torque with the intrinsic and reflex parts (Fig. 3)",
     "scheduling_range.png": "Held-out scheduling variable against the identified range",
     "error_by_position.png": "Error by position bin",
     "error_by_velocity.png": "Error by velocity bin",
     "error_over_time.png": "Error over time",
     "error_by_frequency.png": "Error by frequency",
     "worst_segments.png": "The worst segments of the record",
+    "routes.png": "The prediction routes and the co-simulated actuator against the record",
 }
 
 _ROUTE_STYLE = {"numpy": ("C0", "offline (numpy)"), "fmu": ("C2", "FMU replay"), "cosim": ("C3", "co-simulation")}
@@ -87,6 +89,24 @@ def _save(fig, path):
     fig.savefig(path, dpi=100)
 
 
+def _legend_above(ax, handles=None, ncol=4):
+    """Legend in a row above the axes: never over the data (the figure's title goes in
+    ``fig.suptitle``)."""
+    if handles is None:
+        handles, labels = ax.get_legend_handles_labels()
+    else:
+        labels = [h.get_label() for h in handles]
+    return ax.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, fontsize="small",
+                     frameon=False, borderaxespad=0.0)
+
+
+def _edge(x) -> str:
+    """A bin edge for a tick label: 3 significant digits, signed, and never "-0.00"."""
+    if x == 0 or not math.isfinite(x):
+        return "0" if x == 0 else f"{x}"
+    return f"{x:+.3g}"
+
+
 def _window(n, fs, length=10.0, at=0.25):
     t0 = at * n / fs
     return (t0, min(t0 + length, n / fs))
@@ -123,12 +143,13 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     # Fig. 3
     fig = _fig(9, 6.5)
     win = _window(n, fs)
-    axes = plotting.plot_torque_fit(t, y, pred["numpy"], fig=fig, window=win)
+    axes = plotting.plot_torque_fit(t, y, pred["numpy"], fig=fig, window=win).axes
     sel = (t >= win[0]) & (t <= win[1])
     axes[0].plot(t[sel], cos.torque[sel], color="C3", lw=0.9, ls="--", label="co-simulation")
-    axes[0].legend(loc="upper right", fontsize="small", ncol=3)
-    axes[0].set_title(f"perturbation torque, {win[0]:.0f}-{win[1]:.0f} s of the held-out record "
-                      f"(offline VAF {m['vaf']:.1f} %, co-simulation {m['vaf_cosim']:.1f} %)")
+    _legend_above(axes[0])
+    axes[0].set_title("")
+    fig.suptitle(f"perturbation torque, {win[0]:.0f}-{win[1]:.0f} s of the held-out record "
+                 f"(offline VAF {m['vaf']:.1f} %, co-simulation {m['vaf_cosim']:.1f} %)", fontsize="medium")
     _save(fig, out("fig3_torque.png"))
 
     # routes and actuator tracking
@@ -140,20 +161,20 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     for name, (c, label) in _ROUTE_STYLE.items():
         ax1.plot(t[sel], series[name][sel], color=c, lw=1.0, ls="-" if name != "cosim" else "--", label=label)
     ax1.set_ylabel("torque (N m)")
-    ax1.legend(fontsize="small", ncol=4, loc="upper right")
-    ax1.set_title("prediction routes")
+    _legend_above(ax1)
+    fig.suptitle("prediction routes", fontsize="medium")
     ax2.plot(t[sel], 1e3 * meas.position[sel], color="0.6", lw=1.2, label="measured (decimated)")
     ax2.plot(t[sel], 1e3 * cos.model_inputs["position"][sel], color="C3", lw=1.0, ls="--",
              label="co-simulated actuators PT - UT (sampled)")
     ax2.set_ylabel("perturbation (mrad)")
-    ax2.legend(fontsize="small", loc="upper right")
+    _legend_above(ax2)
     ax3.plot(t[sel], series["cosim"][sel] - series["fmu"][sel], color="C3", lw=1.0, label="co-simulation - FMU replay")
     ref = "numpy" if cos.variant == "exact" else "numpy_causal"  # what the FMU's variant computes
     ax3.plot(t[sel], series["fmu"][sel] - pred[ref].total[sel], color="C2", lw=1.0,
              label=f"FMU replay - {ref.replace('_', ' ')}")
     ax3.set_ylabel("difference (N m)")
     ax3.set_xlabel("time (s)")
-    ax3.legend(fontsize="small", loc="upper right")
+    _legend_above(ax3)
     _save(fig, out("routes.png"))
 
     # Figs. 4 and 5
@@ -193,35 +214,35 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     # error by position bin
     fa = m["failure_analysis"]
 
-    def bars(ax, rows, xlabel, fmt="{:+.2f}", mark_outside=False):
+    def bars(ax, rows, xlabel, mark_outside=False):
         xs = np.arange(len(rows))
         w = 0.8 / len(_ROUTE_STYLE)
         for j, (name, (c, label)) in enumerate(_ROUTE_STYLE.items()):
             ax.bar(xs + (j - 1) * w, [r[f"rmse_{name}"] or 0.0 for r in rows], w, color=c, label=label)
         twin = ax.twinx()
-        twin.plot(xs, [r["rms_measured"] or 0.0 for r in rows], "k.:", lw=0.8, label="RMS measured torque (right)")
+        line, = twin.plot(xs, [r["rms_measured"] or 0.0 for r in rows], "k.:", lw=0.8,
+                          label="RMS measured torque (right axis)")
         twin.set_ylabel("RMS measured torque (N m)")
         twin.set_ylim(bottom=0)
-        twin.legend(fontsize="x-small", loc="upper right")
         if mark_outside:
             for x, r in zip(xs, rows):
                 if r["hi"] <= lo + 1e-12 or r["lo"] >= hi - 1e-12:
                     ax.axvspan(x - 0.5, x + 0.5, color="red", alpha=0.12, lw=0)
-        ax.set_xticks(xs, [fmt.format(r["lo"]) + "\n" + fmt.format(r["hi"]) for r in rows], fontsize="x-small")
+        ax.set_xticks(xs, [_edge(r["lo"]) + "\n" + _edge(r["hi"]) for r in rows], fontsize="x-small")
         ax.set_xlabel(xlabel)
         ax.set_ylabel("RMSE (N m)")
-        ax.legend(fontsize="x-small", ncol=3, loc="upper left")
+        _legend_above(ax, ax.get_legend_handles_labels()[0] + [line])
 
     fig = _fig(9, 4.5)
     bars(fig.gca(), fa["by_position"], "position bin rho (rad); shaded: outside the identified range",
          mark_outside=True)
-    fig.gca().set_title("error by position (scheduling) bin")
+    fig.suptitle("error by position (scheduling) bin", fontsize="medium")
     _save(fig, out("error_by_position.png"))
 
     fig = _fig(9, 7)
     a1, a2 = fig.subplots(2, 1)
     bars(a1, fa["by_ut_velocity"], "movement velocity bin (UT velocity, rad/s; equal-count bins)")
-    a1.set_title("error by velocity bin")
+    fig.suptitle("error by velocity bin", fontsize="medium")
     bars(a2, fa["by_perturbation_velocity"], "perturbation (stretch) velocity bin (rad/s; edges at the 50, 80 and "
                                              "95th percentiles of |velocity|)")
     _save(fig, out("error_by_velocity.png"))
@@ -235,9 +256,10 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     _shade_out_of_range(ax, t, outside)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"RMSE per {ot['window']:g} s (N m)")
-    ax.set_yscale("log")
-    ax.legend(fontsize="small", ncol=3)
-    ax.set_title("error over time")
+    ax.set_ylim(bottom=0)
+    ax.set_xlim(0, t[-1])
+    _legend_above(ax, ncol=3)
+    fig.suptitle("error over time", fontsize="medium")
     _save(fig, out("error_over_time.png"))
 
     from .compare import error_spectrum
@@ -254,8 +276,8 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("power spectral density (N² m²/Hz)")
     ax.set_xlim(0, fs / 2)
-    ax.legend(fontsize="small")
-    ax.set_title("error by frequency (band edges as vertical lines)")
+    _legend_above(ax)
+    fig.suptitle("error by frequency (band edges as vertical lines)", fontsize="medium")
     _save(fig, out("error_by_frequency.png"))
 
     segs = fa["worst_segments"]
@@ -272,7 +294,8 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
         ax.set_title(f"{sgm['start']:.1f}-{sgm['stop']:.1f} s: offline RMSE {sgm['rmse']:.2f} N m, "
                      f"rho {rho.min():+.3f}..{rho.max():+.3f} rad{flag}", fontsize="small")
         ax.set_ylabel("torque (N m)")
-    axes[0].legend(fontsize="x-small", ncol=4, loc="upper right")
+    _legend_above(axes[0])
+    axes[0].set_title(axes[0].get_title(), fontsize="small", pad=22)
     axes[-1].set_xlabel("time (s)")
     _save(fig, out("worst_segments.png"))
     return paths
@@ -286,10 +309,10 @@ color:#222;line-height:1.45;padding:0 1em}
 h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.25em;margin-top:1.8em;border-bottom:1px solid #ddd}
 p.what{color:#333;font-style:italic} table{border-collapse:collapse;margin:.6em 0;font-size:.92em}
 td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right} th{background:#f3f3f3}
-td.l,th.l{text-align:left} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
+td.l,th.l{text-align:left} h3{font-size:1.08em;margin-top:1.4em} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
 .flag{background:#fff3f3;border-left:4px solid #d33;padding:.5em 1em} figure{margin:1em 0}
 figure img{max-width:100%;height:auto;border:1px solid #eee} figcaption{font-size:.9em;color:#555}
-code{background:#f6f6f6;padding:0 .2em} .small{font-size:.85em;color:#555}
+code{background:#f6f6f6;padding:0 .2em} details{margin:1em 0} summary{cursor:pointer;font-weight:bold} .small{font-size:.85em;color:#555}
 """
 
 _SCRIPT = """
@@ -333,6 +356,56 @@ def _img(path: Path, caption: str) -> str:
             f"<figcaption>{_e(caption)} (<code>figures/{_e(path.name)}</code>)</figcaption></figure>")
 
 
+def _table_positions(model, n=5):
+    """``n`` positions (rad) over the central 80 % of the identified range, rounded to 0.01."""
+    lo, hi = model.scheduling_range
+    return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
+
+
+def _physiology_sentence(model) -> str:
+    rho = np.array(model.scheduling_range)
+    K = model.elastic_stiffness(rho)
+    g, _ = model.reflex_gain_threshold(rho)
+    trend = "rises" if K[1] > K[0] else "falls"
+    return (f"Elastic stiffness {trend} from {K[0]:.0f} N m/rad at {rho[0]:+.2f} rad to {K[1]:.0f} N m/rad at "
+            f"{rho[1]:+.2f} rad (+ = dorsiflexion); the reflex gain goes from {g[0]:.1f} to {g[1]:.1f} N m s/rad "
+            f"over the same range.")
+
+
+def _physiology_table(model, level=0.95) -> str:
+    """Elastic stiffness, viscosity, reflex gain and threshold at a few positions, with
+    their ``level`` confidence intervals when the model carries them."""
+    rho = _table_positions(model)
+    K, B = model.elastic_stiffness(rho), model.viscosity(rho)
+    G, th = model.reflex_gain_threshold(rho)
+    has = model.has_intervals
+    if has:
+        ci = {"K": model.elastic_stiffness_interval(rho, level), "B": model.viscosity_interval(rho, level),
+              "G": model.reflex_gain_interval(rho, level), "th": model.reflex_threshold_interval(rho, level)}
+
+    def cell(key, est, i, fmt):
+        if not has:
+            return fmt.format(est[i])
+        lo, hi = ci[key][0][i], ci[key][1][i]
+        return f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(lo)}–{fmt.format(hi)})</span>"
+
+    rows = [[f"{r:+.2f} ({np.degrees(r):+.0f}°)", cell("K", K, i, "{:.1f}"), cell("B", B, i, "{:.2f}"),
+             cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
+    head = ["position rho (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)",
+            "reflex gain (N m s/rad)", "reflex threshold (rad/s)"]
+    if has:
+        v_lo, v_hi = model.vaf_interval()
+        note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
+                f"(correlated residuals respected; <code>lpvpc.uncertainty</code>). Identification VAF "
+                f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). Viscosity is the first moment "
+                f"of the intrinsic IRF. On the virtual subject the K intervals cover the truth at about the stated "
+                f"rate; reflex gain and threshold carry the bias of a 100 Hz model of a rectifier of 1 kHz velocity "
+                f"pulses, which the intervals do not include (<code>benchmarks/results/uncertainty.txt</code>).")
+    else:
+        note = "This model file carries no confidence intervals (identified by an older lpvpc): re-identify to get them."
+    return _table(head, rows) + f"<p class=\"small\">{note}</p>"
+
+
 def _worst_bin(rows, key="rmse_numpy"):
     rows = [r for r in rows if r.get(key) is not None and r["n"] > 0]
     return max(rows, key=lambda r: r[key]) if rows else None
@@ -352,24 +425,31 @@ def _html(m: dict, figs: dict, model) -> str:
                  f"<code>{_e(prov['data_files']['pt']['path'])}</code> / <code>{_e(prov['data_files']['ut']['path'])}"
                  f"</code>, {m['n_samples']} samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
 
-    # summary
+    # A scientist reads the physiology first, then how well the model predicts and where it
+    # fails, then the software checks; provenance last.
+    top, physiology, prediction, software = [], [], [], []
     overall = m["pass"]
     parts.append("<h2>Summary</h2>")
-    parts.append(f"<p class=\"what\">The identified model explains {m['vaf']:.2f} % of the held-out torque variance "
-                 f"offline, {m['vaf_fmu']:.2f} % as an FMU replaying the measured positions and {m['vaf_cosim']:.2f} % "
-                 f"when co-simulated with the actuator; overall result: {'pass' if overall else 'FAIL'}.</p>")
+    parts.append(f"<p class=\"what\">{_e(_physiology_sentence(model))} The model explains {m['vaf']:.2f} % of the "
+                 f"held-out torque variance offline, {m['vaf_fmu']:.2f} % as an FMU replaying the measured positions "
+                 f"and {m['vaf_cosim']:.2f} % when co-simulated with the actuator; software checks: "
+                 f"{'pass' if overall else 'FAIL'}.</p>")
+    software.append("<h2>Software checks</h2>")
+    software.append(f"<p class=\"what\">The same model through every route a user can take: offline numpy, the "
+                    f"CasADi function, the FMU replaying the measured positions and the FMU co-simulated with the "
+                    f"actuator; overall result: {'pass' if overall else 'FAIL'}.</p>")
     rows = []
     for name in ("numpy", "numpy_causal", "casadi", "casadi_exact", "fmu", "actuator_replay", "cosim", "cosim_unloaded"):
         r = m["routes"].get(name)
         if r:
             rows.append([f"<code>{name}</code>", _num(r["vaf"]), _num(r["rmse"], "{:.3f}"), _e(r["description"])])
-    parts.append(_table(["route", "VAF (%)", "RMSE (N m)", "what"], rows, left=(0, 3)))
+    software.append(_table(["route", "VAF (%)", "RMSE (N m)", "what"], rows, left=(0, 3)))
     rows = [[_e(ch["name"]), _num(ch["value"], "{:.4g}"), _num(ch["threshold"], "{:.4g}"), pf(ch["pass"])]
             for ch in m["checks"]]
-    parts.append(_table(["check", "value", "threshold", "result"], rows))
+    software.append(_table(["check", "value", "threshold", "result"], rows))
     if s["flagged"]:
         o, i = s["out_of_range"]["numpy"], s["in_range"]["numpy"]
-        parts.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
+        top.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
                      f"of the held-out samples ({o['n']}) have a scheduling variable outside the identified range "
                      f"[{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad (held-out range "
                      f"[{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad); the model is held at its "
@@ -377,16 +457,16 @@ def _html(m: dict, figs: dict, model) -> str:
                      f"{_num(i['rmse'], '{:.3f}')} N m inside (VAF {_num(o['vaf'])} % vs {_num(i['vaf'])} %).</p>")
 
     # Fig. 3
-    parts.append("<h2>Measured and predicted torque (Fig. 3)</h2>")
-    parts.append("<p class=\"what\">A 10-s window of the held-out perturbation torque with the offline prediction "
+    prediction.append("<h3>Measured and predicted torque (Fig. 3)</h3>")
+    prediction.append("<p class=\"what\">A 10-s window of the held-out perturbation torque with the offline prediction "
                  "split into its intrinsic and reflex parts, and the co-simulated torque dashed.</p>")
-    parts.append(_img(figs["fig3_torque.png"], FIGURES["fig3_torque.png"]))
+    prediction.append(_img(figs["fig3_torque.png"], FIGURES["fig3_torque.png"]))
 
     # routes
-    parts.append("<h2>Prediction routes and co-simulation</h2>")
+    software.append("<h3>Prediction routes and co-simulation</h3>")
     d = ag["cosim_vs_fmu_replay"]
     fmu_key = "fmu_vs_numpy" if "fmu_vs_numpy" in ag else "fmu_vs_numpy_causal"
-    parts.append(f"<p class=\"what\">The CasADi and FMU routes reproduce the numpy prediction to "
+    software.append(f"<p class=\"what\">The CasADi and FMU routes reproduce the numpy prediction to "
                  f"{max(ag['casadi_vs_numpy_causal']['max_relative_difference'], ag[fmu_key]['max_relative_difference']):.1e} "
                  f"of the torque scale, while the co-simulation, which adds the actuator and the loop, is "
                  f"{abs(d['vaf_difference']):.2f} VAF points {'below' if d['vaf_difference'] >= 0 else 'above'} "
@@ -401,17 +481,19 @@ def _html(m: dict, figs: dict, model) -> str:
                  f"VAF {ag['numpy_causal_vs_numpy']['vaf_difference']:+.2f} points"])
     rows.append(["<code>cosim_vs_fmu_replay</code> (physical)", _num(d["max_relative_difference"], "{:.2e}"),
                  _num(d["rmse_difference"], "{:.3f}"), f"VAF {-d['vaf_difference']:+.2f} points"])
-    parts.append(_table(["routes", "max |a-b| / max |b|", "RMS difference (N m)", f"tolerance {ag['tolerance']:.0e}"], rows))
+    software.append(_table(["routes", "max |a-b| / max |b|", "RMS difference (N m)", f"tolerance {ag['tolerance']:.0e}"], rows))
     tr = c["tracking"]
     cal = c["calibration"]
     le = c["load_effect"]
     st = c["settings"]
     txt = (f"The actuators were driven by {_e(c['command_source'])}. ")
     if c.get("model_fmu_variant") == "exact":
-        txt += (f"The model FMU is the exact variant (the identified two-sided model): its torque is that of "
-                f"{c['model_fmu_latency_samples']} samples earlier, so the replay and the co-simulation shift it "
-                f"back, and in the loop it loads the actuator that much late. The latency-free causal FMU meant for "
-                f"closed loop reaches {m['vaf_causal']:.2f} % offline (validate it with --fmu-variant causal). ")
+        lat = c['model_fmu_latency_samples']
+        txt += (f"The model FMU is the exact variant (the identified two-sided model): it needs {lat} future "
+                f"positions, so its torque comes {lat} samples late. The replay and the co-simulation shift it back by "
+                f"{lat} samples for comparison; in the loop, however, it loads the actuator {lat} samples late. The "
+                f"latency-free causal FMU meant for closed loop reaches {m['vaf_causal']:.2f} % offline (validate it "
+                f"with --fmu-variant causal). ")
     if cal.get("done"):
         txt += (f"The servo was calibrated on the record: bandwidth {cal['servo_bandwidth']:.2f} Hz, damping "
                 f"{cal['servo_damping']:.3f} (FMU defaults {cal['defaults']['servo_bandwidth']:g} Hz, "
@@ -435,10 +517,10 @@ def _html(m: dict, figs: dict, model) -> str:
                 f"rate and decimating them like the measured data gives {m['vaf_actuator_replay']:.2f} %: the "
                 f"difference to vaf_cosim ({m['vaf_actuator_replay'] - m['vaf_cosim']:+.2f} points) is what feeding "
                 f"the {m['fs']:g} Hz model sampled, not anti-aliased, positions in the loop costs.")
-    parts.append(f"<p>{txt}</p>")
-    parts.append(_img(figs["routes.png"], FIGURES["routes.png"]))
+    software.append(f"<p>{txt}</p>")
+    software.append(_img(figs["routes.png"], FIGURES["routes.png"]))
     rows = [[f"<code>{_e(x['to'])}</code>", _e(x["from"])] for x in c["connections"]]
-    parts.append("<p>Connections (by variable name):</p>" + _table(["input", "connected from"], rows, left=(0, 1)))
+    software.append("<p>Connections (by variable name):</p>" + _table(["input", "connected from"], rows, left=(0, 1)))
     rows = [["communication step (model sample period)", f"{c['communication_step_s'] * 1e3:g} ms"],
             ["actuator step (command fed at every step)" if st["command_rate"] == "actuator"
              else "actuator step (command held over each model step)", f"{c['step_actuator_s'] * 1e3:g} ms"],
@@ -451,30 +533,30 @@ def _html(m: dict, figs: dict, model) -> str:
             ["load torque", _e(st["load"])],
             ["actuator parameters", _e(", ".join(f"{k} = {v:.6g}" for k, v in c["actuator_parameters"].items()) or "defaults")],
             ["stepping time", f"{c['stepping_seconds']:.2f} s ({c['real_time_factor']:.0f}x real time)"]]
-    parts.append(_table(["co-simulation set-up", ""], rows, left=(0, 1)))
+    software.append(_table(["co-simulation set-up", ""], rows, left=(0, 1)))
     if c.get("ssp"):
-        parts.append(f"<p>The same set-up (both FMUs, connections by variable name, the parameters above, start and "
+        software.append(f"<p>The same set-up (both FMUs, connections by variable name, the parameters above, start and "
                      f"stop time) is in <code>{_e(c['ssp'])}</code> (SSP 1.0) for other co-simulation tools; the "
                      f"signals this master computes or takes from the record are inputs of the system there.</p>")
 
     # physiology
-    parts.append("<h2>Identified intrinsic stiffness (Fig. 4)</h2>")
+    physiology.append("<h3>Intrinsic stiffness (Fig. 4)</h3>")
     K = model.elastic_stiffness(np.array(model.scheduling_range))
-    parts.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; the "
+    physiology.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; the "
                  f"elastic stiffness K(rho) goes from {K[0]:.0f} N m/rad at {model.scheduling_range[0]:+.2f} rad to "
                  f"{K[1]:.0f} N m/rad at {model.scheduling_range[1]:+.2f} rad.</p>")
-    parts.append(_img(figs["fig4_intrinsic_gain.png"], FIGURES["fig4_intrinsic_gain.png"]))
-    parts.append("<h2>Identified reflex pathway (Fig. 5)</h2>")
-    parts.append(f"<p class=\"what\">The reflex static nonlinearity (steady torque for a constant delayed stretch "
-                 f"velocity) at seven positions and the impulse response of the reflex dynamics (order "
+    physiology.append(_img(figs["fig4_intrinsic_gain.png"], FIGURES["fig4_intrinsic_gain.png"]))
+    physiology.append("<h3>Reflex pathway (Fig. 5)</h3>")
+    physiology.append(f"<p class=\"what\">The reflex static nonlinearity (steady torque for a constant delayed stretch "
+                 f"velocity) at five positions, with confidence bands where the model carries intervals, and the impulse response of the reflex dynamics (order "
                  f"{model.state_order}, delay {1e3 * model.delay / model.fs:.0f} ms).</p>")
-    parts.append(_img(figs["fig5a_reflex_nonlinearity.png"], FIGURES["fig5a_reflex_nonlinearity.png"]))
-    parts.append(_img(figs["fig5b_reflex_irf.png"], FIGURES["fig5b_reflex_irf.png"]))
+    physiology.append(_img(figs["fig5a_reflex_nonlinearity.png"], FIGURES["fig5a_reflex_nonlinearity.png"]))
+    physiology.append(_img(figs["fig5b_reflex_irf.png"], FIGURES["fig5b_reflex_irf.png"]))
 
     # scheduling range
-    parts.append("<h2>Scheduling range</h2>")
+    prediction.append("<h3>Scheduling range</h3>")
     o = s["out_of_range"]
-    parts.append(f"<p class=\"what\">The held-out record spans [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
+    prediction.append(f"<p class=\"what\">The held-out record spans [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
                  f"against the identified [{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad; "
                  f"{100 * s['out_of_range_fraction']:.2f} % of it lies outside, where the error is shown separately.</p>")
     rows = []
@@ -482,50 +564,63 @@ def _html(m: dict, figs: dict, model) -> str:
         i_, o_ = s["in_range"][k], o[k]
         rows.append([label, str(i_["n"]), _num(i_["vaf"]), _num(i_["rmse"], "{:.3f}"), str(o_["n"]), _num(o_["vaf"]),
                      _num(o_["rmse"], "{:.3f}")])
-    parts.append(_table(["route", "n inside", "VAF inside (%)", "RMSE inside (N m)", "n outside", "VAF outside (%)",
+    prediction.append(_table(["route", "n inside", "VAF inside (%)", "RMSE inside (N m)", "n outside", "VAF outside (%)",
                          "RMSE outside (N m)"], rows))
-    parts.append(_img(figs["scheduling_range.png"], FIGURES["scheduling_range.png"]))
+    prediction.append(_img(figs["scheduling_range.png"], FIGURES["scheduling_range.png"]))
 
     # where it fails
-    parts.append("<h2>Where the model fails</h2>")
+    prediction.append("<h3>Where the model fails</h3>")
     wb = _worst_bin(fa["by_position"])
     if wb:
-        parts.append(f"<p class=\"what\">By position: the offline error is largest between {wb['lo']:+.3f} and "
+        prediction.append(f"<p class=\"what\">By position: the offline error is largest between {wb['lo']:+.3f} and "
                      f"{wb['hi']:+.3f} rad (RMSE {wb['rmse_numpy']:.3f} N m against an RMS torque of "
                      f"{wb['rms_measured']:.2f} N m there).</p>")
-    parts.append(_img(figs["error_by_position.png"], FIGURES["error_by_position.png"]))
+    prediction.append(_img(figs["error_by_position.png"], FIGURES["error_by_position.png"]))
     wv, wp = _worst_bin(fa["by_ut_velocity"]), _worst_bin(fa["by_perturbation_velocity"])
     if wv and wp:
-        parts.append(f"<p class=\"what\">By velocity: the error is largest for movement velocities "
-                     f"{wv['lo']:+.2f}..{wv['hi']:+.2f} rad/s (RMSE {wv['rmse_numpy']:.3f} N m) and for perturbation "
-                     f"velocities {wp['lo']:+.2f}..{wp['hi']:+.2f} rad/s (RMSE {wp['rmse_numpy']:.3f} N m).</p>")
-    parts.append(_img(figs["error_by_velocity.png"], FIGURES["error_by_velocity.png"]))
+        prediction.append(f"<p class=\"what\">By velocity: the error is largest for movement velocities "
+                     f"{_edge(wv['lo'])}..{_edge(wv['hi'])} rad/s (RMSE {wv['rmse_numpy']:.3f} N m) and for perturbation "
+                     f"velocities {_edge(wp['lo'])}..{_edge(wp['hi'])} rad/s (RMSE {wp['rmse_numpy']:.3f} N m).</p>")
+    prediction.append(_img(figs["error_by_velocity.png"], FIGURES["error_by_velocity.png"]))
     ot = fa["over_time"]
     j = int(np.argmax(ot["rmse_numpy"]))
-    parts.append(f"<p class=\"what\">Over time: the offline RMSE per {ot['window']:g} s window ranges from "
+    prediction.append(f"<p class=\"what\">Over time: the offline RMSE per {ot['window']:g} s window ranges from "
                  f"{min(ot['rmse_numpy']):.3f} to {max(ot['rmse_numpy']):.3f} N m, worst around t = "
                  f"{ot['t_centre'][j]:.1f} s (out-of-range periods shaded).</p>")
-    parts.append(_img(figs["error_over_time.png"], FIGURES["error_over_time.png"]))
+    prediction.append(_img(figs["error_over_time.png"], FIGURES["error_over_time.png"]))
     bands = fa["by_frequency"]
     worst_band = min((b for b in bands if b["power_measured"] > 0 and b["vaf_numpy"] is not None),
                      key=lambda b: b["vaf_numpy"], default=None)
     if worst_band:
-        parts.append(f"<p class=\"what\">By frequency: the model explains least of the torque between "
+        prediction.append(f"<p class=\"what\">By frequency: the model explains least of the torque between "
                      f"{worst_band['lo']:g} and {worst_band['hi']:g} Hz (band VAF {worst_band['vaf_numpy']:.1f} % "
                      f"offline, {_num(worst_band['vaf_cosim'], '{:.1f}')} % co-simulated).</p>")
     total_p = sum(b["power_measured"] for b in bands) or 1.0
     rows = [[f"{b['lo']:g}–{b['hi']:g}", f"{100 * b['power_measured'] / total_p:.1f}", _num(b["vaf_numpy"], "{:.1f}"),
              _num(b["vaf_fmu"], "{:.1f}"), _num(b["vaf_cosim"], "{:.1f}")] for b in bands]
-    parts.append(_table(["band (Hz)", "share of torque power (%)", "band VAF offline (%)", "FMU (%)", "cosim (%)"], rows))
-    parts.append(_img(figs["error_by_frequency.png"], FIGURES["error_by_frequency.png"]))
+    prediction.append(_table(["band (Hz)", "share of torque power (%)", "band VAF offline (%)", "FMU (%)", "cosim (%)"], rows))
+    prediction.append(_img(figs["error_by_frequency.png"], FIGURES["error_by_frequency.png"]))
     segs = fa["worst_segments"]
-    parts.append(f"<p class=\"what\">The {len(segs)} two-second segments with the largest offline error, measured and "
+    prediction.append(f"<p class=\"what\">The {len(segs)} two-second segments with the largest offline error, measured and "
                  f"predicted torque overlaid; the worst starts at {segs[0]['start']:.1f} s "
                  f"(RMSE {segs[0]['rmse']:.3f} N m).</p>")
-    parts.append(_img(figs["worst_segments.png"], FIGURES["worst_segments.png"]))
+    prediction.append(_img(figs["worst_segments.png"], FIGURES["worst_segments.png"]))
 
     if "whole_joint" in m and WHOLE_JOINT_FIGURE in figs:
-        parts.append(_whole_joint_section(m["whole_joint"], figs[WHOLE_JOINT_FIGURE]))
+        prediction.append(_whole_joint_section(m["whole_joint"], figs[WHOLE_JOINT_FIGURE]))
+
+    parts += top
+    parts.append("<h2>Physiology: what the model says about the ankle</h2>")
+    parts.append(_physiology_table(model))
+    parts += physiology
+    parts.append("<h2>Prediction: how well the model predicts held-out data</h2>")
+    parts += prediction
+    # condensed: the route and check tables stay visible, the details fold away
+    n_open = 4  # heading, sentence, route table, check table
+    parts += software[:n_open]
+    parts.append("<details><summary>Routes, FMU and co-simulation in detail</summary>")
+    parts += software[n_open:]
+    parts.append("</details>")
 
     # provenance
     parts.append("<h2>Provenance</h2>")

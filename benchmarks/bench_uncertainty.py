@@ -1,0 +1,104 @@
+"""Coverage of the 95 % confidence intervals on the virtual subject, and their cost.
+
+For each seed: simulate an identification pair (1 kHz, paired and decimated as the loaders
+do), identify at default settings (which now computes the HAC covariance,
+lpvpc.uncertainty), and check whether the 95 % intervals of K(theta), reflex gain and
+threshold, viscosity and inertia contain the virtual subject's true values at 9 positions
+over the central 80 % of the identified range. Records the pooled coverage, the median
+half-width (absolute and relative to the estimate) and the time the intervals add to the
+identification (same run: identification total vs its uncertainty step, and the lazily
+computed reflex intervals).
+
+Run: nice python benchmarks/bench_uncertainty.py [n_seeds]  (default 20; writes
+benchmarks/results/uncertainty.txt)
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from lpvpc.data import pair_trials  # noqa: E402
+from lpvpc.identify import identify  # noqa: E402
+from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
+
+N_POS = 9
+
+
+def one_seed(seed):
+    truth = SubjectParams()
+    pair = simulate_pair("multilevel", seed=seed)
+    d = pair_trials(pair.pt, pair.ut)
+    t = time.perf_counter()
+    model = identify(d)
+    t_ident = time.perf_counter() - t
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)
+    t = time.perf_counter()
+    g_lo, g_hi = model.reflex_gain_interval(rho)
+    th_lo, th_hi = model.reflex_threshold_interval(rho)
+    t_reflex = time.perf_counter() - t
+    gain, thr = model.reflex_gain_threshold(rho)
+    rows = {
+        "K": (model.elastic_stiffness(rho), *model.elastic_stiffness_interval(rho), truth.K(rho)),
+        "reflex gain": (gain, g_lo, g_hi, truth.reflex_gain(rho)),
+        "reflex threshold": (thr, th_lo, th_hi, truth.reflex_threshold(rho)),
+        "viscosity": (model.viscosity(rho), *model.viscosity_interval(rho), np.full(N_POS, truth.viscosity)),
+        "inertia": (model.inertia(rho), *model.inertia_interval(rho), np.full(N_POS, truth.inertia)),
+    }
+    timings = model.fit["timings_s"]
+    return {"seed": seed, "t_ident": t_ident, "t_unc": timings["uncertainty"], "t_total": timings["total"],
+            "t_reflex": t_reflex, "rows": rows}
+
+
+def main(n_seeds=20):
+    results = []
+    for seed in range(n_seeds):
+        r = one_seed(seed)
+        results.append(r)
+        cov = {k: np.mean((lo <= tr) & (tr <= hi)) for k, (est, lo, hi, tr) in r["rows"].items()}
+        print(f"seed {seed}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in cov.items())
+              + f"; identify {r['t_ident']:.2f} s (intervals {r['t_unc']:.3f} s)", flush=True)
+    lines = [f"# Coverage of the 95 % intervals on the virtual subject (nice python benchmarks/bench_uncertainty.py {n_seeds})",
+             "", f"seeds: {n_seeds}; positions per seed: {N_POS}, central 80 % of the identified range; "
+             f"CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
+             f"load {os.getloadavg()[0]:.1f}", "",
+             "| quantity | coverage % (pooled) | seeds with all positions covered | median half-width | median half-width % of estimate | median |error| % | mean signed error % |",
+             "|---|---|---|---|---|---|---|"]
+    for k in results[0]["rows"]:
+        est = np.concatenate([r["rows"][k][0] for r in results])
+        lo = np.concatenate([r["rows"][k][1] for r in results])
+        hi = np.concatenate([r["rows"][k][2] for r in results])
+        tr = np.concatenate([r["rows"][k][3] for r in results])
+        inside = (lo <= tr) & (tr <= hi)
+        per_seed = sum(bool(np.all((r["rows"][k][1] <= r["rows"][k][3]) & (r["rows"][k][3] <= r["rows"][k][2])))
+                       for r in results)
+        hw = (hi - lo) / 2
+        lines.append(f"| {k} | {100 * inside.mean():.1f} | {per_seed}/{n_seeds} | {np.median(hw):.4g} | "
+                     f"{100 * np.median(hw / np.abs(est)):.1f} | {100 * np.median(np.abs(est / tr - 1)):.1f} | "
+                     f"{100 * np.mean(est / tr - 1):+.1f} |")
+    t_tot = np.array([r["t_total"] for r in results])
+    t_unc = np.array([r["t_unc"] for r in results])
+    t_ref = np.array([r["t_reflex"] for r in results])
+    ratio = t_tot / (t_tot - t_unc)
+    lines += ["", "units: K N m/rad, reflex gain N m s/rad, threshold rad/s, viscosity N m s/rad, inertia kg m^2",
+              f"identification time with intervals / without (same run, per seed): median {np.median(ratio):.3f}, "
+              f"max {np.max(ratio):.3f} (interval step median {1000 * np.median(t_unc):.0f} ms of "
+              f"{np.median(t_tot):.2f} s)",
+              f"reflex gain + threshold intervals at {N_POS} positions (computed on request, 2 x {400} draws): "
+              f"median {1000 * np.median(t_ref):.0f} ms; counted in: ratio {np.median((t_tot + t_ref) / (t_tot - t_unc)):.3f}"]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    out = ROOT / "benchmarks" / "results" / "uncertainty.txt"
+    out.write_text(text)
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20)
