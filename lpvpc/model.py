@@ -114,7 +114,8 @@ class LPVPCModel:
         """Torque (N m) for a perturbation position record (rad) and its scheduling record
         (rad), or for a loaded data object: ``model.predict(data)`` with the
         :class:`lpvpc.data.PerturbationData` that ``load_identification_data`` returns
-        (its ``position``, ``scheduling``, extra signals; its ``fs`` must be the model's).
+        (its ``position``, ``scheduling``, extra signals; its ``fs`` must be the model's;
+        joined trials are predicted trial by trial, each from rest).
 
         ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
         velocity and acceleration) that the default FMU runs without latency; velocity
@@ -126,6 +127,19 @@ class LPVPCModel:
         ``scheduling``.
         """
         if scheduling is None:
+            segments = list(getattr(position, "segments", ()) or ())
+            if len(segments) > 1:  # joined trials: each predicted on its own, from rest
+                data = position
+                self._unpack_data(data, signals)  # the checks
+                parts = [self.predict(data.position[a:b], data.scheduling[a:b], causal=causal, warn=warn,
+                                      velocity=None if velocity is None else velocity[a:b],
+                                      acceleration=None if acceleration is None else acceleration[a:b])
+                         for a, b in segments]
+                n = np.array([b - a for a, b in segments], dtype=float)
+                return Prediction(total=np.concatenate([q.total for q in parts]),
+                                  intrinsic=np.concatenate([q.intrinsic for q in parts]),
+                                  reflex=np.concatenate([q.reflex for q in parts]),
+                                  out_of_range_fraction=float(np.dot(n, [q.out_of_range_fraction for q in parts]) / n.sum()))
             position, scheduling, signals = self._unpack_data(position, signals)
         extra_signals = signals  # (the name ``signals`` is reused below for the IRF inputs)
         position = np.asarray(position, dtype=float)

@@ -60,3 +60,20 @@ def test_export_methods_write_loadable_artifacts(model, subject, tmp_path):
 
     md = read_model_description(str(fmu))
     assert {"position", "scheduling", "torque"} <= {v.name for v in md.modelVariables}
+
+
+def test_predict_on_joined_trials_predicts_each_trial_from_rest(subject, model):
+    from lpvpc.data import join_trials
+
+    d = subject["novel"]
+    half = len(d.position) // 2
+    parts = [PerturbationData(position=d.position[a:b], torque=d.torque[a:b], scheduling=d.scheduling[a:b], fs=d.fs)
+             for a, b in ((0, half), (half, len(d.position)))]
+    joined = join_trials(parts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        got = model.predict(joined).total
+        each = np.concatenate([model.predict(q.position, q.scheduling).total for q in parts])
+        across = model.predict(joined.position, joined.scheduling).total
+    assert np.array_equal(got, each)
+    assert not np.array_equal(got, across)  # the seam matters
