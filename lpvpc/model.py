@@ -291,20 +291,6 @@ class LPVPCModel:
         v, _ = self.rectifier_velocity_grid(n_velocity)
         return rectifier_fit(v, self.reflex_nonlinearity(v, rho))
 
-    # -- intrinsic mechanics from the IRF's moments ----------------------------------------
-    def viscosity(self, rho):
-        """Intrinsic viscosity B(rho) (N m s/rad): minus the first moment of the IRF weights,
-        -sum_l l h_l(rho) / fs (the velocity term of sum_l h_l p(k - l) expanded in l)."""
-        from .uncertainty import lag_moment_weights
-
-        return self.irf_weights(rho) @ lag_moment_weights(self, "viscosity")
-
-    def inertia(self, rho):
-        """Intrinsic inertia I(rho) (kg m^2): the second moment sum_l (l / fs)^2 h_l(rho) / 2."""
-        from .uncertainty import lag_moment_weights
-
-        return self.irf_weights(rho) @ lag_moment_weights(self, "inertia")
-
     # -- confidence intervals (lpvpc.uncertainty; stored in the model file) -----------------
     @property
     def has_intervals(self) -> bool:
