@@ -230,16 +230,33 @@ def at_the_limits(base: dict, minutes: float = 5.0) -> list:
     return lines
 
 
-def _virtual_subject_model(tmp):
+def _virtual_subject_model(tmp, effects=False):
+    """The virtual subject's model; ``effects``: an extended model with every catalog effect
+    (from a subject with drift and background activation)."""
     from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.identify import identify
+    from lpvpc.effects import CATALOG
+    from lpvpc.identify import LPVPCEstimator
     from lpvpc.simulate import simulate_pair
 
-    pair = simulate_pair("multilevel", seed=0, duration=60.0)
+    pair = simulate_pair("multilevel", seed=0, duration=60.0,
+                         effects=("drift", "background_activation") if effects else ())
     pt, ut = Path(tmp) / "PT.csv", Path(tmp) / "UT.csv"
     write_trial_csv(pair.pt, pt)
     write_trial_csv(pair.ut, ut)
-    return identify(load_identification_data(pt=pt, ut=ut)).to_dict()
+    est = LPVPCEstimator(effects=tuple(CATALOG) if effects else ())
+    return est.fit(load_identification_data(pt=pt, ut=ut)).model_.to_dict()
+
+
+def _table(title, r, elapsed) -> list:
+    return [
+        title,
+        f"{'cases':>28}: {r['cases']}",
+        f"{'loaded (finite prediction)':>28}: {r['loaded']}",
+        f"{'refused in one line':>28}: {r['refused']}",
+        f"{'tracebacks / other failures':>28}: {len(r['tracebacks'])}",
+        f"{'slowest case':>28}: {r['slowest_s'] * 1000:.0f} ms (load + two predictions of 300 samples)",
+        f"{'total':>28}: {elapsed:.1f} s",
+    ] + [line for case, what, msg in r["tracebacks"][:10] for line in ("", f"case {case} ({what}):", msg)]
 
 
 def main():
@@ -251,30 +268,26 @@ def main():
     ap.add_argument("--no-limits", action="store_true", help="skip the export and prediction at the limits")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        base = json.loads(Path(args.model).read_text()) if args.model else _virtual_subject_model(tmp)
-    t0 = time.perf_counter()
-    r = fuzz(base, args.cases, args.seed)
-    elapsed = time.perf_counter() - t0
-    lines = [
-        "Fuzz benchmark of the model loader (benchmarks/bench_fuzz_model.py)",
-        f"model: {args.model or 'virtual subject, seed 0, 60 s at 100 Hz'}; seed {args.seed}; "
-        f"load average {os.getloadavg()[0]:.1f}",
-        "",
-        f"{'cases':>28}: {r['cases']}",
-        f"{'loaded (finite prediction)':>28}: {r['loaded']}",
-        f"{'refused in one line':>28}: {r['refused']}",
-        f"{'tracebacks / other failures':>28}: {len(r['tracebacks'])}",
-        f"{'slowest case':>28}: {r['slowest_s'] * 1000:.0f} ms (load + two predictions of 300 samples)",
-        f"{'total':>28}: {elapsed:.1f} s",
-    ]
+        if args.model:
+            models = {args.model: json.loads(Path(args.model).read_text())}
+        else:
+            models = {"virtual subject, seed 0, 60 s at 100 Hz": _virtual_subject_model(tmp),
+                      "the same with every catalog effect (extended model)": _virtual_subject_model(tmp, True)}
+    lines = ["Fuzz benchmark of the model loader (benchmarks/bench_fuzz_model.py)",
+             f"seed {args.seed}; load average {os.getloadavg()[0]:.1f}"]
+    failures = 0
+    for k, (name, base) in enumerate(models.items()):
+        n = args.cases if k == 0 else max(1, args.cases // 2)
+        t0 = time.perf_counter()
+        r = fuzz(base, n, args.seed + k)
+        failures += len(r["tracebacks"])
+        lines += ["", *_table(f"model: {name}", r, time.perf_counter() - t0)]
     if not args.no_limits:
-        lines += ["", *at_the_limits(base)]
-    for case, what, msg in r["tracebacks"][:10]:
-        lines += ["", f"case {case} ({what}):", msg]
+        lines += ["", *at_the_limits(next(iter(models.values())))]
     text = "\n".join(lines) + "\n"
     print(text, end="")
     Path(args.out).write_text(text)
-    return 1 if r["tracebacks"] else 0
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":

@@ -421,10 +421,6 @@ def _check_effects(x, where, problems, d, budget):
         names.append(name)
         eff = CATALOG[name]
         w = f"{where}[{name}]"
-        unknown = sorted(set(e) - {"name", "options", "H", "H_causal", "Theta", "basis", "channel_basis"})
-        if unknown:
-            problems.append(f"{w}: unknown field(s) {', '.join(unknown)}")
-            raise _Refused
         sizes = {key: _basis(e[key], f"{w}.{key}", problems) for key in ("basis", "channel_basis") if key in e}
         need = (("H", "H_causal") if eff.channels is not None else ()) + (
             ("Theta", "basis") if eff.features is not None else ())
