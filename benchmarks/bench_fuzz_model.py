@@ -3,7 +3,8 @@
     python benchmarks/bench_fuzz_model.py [--model model.json] [--cases 5000] [--seed 0] [--no-limits]
 
 Without ``--model`` it identifies a model from the virtual subject (seed 0, 60 s
-multilevel record at 100 Hz). Each case mutates the model's JSON tree (a value replaced
+multilevel record at 100 Hz) and an extended model with every catalog effect (fuzzed with
+half as many cases). Each case mutates the model's JSON tree (a value replaced
 by a hostile one, a key deleted, a list grown, shrunk or duplicated, a container's type
 changed, a number scaled) or its text (truncated, a byte flipped or inserted), writes it
 to a file and loads it with ``LPVPCModel.load`` (the path every command takes). A case
