@@ -443,7 +443,7 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
                 continue
             variants = _setting_variants(sur, name)
             if not variants:
-                res.available, res.reason = False, "no admissible variant (e.g. IRF lags must stay below the reflex delay)"
+                res.available, res.reason = False, "no admissible variant (e.g. the IRF lags may not exceed the reflex delay)"
                 results.append(res)
                 continue
             fits = []
