@@ -197,7 +197,7 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
              label=f"outside ({100 * m['out_of_range_fraction']:.1f} %)")
     ax1.set_xlabel("time (s)")
     ax1.set_ylabel("position rho (rad)")
-    ax1.legend(fontsize="small", loc="lower right")
+    _legend_above(ax1, ncol=3)
     s = m["scheduling"]
     names = ["numpy", "fmu", "cosim"]
     inside_r = [s["in_range"][k]["rmse"] or 0.0 for k in names]
@@ -207,8 +207,8 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     ax2.bar(xs + 0.2, out_r, 0.4, color="red", alpha=0.7, label="outside")
     ax2.set_xticks(xs, ["offline", "FMU", "cosim"])
     ax2.set_ylabel("RMSE (N m)")
-    ax2.legend(fontsize="small")
-    ax2.set_title("error in / out of range")
+    _legend_above(ax2, ncol=2)
+    fig.suptitle("held-out scheduling against the identified range; error inside and outside", fontsize="medium")
     _save(fig, out("scheduling_range.png"))
 
     # error by position bin
