@@ -204,11 +204,14 @@ class LPVPCModel:
             signals = signals_from_data(data)
         return data.position, data.scheduling, signals
 
-    def export_fmu(self, path, fmi_version: int = 2, variant: str = "causal", **options):
+    def export_fmu(self, path, fmi_version: int = 2, variant: str = "sampled", **options):
         """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
         path. Thin method over :func:`lpvpc.export.export_fmu` (which documents variables,
-        units and ``variant``: ``"causal"`` runs without latency, ``"exact"`` is the
-        two-sided IRF delayed by L + 1 samples)."""
+        units and ``variant``). The default is what ``lpvpc export --fmu`` makes:
+        ``"sampled"``, inputs position and scheduling only, derivatives computed inside, one
+        sample of declared latency, the same timing in every co-simulation master (README,
+        "timing contract"); ``"causal"`` takes velocity and acceleration inputs and has direct
+        feedthrough; ``"exact"`` is the two-sided IRF delayed by L samples."""
         from .export import export_fmu
 
         return export_fmu(self, path, fmi_version=fmi_version, variant=variant, **options)
