@@ -544,6 +544,8 @@ def _collect_sources(fmi_version, system_sources, include_dirs, interface="cs") 
         add(wdir / "me_core.h", "wrapper")
     add(wdir / "system.h", "wrapper")
     add(wdir / "cs_core.h", "wrapper")  # included by the wrapper: shipped, not listed as a source file
+    if fmi_version == 3:
+        add(wdir / "fmi3_stubs.h", "wrapper")  # the functions both FMI 3 wrappers answer alike
     for h in _FMI2_HEADERS if fmi_version == 2 else _FMI3_HEADERS:
         add(hdir / h, "FMI header")
     for src in system_sources:
