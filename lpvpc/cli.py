@@ -241,11 +241,17 @@ def _physical_summary(model) -> list:
     fs_velocity = model.fs
     bias = " (threshold biased: rectifier seen on 100 Hz-rate velocity)" if fs_velocity < 500 else ""
     s = model.settings
+    if len(rho) == 1:  # a stationary trial: one operating point, one value each
+        viscosity = f"B {B[0]:.2f} N m s/rad"
+        reflex = f"{gain[0]:.2f} N m s/rad; threshold {thr[0]:.3f} rad/s{bias}"
+    else:
+        viscosity = f"B {B.min():.2f}..{B.max():.2f} N m s/rad"
+        reflex = (f"{gain[0]:.2f} at {rho[0]:+.3f} .. {gain[-1]:.2f} at {rho[-1]:+.3f} N m s/rad; threshold "
+                  f"{thr[0]:.3f} .. {thr[-1]:.3f} rad/s{bias}")
     return [
         f"stiffness:   K(theta) {at(K, rho)} N m/rad",
-        f"viscosity:   B {B.min():.2f}..{B.max():.2f} N m s/rad",
-        f"reflex gain: {gain[0]:.2f} at {rho[0]:+.3f} .. {gain[-1]:.2f} at {rho[-1]:+.3f} N m s/rad; threshold "
-        f"{thr[0]:.3f} .. {thr[-1]:.3f} rad/s{bias}",
+        f"viscosity:   {viscosity}",
+        f"reflex gain: {reflex}",
         f"orders:      IRF lags {model.lags[0]}..{model.lags[-1]}, basis orders in position {s.get('intrinsic_order')} "
         f"(intrinsic), {s.get('reflex_order')} (reflex), velocity {s.get('velocity_order')}",
     ]

@@ -415,3 +415,6 @@ def test_identify_stationary_trial_says_it_fits_the_lti_cascade(capsys, tmp_path
     lines = [ln for ln in err.splitlines() if ln.startswith("lpvpc: warning:")]
     assert len(lines) == 1 and "position-independent (LTI) parallel cascade" in lines[0]
     assert LPVPCModel.load(tmp_path / "m.json").settings["intrinsic_order"] == 0
+    # one operating point: the summary gives one value each, not a range from a point to itself
+    summary = {ln.split(":")[0]: ln for ln in out.splitlines() if ln.startswith(("viscosity:", "reflex gain:"))}
+    assert set(summary) == {"viscosity", "reflex gain"} and not any(".." in ln for ln in summary.values()), out
