@@ -399,7 +399,8 @@ def _physiology_table(model, level=0.95) -> str:
                 f"(correlated residuals respected; <code>lpvpc.uncertainty</code>). Identification VAF "
                 f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). Viscosity is the first moment "
                 f"of the intrinsic IRF (biased high: compare positions, not absolute values). On the virtual subject "
-                f"the 95 % K intervals cover the truth 87 % of the time (a +1 % structural bias); reflex gain and "
+                f"the 95 % K intervals cover the truth less often than stated (a ~1 % structural bias they do not include; "
+                f"measured coverage in the benchmark below); reflex gain and "
                 f"threshold carry the bias of a 100 Hz model of a rectifier of 1 kHz velocity pulses, which the "
                 f"intervals do not include (<code>benchmarks/results/uncertainty.txt</code>).")
     else:
