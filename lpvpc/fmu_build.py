@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import Sequence
 
 from lpvpc.errors import ExportError
-from lpvpc.outputs import file_mode, signals_held
+from lpvpc.outputs import atomic_path, signals_held
 
 __all__ = [
     "FmuVariable",
@@ -288,6 +288,20 @@ def _full_description(description: str, latency: float | None, step_size: float,
     return f"{text} {extra}".strip()
 
 
+def _set_state_capabilities(element, fmi2: bool) -> None:
+    """The capabilities the CoSimulation and ModelExchange elements share (both wrappers get,
+    set and serialize the FMU state and give no derivatives), in the standard's attribute order."""
+    if fmi2:
+        flags = (("canNotUseMemoryManagementFunctions", "false"), ("canGetAndSetFMUstate", "true"),
+                 ("canSerializeFMUstate", "true"), ("providesDirectionalDerivative", "false"))
+    else:
+        flags = (("canGetAndSetFMUState", "true"), ("canSerializeFMUState", "true"),
+                 ("providesDirectionalDerivatives", "false"), ("providesAdjointDerivatives", "false"),
+                 ("providesPerElementDependencies", "false"))
+    for name, value in flags:
+        element.set(name, value)
+
+
 def _model_description(guid, *, model_identifier, fmi_version, step_size, outputs, inputs, parameters,
                        description, version, author, generation_tool, latency, c_sources, ticks_per_sample=0,
                        constants=()) -> bytes:
@@ -319,19 +333,12 @@ def _model_description(guid, *, model_identifier, fmi_version, step_size, output
         cs.set("canInterpolateInputs", "false")
         cs.set("maxOutputDerivativeOrder", "0")
         cs.set("canRunAsynchronuously", "false")
-        cs.set("canNotUseMemoryManagementFunctions", "false")
-        cs.set("canGetAndSetFMUstate", "true")
-        cs.set("canSerializeFMUstate", "true")
-        cs.set("providesDirectionalDerivative", "false")
+        _set_state_capabilities(cs, fmi2)
         files = ET.SubElement(cs, "SourceFiles")
         for name in c_sources:
             ET.SubElement(files, "File").set("name", name)
     else:
-        cs.set("canGetAndSetFMUState", "true")
-        cs.set("canSerializeFMUState", "true")
-        cs.set("providesDirectionalDerivatives", "false")
-        cs.set("providesAdjointDerivatives", "false")
-        cs.set("providesPerElementDependencies", "false")
+        _set_state_capabilities(cs, fmi2)
         cs.set("fixedInternalStepSize", _fmt(tick))
         cs.set("maxOutputDerivativeOrder", "0")
         cs.set("providesIntermediateUpdate", "false")
@@ -465,17 +472,10 @@ def _interface_description(xml: bytes, interface: str) -> bytes:
     me.set("canBeInstantiatedOnlyOncePerProcess", "false")
     if fmi2:
         me.set("completedIntegratorStepNotNeeded", "true")
-        me.set("canNotUseMemoryManagementFunctions", "false")
-        me.set("canGetAndSetFMUstate", "true")
-        me.set("canSerializeFMUstate", "true")
-        me.set("providesDirectionalDerivative", "false")
+        _set_state_capabilities(me, fmi2)
         me.append(cs.find("SourceFiles"))
     else:
-        me.set("canGetAndSetFMUState", "true")
-        me.set("canSerializeFMUState", "true")
-        me.set("providesDirectionalDerivatives", "false")
-        me.set("providesAdjointDerivatives", "false")
-        me.set("providesPerElementDependencies", "false")
+        _set_state_capabilities(me, fmi2)
         me.set("needsCompletedIntegratorStep", "false")
         me.set("providesEvaluateDiscreteStates", "false")
     root.remove(cs)
@@ -765,12 +765,9 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
         check_built_fmu(stage, model_identifier)
         t_cc = time.perf_counter()
 
-        tmp_fmu = Path(tmp) / "out.fmu"
-        with zipfile.ZipFile(tmp_fmu, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        with atomic_path(target) as tmp_fmu, zipfile.ZipFile(tmp_fmu, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             for path in sorted(p for p in stage.rglob("*") if p.is_file()):
                 zf.write(path, path.relative_to(stage).as_posix())
-        os.chmod(tmp_fmu, file_mode())
-        os.replace(tmp_fmu, target)
         t_end = time.perf_counter()
 
     if timings is not None:
