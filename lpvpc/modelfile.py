@@ -141,6 +141,11 @@ def _isfinite(x) -> bool:
         return False
 
 
+def _is_rate(x) -> bool:
+    """A sampling rate a model file may carry: a finite number in (0, MAX_FS] Hz."""
+    return _is_number(x) and _isfinite(x) and 0 < x <= MAX_FS
+
+
 def _is_int(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool)
 
@@ -495,7 +500,7 @@ def check_model_dict(d, source: str = "model") -> None:
     fs = d.get("fs")
     if not _is_number(fs):
         problems.append(f"fs must be a number (Hz), got {_show(fs)}")
-    elif not (_isfinite(fs) and 0 < fs <= MAX_FS):
+    elif not _is_rate(fs):
         problems.append(f"fs = {fs!r} Hz outside (0, {MAX_FS:g}] (MAX_FS)")
     for key in REQUIRED_SECTIONS:
         if key not in d:
@@ -529,7 +534,7 @@ def check_whole_joint_dict(d: dict, source: str = "whole-joint model") -> None:
         _shape(_array(qs.get("coefficients"), "quasi_static.coefficients", problems, 1, [0]), (n,),
                "quasi_static.coefficients", problems)
         fs = d.get("model", {}).get("fs") if isinstance(d.get("model"), dict) else None
-        nyquist = fs / 2 if _is_number(fs) and _isfinite(fs) and fs > 0 else MAX_FS / 2
+        nyquist = fs / 2 if _is_rate(fs) else MAX_FS / 2  # the embedded model is checked after this
         cutoff = _number(d.get("cutoff"), "cutoff", problems, lo=0.0, hi=nyquist, limit="fs/2")
         if cutoff is not None and not 0 < cutoff < nyquist:
             problems.append(f"cutoff = {cutoff!r} Hz outside (0, {nyquist:g}) (fs/2)")
