@@ -10,6 +10,8 @@ import textwrap
 import numpy as np
 import pytest
 
+from fmu_helpers import reference, shifted_error
+
 from lpvpc import equations as eq
 from lpvpc import export as ex
 from lpvpc.errors import ExportError
@@ -26,16 +28,10 @@ def _run(step, n, model, position, scheduling, variant, params=None):
     return {k: np.asarray(v) for k, v in out.items()}
 
 
-def _reference(model, position, scheduling, variant):
-    p = model.predict(position, scheduling, causal=variant != "exact", warn=False)
-    return {"torque": p.total, "torque_intrinsic": p.intrinsic, "torque_reflex": p.reflex}
-
-
 def _rel_errors(out, ref, latency):
     """Max abs error / max abs total torque of each output; exact outputs are shifted."""
-    n = len(ref["torque"])
     scale = np.max(np.abs(ref["torque"]))
-    return {k: float(np.max(np.abs(out[k].ravel()[latency:] - ref[k][: n - latency])) / scale) for k in ref}
+    return {k: shifted_error(out[k].ravel(), ref[k], latency, scale) for k in ref}
 
 
 @pytest.mark.parametrize("parametric", [False, True], ids=["baked", "parametric"])
@@ -48,7 +44,7 @@ def test_mapaccum_matches_numpy_on_two_minute_record(model, subject, variant, pa
     params = ex.parameter_vector(model, variant) if parametric else None
     out = _run(step, n, model, data.position, data.scheduling, variant, params)
     lat = ex.latency_samples(model, variant)
-    errors = _rel_errors(out, _reference(model, data.position, data.scheduling, variant), lat)
+    errors = _rel_errors(out, reference(model, data.position, data.scheduling, variant), lat)
     assert max(errors.values()) < TOL, errors
     if variant == "exact":
         assert lat == -min(model.lags) > 0
@@ -109,7 +105,7 @@ def test_parametric_step_follows_its_parameters(model, subject):
     data = subject["ident"].segment(0, 2000)
     step = ex.step_function(model, "causal", parametric=True)
     out = _run(step, data.n, model, data.position, data.scheduling, "causal", ex.parameter_vector(changed))
-    errors = _rel_errors(out, _reference(changed, data.position, data.scheduling, "causal"), 0)
+    errors = _rel_errors(out, reference(changed, data.position, data.scheduling, "causal"), 0)
     assert max(errors.values()) < TOL, errors
 
 
@@ -143,11 +139,11 @@ def test_random_record_nonzero_start_and_scheduling_out_of_range(model, variant)
     scheduling = np.linspace(lo - 0.5, hi + 0.5, n)
     step = ex.step_function(model, variant)
     out = _run(step, n, model, position, scheduling, variant)
-    ref = _reference(model, position, scheduling, variant)
+    ref = reference(model, position, scheduling, variant)
     lat = ex.latency_samples(model, variant)
     errors = _rel_errors(out, ref, lat)
     assert max(errors.values()) < TOL, errors
-    clamped = _reference(model, position, np.clip(scheduling, lo, hi), variant)
+    clamped = reference(model, position, np.clip(scheduling, lo, hi), variant)
     assert np.max(np.abs(ref["torque"] - clamped["torque"])) < 1e-12 * np.max(np.abs(ref["torque"]))
     assert np.all(np.isfinite(out["torque"]))
 
@@ -200,7 +196,7 @@ def test_saved_function_runs_with_casadi_alone(model, subject, tmp_path, variant
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     torque = np.load(tmp_path / "torque.npy")
-    ref = _reference(model, data.position, data.scheduling, variant)["torque"]
+    ref = reference(model, data.position, data.scheduling, variant)["torque"]
     lat = meta["latency_samples"]
     err = np.max(np.abs(torque[lat:] - ref[: data.n - lat])) / np.max(np.abs(ref))
     assert err < TOL
@@ -229,5 +225,5 @@ def test_sampled_step_of_a_five_point_model_matches_its_causal_form(subject):
     out = _run(step, seg.n, m5, seg.position, seg.scheduling, "sampled")
     lat = ex.latency_samples(m5, "sampled")
     assert lat == 2 and out["torque"].ravel()[0] == 0.0
-    errors = _rel_errors(out, _reference(m5, seg.position, seg.scheduling, "sampled"), lat)
+    errors = _rel_errors(out, reference(m5, seg.position, seg.scheduling, "sampled"), lat)
     assert max(errors.values()) < TOL, errors

@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
+from fmu_helpers import FMUInstance, reference, shifted_error
 
 from lpvpc import __version__
 from lpvpc import equations as eq
@@ -41,49 +40,12 @@ def fmus(model, tmp_path_factory):
     return out
 
 
-class Sim:
-    """A thin uniform layer over FMU2Slave / FMU3Slave that records log messages."""
+class Sim(FMUInstance):
+    """A co-simulation instance (tests/fmu_helpers.py) that replays a record."""
 
     def __init__(self, path, unzipdir, name="inst"):
-        self.md = read_model_description(path)
-        self.fmi = 2 if self.md.fmiVersion.startswith("2") else 3
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.log = []
-        kwargs = dict(guid=self.md.guid, unzipDirectory=str(unzipdir),
-                      modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        if self.fmi == 2:
-            self.slave = FMU2Slave(**kwargs)
-            cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(self._log2)
-            cb.allocateMemory = defaultCallbacks.allocateMemory
-            cb.freeMemory = defaultCallbacks.freeMemory
-            self._cb = cb
-            self.slave.instantiate(callbacks=cb, loggingOn=False)
-            self.set, self.get = self.slave.setReal, self.slave.getReal
-        else:
-            self.slave = FMU3Slave(**kwargs)
-            self.slave.instantiate(loggingOn=False, logMessage=self._log3)
-            self.set, self.get = self.slave.setFloat64, self.slave.getFloat64
-
-    def _log2(self, env, name, status, category, message):
-        self.log.append((status, message.decode()))
-
-    def _log3(self, env, status, category, message):
-        self.log.append((status, message.decode()))
-
-    def initialize(self, params=None):
-        if self.fmi == 2:
-            self.slave.setupExperiment(startTime=0.0)
-            self.slave.enterInitializationMode()
-        else:
-            self.slave.enterInitializationMode(startTime=0.0)
-        if params:
-            self.set([self.vr[k] for k in params], list(params.values()))
-        self.slave.exitInitializationMode()
-        return self
-
-    def refs(self, names):
-        return [self.vr[n] for n in names]
+        super().__init__(path, unzipdir, name, "cs")
+        self.slave = self.fmu
 
     @property
     def sampled(self):  # the wrapper's sampled mode: the default (sampled) variant
@@ -117,13 +79,11 @@ def _inputs(model, position, scheduling, variant):
 
 
 def _ref(model, position, scheduling, variant):
-    p = model.predict(position, scheduling, causal=variant != "exact", warn=False)
-    return np.column_stack([p.total, p.intrinsic, p.reflex])
+    return np.column_stack(list(reference(model, position, scheduling, variant).values()))
 
 
 def _rel_err(Y, ref, latency):
-    n = len(ref)
-    return float(np.max(np.abs(Y[latency:] - ref[: n - latency])) / np.max(np.abs(ref[:, 0])))
+    return shifted_error(Y, ref, latency, np.max(np.abs(ref[:, 0])))
 
 
 @pytest.mark.parametrize("variant,fmi", BUILDS)

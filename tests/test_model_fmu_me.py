@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Model, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-from fmpy.fmi3 import FMU3Model
 from fmpy.validation import validate_fmu
+from fmu_helpers import FMUInstance, delayed, reference
 
 from lpvpc import export as ex
 
@@ -42,48 +41,15 @@ def _inputs(model, position, scheduling, variant):
 
 def _reference(model, position, scheduling, variant):
     """numpy prediction as the FMU delivers it: sample k is the torque of k - latency (0 before)."""
-    p = model.predict(position, scheduling, causal=variant == "causal", warn=False).total
-    lat = ex.latency_samples(model, variant)
-    return np.concatenate([np.zeros(lat), p[: len(p) - lat]])
+    return delayed(reference(model, position, scheduling, variant)["torque"], ex.latency_samples(model, variant))
 
 
-class MeSim:
+class MeSim(FMUInstance):
     """A manual Model Exchange master: per sample, set time and inputs, event mode, update."""
 
     def __init__(self, path, unzipdir, name="me"):
-        self.md = read_model_description(path)
-        self.fmi = 2 if self.md.fmiVersion.startswith("2") else 3
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.log = []
-        kw = dict(guid=self.md.guid, unzipDirectory=str(unzipdir),
-                  modelIdentifier=self.md.modelExchange.modelIdentifier, instanceName=name)
-        if self.fmi == 2:
-            self.fmu = FMU2Model(**kw)
-            cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(lambda env, n, s, c, m: self.log.append((s, m.decode())))
-            cb.allocateMemory = defaultCallbacks.allocateMemory
-            cb.freeMemory = defaultCallbacks.freeMemory
-            self._cb = cb
-            self.fmu.instantiate(callbacks=cb)
-            self.set, self.get, self.update = self.fmu.setReal, self.fmu.getReal, self.fmu.newDiscreteStates
-        else:
-            self.fmu = FMU3Model(**kw)
-            self.fmu.instantiate(logMessage=lambda env, s, c, m: self.log.append((s, m.decode())))
-            self.set, self.get, self.update = self.fmu.setFloat64, self.fmu.getFloat64, self.fmu.updateDiscreteStates
-
-    def initialize(self, inputs=None):
-        if self.fmi == 2:
-            self.fmu.setupExperiment(startTime=0.0)
-            self.fmu.enterInitializationMode()
-        else:
-            self.fmu.enterInitializationMode(startTime=0.0)
-        if inputs:
-            self.set(self.refs(list(inputs)), list(inputs.values()))
-        self.fmu.exitInitializationMode()
-        return self
-
-    def refs(self, names):
-        return [self.vr[n] for n in names]
+        super().__init__(path, unzipdir, name, "me")
+        self.update = self.fmu.newDiscreteStates if self.fmi == 2 else self.fmu.updateDiscreteStates
 
     def run(self, inputs, h, k0=0):
         """inputs {name: array} from sample k0 on; returns the torque at each sample."""
