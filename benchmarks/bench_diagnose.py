@@ -38,6 +38,7 @@ from lpvpc.identify import identify  # noqa: E402
 from lpvpc.improve import improve  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import EFFECTS, simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 warnings.simplefilter("ignore")
 
@@ -276,9 +277,7 @@ def main():
     real_data(say)
     say("")
     say(f"total benchmark time {time.perf_counter() - t_all:.0f} s{' (--quick)' if QUICK else ''}")
-    out = Path(__file__).parent / "results" / ("diagnose_quick.txt" if QUICK else "diagnose.txt")
-    out.write_text("\n".join(lines) + "\n")
-    print(f"written {out}")
+    write_results("diagnose_quick.txt" if QUICK else "diagnose.txt", lines)
 
 
 def speed_only():
@@ -290,9 +289,7 @@ def speed_only():
         lines.append(text)
 
     speed(say)
-    out = Path(__file__).parent / "results" / "diagnose_speed.txt"
-    out.write_text("\n".join(lines) + "\n")
-    print(f"written {out}")
+    write_results("diagnose_speed.txt", lines)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ from fmpy.fmi3 import FMU3Slave  # noqa: E402
 import lpvpc  # noqa: E402
 from lpvpc import export as ex  # noqa: E402
 from lpvpc.model import LPVPCModel, vaf  # noqa: E402
+from _results import write_results  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "export.txt"
 
@@ -280,10 +281,7 @@ def main(argv=None):
             row(f"  {key[0]} FMI {key[1]}: RSS before -> after (MB)", f"{before:.1f} -> {after:.1f}",
                 f"(+{after - before:.2f} MB, {elapsed:.2f} s, {args.cycles / elapsed:,.0f} cycles/s)")
 
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print(f"\nwritten to {out}")
+    write_results(Path(args.out), lines)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 from lpvpc.actuator import build_actuator_fmu  # noqa: E402
+from _results import write_results  # noqa: E402
 
 CMD = 4  # the actuator's command; the model FMUs' position has the same value reference
 
@@ -223,10 +224,7 @@ def main(argv=None):
             for case, internal, calls, dt in step_rates(v, unzipdir, md):
                 out(f"{v:>4} {case:<46} {internal:>12,.0f} {calls:>10,.0f} {dt:>7.3f}")
 
-    results = ROOT / "benchmarks" / "results"
-    results.mkdir(parents=True, exist_ok=True)
-    (results / "fmu_cycles.txt").write_text("\n".join(lines) + "\n")
-    print(f"\nwritten to {results / 'fmu_cycles.txt'}")
+    write_results("fmu_cycles.txt", lines)
 
 
 if __name__ == "__main__":

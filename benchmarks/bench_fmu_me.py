@@ -40,6 +40,7 @@ from lpvpc import export as ex  # noqa: E402
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def rss_mb() -> float:
@@ -168,9 +169,7 @@ def main(argv=None):
               "## fmpy.simulate_fmu(fmi_type='ModelExchange') on the 2-minute novel record",
               " FMI  vs numpy  wall s", *agree, "",
               f"{platform.platform()}, load average {os.getloadavg()[0]:.1f}"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    (ROOT / "benchmarks" / "results" / "fmu_me.txt").write_text(text)
+    write_results("fmu_me.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

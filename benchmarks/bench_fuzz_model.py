@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from lpvpc.errors import ModelFileError  # noqa: E402
 from lpvpc.model import LPVPCModel  # noqa: E402
+from _results import write_results  # noqa: E402
 
 HOSTILE_VALUES = [0, -1, 1, 2, 3.9, -0.5, 1e300, -1e308, 1e-320, math.inf, -math.inf, math.nan, True, False, None,
                   "", "x", "rad", "deg", "chebyshev", "hinge", "linear", [], {}, [[]], [0.0], [[1.0, 2.0]],
@@ -285,9 +286,7 @@ def main():
         lines += ["", *_table(f"model: {name}", r, time.perf_counter() - t0)]
     if not args.no_limits:
         lines += ["", *at_the_limits(next(iter(models.values())))]
-    text = "\n".join(lines) + "\n"
-    print(text, end="")
-    Path(args.out).write_text(text)
+    write_results(Path(args.out), lines, echo=True)
     return 1 if failures else 0
 
 

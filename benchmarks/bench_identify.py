@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _results import write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -146,9 +147,7 @@ def main():
         one_length(float(sys.argv[2]))
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--floor":
-        text = "\n".join(speed_floor()) + "\n"
-        print(text)
-        (ROOT / "benchmarks" / "results" / "identify_floor.txt").write_text(text)
+        write_results("identify_floor.txt", speed_floor(), echo=True)
         return
     from lpvpc.identify import identify
 
@@ -184,10 +183,7 @@ def main():
     lines += ["", f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
                   f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
                   "(this process counts as 1)"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = ROOT / "benchmarks" / "results" / "identify.txt"
-    out.write_text(text)
+    write_results("identify.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

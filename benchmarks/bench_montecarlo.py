@@ -26,6 +26,7 @@ from lpvpc.data import Trial, pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def true_component(pair, key):
@@ -84,9 +85,7 @@ def main():
               f"reflex threshold slope ratio: median {np.median(a['threshold_slope_ratio']):.2f}, "
               f"range {a['threshold_slope_ratio'].min():.2f}..{a['threshold_slope_ratio'].max():.2f}",
               f"state order chosen: {dict(zip(*np.unique(a['order'], return_counts=True)))}"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    (ROOT / "benchmarks" / "results" / "montecarlo.txt").write_text(text)
+    write_results("montecarlo.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

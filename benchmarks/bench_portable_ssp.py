@@ -27,6 +27,7 @@ from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
 from lpvpc.validation import validate  # noqa: E402
 from lpvpc.validation.engines import ENGINES, available, run_portable_ssp  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def main():
@@ -54,9 +55,7 @@ def main():
             v = vaf(meas.torque, y)
             lines.append(f"{engine:>9} {v:7.2f} {v - m['vaf_cosim']:+9.2f} {dt:6.1f}")
     lines += ["", f"{platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    (ROOT / "benchmarks" / "results" / "portable_ssp.txt").write_text(text)
+    write_results("portable_ssp.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from real_data import require  # noqa: E402
 from lpvpc.data import load_identification_data  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def main():
@@ -84,10 +85,7 @@ def main():
     lines.append(f"causal form loses {best[2] - best[3]:.2f} points (5-point derivatives: {rows[1][2] - rows[1][3]:.2f}; "
                  f"floor 1.5); flexible fit - package: "
                  f"{rows[-1][2] - best[2]:+.2f} points")
-    text = "\n".join(lines)
-    print(text)
-    out = HERE / "results" / "real_pilot.txt"
-    out.write_text(text + "\n")
+    write_results("real_pilot.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ from lpvpc.data import PerturbationData, Trial, decimate_trial, load_trial, stat
 from lpvpc.errors import StationaryWarning  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
+from _results import write_results  # noqa: E402
 
 NAMES = ("z_df", "z_pf", "z_df2", "z_df3", "z_pf2")
 TREND_HZ = 0.3
@@ -99,9 +100,7 @@ def main():
                          f"{v_pkg - v_fl:+6.2f} {m.elastic_stiffness([pos.mean()])[0]:10.1f} {t_pkg:8.2f} {t_fl:7.2f}  {note}")
         lines.append(f"{construction:22} lpvpc - flexible: median {np.median(diffs):+.2f}, worst {min(diffs):+.2f} points; "
                      f"lpvpc at least as good on {sum(x >= 0 for x in diffs)} of {len(diffs)}")
-    text = "\n".join(lines)
-    print(text)
-    (HERE / "results" / "real_stationary.txt").write_text(text + "\n")
+    write_results("real_stationary.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ from lpvpc import equations as eq  # noqa: E402
 from lpvpc import simulate as sim  # noqa: E402
 from lpvpc.data import decimate_signal, pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
+from _results import write_results  # noqa: E402
 
 RATES = (1000, 500, 200, 100)
 EDGES = np.linspace(-0.4, 0.2, 7)  # position bins (rad) over the identified range
@@ -133,10 +134,7 @@ def main():
               f"{med('identified_vs_simulator', 1):.2f}; identified vs ideal at 100 Hz: gain "
               f"{med('identified_vs_bound100', 0):.2f}, threshold {med('identified_vs_bound100', 1):.2f}",
               f"total time {time.time() - t0:.0f} s"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = ROOT / "benchmarks" / "results" / "reflex_observability.txt"
-    out.write_text(text)
+    write_results("reflex_observability.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

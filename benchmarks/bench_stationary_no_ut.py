@@ -28,6 +28,7 @@ from lpvpc.data import pair_trials, stationary_perturbation  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def fit_and_judge(data):
@@ -61,9 +62,7 @@ def main(n_seeds: int) -> None:
     say(f"K from the PT trial alone vs the pair: median {np.median(dks):+.2f} %, worst {max(dks, key=abs):+.2f} %; "
         f"held-out VAF {np.median(dv):+.2f} points (median; the pair's difference carries the UT trial's noise too)")
     say(f"one BLAS thread; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
-    out = ROOT / "benchmarks" / "results" / "stationary_no_ut.txt"
-    out.write_text("\n".join(lines) + "\n")
-    print(f"written: {out}")
+    write_results("stationary_no_ut.txt", lines)
 
 
 if __name__ == "__main__":

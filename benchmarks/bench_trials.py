@@ -34,6 +34,7 @@ from lpvpc.data import PerturbationData, join_trials, pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 N_PIECES = 8
 
@@ -94,9 +95,7 @@ def main(n_seeds: int) -> None:
         say(f"  {name:<32} |dVAF| <= {max(abs(r[2]) for r in sel):.3f} points, max |dK|/K <= "
             f"{100 * max(r[3] for r in sel):.3f} %, fit time x{np.median([r[4] for r in sel]):.2f} (median)")
     say(f"one BLAS thread; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
-    out = ROOT / "benchmarks" / "results" / "trials.txt"
-    out.write_text("\n".join(lines) + "\n")
-    print(f"written: {out}")
+    write_results("trials.txt", lines)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
+from _results import write_results  # noqa: E402
 
 N_POS = 9
 
@@ -94,10 +95,7 @@ def main(n_seeds=20):
               f"{np.median(t_tot):.2f} s)",
               f"reflex gain + threshold intervals at {N_POS} positions (computed on request, 2 x {400} draws): "
               f"median {1000 * np.median(t_ref):.0f} ms; counted in: ratio {np.median((t_tot + t_ref) / (t_tot - t_unc)):.3f}"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = ROOT / "benchmarks" / "results" / "uncertainty.txt"
-    out.write_text(text)
+    write_results("uncertainty.txt", lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -47,6 +47,7 @@ from lpvpc.validation import CosimSettings, validate  # noqa: E402
 from lpvpc.validation.cosim import run_cosimulation  # noqa: E402
 from lpvpc.validation.fmu import inspect_fmu  # noqa: E402
 from lpvpc.validation.harness import actuator_drive, check_actuator_fmu, load_record  # noqa: E402
+from _results import write_results  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "validation.txt"
 
@@ -186,9 +187,7 @@ def main(argv=None):
     row("route agreement: CasADi causal / FMU exact / CasADi exact vs numpy",
         "/".join(f"{ag[k]['max_relative_difference']:.1e}" for k in ("casadi_vs_numpy_causal", "fmu_vs_numpy",
                                                                      "casadi_exact_vs_numpy")), "max|a-b|/max|b|")
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text("\n".join(lines) + "\n")
-    print(f"\nwritten to {RESULTS}")
+    write_results(RESULTS, lines)
 
 
 if __name__ == "__main__":

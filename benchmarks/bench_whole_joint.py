@@ -31,6 +31,7 @@ from lpvpc.identify import identify  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
 from lpvpc.simulate import simulate_pair  # noqa: E402
 from lpvpc.validation.whole_joint import fmu_replay  # noqa: E402
+from _results import write_results  # noqa: E402
 
 
 def main():
@@ -74,10 +75,7 @@ def main():
               "cutoff sweep (seed 0):", f"{'cutoff Hz':>10} {'total':>7} {'pert. part':>10}", *sweep, "",
               f"{platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, "
               f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    out = ROOT / "benchmarks" / "results" / "whole_joint.txt"
-    out.write_text(text)
+    write_results("whole_joint.txt", lines, echo=True)
 
 
 if __name__ == "__main__":
