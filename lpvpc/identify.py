@@ -235,7 +235,13 @@ class LPVPCEstimator:
         refinement = PoleRefinement(U_r, Psi_i, y, segments=seg) if self.refine else None
         fits = {m: self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg) for m in orders}
         n = len(y)
-        bic = {m: n * np.log(f["rss"] / n) + f["n_params"] * np.log(n) for m, f in fits.items()}
+        # An unstable reflex (MOESP can return a pole on or outside the unit circle, which the
+        # pole refinement cannot leave: it refuses unstable points) fits the identification
+        # record yet diverges on any later one (a lab trial: held-out VAF -1e6 %), and the
+        # model file refuses it: such orders compete only when no order is stable.
+        stable = {m for m, f in fits.items() if np.max(np.abs(np.linalg.eigvals(f["A"]))) < 1.0}
+        bic = {m: n * np.log(f["rss"] / n) + f["n_params"] * np.log(n) for m, f in fits.items()
+               if m in stable or not stable}
         m_best = min(bic, key=bic.get)
         best = fits[m_best]
         timings["projection_and_reflex"] = time.perf_counter() - t
