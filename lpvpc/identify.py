@@ -27,7 +27,8 @@ import numpy as np
 from . import __version__
 from . import equations as eq
 from .basis import basis_from_data
-from .errors import DataError, IdentificationError, InsufficientExcitationError, PhysiologyWarning, StationaryWarning
+from .errors import (DataError, IdentificationError, InsufficientExcitationError, LpvpcError, PhysiologyWarning,
+                     StationaryWarning)
 from .intrinsic import intrinsic_regressor, two_sided_lags
 from .segments import Segments
 
@@ -322,13 +323,19 @@ class LPVPCEstimator:
         delays = {}  # samples -> s: candidates that round to the same sample count are one
         for c in self.stationary_delays:
             delays.setdefault(max(1, int(round(float(c) * fs))), float(c))
-        fits = {}
+        fits, failed = {}, {}
         for c in delays.values():
             est = LPVPCEstimator(**{**self.get_params(), "reflex_delay": c, "irf_length": c, "stationary_delays": ()})
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                est.fit(data)
+                try:
+                    est.fit(data)
+                except (LpvpcError, np.linalg.LinAlgError) as e:  # that candidate is out; the others stand
+                    failed[c] = e
+                    continue
             fits[c] = (min(est.model_.fit["state_order_candidates"].values()), est, caught)
+        if not fits:  # no delay works: the error at the candidate nearest the moving trials' 40 ms
+            raise failed[min(failed, key=lambda c: abs(c - DEFAULT_REFLEX_DELAY))]
         best = min(fits, key=lambda c: fits[c][0])
         _, est, caught = fits[best]
         chosen = (f"; reflex delay and IRF half-width {1e3 * best:g} ms, chosen by BIC among "
@@ -339,6 +346,8 @@ class LPVPCEstimator:
         model = est.model_
         model.settings["stationary_delays"] = [float(c) for c in self.stationary_delays]
         model.fit["stationary_delay_bic"] = {f"{c:g}": float(b) for c, (b, _, _) in fits.items()}
+        if failed:
+            model.fit["stationary_delay_failed"] = {f"{c:g}": f"{type(e).__name__}: {e}" for c, e in failed.items()}
         model.fit["timings_s"]["total"] = float(sum(f[1].model_.fit["timings_s"]["total"] for f in fits.values()))
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self

@@ -129,3 +129,25 @@ def test_unstable_reflex_order_is_not_chosen(late_reflex, monkeypatch):
     assert np.max(np.abs(np.linalg.eigvals(m.A))) < 1.0
     m3 = fit_quiet(late_reflex[0], stationary_delays=(), state_order=3)  # asked for: kept (no stable rival)
     assert m3.fit["state_order"] == 3
+
+
+def test_a_failing_candidate_drops_out_and_all_failing_raises_the_40_ms_error(late_reflex, monkeypatch):
+    from lpvpc.errors import DataError, InsufficientExcitationError
+
+    train = late_reflex[0]
+    check = LPVPCEstimator._check_counts
+
+    def long_delays_fail(self, *a):
+        if self.reflex_delay > 0.065:
+            raise InsufficientExcitationError("too few samples (forced)")
+        return check(self, *a)
+
+    monkeypatch.setattr(LPVPCEstimator, "_check_counts", long_delays_fail)
+    m = fit_quiet(train)
+    assert sorted(m.fit["stationary_delay_bic"]) == ["0.04", "0.05", "0.06"]
+    assert sorted(m.fit["stationary_delay_failed"]) == ["0.07", "0.08"]
+    assert m.delay / m.fs <= 0.06 + 1e-9
+    bad = PerturbationData(train.position.copy(), train.torque.copy(), train.scheduling, train.fs)
+    bad.torque[7] = np.nan
+    with pytest.raises(DataError, match="channel torque: 1 non-finite values, first at index 7"):
+        fit_quiet(bad)
