@@ -19,7 +19,7 @@ def test_predict_accepts_the_loaded_data_object(subject, model):
         from_object = model.predict(data)
         from_arrays = model.predict(data.position, data.scheduling)
     assert np.array_equal(from_object.total, from_arrays.total)
-    assert vaf(data.torque, from_object.total) > 90
+    assert vaf(data.torque, from_object.total) > vaf(data.torque, subject["novel_clean"].torque) - 1.0  # noise ceiling
 
 
 def test_predict_refuses_data_at_another_rate_and_objects_without_scheduling(subject, model):

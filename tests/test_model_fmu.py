@@ -113,7 +113,7 @@ def test_causal_fmu_keeps_the_offline_vaf_on_novel_record(model, subject, fmus):
     vaf_fmu, vaf_offline = vaf(data.torque, Y[:, 0]), vaf(data.torque, offline)
     message = f"novel record: causal FMU VAF {vaf_fmu:.2f} %, offline two-sided VAF {vaf_offline:.2f} %"
     assert abs(vaf_fmu - vaf_offline) < 1.0, message
-    assert vaf_offline > 90.0, message
+    assert vaf_offline > vaf(data.torque, subject["novel_clean"].torque) - 1.0, message  # the noise ceiling
     print(message)
 
 
