@@ -21,7 +21,11 @@ EXTRAPOLATIONS = ("clip", "linear")
 
 
 class NumpyOps:
-    """Array operations used by model equations, numpy flavour (arrays of shape (N, k))."""
+    """Array operations used by model equations, numpy flavour (arrays of shape (N, k)).
+
+    >>> NUMPY.row_sum(NUMPY.mtimes(np.ones((3, 2)), np.eye(2)))
+    array([2., 2., 2.])
+    """
 
     name = "numpy"
 
@@ -51,7 +55,18 @@ class NumpyOps:
 
 
 class CasadiOps:
-    """The same operations on CasADi SX/MX row vectors (one sample, shape (1, k))."""
+    """The same operations on CasADi SX/MX row vectors (one sample, shape (1, k)).
+
+    The same expression on a CasADi symbol (one sample) gives the numpy value when evaluated:
+
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x")
+    >>> b = Basis("chebyshev", 3, -0.4, 0.2)
+    >>> row = b.evaluate(x, CasadiOps())
+    >>> f = ca.Function("f", [x], [row])
+    >>> bool(np.allclose(np.array(f(0.1)), b.evaluate([0.1])))
+    True
+    """
 
     name = "casadi"
 
@@ -91,6 +106,21 @@ class Basis:
     hinge: 1, s and ``order - 1`` ramps max(s - knot, 0), knots denser near s = 0
     (continuous piecewise-linear functions: a rectifier's kink is representable, and
     the functions are linear beyond the range).
+
+    A cubic Chebyshev basis of the scheduling angle (rad) identified on [-0.4, 0.2] rad:
+    inside the range its functions are the polynomials, outside they hold the edge value.
+
+    >>> b = Basis("chebyshev", 3, lo=-0.4, hi=0.2)
+    >>> b.size
+    4
+    >>> b.evaluate([-0.4, -0.1, 0.2]).round(3)
+    array([[ 1., -1.,  1., -1.],
+           [ 1.,  0., -1., -0.],
+           [ 1.,  1.,  1.,  1.]])
+    >>> bool(np.array_equal(b.evaluate([0.5]), b.evaluate([0.2])))  # clipped beyond hi
+    True
+    >>> Basis.from_dict(b.to_dict()) == b
+    True
     """
 
     family: str
@@ -186,7 +216,15 @@ class Basis:
 
 
 def basis_from_data(x, family: str, order: int, extrapolation: str = "clip") -> Basis:
-    """A basis spanning the range of ``x`` (the identification data)."""
+    """A basis spanning the range of ``x`` (the identification data).
+
+    >>> vel = np.linspace(-1.5, 2.0, 50)  # rad/s
+    >>> b = basis_from_data(vel, "hinge", 4, extrapolation="linear")
+    >>> (b.lo, b.hi)
+    (-1.5, 2.0)
+    >>> float(b.evaluate([3.0])[0, 1])  # linear beyond the range: s = 1.57 at 3 rad/s
+    1.5714285714285714
+    """
     x = np.asarray(x, dtype=float)
     lo, hi = float(np.min(x)), float(np.max(x))
     if hi - lo < 1e-9:

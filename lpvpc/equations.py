@@ -34,18 +34,32 @@ def intrinsic_torque(lagged_position, rho_basis, H, ops=NUMPY):
     lagged_position: (N, n_lags), column l holds pos(k - lags[l]) in rad.
     rho_basis: (N, n_i) intrinsic scheduling basis G_i(rho(k)).
     H: (n_lags, n_i) IRF coefficients, row l for lag lags[l] (N m/rad).
+
+    A stiffness of 50 N m/rad on lag 0, scheduled by a constant basis, is a spring:
+
+    >>> pos = np.array([0.0, 0.01, 0.02])  # rad
+    >>> float(intrinsic_torque(lagged(pos, [0, 1]), np.ones((3, 1)), np.array([[50.0], [0.0]]))[2])
+    1.0
     """
     weights = ops.mtimes(rho_basis, H.T)  # h_l(rho(k)) for every lag, (N, n_lags)
     return ops.row_sum(weights * lagged_position)
 
 
 def central_velocity(pos_ahead, pos_behind, fs):
-    """Velocity (rad/s) at k from pos(k+1) and pos(k-1)."""
+    """Velocity (rad/s) at k from pos(k+1) and pos(k-1).
+
+    >>> round(central_velocity(0.03, 0.01, fs=100.0), 12)  # rad/s: 0.02 rad over 2 samples of 10 ms
+    1.0
+    """
     return (pos_ahead - pos_behind) * (0.5 * fs)
 
 
 def central_acceleration(pos_ahead, pos_here, pos_behind, fs):
-    """Acceleration (rad/s^2) at k from pos(k+1), pos(k) and pos(k-1) (central second difference)."""
+    """Acceleration (rad/s^2) at k from pos(k+1), pos(k) and pos(k-1) (central second difference).
+
+    >>> round(central_acceleration(0.04, 0.01, 0.0, fs=100.0), 6)  # pos = 0.5 a t^2 with a = 200 rad/s^2
+    200.0
+    """
     return (pos_ahead - 2.0 * pos_here + pos_behind) * fs**2
 
 
@@ -54,18 +68,39 @@ def reflex_drive(velocity_basis, rho_basis, Omega, ops=NUMPY):
 
     velocity_basis: (N, n_v) basis of the delayed velocity; rho_basis: (N, n_r);
     Omega: (n_v, n_r) coefficients (eqs. 12-13).
+
+    A half-wave rectifier of velocity with gain 2 N m s/rad (a hinge basis), independent of rho:
+
+    >>> from lpvpc.basis import Basis
+    >>> v = np.array([-1.0, 0.5, 1.0])  # rad/s
+    >>> g = Basis("hinge", 2, -1.0, 1.0).evaluate(v)  # 1, s, max(s, 0)
+    >>> reflex_drive(g, np.ones((3, 1)), np.array([[0.0], [0.0], [2.0]]))
+    array([0., 1., 2.])
     """
     return ops.row_sum(ops.mtimes(velocity_basis, Omega) * rho_basis)
 
 
 def reflex_step(A, B, C, D, x, z):
-    """One step of the reflex linear dynamics (eq. 15): returns (x_next, tq_r)."""
+    """One step of the reflex linear dynamics (eq. 15): returns (x_next, tq_r).
+
+    >>> A, B, C, D = np.array([[0.5]]), np.array([1.0]), np.array([[1.0]]), 0.0
+    >>> x, tq = reflex_step(A, B, C, D, np.zeros(1), 1.0)  # an impulse of the drive
+    >>> x, tq = reflex_step(A, B, C, D, x, 0.0)
+    >>> float(tq[0]), float(reflex_step(A, B, C, D, x, 0.0)[1][0])  # decays by A each sample
+    (1.0, 0.5)
+    """
     return A @ x + B * z, C @ x + D * z
 
 
 def lagged(signal, lags):
     """(N, len(lags)) array whose column l is signal(k - lags[l]): zero before the record,
-    the last value after it (see the module notes on record edges)."""
+    the last value after it (see the module notes on record edges).
+
+    >>> lagged([1.0, 2.0, 3.0], [-1, 0, 1])  # ahead: last value held; behind: zero before
+    array([[2., 1., 0.],
+           [3., 2., 1.],
+           [3., 3., 2.]])
+    """
     signal = np.asarray(signal, dtype=float)
     n = len(signal)
     out = np.zeros((n, len(lags)))
@@ -86,13 +121,23 @@ def _padded(position):
 
 
 def velocity(position, fs):
-    """Central-difference velocity (rad/s) of a whole record (record edges: module notes)."""
+    """Central-difference velocity (rad/s) of a whole record (record edges: module notes).
+
+    >>> t = np.arange(5) / 100.0  # s
+    >>> velocity(0.5 * t, fs=100.0)[1:-1]  # a ramp of 0.5 rad/s
+    array([0.5, 0.5, 0.5])
+    """
     p = _padded(position)
     return central_velocity(p[2:], p[:-2], fs)
 
 
 def acceleration(position, fs):
-    """Central second-difference acceleration (rad/s^2) of a whole record."""
+    """Central second-difference acceleration (rad/s^2) of a whole record.
+
+    >>> t = np.arange(6) / 100.0
+    >>> acceleration(0.5 * 3.0 * t**2, fs=100.0)[1:-1].round(9)  # 3 rad/s^2
+    array([3., 3., 3., 3.])
+    """
     p = _padded(position)
     return central_acceleration(p[2:], p[1:-1], p[:-2], fs)
 
@@ -107,7 +152,16 @@ DERIVATIVE_STENCILS = ("central3", "central5")
 
 def derivatives(position, fs, stencil="central3"):
     """(velocity rad/s, acceleration rad/s^2) of a whole record by the named stencil
-    (:data:`DERIVATIVE_STENCILS`; record edges: module notes)."""
+    (:data:`DERIVATIVE_STENCILS`; record edges: module notes).
+
+    The five-point stencil is exact for a cubic where the three-point one is not:
+
+    >>> t = np.arange(12) / 100.0
+    >>> v3, _ = derivatives(t**3, 100.0, "central3")
+    >>> v5, _ = derivatives(t**3, 100.0, "central5")
+    >>> bool(abs(v5[6] - 3 * t[6]**2) < 1e-12 < abs(v3[6] - 3 * t[6]**2))
+    True
+    """
     if stencil == "central3":
         return velocity(position, fs), acceleration(position, fs)
     if stencil != "central5":
@@ -119,7 +173,13 @@ def derivatives(position, fs, stencil="central3"):
 
 def five_point_derivatives(m2, m1, c, p1, p2, fs):
     """(velocity rad/s, acceleration rad/s^2) at k from pos(k-2), pos(k-1), pos(k), pos(k+1),
-    pos(k+2): fourth-order central differences (arrays, floats or CasADi symbols)."""
+    pos(k+2): fourth-order central differences (arrays, floats or CasADi symbols).
+
+    >>> h = 0.01
+    >>> vel, acc = five_point_derivatives(*(np.sin(k * h) for k in (-2, -1, 0, 1, 2)), fs=1 / h)
+    >>> round(float(vel), 9), round(float(acc), 9)  # d/dt sin = 1, d2/dt2 sin = 0 at t = 0
+    (1.0, 0.0)
+    """
     vel = (8.0 * (p1 - m1) - (p2 - m2)) * (fs / 12.0)
     acc = (16.0 * (p1 + m1) - (p2 + m2) - 30.0 * c) * (fs**2 / 12.0)
     return vel, acc
@@ -132,6 +192,11 @@ def causal_signals(position, fs, lags, vel=None, acc=None, stencil="central3"):
     A causal IRF cannot see the onset of an inertial torque (it needs pos(k+1)); in
     closed loop the actuator supplies the current velocity and acceleration instead.
     Offline they are estimated from the record by ``stencil`` unless given.
+
+    >>> pos = np.array([0.0, 0.01, 0.02, 0.03])  # rad, a 1 rad/s ramp at 100 Hz
+    >>> causal_signals(pos, 100.0, [0, 1])[1:3].round(9) + 0.0  # pos(k), pos(k-1), vel, acc
+    array([[0.01, 0.  , 1.  , 0.  ],
+           [0.02, 0.01, 1.  , 0.  ]])
     """
     if vel is None or acc is None:
         v_est, a_est = derivatives(position, fs, stencil)
@@ -148,13 +213,24 @@ BLOCK_CELLS = 2**22
 
 
 def blocks(n: int, width: int) -> list:
-    """(start, stop) sample ranges covering 0..n, each at most BLOCK_CELLS / width samples."""
+    """(start, stop) sample ranges covering 0..n, each at most BLOCK_CELLS / width samples.
+
+    >>> blocks(10, 3)
+    [(0, 10)]
+    >>> len(blocks(2 * BLOCK_CELLS, 1))  # 2**23 samples of one signal: two blocks
+    2
+    """
     rows = max(1024, BLOCK_CELLS // max(int(width), 1))
     return [(a, min(a + rows, n)) for a in range(0, n, rows)] or [(0, 0)]
 
 
 def lagged_rows(signal, lags, start: int, stop: int):
-    """Rows start..stop-1 of ``lagged(signal, lags)``, built from the samples they need."""
+    """Rows start..stop-1 of ``lagged(signal, lags)``, built from the samples they need.
+
+    >>> x = np.arange(10.0)
+    >>> bool(np.array_equal(lagged_rows(x, [-2, 0, 3], 4, 7), lagged(x, [-2, 0, 3])[4:7]))
+    True
+    """
     signal = np.asarray(signal, dtype=float)
     back, ahead = max(max(lags), 0), max(-min(lags), 0)
     lo, hi = max(0, start - back), min(len(signal), stop + ahead)
@@ -165,7 +241,13 @@ def lagged_rows(signal, lags, start: int, stop: int):
 
 def position_signals(position, fs, lags, start: int, stop: int, *, causal: bool, vel=None, acc=None):
     """Rows start..stop-1 of the intrinsic IRF's signals: ``lagged(position, lags)`` or, causal,
-    ``causal_signals(position, fs, lags, vel, acc)`` (``vel``, ``acc``: whole-record arrays or None)."""
+    ``causal_signals(position, fs, lags, vel, acc)`` (``vel``, ``acc``: whole-record arrays or None).
+
+    >>> pos = np.linspace(0.0, 0.09, 10)  # rad
+    >>> position_signals(pos, 100.0, [0, 1], 2, 4, causal=True).round(9) + 0.0  # lags, then vel, acc
+    array([[0.02, 0.01, 1.  , 0.  ],
+           [0.03, 0.02, 1.  , 0.  ]])
+    """
     rows = lagged_rows(position, lags, start, stop)
     if not causal:
         return rows
@@ -175,7 +257,12 @@ def position_signals(position, fs, lags, start: int, stop: int, *, causal: bool,
 
 
 def delayed_velocity(position, fs, delay):
-    """dvel(k) = vel(k - delay) for a whole record, delay in samples (>= 1 keeps it causal)."""
+    """dvel(k) = vel(k - delay) for a whole record, delay in samples (>= 1 keeps it causal).
+
+    >>> pos = np.array([0.0, 0.0, 0.01, 0.02, 0.02, 0.02])  # rad
+    >>> delayed_velocity(pos, 100.0, 2)  # rad/s, 2 samples late
+    array([0. , 0. , 0. , 0.5, 1. , 0.5])
+    """
     return lagged(velocity(position, fs), [delay])[:, 0]
 
 
@@ -185,7 +272,11 @@ def delayed_velocity(position, fs, delay):
 
 
 class ScalarOps:
-    """The ops backend for plain Python floats (per-sample recurrences run in numpy)."""
+    """The ops backend for plain Python floats (per-sample recurrences run in numpy).
+
+    >>> SCALAR.fmin(2.0, 3.0), SCALAR.fmax(2.0, 3.0), SCALAR.exp(0.0)
+    (2.0, 3.0, 1.0)
+    """
 
     name = "scalar"
 
@@ -213,19 +304,36 @@ def scheduled_term(features, scheduling_functions, coefficients, ops=NUMPY):
     features: (N, n_f); scheduling_functions: (N, n_s) (basis functions of rho, possibly
     times further channels); coefficients: (n_f, n_s). The intrinsic IRF (with lagged
     positions as features) and the reflex nonlinearity are instances of this form.
+
+    A stiffness K(rho) = 40 + 100 rho N m/rad acting on the position (rad):
+
+    >>> pos, rho = np.array([0.01, 0.01]), np.array([0.0, 0.2])
+    >>> scheduled_term(pos[:, None], np.column_stack([np.ones(2), rho]), np.array([[40.0, 100.0]]))
+    array([0.4, 0.6])
     """
     return ops.row_sum(ops.mtimes(features, coefficients) * scheduling_functions)
 
 
 def smooth_sign(x, scale, ops=NUMPY):
-    """tanh(x / scale), written with exp (argument clipped to +-30: no overflow)."""
+    """tanh(x / scale), written with exp (argument clipped to +-30: no overflow).
+
+    >>> smooth_sign(np.array([-1.0, 0.0, 1e6]), 0.1).round(6)  # no overflow for huge arguments
+    array([-1.,  0.,  1.])
+    """
     u = ops.fmin(ops.fmax(x * (1.0 / scale), -30.0), 30.0)
     return 2.0 / (1.0 + ops.exp(-2.0 * u)) - 1.0
 
 
 def friction_difference(velocity, slow_velocity, scale, ops=NUMPY):
     """tanh((v_slow + v) / scale) - tanh(v_slow / scale): the change a perturbation velocity
-    v (rad/s) makes to a smoothed Coulomb friction acting on the total joint velocity."""
+    v (rad/s) makes to a smoothed Coulomb friction acting on the total joint velocity.
+
+    At rest a perturbation velocity of 0.5 rad/s takes a 0.05 rad/s-smoothed friction sign
+    almost to 1; during a fast slow-movement (1 rad/s) it changes little.
+
+    >>> friction_difference(np.array([0.5, 0.5]), np.array([0.0, 1.0]), 0.05).round(4)
+    array([1., 0.])
+    """
     return smooth_sign(slow_velocity + velocity, scale, ops) - smooth_sign(slow_velocity, scale, ops)
 
 
@@ -236,6 +344,12 @@ def direction_memory_step(latched, smoothed, slow_velocity, v_min, v_width, alph
     rad/s instead of a jump) and holds its value through holds; ``smoothed`` follows it
     with the first-order factor alpha = 1 - exp(-T / tau). +1 after moving toward
     dorsiflexion (positive rho), -1 after moving toward plantarflexion, 0 before any movement.
+
+    >>> latched, smoothed = direction_memory_step(0.0, 0.0, 0.2, v_min=0.05, v_width=0.01, alpha=1.0)
+    >>> latched, smoothed  # moving toward dorsiflexion at 0.2 rad/s
+    (1.0, 1.0)
+    >>> direction_memory_step(latched, smoothed, 0.0, 0.05, 0.01, 1.0)  # a hold keeps it
+    (1.0, 1.0)
     """
     speed = ops.fmax(slow_velocity, -slow_velocity)
     moving = ops.fmin(ops.fmax((speed - v_min) * (1.0 / v_width), 0.0), 1.0)
@@ -246,7 +360,12 @@ def direction_memory_step(latched, smoothed, slow_velocity, v_min, v_width, alph
 
 
 def direction_memory(slow_velocity, v_min, v_width, alpha):
-    """:func:`direction_memory_step` over a whole record (state zero before it): (N,) array."""
+    """:func:`direction_memory_step` over a whole record (state zero before it): (N,) array.
+
+    >>> v = np.r_[np.full(3, -0.2), np.zeros(3)]  # rad/s: toward plantarflexion, then hold
+    >>> direction_memory(v, 0.05, 0.01, 1.0)
+    array([-1., -1., -1., -1., -1., -1.])
+    """
     latched = smoothed = 0.0
     out = np.empty(len(slow_velocity))
     for k, v in enumerate(np.asarray(slow_velocity, dtype=float).tolist()):
@@ -259,6 +378,17 @@ def state_trajectory(A, B, u):
     """States x(k) of x(k+1) = A x(k) + B u(k), x(0) = 0, for a whole record: (N, m).
 
     The recurrence of :func:`reflex_step`, run by linear filtering (one filter per state).
+
+    Equals the per-sample recurrence of :func:`reflex_step`:
+
+    >>> A, B = np.array([[0.9, 0.1], [-0.2, 0.8]]), np.array([0.0, 1.0])
+    >>> u = np.sin(np.arange(20) / 3.0)
+    >>> X = state_trajectory(A, B, u)
+    >>> x = np.zeros(2)
+    >>> for k in range(19):
+    ...     x, _ = reflex_step(A, B, np.eye(2), 0.0, x, u[k])
+    >>> bool(np.allclose(X[19], x))
+    True
     """
     import scipy.signal
 
@@ -280,19 +410,32 @@ def state_trajectory(A, B, u):
 
 
 def lowpass_alpha(cutoff, fs, ops=NUMPY):
-    """Factor alpha = 1 - exp(-2 pi cutoff / fs) of the first-order low-pass (cutoff Hz, fs Hz)."""
+    """Factor alpha = 1 - exp(-2 pi cutoff / fs) of the first-order low-pass (cutoff Hz, fs Hz).
+
+    >>> round(float(lowpass_alpha(1.0, 100.0)), 4)  # 1 Hz at 100 Hz: about 2 pi / 100
+    0.0609
+    """
     return 1.0 - ops.exp(-2.0 * np.pi * cutoff / fs)
 
 
 def lowpass_step(previous, angle, alpha):
-    """One sample of the causal first-order low-pass: y(k) = y(k-1) + alpha (x(k) - y(k-1))."""
+    """One sample of the causal first-order low-pass: y(k) = y(k-1) + alpha (x(k) - y(k-1)).
+
+    >>> lowpass_step(0.0, 0.1, 0.5)  # rad: half way toward the new angle
+    0.05
+    """
     return previous + alpha * (angle - previous)
 
 
 def lowpass(angle, alpha):
     """:func:`lowpass_step` over a whole record (rad), at rest at the first sample: y(0) = x(0).
 
-    The same recurrence, run as a linear filter on x - x(0)."""
+    The same recurrence, run as a linear filter on x - x(0).
+
+    >>> y = lowpass(np.r_[0.0, np.full(999, 0.1)], lowpass_alpha(1.0, 100.0))  # a 0.1 rad step
+    >>> bool(abs(y[16] - 0.1 * (1 - np.exp(-1))) < 0.002), round(float(y[-1]), 6)  # tau = 1/(2 pi) s
+    (True, 0.1)
+    """
     import scipy.signal
 
     x = np.asarray(angle, dtype=float)
@@ -303,5 +446,11 @@ def lowpass(angle, alpha):
 
 def quasi_static_torque(angle_basis, coefficients, ops=NUMPY):
     """Quasi-static joint torque (N m) sum_i c_i g_i(angle): angle_basis (N, n) basis values,
-    coefficients (n,) in N m."""
+    coefficients (n,) in N m.
+
+    >>> from lpvpc.basis import Basis
+    >>> angle = np.array([-0.4, 0.2])  # rad
+    >>> quasi_static_torque(Basis("chebyshev", 1, -0.4, 0.2).evaluate(angle), np.array([1.0, 3.0]))
+    array([-2.,  4.])
+    """
     return ops.mtimes(angle_basis, coefficients)
