@@ -54,7 +54,17 @@ FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers r
 @dataclass
 class Prediction:
     """Predicted torques (N m): total = intrinsic + reflex. In an extended model the
-    effect terms are included in the pathway they belong to and listed in ``effects``."""
+    effect terms are included in the pathway they belong to and listed in ``effects``.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> p = identify(data).predict(data)
+    >>> bool(np.allclose(p.total, p.intrinsic + p.reflex)), p.out_of_range_fraction
+    (True, 0.0)
+    """
 
     total: np.ndarray
     intrinsic: np.ndarray
@@ -65,6 +75,39 @@ class Prediction:
 
 @dataclass
 class LPVPCModel:
+    """An identified LPV parallel-cascade model of ankle stiffness at sampling rate ``fs``
+    (Hz): the intrinsic IRF ``H`` (N m/rad, lags ``lags`` in samples, scheduled by
+    ``intrinsic_basis`` of rho in rad), the reflex nonlinearity ``Omega`` of the velocity
+    (rad/s) delayed by ``delay`` samples, and the reflex dynamics ``A, B, C, D``. Predicts
+    torque (N m), reports the physical quantities with confidence intervals, saves, loads
+    and exports without the estimator that made it.
+
+    >>> import tempfile
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import SubjectParams, simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> model = identify(data)
+    >>> pred = model.predict(data)  # or model.predict(position, scheduling)
+    >>> bool(vaf(data.torque, pred.total) > 95.0)  # percent
+    True
+    >>> theta = np.array([-0.2, 0.0])  # rad
+    >>> lower, upper = model.elastic_stiffness_interval(theta)  # N m/rad, 95 %
+    >>> bool(np.all(lower < model.elastic_stiffness(theta)) and np.all(model.elastic_stiffness(theta) < upper))
+    True
+    >>> bool(np.all(np.abs(model.elastic_stiffness(theta) / SubjectParams().K(theta) - 1) < 0.15))
+    True
+    >>> gain, threshold = model.reflex_gain_threshold(theta)  # N m s/rad, rad/s
+    >>> bool(np.all(gain > 0))
+    True
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     model.save(f"{tmp}/model.json")
+    ...     again = LPVPCModel.load(f"{tmp}/model.json")
+    >>> again.model_hash == model.model_hash
+    True
+    """
+
     fs: float
     lags: list
     H: np.ndarray
