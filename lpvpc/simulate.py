@@ -203,6 +203,10 @@ def multilevel_trajectory(duration: float, fs: float, rng: np.random.Generator, 
     first level (as the paper does, to avoid sharp transitions). The Butterworth step
     response overshoots ~4 % of each step, so the trajectory can exceed [lo, hi] by up to
     ~0.026 rad after a full-range step.
+
+    >>> x = multilevel_trajectory(60.0, 100.0, np.random.default_rng(0))
+    >>> len(x), bool(THETA_PF - 0.03 < x.min() and x.max() < THETA_DF + 0.03)  # rad, with overshoot
+    (6000, True)
     """
     n = _n_samples(duration, fs)
     levels = np.linspace(lo, hi, n_levels)
@@ -302,6 +306,10 @@ def novel_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
     multilevel trajectory (0.026 rad), so the novel record always visits angles the
     identification record did not. Smoothed like the multilevel trajectory (2nd-order
     Butterworth, ``cutoff`` Hz, causal, from rest). Needs ~40 s to contain both excursions.
+
+    >>> x = novel_trajectory(60.0, 100.0, np.random.default_rng(1))
+    >>> bool(x.min() < THETA_PF - 0.026 and x.max() > THETA_DF + 0.026)  # leaves the identified range
+    True
     """
     n = _n_samples(duration, fs)
     gens = [_seg_ramps, _seg_sine, _seg_walk]
@@ -334,6 +342,13 @@ def pralds(duration: float, fs: float, rng: np.random.Generator, *, amplitude: f
 
     Piecewise constant; levels uniform in [-amplitude, +amplitude] rad, hold durations
     uniform in ``hold`` s (250-350 ms: wide-band yet slow enough not to suppress reflexes).
+
+    >>> p = pralds(10.0, 1000.0, np.random.default_rng(0))
+    >>> bool(np.abs(p).max() <= 0.04)  # rad
+    True
+    >>> holds = np.diff(np.flatnonzero(np.diff(p))) / 1000.0  # s between level changes
+    >>> bool(holds.min() >= 0.25 - 1e-9 and holds.max() <= 0.35 + 1e-9)
+    True
     """
     n = _n_samples(duration, fs)
     out = np.empty(n)
@@ -393,6 +408,13 @@ def intrinsic_torque(theta, vel, acc, params: SubjectParams | None = None, *,
     Inertia of foot and pedal, viscosity and the nonlinear elastic curve of passive
     tissue (slope K(theta)). ``stiffness_scale`` multiplies E (hence K),
     ``viscosity_scale`` multiplies B and ``extra`` is added (N m): hooks for effects.
+
+    At the elastic rest angle, the torque is inertia times acceleration plus viscosity times velocity:
+
+    >>> p = SubjectParams()
+    >>> tq = intrinsic_torque(np.array([p.elastic_rest]), np.array([0.1]), np.array([2.0]), p)
+    >>> bool(np.isclose(tq[0], p.inertia * 2.0 + p.viscosity * 0.1))  # N m
+    True
     """
     p = params or SubjectParams()
     return (p.inertia * np.asarray(acc) + p.viscosity * viscosity_scale * np.asarray(vel)
@@ -406,7 +428,13 @@ def intrinsic_torque(theta, vel, acc, params: SubjectParams | None = None, *,
 
 def delay_signal(x, delay: float, fs: float) -> np.ndarray:
     """``x(t - delay)``: exact sample shift when ``delay*fs`` is an integer, linear
-    interpolation otherwise; the signal is taken as ``x[0]`` before it starts."""
+    interpolation otherwise; the signal is taken as ``x[0]`` before it starts.
+
+    >>> delay_signal(np.array([1.0, 2.0, 3.0, 4.0]), 0.002, 1000.0)  # 2 ms at 1 kHz: 2 samples
+    array([1., 1., 1., 2.])
+    >>> delay_signal(np.array([0.0, 2.0, 4.0]), 0.0005, 1000.0)  # half a sample: interpolated
+    array([0., 1., 3.])
+    """
     x = np.asarray(x, dtype=float)
     d = delay * fs
     n0 = int(np.floor(d + 1e-9))
@@ -426,7 +454,12 @@ def delay_signal(x, delay: float, fs: float) -> np.ndarray:
 
 def reflex_lowpass_coefficients(wn: float, zeta: float, fs: float):
     """Discrete (b, a) of the unit-DC-gain reflex low-pass wn^2/(s^2 + 2 zeta wn s + wn^2),
-    first-order-hold discretised (the rectifier output is continuous, not a staircase)."""
+    first-order-hold discretised (the rectifier output is continuous, not a staircase).
+
+    >>> b, a = reflex_lowpass_coefficients(16.0, 0.65, 1000.0)  # rad/s, 1, Hz
+    >>> round(float(np.sum(b) / np.sum(a)), 12)  # unit DC gain
+    1.0
+    """
     num, den, _ = signal.cont2discrete(([wn ** 2], [1.0, 2 * zeta * wn, wn ** 2]), 1.0 / fs,
                                        method="foh")
     return np.ravel(num), np.ravel(den)
@@ -498,7 +531,14 @@ def reflex_torque(theta, vel, fs: float, params: SubjectParams | None = None, *,
 def coloured_noise(n: int, fs: float, rng: np.random.Generator,
                    params: SubjectParams | None = None) -> np.ndarray:
     """Unit-variance-input white noise through a Butterworth low-pass (``noise_cutoff`` Hz,
-    ``noise_order``): the sensor/background torque noise (before scaling to the SNR)."""
+    ``noise_order``): the sensor/background torque noise (before scaling to the SNR).
+
+    >>> from scipy.signal import welch
+    >>> e = coloured_noise(20000, 1000.0, np.random.default_rng(0))
+    >>> f, P = welch(e, 1000.0, nperseg=1024)
+    >>> bool(P[f < 10].mean() > 100 * P[f > 100].mean())  # coloured below the 20 Hz cut-off
+    True
+    """
     p = params or SubjectParams()
     b, a = signal.butter(p.noise_order, p.noise_cutoff, fs=fs)
     return signal.lfilter(b, a, rng.standard_normal(n))
@@ -522,6 +562,13 @@ class TrialState:
     rad/s: time-varying reflex natural frequency), ``reflex_delay`` (None or array s:
     time-varying reflex delay), ``activation`` (1: background activation added to the
     tonic level; it shows in the trial's EMG), ``channels`` (extra recorded channels).
+
+    >>> n = 3
+    >>> s = TrialState(t=np.arange(n) / 1000.0, theta=np.zeros(n), vel=np.zeros(n), acc=np.zeros(n),
+    ...                command=np.zeros(n), slow_velocity=np.zeros(n), slow_theta=np.zeros(n), perturbed=True,
+    ...                fs=1000.0, params=SubjectParams(), rng=np.random.default_rng(0))
+    >>> s.stiffness_scale, s.extra_torque  # nothing modified: unit scales, no extra torque (N m)
+    (array([1., 1., 1.]), array([0., 0., 0.]))
     """
 
     t: np.ndarray
@@ -732,6 +779,12 @@ class SimulatedPair:
     ``truth``: JSON-serialisable parameters, curves and measured quantities;
     ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
     'ut_intrinsic', 'ut_reflex'.
+
+    >>> pair = simulate_pair("multilevel", seed=0, duration=10.0, fs_out=100.0)
+    >>> pair.pt.fs, len(pair.pt.time), sorted(pair.pt.channels)  # Hz, samples, recorded channels
+    (100.0, 1000, ['command', 'emg'])
+    >>> bool(np.allclose(pair.pt_clean.position, pair.pt.position))  # noise is in the torque only
+    True
     """
 
     pt: Trial
@@ -744,7 +797,11 @@ class SimulatedPair:
 
 def stationary_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
                           position: float = -0.1) -> np.ndarray:
-    """One operating position held for the whole trial (rad; a stationary experiment)."""
+    """One operating position held for the whole trial (rad; a stationary experiment).
+
+    >>> stationary_trajectory(0.005, 1000.0, np.random.default_rng(0))
+    array([-0.1, -0.1, -0.1, -0.1, -0.1])
+    """
     return np.full(_n_samples(duration, fs), float(position))
 
 
@@ -787,6 +844,14 @@ def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
     white noise|, ``emg_noise`` RMS), times ``emg_volts``. A perturbed trial's EMG therefore
     correlates with the reflex torque; an unperturbed trial's shows the tonic part (and
     small bursts when the slow movement is fast enough to fire the reflex).
+
+    Reflex drive (N m) raises the envelope (V) above its tonic level:
+
+    >>> rng = np.random.default_rng(0)
+    >>> drive = np.r_[np.zeros(500), np.full(500, 15.0)]
+    >>> e = emg_envelope(np.zeros(1000), drive, 1000.0, rng)
+    >>> bool(e[600:].mean() > 5 * e[100:500].mean())
+    True
     """
     p = params or SubjectParams()
     act = np.asarray(activation, dtype=float) + np.asarray(reflex_drive, dtype=float) / p.emg_reflex_torque
