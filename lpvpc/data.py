@@ -130,7 +130,14 @@ def _time_problems(t: np.ndarray) -> list[str]:
 
 
 def trial_problems(trial: Trial) -> list[str]:
-    """Every problem of a trial as a list of messages (empty if the trial is usable)."""
+    """Every problem of a trial as a list of messages (empty if the trial is usable).
+
+    >>> t = np.arange(5) / 100.0  # s
+    >>> trial_problems(Trial(t, np.array([0.0, np.nan, 0.0, np.nan, 0.0]), np.zeros(5)))
+    ["channel 'position': 2 NaN values, first at index 1"]
+    >>> trial_problems(Trial(t, np.zeros(5), np.zeros(5)))
+    []
+    """
     channels = {"time": trial.time, "position": trial.position, "torque": trial.torque}
     channels.update(trial.channels)
     problems: list[str] = []
@@ -279,7 +286,13 @@ def _read_mat(path: Path, required, optional, variable=None, channels=None) -> d
 
 def split_variable(path) -> tuple[Path, str | None]:
     """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
-    (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None)."""
+    (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None).
+
+    >>> split_variable("experimental_data.mat:z_df")
+    (PosixPath('experimental_data.mat'), 'z_df')
+    >>> split_variable("PT.csv")
+    (PosixPath('PT.csv'), None)
+    """
     text = str(path)
     head, sep, name = text.rpartition(":")
     if sep and head.lower().endswith(".mat") and name and "/" not in name and "\\" not in name \
@@ -434,6 +447,13 @@ def decimation_factor(fs: float, target_fs, source=None) -> int:
     """Integer factor from ``fs`` to ``target_fs`` (Hz); 1 if ``target_fs`` is None.
 
     Raises DataError if ``fs`` is below ``target_fs`` or not an integer multiple of it.
+
+    >>> decimation_factor(1000.0, 100.0), decimation_factor(1000.0, None)  # Hz
+    (10, 1)
+    >>> decimation_factor(1000.0, 300.0)
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.DataError: ...
     """
     if target_fs is None:
         return 1
@@ -467,6 +487,14 @@ def decimate_signal(x, q: int) -> np.ndarray:
 
     Same polyphase zero-phase path as ``scipy.signal.decimate(x, q, ftype="fir",
     zero_phase=True)`` (``resample_poly``), with a sharper, flatter filter.
+
+    A 1 Hz sine sampled at 1 kHz keeps its shape at 100 Hz; a 300 Hz one is removed, not aliased:
+
+    >>> t = np.arange(5000) / 1000.0  # s
+    >>> slow, fast = np.sin(2 * np.pi * t), np.sin(2 * np.pi * 300 * t)
+    >>> y = decimate_signal(slow + fast, 10)
+    >>> len(y), bool(np.max(np.abs(y - slow[::10])[50:-50]) < 1e-3)
+    (500, True)
     """
     if q == 1:
         return np.asarray(x, dtype=float).copy()
@@ -701,6 +729,13 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
     the mean of the rectified reflex torque, which the model then cannot attribute (the
     same as the lab's own stationary analysis, which removes it too). ``meta`` records
     ``stationary``, ``operating_point`` (rad) and ``torque_offset`` (N m).
+
+    >>> t = np.arange(3000) / 1000.0  # a 3 s trial held at -0.1 rad, 1 kHz
+    >>> rng = np.random.default_rng(0)
+    >>> pos = -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t))
+    >>> data = stationary_perturbation(Trial(t, pos, 40 * pos + 0.01 * rng.standard_normal(3000)))
+    >>> data.fs, round(data.meta["operating_point"], 3), bool(np.ptp(data.scheduling) == 0.0)
+    (100.0, -0.1, True)
     """
     problems = trial_problems(pt)
     if problems:
