@@ -8,7 +8,18 @@ from __future__ import annotations
 
 
 class LpvpcError(Exception):
-    """Base class of every error lpvpc raises on purpose."""
+    """Base class of every error lpvpc raises on purpose.
+
+    Catch every error lpvpc raises on purpose with this class; ``exit_status`` is what the
+    command line exits with (2: bad input):
+
+    >>> from lpvpc.data import PerturbationData
+    >>> try:
+    ...     PerturbationData(position=[0.0, float("nan")], torque=[0.0, 1.0], scheduling=[0.0, 0.0], fs=100.0)
+    ... except LpvpcError as exc:
+    ...     print(type(exc).__name__, exc.exit_status)
+    DataError 2
+    """
 
     exit_status = 1
 
@@ -18,6 +29,12 @@ class DataError(LpvpcError, ValueError):
 
     ``problems`` lists every problem found (each names the channel, index and count),
     so that a user fixes a file once rather than once per problem.
+
+    >>> err = DataError(["channel 'torque': 3 NaN values, first at index 7", "time is not increasing"], "PT.csv")
+    >>> str(err)
+    "PT.csv: channel 'torque': 3 NaN values, first at index 7; time is not increasing"
+    >>> len(err.problems), isinstance(err, ValueError)
+    (2, True)
     """
 
     exit_status = 2
@@ -33,48 +50,108 @@ class DataError(LpvpcError, ValueError):
 
 class InsufficientExcitationError(LpvpcError, ValueError):
     """The data cannot determine the requested parameters (too few samples, no
-    perturbation, rank-deficient regressor)."""
+    perturbation, rank-deficient regressor).
+
+    >>> issubclass(InsufficientExcitationError, LpvpcError), InsufficientExcitationError.exit_status
+    (True, 2)
+    """
 
     exit_status = 2
 
 
 class IdentificationError(LpvpcError, RuntimeError):
-    """The identification algorithm failed on data that passed the input checks."""
+    """The identification algorithm failed on data that passed the input checks.
+
+    >>> issubclass(IdentificationError, RuntimeError), IdentificationError.exit_status
+    (True, 1)
+    """
 
 
 class ModelFileError(LpvpcError, ValueError):
-    """A saved model file is missing, corrupt or of an unknown format version."""
+    """A saved model file is missing, corrupt or of an unknown format version.
+
+    >>> from lpvpc.model import LPVPCModel
+    >>> LPVPCModel.from_dict({"format": "something else"})
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.ModelFileError: model: not an lpvpc model file (missing 'format': 'lpvpc-model')
+    """
 
     exit_status = 2
 
 
 class ExportError(LpvpcError, RuntimeError):
-    """Code generation, compilation or packaging of an export failed."""
+    """Code generation, compilation or packaging of an export failed.
+
+    >>> from lpvpc.fmu_build import FmuVariable, build_fmu
+    >>> build_fmu("x.fmu", model_identifier="1bad", system_sources=[], nx=1, step_size=0.01,
+    ...           outputs=[FmuVariable("torque", "output", "N.m")], inputs=[], parameters=[])
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.ExportError: cannot build FMU: model_identifier '1bad' is not a C identifier; system_sources is empty
+    """
 
 
 class FMUError(LpvpcError, RuntimeError):
-    """An FMU is missing, corrupt, built for another platform, or returned an error."""
+    """An FMU is missing, corrupt, built for another platform, or returned an error.
+
+    >>> from lpvpc.validation.fmu import inspect_fmu
+    >>> inspect_fmu("no_such.fmu")
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.FMUError: ...file not found...
+    """
 
     exit_status = 2
 
 
 class LpvpcWarning(UserWarning):
-    """Base class of the warnings lpvpc issues on purpose (the CLI prints each as one line)."""
+    """Base class of the warnings lpvpc issues on purpose (the CLI prints each as one line).
+
+    >>> import warnings
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore", LpvpcWarning)  # silence all of lpvpc's warnings
+    ...     warnings.warn("outside the identified range", OutOfRangeWarning)
+    """
 
 
 class OutOfRangeWarning(LpvpcWarning):
-    """Scheduling or velocity values lie outside the range the model was identified on."""
+    """Scheduling or velocity values lie outside the range the model was identified on.
+
+    >>> issubclass(OutOfRangeWarning, LpvpcWarning)
+    True
+    """
 
 
 class UnitWarning(LpvpcWarning):
-    """Values look like they are in other units than the ones declared (e.g. degrees)."""
+    """Values look like they are in other units than the ones declared (e.g. degrees).
+
+    >>> import tempfile, warnings
+    >>> import numpy as np
+    >>> from lpvpc.data import Trial, load_trial, write_trial_csv
+    >>> t = np.arange(500) / 100.0
+    >>> with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     write_trial_csv(Trial(t, 20.0 * np.sin(t), np.zeros(500)), f"{tmp}/PT.csv")  # degrees
+    ...     _ = load_trial(f"{tmp}/PT.csv")  # read as rad (the default position_unit)
+    >>> [type(w.message).__name__ for w in caught]
+    ['UnitWarning']
+    """
 
 
 class PhysiologyWarning(LpvpcWarning):
     """An identified model is physiologically implausible (e.g. negative elastic stiffness
-    over most of the range: usually a reversed torque sign convention)."""
+    over most of the range: usually a reversed torque sign convention).
+
+    >>> issubclass(PhysiologyWarning, LpvpcWarning)  # see lpvpc.identify.check_physiology
+    True
+    """
 
 
 class StationaryWarning(LpvpcWarning):
     """The scheduling variable does not vary: a position-independent (LTI) parallel cascade
-    was identified instead of the LPV model."""
+    was identified instead of the LPV model.
+
+    >>> issubclass(StationaryWarning, LpvpcWarning)
+    True
+    """

@@ -8,7 +8,11 @@ from .equations import lagged
 
 
 def two_sided_lags(L: int):
-    """Lags -L..L of the two-sided IRF (negative lags look into the future)."""
+    """Lags -L..L of the two-sided IRF (negative lags look into the future).
+
+    >>> two_sided_lags(2)  # samples; negative lags look into the future
+    [-2, -1, 0, 1, 2]
+    """
     return list(range(-int(L), int(L) + 1))
 
 

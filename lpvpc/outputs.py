@@ -29,7 +29,13 @@ TEMP_SUFFIX = ".lpvpc-tmp"  # temporary outputs: ".<name>.<random>.lpvpc-tmp" be
 
 
 class OutputPathError(LpvpcError):
-    """An output path would overwrite an input (or another output of the same command)."""
+    """An output path would overwrite an input (or another output of the same command).
+
+    >>> check_outputs({"--pt": "PT.csv"}, {"--out": "PT.csv"})
+    Traceback (most recent call last):
+    ...
+    lpvpc.outputs.OutputPathError: ...
+    """
 
     exit_status = 2
 
@@ -54,6 +60,12 @@ def check_outputs(inputs: dict, outputs: dict, folders: dict | None = None) -> N
     e.g. ``"--pt"``, ``"--casadi sidecar"``). ``outputs`` are files the command writes;
     ``folders`` are output folders it replaces as a whole (no input may lie inside one).
     Two outputs that are the same file are refused as well.
+
+    >>> check_outputs({"--pt": "PT.csv"}, {"-o": "model.json"})  # fine: returns None
+    >>> check_outputs({"--pt": "run/PT.csv"}, {}, {"--report": "run"})
+    Traceback (most recent call last):
+    ...
+    lpvpc.outputs.OutputPathError: ...
     """
     ins = [(k, v) for k, v in inputs.items() if v is not None]
     outs = [(k, v) for k, v in outputs.items() if v is not None]
@@ -83,11 +95,25 @@ def _umask() -> int:
 
 
 def file_mode() -> int:
-    """Mode of a new output file: 0666 less the umask (what ``open()`` gives)."""
+    """Mode of a new output file: 0666 less the umask (what ``open()`` gives).
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     made = Path(tmp) / "by_open.txt"
+    ...     _ = made.write_text("")
+    ...     print(made.stat().st_mode & 0o777 == file_mode())
+    True
+    """
     return 0o666 & ~_umask()
 
 
 def folder_mode() -> int:
+    """Mode of a new output folder: 0777 less the umask (what ``mkdir`` gives).
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     (Path(tmp) / "made").mkdir()
+    ...     print((Path(tmp) / "made").stat().st_mode & 0o777 == folder_mode())
+    True
+    """
     return 0o777 & ~_umask()
 
 
@@ -95,7 +121,17 @@ def folder_mode() -> int:
 @contextmanager
 def atomic_path(path):
     """Yield a temporary path beside ``path``; on success it is renamed over ``path``
-    (mode :func:`file_mode`), on any exception (also KeyboardInterrupt) removed."""
+    (mode :func:`file_mode`), on any exception (also KeyboardInterrupt) removed.
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     target = Path(tmp) / "model.json"
+    ...     with atomic_path(target) as partial:
+    ...         _ = partial.write_text("{}")
+    ...         print(target.exists())  # nothing at the target until the block succeeds
+    ...     print(target.read_text())
+    False
+    {}
+    """
     path = Path(path)
     tmp = None
     try:
@@ -113,12 +149,26 @@ def atomic_path(path):
 
 
 def write_text(path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (:func:`atomic_path`): readers see the old file or
+    the whole new one, never a part; returns the path.
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     print(write_text(Path(tmp) / "a.txt", "done").read_text())
+    done
+    """
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding=encoding)
     return Path(path)
 
 
 def write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_path`): readers see the old file or
+    the whole new one, never a part; returns the path.
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     print(write_bytes(Path(tmp) / "a.bin", bytes([0, 1])).stat().st_size)
+    2
+    """
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
@@ -127,7 +177,11 @@ def write_bytes(path, data: bytes) -> Path:
 # --------------------------------------------------------------------------- folders
 @contextmanager
 def signals_held():
-    """Hold SIGINT and SIGTERM over a few renames (delivered right after)."""
+    """Hold SIGINT and SIGTERM over a few renames (delivered right after).
+
+    >>> with signals_held():  # Ctrl-C waits until the block ends
+    ...     pass
+    """
     held = {signal.SIGINT, signal.SIGTERM}
     try:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
@@ -143,7 +197,15 @@ def signals_held():
 @contextmanager
 def staged_folder(folder):
     """Yield an empty folder beside ``folder``; on success it replaces ``folder`` (any
-    previous content goes), on any exception it is removed and ``folder`` is untouched."""
+    previous content goes), on any exception it is removed and ``folder`` is untouched.
+
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     report = Path(tmp) / "report"
+    ...     with staged_folder(report) as stage:
+    ...         _ = (stage / "index.html").write_text("<html></html>")
+    ...     print(sorted(p.name for p in report.iterdir()))
+    ['index.html']
+    """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise NotADirectoryError(20, "not a folder", str(folder))

@@ -17,7 +17,14 @@ import numpy as np
 
 
 class Segments:
-    """Half-open sample ranges ``[(start, stop), ...]`` that tile ``0..n`` in order."""
+    """Half-open sample ranges ``[(start, stop), ...]`` that tile ``0..n`` in order.
+
+    >>> s = Segments([(0, 3), (3, 5)], 5)  # two trials of 3 and 2 samples
+    >>> len(s), s.lengths
+    (2, [3, 2])
+    >>> s.map(np.cumsum, np.ones(5))  # each trial on its own, then stacked
+    array([1., 2., 3., 1., 2.])
+    """
 
     def __init__(self, bounds, n: int):
         bounds = [(int(a), int(b)) for a, b in bounds] or [(0, int(n))]
