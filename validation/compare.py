@@ -21,13 +21,21 @@ FREQUENCY_BANDS = ((0.0, 1.0), (1.0, 3.0), (3.0, 8.0), (8.0, 20.0), (20.0, None)
 
 
 def rmse(measured, predicted) -> float:
-    """Root-mean-square error (N m)."""
+    """Root-mean-square error (N m).
+
+    >>> rmse([1.0, 2.0, 3.0], [1.0, 2.0, 5.0])  # N m
+    1.1547005383792515
+    """
     d = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
     return float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
 
 
 def relative_difference(a, b) -> float:
-    """max |a - b| / max |b|: agreement of two predictions of the same torque."""
+    """max |a - b| / max |b|: agreement of two predictions of the same torque.
+
+    >>> relative_difference([1.0, 2.0, 4.1], [1.0, 2.0, 4.0])  # max |a - b| / max |b|
+    0.02499999999999991
+    """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     scale = float(np.max(np.abs(b))) if b.size else 0.0
@@ -36,7 +44,13 @@ def relative_difference(a, b) -> float:
 
 def route_agreement(reference, others: dict, tolerance: float) -> dict:
     """{name: {"max_relative_difference", "rmse_difference", "pass"}} of each route in
-    ``others`` against ``reference`` (``pass``: max relative difference <= tolerance)."""
+    ``others`` against ``reference`` (``pass``: max relative difference <= tolerance).
+
+    >>> ref = np.sin(np.arange(100) / 10.0)
+    >>> a = route_agreement(ref, {"fmu": ref + 1e-12, "bad": 1.1 * ref}, tolerance=1e-9)
+    >>> a["fmu"]["pass"], a["bad"]["pass"]
+    (True, False)
+    """
     out = {}
     for name, x in others.items():
         d = relative_difference(x, reference)
@@ -62,7 +76,16 @@ def _fit(measured, predicted, mask) -> dict:
 
 def scheduling_summary(scheduling, identified_range, measured, predictions: dict) -> dict:
     """Held-out scheduling range against the identified one, the out-of-range fraction, and
-    the fit of each prediction inside and outside the identified range separately."""
+    the fit of each prediction inside and outside the identified range separately.
+
+    A held-out record that leaves the identified range [-0.4, 0.2] rad a quarter of the time:
+
+    >>> rho = np.r_[np.linspace(-0.3, 0.1, 75), np.full(25, 0.25)]
+    >>> tq = np.sin(np.arange(100.0))
+    >>> s = scheduling_summary(rho, (-0.4, 0.2), tq, {"model": tq})
+    >>> s["out_of_range_fraction"], round(s["max_excursion"], 3), s["in_range"]["model"]["vaf"]
+    (0.25, 0.05, 100.0)
+    """
     rho = np.asarray(scheduling, dtype=float)
     lo, hi = (float(x) for x in identified_range)
     below, above = rho < lo, rho > hi
@@ -85,7 +108,13 @@ def scheduling_summary(scheduling, identified_range, measured, predictions: dict
 
 def binned_errors(x, measured, predictions: dict, edges) -> list:
     """Error statistics of each prediction in bins of ``x`` (edges ascending): per bin the
-    centre, count, RMS measured torque and each prediction's RMSE (N m)."""
+    centre, count, RMS measured torque and each prediction's RMSE (N m).
+
+    >>> x = np.linspace(-1.0, 1.0, 200)
+    >>> rows = binned_errors(x, np.zeros(200), {"m": np.where(x > 0, 0.5, 0.0)}, [-1.0, 0.0, 1.0])
+    >>> [(r["centre"], r["n"], r["rmse_m"]) for r in rows]  # the error lives above zero
+    [(-0.5, 100, 0.0), (0.5, 100, 0.5)]
+    """
     x = np.asarray(x, dtype=float)
     measured = np.asarray(measured, dtype=float)
     rows = []
@@ -101,7 +130,11 @@ def binned_errors(x, measured, predictions: dict, edges) -> list:
 
 
 def quantile_edges(x, n_bins: int, lo=None, hi=None) -> np.ndarray:
-    """Bin edges with equal counts (robust to long tails), optionally clipped to [lo, hi]."""
+    """Bin edges with equal counts (robust to long tails), optionally clipped to [lo, hi].
+
+    >>> quantile_edges(np.arange(101.0), 4)
+    array([  0.,  25.,  50.,  75., 100.])
+    """
     x = np.asarray(x, dtype=float)
     edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, n_bins + 1)))
     if lo is not None:
@@ -114,7 +147,12 @@ def quantile_edges(x, n_bins: int, lo=None, hi=None) -> np.ndarray:
 def symmetric_edges(x, quantiles=(0.5, 0.8, 0.95)) -> np.ndarray:
     """Bin edges symmetric about zero at the given quantiles of |x|, out to max |x|: for
     signals that sit near zero most of the time and matter in their tails (a perturbation
-    velocity during PRALDS holds and steps)."""
+    velocity during PRALDS holds and steps).
+
+    >>> e = symmetric_edges(np.linspace(-2.0, 2.0, 401))  # rad/s
+    >>> bool(np.allclose(e, -e[::-1])), float(e[-1])  # symmetric, out to max |x|
+    (True, 2.0)
+    """
     a = np.abs(np.asarray(x, dtype=float))
     q = np.unique(np.quantile(a, quantiles))
     q = q[q > 0]
@@ -124,7 +162,13 @@ def symmetric_edges(x, quantiles=(0.5, 0.8, 0.95)) -> np.ndarray:
 
 
 def errors_over_time(time, measured, predictions: dict, window: float) -> dict:
-    """RMSE (N m) of each prediction in consecutive windows of ``window`` s."""
+    """RMSE (N m) of each prediction in consecutive windows of ``window`` s.
+
+    >>> t = np.arange(400) / 100.0  # s
+    >>> e = errors_over_time(t, np.zeros(400), {"m": np.r_[np.zeros(300), np.ones(100)]}, window=1.0)
+    >>> np.round(e["t_centre"], 9).tolist(), e["rmse_m"]  # the last second is wrong by 1 N m
+    ([0.5, 1.5, 2.5, 3.5], [0.0, 0.0, 0.0, 1.0])
+    """
     time = np.asarray(time, dtype=float)
     measured = np.asarray(measured, dtype=float)
     dt = float(np.median(np.diff(time)))
@@ -145,7 +189,14 @@ def _welch(x, fs):
 
 def error_spectrum(measured, predictions: dict, fs: float) -> dict:
     """Welch power spectral densities (N^2 m^2/Hz) of the measured torque and of each
-    prediction's error."""
+    prediction's error.
+
+    >>> fs = 100.0
+    >>> t = np.arange(4000) / fs
+    >>> s = error_spectrum(np.sin(2 * np.pi * 5 * t), {"zero": np.zeros(4000)}, fs)
+    >>> round(float(s["f"][np.argmax(s["zero"])]))  # Hz: the error is the 5 Hz sine
+    5
+    """
     f, pm = _welch(measured, fs)
     out = {"f": f, "measured": pm}
     for name, p in predictions.items():
@@ -155,7 +206,19 @@ def error_spectrum(measured, predictions: dict, fs: float) -> dict:
 
 def band_errors(measured, predictions: dict, fs: float, bands=FREQUENCY_BANDS) -> list:
     """Per frequency band: the measured torque power and, for each prediction, the error
-    power as a fraction of it (``vaf_<name>`` = 100 (1 - error power / measured power))."""
+    power as a fraction of it (``vaf_<name>`` = 100 (1 - error power / measured power)).
+
+    An error at 10 Hz shows in the 8-20 Hz band only:
+
+    >>> fs = 100.0
+    >>> t = np.arange(6000) / fs
+    >>> measured = np.sin(2 * np.pi * 0.5 * t) + 0.3 * np.sin(2 * np.pi * 10 * t)
+    >>> rows = band_errors(measured, {"m": np.sin(2 * np.pi * 0.5 * t)}, fs)
+    >>> [(r["lo"], r["hi"]) for r in rows if r["error_power_m"] > 1e-3]  # Hz
+    [(8.0, 20.0)]
+    >>> bool(rows[0]["vaf_m"] > 99.99)  # the 0.5 Hz sine is predicted (spectral leakage aside)
+    True
+    """
     spec = error_spectrum(measured, predictions, fs)
     f = spec["f"]
     rows = []
@@ -176,7 +239,15 @@ def band_errors(measured, predictions: dict, fs: float, bands=FREQUENCY_BANDS) -
 
 def worst_segments(time, measured, predicted, length: float, n: int = 3) -> list:
     """The ``n`` non-overlapping windows of ``length`` s with the largest RMSE of
-    ``predicted``; each as {"start", "stop" (s), "i0", "i1" (indices), "rmse" (N m)}."""
+    ``predicted``; each as {"start", "stop" (s), "i0", "i1" (indices), "rmse" (N m)}.
+
+    >>> t = np.arange(1000) / 100.0  # s
+    >>> err = np.zeros(1000)
+    >>> err[600:650] = 2.0
+    >>> w = worst_segments(t, err, np.zeros(1000), length=0.5, n=1)
+    >>> w[0]["start"], w[0]["rmse"]  # s, N m
+    (6.0, 2.0)
+    """
     time = np.asarray(time, dtype=float)
     err2 = (np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)) ** 2
     dt = float(np.median(np.diff(time)))
