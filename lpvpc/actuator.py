@@ -55,7 +55,12 @@ def actuator_source_dir() -> Path:
 
 
 def actuator_variables() -> tuple[list[FmuVariable], list[FmuVariable], list[FmuVariable]]:
-    """(outputs, inputs, parameters) of the actuator FMU, in value-reference order."""
+    """(outputs, inputs, parameters) of the actuator FMU, in value-reference order.
+
+    >>> outputs, inputs, parameters = actuator_variables()
+    >>> [(v.name, v.unit) for v in outputs[:3]]
+    [('position', 'rad'), ('velocity', 'rad/s'), ('acceleration', 'rad/s2')]
+    """
     outputs = [
         FmuVariable("position", "output", "rad", "Footplate angle theta", dependencies=[]),
         FmuVariable("velocity", "output", "rad/s", "Footplate angular velocity", dependencies=[]),

@@ -135,7 +135,13 @@ def _irf(variant) -> str:
 
 def input_names(variant="causal", parametric=False, model=None):
     """Names of the step function's inputs, in order (with ``model``: including the extra
-    signals of an extended model)."""
+    signals of an extended model).
+
+    >>> input_names("causal")
+    ['state', 'position', 'scheduling', 'velocity', 'acceleration']
+    >>> input_names("sampled", parametric=True)  # positions only; the coefficients as an input
+    ['state', 'position', 'scheduling', 'params']
+    """
     _check_variant(variant)
     names = [STATE_INPUT, "position", "scheduling"]
     if variant == "causal":
@@ -587,7 +593,11 @@ _OUTPUT_INFO = {
 
 
 def model_source_dir() -> Path:
-    """Folder with the generic C adapter ``model_system.c`` (next to the FMU wrapper)."""
+    """Folder with the generic C adapter ``model_system.c`` (next to the FMU wrapper).
+
+    >>> (model_source_dir() / "model_system.c").is_file()
+    True
+    """
     from .fmu_build import wrapper_dir
 
     return wrapper_dir().parent / "model"

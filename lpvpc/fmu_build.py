@@ -121,6 +121,9 @@ def wrapper_dir() -> Path:
 
     ``$LPVPC_FMU_MODELS/wrapper`` if that variable is set, else the installed package data
     ``lpvpc.fmu_models`` (the checkout's ``fmu_models/`` folder, mapped by pyproject.toml).
+
+    >>> sorted(p.name for p in wrapper_dir().glob("fmi*_cs.c"))
+    ['fmi2_cs.c', 'fmi3_cs.c']
     """
     root = os.environ.get("LPVPC_FMU_MODELS")
     if root:

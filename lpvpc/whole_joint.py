@@ -63,7 +63,20 @@ _OUTPUT_INFO = {
 
 @dataclass
 class WholeJointPrediction:
-    """Offline prediction (N m, rad), one value per sample of the angle record."""
+    """Offline prediction (N m, rad), one value per sample of the angle record.
+
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.model import vaf
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> wj = fit_whole_joint(identify(pair_trials(sim.pt, sim.ut)), sim.ut)
+    >>> p = wj.predict(sim.pt.position, warn=False)  # the joint angle of the perturbed trial, rad
+    >>> bool(np.allclose(p.total, p.quasi_static + p.perturbation_torque))  # N m
+    True
+    >>> bool(vaf(sim.pt.torque, p.total) > 95.0)  # percent
+    True
+    """
 
     total: np.ndarray
     quasi_static: np.ndarray
@@ -173,7 +186,13 @@ def fit_quasi_static(angle, torque, order: int = DEFAULT_ORDER, family: str = "c
     """Least-squares torque-angle curve of an unperturbed trial: (basis, coefficients, VAF %).
 
     ``angle`` rad, ``torque`` N m, same length. The basis spans the trial's angles and
-    continues linearly beyond them (a tangent, not a polynomial blowing up)."""
+    continues linearly beyond them (a tangent, not a polynomial blowing up).
+
+    >>> angle = np.linspace(-0.4, 0.2, 200)  # rad
+    >>> basis, coef, fit_vaf = fit_quasi_static(angle, 30.0 * angle + 40.0 * angle**2, order=3)
+    >>> round(fit_vaf, 6), bool(np.allclose(basis.evaluate(angle) @ coef, 30.0 * angle + 40.0 * angle**2))
+    (100.0, True)
+    """
     from .model import vaf
 
     angle = _checked_angle(angle)
@@ -238,7 +257,23 @@ def whole_joint_step(wj: WholeJointModel, parametric: bool = False, name: str = 
     """The whole-joint model's step as a ``casadi.Function``.
 
     Inputs: ``state`` (zeros at the start of a record), ``angle`` (rad)[, ``params``].
-    Outputs: ``next_state`` and :data:`OUTPUT_NAMES` of sample k - L (0 for k < L)."""
+    Outputs: ``next_state`` and :data:`OUTPUT_NAMES` of sample k - L (0 for k < L).
+
+    The CasADi step reproduces the offline prediction, L samples later:
+
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> wj = fit_whole_joint(identify(pair_trials(sim.pt, sim.ut)), sim.ut)
+    >>> step = whole_joint_step(wj)
+    >>> angle = sim.pt.position[:300]
+    >>> out = step.mapaccum(len(angle))(np.zeros(step.size1_in(0)), angle[None, :])
+    >>> L = latency_samples(wj)
+    >>> torque = np.asarray(out[1]).ravel()
+    >>> bool(np.allclose(torque[L:], wj.predict(angle, warn=False).total[:-L], atol=1e-9))
+    True
+    """
     import casadi as ca
 
     from .export import state_layout, step_function
