@@ -59,7 +59,17 @@ RATE_FIELDS = {"fs": "rate", "samplingrate": "rate", "sampling_rate": "rate", "d
 class Record:
     """The channels (name -> 1-D float array) of one variable of a .mat file, with the
     sample period (s) and start time (s) when the file says them. Channels of unequal
-    length are kept as found (the trial checks report them)."""
+    length are kept as found (the trial checks report them).
+
+    A matrix variable sampled at 1 kHz, as :func:`read_mat` returns it (a matrix's columns
+    are channels ``1``, ``2``, ...):
+
+    >>> r = Record("trial", "matrix", {"1": np.zeros(3000), "2": np.ones(3000)}, period=0.001)
+    >>> r.describe(), r.n
+    ('trial (matrix, 3000 samples at 1000 Hz: 1, 2)', 3000)
+    >>> r.times()[:3]  # s
+    array([0.   , 0.001, 0.002])
+    """
 
     name: str
     kind: str  # "nldat", "struct", "matrix" or "variables"
@@ -266,7 +276,11 @@ def _nldat(name: str, fields: dict, kind: str) -> Record:
 
 
 def found(records) -> str:
-    """One-line summary of the variables and channels of a file."""
+    """One-line summary of the variables and channels of a file.
+
+    >>> found([Record("z_df", "nldat", {"pos1": np.zeros(2), "tq1": np.zeros(2)}, period=0.001)])
+    'z_df (nldat, 2 samples at 1000 Hz: pos1, tq1)'
+    """
     return "; ".join(r.describe() for r in records) or "nothing readable (no numeric vectors, matrices or nldat objects)"
 
 
@@ -328,6 +342,14 @@ def select_channels(records, required, optional=(), *, channels=None, variable=N
     their exact name. Torque is chosen first; position and the optional channels are
     preferred from the same variable. Raises DataError (one line, listing what was found)
     when a required channel is missing or a choice is ambiguous.
+
+    Roles found by name: torque from ``tq1``, position from ``pos1`` of the same variable,
+    time from its sample period (s):
+
+    >>> r = Record("z_df", "nldat", {"pos1": np.zeros(4), "tq1": np.arange(4.0)}, period=0.001)
+    >>> chans = select_channels([r], ["time", "position", "torque"])
+    >>> chans["torque"], chans["time"]
+    (array([0., 1., 2., 3.]), array([0.   , 0.001, 0.002, 0.003]))
     """
     channels = dict(channels or {})
     unknown = sorted(set(channels) - set(required) - set(optional))
@@ -406,7 +428,15 @@ def _assemble(chosen, required, source, records) -> dict:
 
 def parse_channel_options(items) -> dict:
     """``["position=pos1", "torque=io.tqPert1"]`` -> ``{"position": "pos1", ...}`` (the
-    CLI's repeated ``--channel ROLE=NAME``). Raises ValueError naming a malformed item."""
+    CLI's repeated ``--channel ROLE=NAME``). Raises ValueError naming a malformed item.
+
+    >>> parse_channel_options(["position=pos1", "torque = io.tqPert1"])
+    {'position': 'pos1', 'torque': 'io.tqPert1'}
+    >>> parse_channel_options(["position"])
+    Traceback (most recent call last):
+    ...
+    ValueError: expected ROLE=NAME, got 'position'
+    """
     out = {}
     for item in items or ():
         role, sep, name = str(item).partition("=")
@@ -420,5 +450,10 @@ def parse_channel_options(items) -> dict:
 
 
 def is_mat(path) -> bool:
+    """True for a MATLAB file name (``.mat``, any case).
+
+    >>> is_mat("PilotData.MAT"), is_mat("PT.csv")
+    (True, False)
+    """
     return Path(path).suffix.lower() == ".mat"
 

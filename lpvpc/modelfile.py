@@ -67,7 +67,18 @@ def _no_duplicate_keys(pairs):
 def read_model_file(path) -> dict:
     """The parsed JSON of a model file, refused unless it is a regular file of at most
     :data:`MAX_FILE_BYTES` bytes holding UTF-8 JSON without duplicate keys, nested at most
-    :data:`MAX_NESTING_DEPTH` deep. The schema is :func:`check_model_dict`'s job."""
+    :data:`MAX_NESTING_DEPTH` deep. The schema is :func:`check_model_dict`'s job.
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = Path(tmp) / "model.json"
+    ...     _ = path.write_text('{"format": "lpvpc-model", "format": "again"}')
+    ...     read_model_file(path)
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.ModelFileError: ...duplicate key...
+    """
     name = str(path)
     try:
         st = os.stat(path)
@@ -487,7 +498,21 @@ DICT_SECTIONS = ("settings", "provenance", "conventions", "fit", "units", "ident
 
 def check_model_dict(d, source: str = "model") -> None:
     """Refuse (:class:`~lpvpc.errors.ModelFileError`, one line naming each problem and
-    its limit) a parsed model file that lpvpc must not build anything from."""
+    its limit) a parsed model file that lpvpc must not build anything from.
+
+    A saved model passes; the same with a non-finite sampling rate is refused, naming it:
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> d = identify(pair_trials(sim.pt, sim.ut)).to_dict()
+    >>> check_model_dict(d)
+    >>> check_model_dict({**d, "fs": float("inf")})
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.ModelFileError: model: corrupt model file: fs = inf Hz outside (0, ...] (MAX_FS)
+    """
     from .model import FORMAT, FORMAT_VERSION, FORMAT_VERSION_EFFECTS
 
     if not isinstance(d, dict) or d.get("format") != FORMAT:
@@ -526,7 +551,14 @@ def check_model_dict(d, source: str = "model") -> None:
 def check_whole_joint_dict(d: dict, source: str = "whole-joint model") -> None:
     """The whole-joint file's own fields (its embedded model goes through
     :func:`check_model_dict`): the quasi-static curve (a basis and its coefficients) and
-    the low-pass cutoff, a number in (0, fs/2) Hz."""
+    the low-pass cutoff, a number in (0, fs/2) Hz.
+
+    >>> check_whole_joint_dict({"quasi_static": {"basis": {"family": "chebyshev", "order": 1, "lo": -0.4,
+    ...                         "hi": 0.2}, "coefficients": [1.0, 2.0]}, "cutoff": 80.0, "model": {"fs": 100.0}})
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.ModelFileError: whole-joint model: corrupt whole-joint model file: cutoff = 80.0 ... (fs/2)
+    """
     problems = []
     try:
         qs = _dict(d.get("quasi_static"), "quasi_static", problems, required=True)
