@@ -284,7 +284,8 @@ class LPVPCEstimator:
             fs=fs, lags=lags, H=H, intrinsic_basis=G_i, causal_lags=causal, H_causal=H_causal, delay=delay,
             velocity_basis=V_b, reflex_rho_basis=G_r, Omega=hf.omega.reshape(V_b.size, G_r.size),
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
-            settings={**self.get_params(), "irf_lags": L, **rho_orders},  # as used at this rate and range
+            settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
+                      "stationary_delays": [float(c) for c in self.stationary_delays]},  # JSON: a list
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
