@@ -17,7 +17,12 @@ DIRECTION_STARTS = 3
 
 
 def reflex_input_regressor(velocity_basis, rho_basis):
-    """U_r (eq. 17): row k is DV(k) kron G_r(k), column ``i * n_r + j`` (Omega[i, j])."""
+    """U_r (eq. 17): row k is DV(k) kron G_r(k), column ``i * n_r + j`` (Omega[i, j]).
+
+    >>> DV, G = np.array([[1.0, 2.0]]), np.array([[1.0, 10.0]])
+    >>> reflex_input_regressor(DV, G)  # columns i * n_r + j
+    array([[ 1., 10.,  2., 20.]])
+    """
     n = velocity_basis.shape[0]
     return (velocity_basis[:, :, None] * rho_basis[:, None, :]).reshape(n, -1)
 
@@ -29,6 +34,25 @@ def reflex_regressor(U_r, A, C, segments=None):
     state i's input); the last block is U_r itself (the D term). theta_r = [B; d] kron Omega
     (eq. 26) so Psi_r @ theta_r is the reflex torque. With ``segments`` (trials joined end
     to end, :mod:`lpvpc.segments`) the filters start from rest in each trial.
+
+    >>> rng = np.random.default_rng(0)
+    >>> dvel = rng.standard_normal(3000)  # delayed velocity, rad/s
+    >>> DV = np.column_stack([np.ones(3000), dvel, np.maximum(dvel, 0.0)])  # velocity basis
+    >>> G = np.column_stack([np.ones(3000), np.linspace(-1.0, 1.0, 3000)])  # scheduling basis
+    >>> U_r = reflex_input_regressor(DV, G)
+    >>> A, C = np.array([[1.6, 1.0], [-0.63, 0.0]]), np.array([[1.0, 0.0]])  # poles 0.9, 0.7
+    >>> blocks = reflex_regressor(U_r, A, C)
+    >>> len(blocks), blocks[-1] is U_r  # one block per state, then the feedthrough
+    (3, True)
+    >>> omega = np.array([0.0, 0.0, 0.0, 0.0, 2.0, 1.0])  # a rectifier whose gain grows with rho
+    >>> z = U_r @ omega  # the nonlinearity's output
+    >>> x = np.zeros(2)
+    >>> y = np.empty(3000)
+    >>> for k in range(3000):  # x(k+1) = A x(k) + B z(k), y = C x + D z with B = (1, 0), D = 0
+    ...     y[k] = x[0]
+    ...     x = A @ x + np.array([1.0, 0.0]) * z[k]
+    >>> bool(np.allclose(np.hstack(blocks) @ np.kron([1.0, 0.0, 0.0], omega), y))
+    True
     """
     m = A.shape[0]
     blocks = []
@@ -44,6 +68,18 @@ def reflex_regressor(U_r, A, C, segments=None):
 
 @dataclass
 class HammersteinFit:
+    """The result of :func:`fit_hammerstein`: the reflex dynamics' input vector and
+    feedthrough, and the unit-norm nonlinearity coefficients (their product is what the data
+    determine; the torque scale sits in ``b`` and ``d``).
+
+    See :func:`fit_hammerstein`, which returns one:
+
+    >>> fit = HammersteinFit(b=np.array([0.5, 0.2]), d=0.0, omega=np.array([0.6, 0.8]), iterations=3,
+    ...                      converged=True, relative_error=1e-3)
+    >>> float(np.linalg.norm(fit.omega))
+    1.0
+    """
+
     b: np.ndarray  # (m,) input vector B of the reflex dynamics
     d: float  # feedthrough D
     omega: np.ndarray  # (n_v * n_r,) nonlinearity coefficients, unit norm
@@ -61,6 +97,23 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
     nonlinearity's output grows with stretch velocity). Stops when the normalised error
     changes by less than ``tol`` relative or ``abs_tol`` absolute (on noise-free data
     the relative test alone never triggers).
+
+    >>> rng = np.random.default_rng(0)
+    >>> dvel = rng.standard_normal(3000)  # delayed velocity, rad/s
+    >>> DV = np.column_stack([np.ones(3000), dvel, np.maximum(dvel, 0.0)])  # velocity basis
+    >>> G = np.column_stack([np.ones(3000), np.linspace(-1.0, 1.0, 3000)])  # scheduling basis
+    >>> U_r = reflex_input_regressor(DV, G)
+    >>> A, C = np.array([[1.6, 1.0], [-0.63, 0.0]]), np.array([[1.0, 0.0]])  # poles 0.9, 0.7
+    >>> omega = np.array([0.0, 0.0, 0.0, 0.0, 2.0, 1.0])
+    >>> blocks = reflex_regressor(U_r, A, C)
+    >>> tq = np.hstack(blocks) @ np.kron([0.5, 0.2, 0.0], omega)  # B = (0.5, 0.2), D = 0
+    >>> fit = fit_hammerstein(blocks, tq, orientation=omega)
+    >>> fit.converged, bool(fit.relative_error < 1e-12)
+    (True, True)
+    >>> bool(np.allclose(fit.omega, omega / np.linalg.norm(omega)))  # unit norm, sign by orientation
+    True
+    >>> bool(np.allclose(np.r_[fit.b, fit.d], np.array([0.5, 0.2, 0.0]) * np.linalg.norm(omega)))
+    True
     """
     m1 = len(blocks)
     n_w = blocks[0].shape[1]
