@@ -58,7 +58,11 @@ METHOD = "HAC sandwich (overlapping batch means, 0.5 s) of the final least squar
 
 
 def z_value(level: float) -> float:
-    """Two-sided standard-normal quantile for a confidence ``level`` in (0, 1)."""
+    """Two-sided standard-normal quantile for a confidence ``level`` in (0, 1).
+
+    >>> round(z_value(0.95), 4)
+    1.96
+    """
     from scipy.stats import norm
 
     if not 0 < level < 1:
@@ -105,7 +109,18 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     coefficients of the reflex dynamics join the parameters (Jacobian columns by central
     differences, one filter each), so pole uncertainty reaches K and the reflex gain.
     ``truncated`` = (lags, Psi) of a one-lag-shorter IRF: refitted to the same intrinsic
-    torque for the truncation term of the intrinsic intervals (module docstring)."""
+    torque for the truncation term of the intrinsic intervals (module docstring).
+
+    :func:`lpvpc.identify.identify` calls it; the model (and its file) keeps the result:
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> sorted(model.uncertainty)[:4], model.uncertainty["n_samples"]
+    (['block_length_s', 'covariance', 'dof', 'method'], 3000)
+    """
     from .subspace import companion_form
 
     N = len(y)
@@ -196,7 +211,18 @@ def _gradients_intrinsic(model, rho, weights):
 def lag_moment_weights(model, quantity: str, lags=None) -> np.ndarray:
     """Weights over the IRF lags (default the model's) turning the weights h_l into K
     (N m/rad), viscosity (N m s/rad) or inertia (kg m^2): Taylor moments of
-    ``sum_l h_l p(k - l)``."""
+    ``sum_l h_l p(k - l)``.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> lag_moment_weights(model, "stiffness")  # K = sum of the IRF weights
+    array([1., 1., 1., 1., 1., 1., 1., 1., 1.])
+    >>> bool(np.allclose(model.irf_weights(0.0) @ lag_moment_weights(model, "viscosity"), model.viscosity(0.0)))
+    True
+    """
     lags = np.asarray(model.lags if lags is None else lags, dtype=float)
     dt = 1.0 / model.fs
     if quantity == "stiffness":
@@ -226,7 +252,17 @@ def _cov_blocks(model):
 
 
 def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
-    """(estimate, lower, upper) arrays of an intrinsic quantity at positions ``rho`` (rad)."""
+    """(estimate, lower, upper) arrays of an intrinsic quantity at positions ``rho`` (rad).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> est, lower, upper = intrinsic_interval(model, "stiffness", np.array([-0.1, 0.1]))  # N m/rad
+    >>> bool(np.allclose(est, model.elastic_stiffness([-0.1, 0.1]))), bool(np.all((lower < est) & (est < upper)))
+    (True, True)
+    """
     cov, n_i, _ = _cov_blocks(model)
     w = lag_moment_weights(model, quantity)
     g = _gradients_intrinsic(model, rho, w)
@@ -266,7 +302,17 @@ def bias_aware_critical_value(t, level: float = 0.95):
 
 def parameter_draws(model, n_draws: int = N_DRAWS, seed: int = 0):
     """Draws from the stored Gaussian: Omega (n_draws, n_v, n_r) and the reflex DC gain
-    C (I - A)^-1 B + D (n_draws,) (with pole draws when the file holds their covariance)."""
+    C (I - A)^-1 B + D (n_draws,) (with pole draws when the file holds their covariance).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> omega, dc_gain = parameter_draws(model, n_draws=50)
+    >>> omega.shape == (50, *model.Omega.shape), dc_gain.shape
+    (True, (50,))
+    """
     cov, n_i, n_w = _cov_blocks(model)
     n_den = _stored(model)["parameters"].get("den", 0)
     c = cov[n_i:, n_i:]
@@ -294,7 +340,18 @@ def parameter_draws(model, n_draws: int = N_DRAWS, seed: int = 0):
 
 def reflex_interval(model, rho, level: float = 0.95, n_draws: int = N_DRAWS):
     """Percentile intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``:
-    ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), arrays of len(rho)."""
+    ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), arrays of len(rho).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> (g_lo, g_hi), (th_lo, th_hi) = reflex_interval(model, np.array([0.0]), n_draws=100)
+    >>> gain, threshold = model.reflex_gain_threshold([0.0])  # N m s/rad, rad/s
+    >>> bool(g_lo[0] < gain[0] < g_hi[0]) and bool(th_lo[0] < threshold[0] < th_hi[0])
+    True
+    """
     from .model import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
@@ -311,7 +368,19 @@ def reflex_interval(model, rho, level: float = 0.95, n_draws: int = N_DRAWS):
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = N_DRAWS):
     """Pointwise percentile band (lower, upper) of the scaled reflex nonlinearity (N m),
-    shape (len(rho), len(velocity)) each (for figure bands)."""
+    shape (len(rho), len(velocity)) each (for figure bands).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> v = np.linspace(0.0, 1.0, 5)  # rad/s
+    >>> lower, upper = nonlinearity_band(model, v, np.array([0.0]), n_draws=100)  # N m
+    >>> f = model.reflex_nonlinearity(v, [0.0])
+    >>> lower.shape, bool(np.all((lower <= f) & (f <= upper)))
+    ((1, 5), True)
+    """
     Om, dc = parameter_draws(model, n_draws)
     Vb = model.velocity_basis.evaluate(np.atleast_1d(velocity))
     Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(rho))
