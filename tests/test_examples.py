@@ -161,26 +161,10 @@ PENDING = {
     "lpvpc.plotting.plot_residual_change",
     "lpvpc.validation.cosim.CosimResult",
     "lpvpc.validation.cosim.ActuatorDrive",
-    "lpvpc.validation.cosim.to_rate",
-    "lpvpc.validation.cosim.band_limit",
-    "lpvpc.validation.cosim.feedforward_command",
-    "lpvpc.validation.cosim.calibrate_servo",
-    "lpvpc.validation.cosim.model_fmu_variant",
-    "lpvpc.validation.cosim.model_fmu_sampled",
-    "lpvpc.validation.cosim.model_variant_inputs",
-    "lpvpc.validation.cosim.hold_tail",
     "lpvpc.validation.engines.ssp_steps",
-    "lpvpc.validation.fmu.FMUInfo",
-    "lpvpc.validation.fmu.file_sha256",
-    "lpvpc.validation.fmu.fmu_model_hash",
     "lpvpc.validation.harness.ValidationResult",
-    "lpvpc.validation.harness.Record",
     "lpvpc.validation.report.write_report",
     "lpvpc.validation.report.write_metrics",
-    "lpvpc.validation.routes.offline_routes",
-    "lpvpc.validation.routes.casadi_routes",
-    "lpvpc.validation.routes.fmu_replay",
-    "lpvpc.validation.routes.model_fmu_inputs",
     "lpvpc.validation.ssp.ssp_connections",
     "lpvpc.validation.ssp.write_portable_ssp",
     "lpvpc.validation.ssp.build_record_fmu",
@@ -373,3 +357,75 @@ def test_example_an_fmu_from_the_export_building_blocks(model, subject, tmp_path
     inst.fmu.freeInstance()
     ref = reference(model, data.position, data.scheduling, "causal")["torque"]
     assert shifted_error(y, ref, 0, np.max(np.abs(ref))) < 1e-9
+
+
+@example_of("lpvpc.validation.cosim.to_rate", "lpvpc.validation.cosim.band_limit",
+            "lpvpc.validation.cosim.feedforward_command", "lpvpc.validation.cosim.calibrate_servo",
+            "lpvpc.validation.cosim.hold_tail", "lpvpc.validation.cosim.model_variant_inputs")
+def test_example_cosimulation_signal_helpers():
+    """The master's signal steps on a PRALDS perturbation: to the actuator rate and back,
+    band-limited to what a 100 Hz model represents, the servo command that reproduces a
+    position, and the servo's bandwidth fitted back from a record."""
+    import numpy as np
+
+    from lpvpc.simulate import pralds
+    from lpvpc.validation import cosim
+
+    fs, fs_act = 100.0, 1000.0  # Hz: model rate, actuator rate
+    pos = pralds(5.0, fs, np.random.default_rng(0))  # rad
+    smooth = cosim.band_limit(cosim.to_rate(pos, fs, fs_act), fs_act, fs)
+    back = cosim.to_rate(smooth, fs_act, fs)
+    assert len(back) == len(pos) and np.max(np.abs(back - pos)[50:-50]) < 0.15 * np.max(np.abs(pos))
+    spectrum = np.abs(np.fft.rfft(smooth * np.hanning(len(smooth))))
+    f = np.fft.rfftfreq(len(smooth), 1.0 / fs_act)
+    assert spectrum[f > 60].max() < 1e-3 * spectrum.max()  # nothing above the 50 Hz model band
+
+    h, bandwidth, damping = 1.0 / fs_act, 30.0, 0.7  # s, Hz, 1
+    command = cosim.feedforward_command(smooth, h, bandwidth, damping)
+    with_ff = np.abs(cosim.servo_response(command, h, bandwidth, damping) - smooth)[100:-100]
+    without = np.abs(cosim.servo_response(smooth, h, bandwidth, damping) - smooth)[100:-100]
+    assert np.sqrt(np.mean(with_ff**2)) < 0.2 * np.sqrt(np.mean(without**2))  # the servo's lag removed
+    fit = cosim.calibrate_servo(smooth, cosim.to_rate(cosim.servo_response(smooth, h, 40.0, 0.6), fs_act, fs),
+                                h, fs)
+    assert abs(fit["servo_bandwidth"] - 40.0) < 0.5 and abs(fit["servo_damping"] - 0.6) < 0.02, fit
+
+    assert cosim.hold_tail(np.array([1.0, 2.0]), 2).tolist() == [1.0, 2.0, 2.0, 2.0]
+    assert cosim.model_variant_inputs("causal") == ("position", "scheduling", "velocity", "acceleration")
+
+
+@example_of("lpvpc.validation.fmu.FMUInfo", "lpvpc.validation.fmu.file_sha256", "lpvpc.validation.fmu.fmu_model_hash",
+            "lpvpc.validation.cosim.model_fmu_variant", "lpvpc.validation.cosim.model_fmu_sampled",
+            "lpvpc.validation.routes.offline_routes", "lpvpc.validation.routes.casadi_routes",
+            "lpvpc.validation.routes.fmu_replay", "lpvpc.validation.routes.model_fmu_inputs",
+            "lpvpc.validation.harness.load_record", "lpvpc.validation.harness.Record")
+def test_example_prediction_routes_of_an_exported_model(model, subject, tmp_path):
+    """What ``lpvpc validate`` checks first, by hand: the exported FMU is the model's (its
+    declared hash), and the numpy, CasADi and FMU routes predict the same torque of a
+    held-out record loaded from its files."""
+    import numpy as np
+
+    from lpvpc.data import write_trial_csv
+    from lpvpc.validation import cosim, routes
+    from lpvpc.validation.compare import relative_difference
+    from lpvpc.validation.fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
+    from lpvpc.validation.harness import Record, load_record
+
+    path = model.export_fmu(tmp_path / "model.fmu")  # the default: sampled, FMI 2
+    info = inspect_fmu(path, "model FMU")
+    assert isinstance(info, FMUInfo) and info.sha256 == file_sha256(path)
+    assert fmu_model_hash(info) == model.model_hash
+    assert cosim.model_fmu_variant(info) == "sampled" and cosim.model_fmu_sampled(info)
+    assert routes.model_fmu_inputs(model, "sampled") == ("position", "scheduling")
+
+    pair = subject["novel_pair"]
+    for trial, name in ((pair.pt, "PT.csv"), (pair.ut, "UT.csv")):
+        write_trial_csv(trial, tmp_path / name)
+    record = load_record(model, tmp_path / "PT.csv", tmp_path / "UT.csv")
+    assert isinstance(record, Record) and record.measured.fs == model.fs
+    data = record.measured.segment(0, 1000)
+    offline = routes.offline_routes(model, data.position, data.scheduling)
+    casadi = routes.casadi_routes(model, data.position, data.scheduling)
+    fmu = routes.fmu_replay(info, model, data.position, data.scheduling)
+    assert relative_difference(casadi["torque"]["casadi_exact"], offline["numpy"].total) < 1e-9
+    assert relative_difference(fmu["torque"], offline["numpy_causal"].total) < 1e-9
+    assert np.all(np.isfinite(fmu["torque_reflex"]))

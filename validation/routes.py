@@ -56,7 +56,8 @@ def _held_tail(position, scheduling, signals, latency):
 
 
 def casadi_routes(model, position, scheduling, signals=None) -> dict:
-    """CasADi predictions {"casadi": total, "casadi_exact": total} (N m) and build/run times."""
+    """CasADi predictions: {"torque": {"casadi": causal total, "casadi_exact": two-sided total}
+    (N m), "seconds": {the same keys: build and run time in s}}."""
     out, timing = {}, {}
     for name, variant in (("casadi", "causal"), ("casadi_exact", "exact")):
         t0 = time.perf_counter()
