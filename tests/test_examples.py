@@ -85,7 +85,6 @@ REGISTRY = {
     "lpvpc.simulate.reflex_torque": "test_simulate.py::test_reflex_is_a_half_wave_rectifier_with_unit_dc_gain",
     "lpvpc.simulate.simulate_pair": "test_simulate.py::test_pair_structure_and_trajectory",
     "lpvpc.simulate.write_dataset": "test_simulate.py::test_write_dataset_roundtrip",
-    "lpvpc.subspace.SubspaceResult": "test_stationary_delay.py::test_unstable_reflex_order_is_not_chosen",
     "lpvpc.subspace.hankel_rows": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
     "lpvpc.subspace.streamed_r": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
     "lpvpc.whole_joint.WholeJointModel": "test_whole_joint.py::test_cli_whole_joint_writes_model_and_fmu",
