@@ -17,10 +17,18 @@ def two_sided_lags(L: int):
 
 
 def intrinsic_regressor(position, rho_basis, lags):
-    """Psi_i (eq. 11): row k is P(k) kron G_i(rho(k)), column ``l * n_i + j``.
+    """Psi_i (eq. 11): row k is P(k) kron G_i(rho(k)), column ``l * n_i + j``; ``position``
+    in rad (N,), ``rho_basis`` the (N, n_i) scheduling basis values, ``lags`` in samples.
 
-    With theta_i = H.ravel() (H of shape (n_lags, n_i)) Psi_i @ theta_i equals
-    :func:`lpvpc.equations.intrinsic_torque`.
+    With theta_i = H.ravel() (H of shape (n_lags, n_i), N m/rad) Psi_i @ theta_i equals
+    :func:`lpvpc.equations.intrinsic_torque` (N m).
+
+    >>> from lpvpc.equations import intrinsic_torque
+    >>> rng = np.random.default_rng(0)
+    >>> pos, G, H = rng.standard_normal(50), rng.standard_normal((50, 2)), rng.standard_normal((3, 2))
+    >>> lags = two_sided_lags(1)
+    >>> bool(np.allclose(intrinsic_regressor(pos, G, lags) @ H.ravel(), intrinsic_torque(lagged(pos, lags), G, H)))
+    True
     """
     P = lagged(position, lags)
     n, n_i = rho_basis.shape

@@ -72,7 +72,6 @@ REGISTRY = {
     "lpvpc.identify.project_out_and_solve": "test_identify.py::test_projection_equals_literal_pseudo_inverse_formula",
     "lpvpc.improve.improve": "test_diagnose.py::test_improve_report",
     "lpvpc.improve.write_report": "test_diagnose.py::test_improve_report",
-    "lpvpc.intrinsic.intrinsic_regressor": "test_trials.py::test_regressors_are_built_trial_by_trial",
     "lpvpc.matfiles.read_mat": "test_matfiles.py::test_real_lab_file_reads",
     "lpvpc.model.vaf": "test_identify.py::test_novel_vaf_within_one_point_of_noise_ceiling",
     "lpvpc.plotting.plot_torque_fit": "test_cli.py::test_plotting_functions_draw",

@@ -40,7 +40,8 @@ def model_fmu_inputs(model, variant: str = "causal") -> tuple:
 
 
 def offline_routes(model, position, scheduling, signals=None) -> dict:
-    """numpy predictions: {"numpy": Prediction (two-sided), "numpy_causal": Prediction}."""
+    """numpy predictions (torques in N m) of a record (``position``, ``scheduling`` in rad):
+    {"numpy": Prediction (two-sided IRF), "numpy_causal": Prediction (causal IRF)}."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
         return {"numpy": model.predict(position, scheduling, signals=signals),
