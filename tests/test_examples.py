@@ -160,9 +160,7 @@ PENDING = {
     "lpvpc.validation.cosim.CosimResult",
     "lpvpc.validation.cosim.ActuatorDrive",
     "lpvpc.validation.engines.ssp_steps",
-    "lpvpc.validation.harness.ValidationResult",
     "lpvpc.validation.report.write_report",
-    "lpvpc.validation.report.write_metrics",
     "lpvpc.validation.ssp.ssp_connections",
     "lpvpc.validation.ssp.write_portable_ssp",
     "lpvpc.validation.ssp.build_record_fmu",
@@ -427,3 +425,18 @@ def test_example_prediction_routes_of_an_exported_model(model, subject, tmp_path
     assert relative_difference(casadi["torque"]["casadi_exact"], offline["numpy"].total) < 1e-9
     assert relative_difference(fmu["torque"], offline["numpy_causal"].total) < 1e-9
     assert np.all(np.isfinite(fmu["torque_reflex"]))
+
+
+@example_of("lpvpc.validation.harness.ValidationResult", "lpvpc.validation.report.write_metrics")
+def test_example_validation_metrics_file(tmp_path):
+    """A validation result's metrics as the JSON a lab's scripts read (NaN becomes null)."""
+    import json
+    import math
+
+    from lpvpc.validation.harness import ValidationResult
+    from lpvpc.validation.report import write_metrics
+
+    result = ValidationResult(metrics={"pass": True, "vaf": 97.5, "vaf_fmu": math.nan}, report_dir=tmp_path)
+    path = write_metrics(result)
+    assert result.passed and result.files["metrics"] == path
+    assert json.loads(path.read_text()) == {"pass": True, "vaf": 97.5, "vaf_fmu": None}

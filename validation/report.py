@@ -68,6 +68,8 @@ def _clean(o):
 
 
 def write_metrics(result) -> Path:
+    """Write ``result.metrics`` to ``metrics.json`` in the report folder (non-finite numbers
+    as null; units as the metrics state them: VAF %, torques N m, times s); returns the path."""
     path = Path(result.report_dir) / "metrics.json"
     write_text(path, json.dumps(_clean(result.metrics), indent=1, default=_json_default) + "\n")
     result.files["metrics"] = path
