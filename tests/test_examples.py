@@ -108,16 +108,9 @@ REGISTRY = {
 
 #: public names without an example yet (may only shrink)
 PENDING = {
-    "lpvpc.cli.check_report_folder",
-    "lpvpc.cli.cmd_simulate",
-    "lpvpc.cli.cmd_identify",
-    "lpvpc.cli.cmd_predict",
-    "lpvpc.cli.cmd_export",
-    "lpvpc.cli.cmd_whole_joint",
     "lpvpc.cli.cmd_validate",
     "lpvpc.cli.cmd_diagnose",
     "lpvpc.cli.cmd_improve",
-    "lpvpc.cli.build_parser",
     "lpvpc.cli.Terminated",
     "lpvpc.demo.run",
     "lpvpc.demo.main",
@@ -440,3 +433,35 @@ def test_example_validation_metrics_file(tmp_path):
     path = write_metrics(result)
     assert result.passed and result.files["metrics"] == path
     assert json.loads(path.read_text()) == {"pass": True, "vaf": 97.5, "vaf_fmu": None}
+
+
+@example_of("lpvpc.cli.build_parser", "lpvpc.cli.cmd_simulate", "lpvpc.cli.cmd_identify", "lpvpc.cli.cmd_predict",
+            "lpvpc.cli.cmd_export", "lpvpc.cli.cmd_whole_joint", "lpvpc.cli.check_report_folder")
+def test_example_command_handlers(tmp_path, capsys):
+    """The command line's handlers as ``lpvpc`` calls them (parse, then the command's
+    function): a 30-s virtual subject simulated, identified, predicted, exported and turned
+    into a whole-joint model; a report folder holding someone else's files is refused."""
+    import json
+
+    from lpvpc import cli
+    from lpvpc.model import LPVPCModel
+
+    def run(handler, *argv):
+        assert handler(cli.build_parser().parse_args([str(a) for a in argv])) == 0
+        return capsys.readouterr().out
+
+    data, model = tmp_path / "data", tmp_path / "model.json"
+    run(cli.cmd_simulate, "simulate", "--out", data, "--seed", 0, "--duration", 30)
+    run(cli.cmd_identify, "identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "-o", model)
+    out = run(cli.cmd_predict, "predict", model, "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv",
+              "--json", tmp_path / "m.json")
+    vaf = json.loads((tmp_path / "m.json").read_text())["vaf"]
+    assert f"{vaf:.2f}" in out and vaf == pytest.approx(LPVPCModel.load(model).fit["vaf"], abs=0.01)
+    run(cli.cmd_export, "export", model, "--casadi", tmp_path / "model.casadi")
+    assert (tmp_path / "model.casadi").is_file()
+    run(cli.cmd_whole_joint, "whole-joint", model, "--ut", data / "ident_UT.csv", "-o", tmp_path / "whole.json")
+    assert json.loads((tmp_path / "whole.json").read_text())["model"]["fs"] == 100.0
+
+    cli.check_report_folder(tmp_path / "new_report", ["report.html"], force=False)  # absent: fine
+    with pytest.raises(Exception, match="holds files but no previous report"):
+        cli.check_report_folder(data, ["report.html"], force=False)
