@@ -126,22 +126,7 @@ PENDING = {
     "lpvpc.diagnose.format_table",
     "lpvpc.diagnose.candidates_html",
     "lpvpc.diagnose.diagnosis_html",
-    "lpvpc.effects.Context",
-    "lpvpc.effects.Effect",
-    "lpvpc.effects.Setting",
-    "lpvpc.effects.FittedEffect",
-    "lpvpc.effects.model_signals",
-    "lpvpc.effects.model_derived",
-    "lpvpc.effects.effect_term",
-    "lpvpc.effects.default_signals",
-    "lpvpc.effects.quiet_mask",
-    "lpvpc.effects.check_signals",
-    "lpvpc.effects.record_context",
-    "lpvpc.effects.predict_effects",
     "lpvpc.effects.effect_columns",
-    "lpvpc.effects.effect_options",
-    "lpvpc.effects.channel_basis",
-    "lpvpc.effects.effect_basis",
     "lpvpc.effects.causal_irf",
     "lpvpc.effects.EffectDesign",
     "lpvpc.effects.finish_extended_fit",
@@ -465,3 +450,52 @@ def test_example_command_handlers(tmp_path, capsys):
     cli.check_report_folder(tmp_path / "new_report", ["report.html"], force=False)  # absent: fine
     with pytest.raises(Exception, match="holds files but no previous report"):
         cli.check_report_folder(data, ["report.html"], force=False)
+
+
+@example_of("lpvpc.effects.Effect", "lpvpc.effects.FittedEffect", "lpvpc.effects.Context", "lpvpc.effects.Setting",
+            "lpvpc.effects.model_signals", "lpvpc.effects.model_derived", "lpvpc.effects.predict_effects",
+            "lpvpc.effects.default_signals", "lpvpc.effects.record_context", "lpvpc.effects.effect_term",
+            "lpvpc.effects.quiet_mask", "lpvpc.effects.check_signals", "lpvpc.effects.channel_basis",
+            "lpvpc.effects.effect_basis", "lpvpc.effects.effect_options")
+def test_example_an_extended_model_and_its_effect_terms():
+    """A subject whose torque drifts over the trial, identified with the catalog's "drift"
+    effect: the model asks for the trial time as an extra signal, and the drift term, taken
+    apart by hand from the record's context, is what predict_effects and predict report."""
+    import numpy as np
+
+    from lpvpc import effects as fx
+    from lpvpc import equations as eq
+    from lpvpc.data import pair_trials
+    from lpvpc.errors import DataError
+    from lpvpc.identify import identify
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=4, effects=("drift",), duration=30.0, fs_out=100.0)
+    data = pair_trials(pair.pt, pair.ut)
+    model = identify(data, effects=("drift",))
+    (fe,) = model.effects
+    assert isinstance(fe, fx.FittedEffect) and isinstance(fe.effect, fx.Effect) and fe.effect is fx.CATALOG["drift"]
+    assert fx.model_signals(model) == model.signals == ("trial_time",) and fx.model_derived(model) == set()
+    assert isinstance(fx.SETTINGS["reflex_delay"], fx.Setting)
+
+    signals = fx.default_signals(data.scheduling, data.fs)  # trial_time = k / fs (s)
+    assert np.allclose(signals["trial_time"][:3], [0.0, 0.01, 0.02])
+    fx.check_signals(signals, model.signals, data.n)
+    with pytest.raises(DataError, match="trial_time"):
+        fx.check_signals({}, model.signals, data.n)
+    assert fx.effect_options(fe.effect, signals) == {}
+    assert fx.channel_basis(fe.effect, model.intrinsic_basis).order < model.intrinsic_basis.order
+    assert fx.effect_basis(fe.effect, model.intrinsic_basis) is None  # no static features
+
+    ctx = fx.record_context(data.position, data.scheduling, data.fs, signals)
+    assert isinstance(ctx, fx.Context) and ctx.rho.shape == (data.n, 1)
+    term = fx.effect_term(fe, ctx, eq.lagged(data.position, model.lags), model.intrinsic_basis.evaluate(data.scheduling),
+                          "exact")
+    pathway, torque = fx.predict_effects(model, data.position, data.scheduling, signals)["drift"]
+    assert pathway == "intrinsic" and np.allclose(np.ravel(term), torque)
+    assert np.allclose(model.predict(data, warn=False).effects["drift"], torque)
+
+    quiet = fx.quiet_mask(data.position, data.fs)  # no perturbation movement lately
+    assert quiet.dtype == bool and 0.2 < quiet.mean() < 0.8
+    assert np.all(np.abs(eq.velocity(data.position, data.fs)[quiet]) < 0.1 * np.abs(eq.velocity(data.position,
+                                                                                                 data.fs)).max())
