@@ -114,25 +114,12 @@ PENDING = {
     "lpvpc.cli.Terminated",
     "lpvpc.demo.run",
     "lpvpc.demo.main",
-    "lpvpc.diagnose.CandidateResult",
-    "lpvpc.diagnose.reflex_leak",
-    "lpvpc.diagnose.score_candidates",
-    "lpvpc.diagnose.candidate_signals",
-    "lpvpc.diagnose.signal_dependence",
-    "lpvpc.diagnose.where_it_fails",
-    "lpvpc.diagnose.Diagnosis",
-    "lpvpc.diagnose.record_coverage",
-    "lpvpc.diagnose.check_record",
-    "lpvpc.diagnose.format_table",
-    "lpvpc.diagnose.candidates_html",
-    "lpvpc.diagnose.diagnosis_html",
     "lpvpc.effects.effect_columns",
     "lpvpc.effects.causal_irf",
     "lpvpc.effects.EffectDesign",
     "lpvpc.effects.finish_extended_fit",
     "lpvpc.improve.Rung",
     "lpvpc.improve.Ladder",
-    "lpvpc.plotting.plot_residual_diagnosis",
     "lpvpc.plotting.plot_ladder",
     "lpvpc.plotting.plot_residual_change",
     "lpvpc.validation.cosim.CosimResult",
@@ -499,3 +486,54 @@ def test_example_an_extended_model_and_its_effect_terms():
     assert quiet.dtype == bool and 0.2 < quiet.mean() < 0.8
     assert np.all(np.abs(eq.velocity(data.position, data.fs)[quiet]) < 0.1 * np.abs(eq.velocity(data.position,
                                                                                                  data.fs)).max())
+
+
+@example_of("lpvpc.diagnose.Diagnosis", "lpvpc.diagnose.CandidateResult", "lpvpc.diagnose.score_candidates",
+            "lpvpc.diagnose.candidate_signals", "lpvpc.diagnose.signal_dependence", "lpvpc.diagnose.reflex_leak",
+            "lpvpc.diagnose.where_it_fails", "lpvpc.diagnose.record_coverage", "lpvpc.diagnose.check_record",
+            "lpvpc.diagnose.format_table", "lpvpc.diagnose.candidates_html", "lpvpc.diagnose.diagnosis_html",
+            "lpvpc.plotting.plot_residual_diagnosis")
+def test_example_diagnosing_a_missing_effect():
+    """A subject whose stiffness depends on the direction of the slow movement, modelled
+    without that effect: the diagnosis of a held-out record names it, and each piece of the
+    diagnosis (the surrogate's candidate scores, the residual's dependence on signals, where
+    the model fails, the tables and the figure) can be had on its own."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from lpvpc import diagnose as D
+    from lpvpc.data import pair_trials
+    from lpvpc.errors import InsufficientExcitationError
+    from lpvpc.identify import identify
+    from lpvpc.plotting import plot_residual_diagnosis
+    from lpvpc.simulate import simulate_pair
+
+    effect = "direction_dependent_stiffness"
+    ident = simulate_pair("multilevel", seed=4, effects=(effect,), duration=60.0, fs_out=100.0)
+    held = simulate_pair("multilevel", seed=5, effects=(effect,), duration=60.0, fs_out=100.0)
+    model, data = identify(pair_trials(ident.pt, ident.ut)), pair_trials(held.pt, held.ut)
+
+    coverage = D.record_coverage(model, data)  # s, fractions of the identified range
+    assert coverage["duration_s"] == 60.0 and coverage["outside_fraction"] == 0.0
+    assert D.check_record(model, data)["duration_s"] == 60.0
+    with pytest.raises(InsufficientExcitationError):
+        D.check_record(model, data.segment(0, 200))  # 2 s: too short to say anything
+    diag = D.diagnose(model, data, dependence=False)
+    assert isinstance(diag, D.Diagnosis) and isinstance(diag.top, D.CandidateResult)
+    assert diag.top.effect == effect and diag.top.vaf_gain > 0.3  # percentage points
+    assert effect in D.format_table(diag) and effect in D.candidates_html(diag)
+    assert "<table" in D.diagnosis_html(diag)
+
+    sur = D.Surrogate(model, data)
+    results, _ = D.score_candidates(sur, candidates=[effect, "drift"])
+    assert [r.effect for r in results][0] == effect
+    signals = D.candidate_signals(sur)
+    assert "emg" in signals and 0.0 <= D.reflex_leak(sur, signals["emg"][0]) <= 1.0
+    dependence = D.signal_dependence(sur, top=3)  # the residual depends on position (the missing stiffness)
+    assert dependence[0]["signal"] == "position" and dependence[0]["vaf_gain"] >= dependence[-1]["vaf_gain"]
+    where = D.where_it_fails(model, data, diag.residual)
+    assert {"position", "velocity", "frequency", "whiteness"} <= set(where)
+    fig = plot_residual_diagnosis(diag, data)
+    assert isinstance(fig, Figure)
+    plt.close(fig)
