@@ -120,8 +120,6 @@ PENDING = {
     "lpvpc.effects.finish_extended_fit",
     "lpvpc.improve.Rung",
     "lpvpc.improve.Ladder",
-    "lpvpc.plotting.plot_ladder",
-    "lpvpc.plotting.plot_residual_change",
     "lpvpc.validation.cosim.CosimResult",
     "lpvpc.validation.cosim.ActuatorDrive",
     "lpvpc.validation.engines.ssp_steps",
