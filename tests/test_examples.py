@@ -12,6 +12,7 @@ have neither: it may only shrink, and a new public name without an example fails
 
 import ast
 import doctest
+import functools
 import importlib
 import inspect
 import pkgutil
@@ -182,6 +183,7 @@ def _import(name):
         return None
 
 
+@functools.lru_cache(maxsize=None)
 def _functions(path: Path) -> tuple:
     tree = ast.parse(path.read_text())
     return tree, {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
