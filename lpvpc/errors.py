@@ -48,6 +48,24 @@ class DataError(LpvpcError, ValueError):
         super().__init__(prefix + "; ".join(self.problems))
 
 
+def non_finite_problem(channel: str, x) -> str | None:
+    """The :class:`DataError` problem for the NaN and inf values of one channel, naming the
+    count and the first index, or None when every value is finite.
+
+    >>> import numpy as np
+    >>> non_finite_problem("torque", np.array([0.0, 1.0, np.nan, np.inf]))
+    'channel torque: 2 non-finite values, first at index 2'
+    >>> non_finite_problem("torque", np.zeros(3)) is None
+    True
+    """
+    import numpy as np
+
+    bad = ~np.isfinite(np.asarray(x, dtype=float))
+    if not bad.any():
+        return None
+    return f"channel {channel}: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}"
+
+
 class InsufficientExcitationError(LpvpcError, ValueError):
     """The data cannot determine the requested parameters (too few samples, no
     perturbation, rank-deficient regressor).

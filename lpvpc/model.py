@@ -44,7 +44,7 @@ import scipy.signal
 
 from . import equations as eq
 from .basis import Basis
-from .errors import DataError, ModelFileError, OutOfRangeWarning
+from .errors import DataError, ModelFileError, OutOfRangeWarning, non_finite_problem
 
 FORMAT = "lpvpc-model"
 FORMAT_VERSION = 1
@@ -191,10 +191,8 @@ class LPVPCModel:
         if position.ndim != 1 or scheduling.shape != position.shape:
             problems.append(f"position and scheduling must be 1-D of equal length, got {position.shape} and {scheduling.shape}")
         else:
-            for name, x in (("position", position), ("scheduling", scheduling)):
-                bad = ~np.isfinite(x)
-                if bad.any():
-                    problems.append(f"channel {name}: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}")
+            problems += [m for name, x in (("position", position), ("scheduling", scheduling))
+                         if (m := non_finite_problem(name, x))]
         if problems:
             raise DataError(problems)
         lo, hi = self.scheduling_range

@@ -39,7 +39,7 @@ import numpy as np
 
 from . import equations as eq
 from .basis import Basis, CasadiOps, basis_from_data
-from .errors import DataError, ExportError, ModelFileError
+from .errors import DataError, ExportError, ModelFileError, non_finite_problem
 
 __all__ = ["WholeJointModel", "WholeJointPrediction", "fit_quasi_static", "fit_whole_joint",
            "whole_joint_step", "export_whole_joint_casadi", "export_whole_joint_fmu", "latency_samples",
@@ -176,9 +176,8 @@ def _checked_angle(angle) -> np.ndarray:
     angle = np.asarray(angle, dtype=float)
     if angle.ndim != 1 or len(angle) < 1:
         raise DataError([f"channel angle: expected a 1-D record of at least one sample, got shape {angle.shape}"])
-    bad = ~np.isfinite(angle)
-    if bad.any():
-        raise DataError([f"channel angle: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}"])
+    if problem := non_finite_problem("angle", angle):
+        raise DataError([problem])
     return angle
 
 
@@ -199,9 +198,8 @@ def fit_quasi_static(angle, torque, order: int = DEFAULT_ORDER, family: str = "c
     torque = np.asarray(torque, dtype=float)
     if torque.shape != angle.shape:
         raise DataError([f"angle and torque differ in length: {angle.shape} and {torque.shape}"])
-    bad = ~np.isfinite(torque)
-    if bad.any():
-        raise DataError([f"channel torque: {int(bad.sum())} non-finite values, first at index {int(np.argmax(bad))}"])
+    if problem := non_finite_problem("torque", torque):
+        raise DataError([problem])
     if len(angle) < 4 * (order + 1):
         raise DataError([f"{len(angle)} samples are too few for a quasi-static curve of order {order}"])
     basis = basis_from_data(angle, family, order, extrapolation="linear")
