@@ -98,21 +98,19 @@ def fit_hammerstein(blocks, tq_r, orientation, tol=1e-6, abs_tol=1e-12, max_iter
     changes by less than ``tol`` relative or ``abs_tol`` absolute (on noise-free data
     the relative test alone never triggers).
 
-    >>> rng = np.random.default_rng(0)
-    >>> dvel = rng.standard_normal(3000)  # delayed velocity, rad/s
-    >>> DV = np.column_stack([np.ones(3000), dvel, np.maximum(dvel, 0.0)])  # velocity basis
-    >>> G = np.column_stack([np.ones(3000), np.linspace(-1.0, 1.0, 3000)])  # scheduling basis
-    >>> U_r = reflex_input_regressor(DV, G)
-    >>> A, C = np.array([[1.6, 1.0], [-0.63, 0.0]]), np.array([[1.0, 0.0]])  # poles 0.9, 0.7
-    >>> omega = np.array([0.0, 0.0, 0.0, 0.0, 2.0, 1.0])
-    >>> blocks = reflex_regressor(U_r, A, C)
-    >>> tq = np.hstack(blocks) @ np.kron([0.5, 0.2, 0.0], omega)  # B = (0.5, 0.2), D = 0
+    A rectifier of velocity (rad/s) through first-order dynamics (pole 0.8), B = 0.5, D = 0.1:
+
+    >>> v = np.random.default_rng(1).standard_normal(2000)
+    >>> U_r = reflex_input_regressor(np.column_stack([v, np.maximum(v, 0.0)]), np.ones((2000, 1)))
+    >>> blocks = reflex_regressor(U_r, np.array([[0.8]]), np.array([[1.0]]))
+    >>> omega = np.array([0.0, 3.0])
+    >>> tq = np.hstack(blocks) @ np.kron([0.5, 0.1], omega)
     >>> fit = fit_hammerstein(blocks, tq, orientation=omega)
     >>> fit.converged, bool(fit.relative_error < 1e-12)
     (True, True)
     >>> bool(np.allclose(fit.omega, omega / np.linalg.norm(omega)))  # unit norm, sign by orientation
     True
-    >>> bool(np.allclose(np.r_[fit.b, fit.d], np.array([0.5, 0.2, 0.0]) * np.linalg.norm(omega)))
+    >>> bool(np.allclose(np.r_[fit.b, fit.d], np.array([0.5, 0.1]) * np.linalg.norm(omega)))
     True
     """
     m1 = len(blocks)
