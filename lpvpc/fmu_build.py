@@ -647,8 +647,44 @@ def _compile(cmd, workdir, timeout) -> subprocess.CompletedProcess:
             except ProcessLookupError:
                 break
         proc.wait()
+        _wait_for_group(proc.pid)
         raise
     return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+def _wait_for_group(pgid: int, timeout: float = 5.0) -> None:
+    """Wait until no live process of group ``pgid`` is left: the driver can exit before cc1
+    and as, which would otherwise still write into the folder being removed (seen under
+    load as 'Directory not empty' from the build folder's clean-up). SIGKILL after
+    ``timeout`` s; zombies (which write nothing) do not count."""
+    deadline = time.monotonic() + timeout
+    killed = False
+    while _group_alive(pgid):
+        if time.monotonic() > deadline:
+            if killed:
+                return
+            killed = True
+            deadline += 1.0
+            try:
+                os.killpg(pgid, signal.SIGKILL)
+            except OSError:
+                return
+        time.sleep(0.01)
+
+
+def _group_alive(pgid: int) -> bool:
+    """A process of group ``pgid`` that is not a zombie exists (Linux: /proc/PID/stat)."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":  # fields: state, ppid, pgrp, ...
+            return True
+    return False
 
 
 def check_built_fmu(folder, model_identifier: str) -> None:
