@@ -259,7 +259,14 @@ class LPVPCEstimator:
             orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
         orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity
         refinement = PoleRefinement(U_r, Psi_i, y, segments=seg) if self.refine else None
-        fits = {m: self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg) for m in orders}
+        fits, failed = {}, {}
+        for m in orders:
+            try:
+                fits[m] = self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg)
+            except InsufficientExcitationError as err:  # a candidate order the data cannot support
+                failed[m] = err
+        if not fits:  # every order failed: report the first
+            raise failed[orders[0]]
         n = len(y)
         # An unstable reflex (MOESP can return a pole on or outside the unit circle, which the
         # pole refinement cannot leave: it refuses unstable points) fits the identification
@@ -305,7 +312,8 @@ class LPVPCEstimator:
             t = time.perf_counter()
             model.uncertainty = fit_uncertainty(model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y,
                                                 np.append(hf.b, hf.d), hf.omega, best["theta_i"], U_r, best["A"],
-                                                truncated_irf(p, Gi_val, L, seg), segments=seg)
+                                                truncated_irf(p, Gi_val, L, seg), segments=seg,
+                                                richer=richer_basis_irf(p, rho, G_i, lags, seg))
             timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {
@@ -317,6 +325,7 @@ class LPVPCEstimator:
             "data_density": data_density(rho, dvel, G_i, V_b),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
+            "state_orders_failed": {str(m): str(err) for m, err in failed.items()},
             "singular_values": sub.singular_values.tolist(),
             "moesp_poles": [[float(z.real), float(z.imag)] for z in best["moesp_poles"]],
             "poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(best["A"])],
@@ -482,6 +491,24 @@ def truncated_irf(position, rho_basis_values, L, segments=None):
     if segments is None:
         return lags, intrinsic_regressor(position, rho_basis_values, lags)
     return lags, segments.map(intrinsic_regressor, position, rho_basis_values, lags=lags)
+
+
+def richer_basis_irf(position, rho, rho_basis, lags, segments=None):
+    """(basis, Psi_i) of the IRF with the scheduling basis one order higher (same family and
+    range), built trial by trial: the second structural term of the intrinsic intervals
+    (lpvpc.uncertainty). None for a position-independent fit (order 0) and at the file
+    format's largest order."""
+    from .basis import Basis
+
+    from .modelfile import MAX_BASIS_ORDER
+
+    if not 0 < rho_basis.order < MAX_BASIS_ORDER:  # stationary (LTI) fit, or no room in the file format
+        return None
+    richer = Basis(rho_basis.family, rho_basis.order + 1, rho_basis.lo, rho_basis.hi, rho_basis.extrapolation)
+    G = richer.evaluate(rho)
+    if segments is None:
+        return richer, intrinsic_regressor(position, G, lags)
+    return richer, segments.map(intrinsic_regressor, position, G, lags=lags)
 
 
 def project_out_and_solve(Psi_r, Psi_i, y):

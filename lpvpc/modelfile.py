@@ -404,6 +404,11 @@ def _check_uncertainty(x, where, problems, d, budget):
         lags = _lags(t.get("lags"), f"{where}.truncation.lags", problems, -MAX_LAG)
         _shape(_array(t.get("H"), f"{where}.truncation.H", problems, 2, [0]), (len(lags), len(intr["H"][0])),
                f"{where}.truncation.H", problems)
+    if "richer_basis" in u:
+        r = _dict(u["richer_basis"], f"{where}.richer_basis", problems, required=True)
+        n_b = _basis(r.get("basis"), f"{where}.richer_basis.basis", problems)
+        _shape(_array(r.get("H"), f"{where}.richer_basis.H", problems, 2, [0]), (len(intr["H"]), n_b),
+               f"{where}.richer_basis.H", problems)
     v = _dict(u.get("vaf"), f"{where}.vaf", problems, required=True)
     for key in ("estimate", "lower", "upper"):
         _number(v.get(key), f"{where}.vaf.{key}", problems)

@@ -101,7 +101,7 @@ def _reflex_output(z, bd, den, segments=None):
 
 
 def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=None, truncated=None,
-                    segments=None) -> dict:
+                    segments=None, richer=None) -> dict:
     """The ``uncertainty`` entry of the model file for the fit ``y ~ Psi_i theta_i +
     sum_j bd_j blocks_j omega`` (see the module docstring). Arrays in SI units.
 
@@ -109,7 +109,9 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     coefficients of the reflex dynamics join the parameters (Jacobian columns by central
     differences, one filter each), so pole uncertainty reaches K and the reflex gain.
     ``truncated`` = (lags, Psi) of a one-lag-shorter IRF: refitted to the same intrinsic
-    torque for the truncation term of the intrinsic intervals (module docstring).
+    torque for the truncation term of the intrinsic intervals; ``richer`` = (basis, Psi) of
+    the IRF with the scheduling basis one order higher, refitted likewise for the basis
+    term (module docstring).
 
     :func:`lpvpc.identify.identify` calls it; the model (and its file) keeps the result:
 
@@ -164,10 +166,15 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         "covariance": cov.tolist(),
         "vaf": vaf_interval(y, fitted, block),
     }
+    y_i = y - X_om @ omega  # the intrinsic torque of the fit
     if truncated is not None:
         lags_t, Psi_t = truncated
-        theta_t = np.linalg.lstsq(Psi_t, y - X_om @ omega, rcond=None)[0]
+        theta_t = np.linalg.lstsq(Psi_t, y_i, rcond=None)[0]
         out["truncation"] = {"lags": [int(x) for x in lags_t], "H": theta_t.reshape(len(lags_t), -1).tolist()}
+    if richer is not None:
+        basis_b, Psi_b = richer
+        theta_b = np.linalg.lstsq(Psi_b, y_i, rcond=None)[0]
+        out["richer_basis"] = {"basis": basis_b.to_dict(), "H": theta_b.reshape(len(model.lags), -1).tolist()}
     return out
 
 
@@ -269,15 +276,34 @@ def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
     n_base = g.shape[1]  # theta_i beyond the base IRF belongs to effects (not stored here)
     est = g @ model.H.ravel()
     var = np.einsum("ij,jk,ik->i", g, cov[:n_base, :n_base], g)
-    trunc = _stored(model).get("truncation")
     se = np.sqrt(var)
-    half = z_value(level) * se
-    if trunc:  # structural term: the shift a one-lag-shorter IRF gives bounds the bias
-        lags_t = trunc["lags"]
-        g_t = _gradients_intrinsic(model, rho, lag_moment_weights(model, quantity, lags_t))
-        bias = np.abs(g_t @ np.asarray(trunc["H"], dtype=float).ravel() - est)
-        half = bias_aware_critical_value(bias / np.maximum(se, 1e-300), level) * se
+    bias = structural_bias_bound(model, quantity, rho, est)
+    half = bias_aware_critical_value(bias / np.maximum(se, 1e-300), level) * se
     return est, est - half, est + half
+
+
+def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
+    """Bound on the structural bias of an intrinsic quantity at ``rho`` (its units): the sum
+    of the absolute shifts of the quantity under the stored neighbouring specifications of
+    the intrinsic pathway (the IRF one lag shorter, the scheduling basis one order higher;
+    each refitted to the same intrinsic torque). Biases from separate parts of the
+    specification add, so the sum (not the root sum of squares) bounds them. Zeros when
+    the file stores none (then the intervals are the plain HAC ones)."""
+    from .basis import Basis
+
+    u = _stored(model)
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    bias = np.zeros(len(rho))
+    trunc = u.get("truncation")
+    if trunc:
+        g = _gradients_intrinsic(model, rho, lag_moment_weights(model, quantity, trunc["lags"]))
+        bias += np.abs(g @ np.asarray(trunc["H"], dtype=float).ravel() - est)
+    richer = u.get("richer_basis")
+    if richer:
+        G = Basis.from_dict(richer["basis"]).evaluate(rho)
+        H = np.asarray(richer["H"], dtype=float)
+        bias += np.abs((G @ H.T) @ lag_moment_weights(model, quantity) - est)
+    return bias
 
 
 def bias_aware_critical_value(t, level: float = 0.95):
