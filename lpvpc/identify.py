@@ -497,7 +497,15 @@ def richer_basis_irf(position, rho, rho_basis, lags, segments=None):
     """(basis, Psi_i) of the IRF with the scheduling basis one order higher (same family and
     range), built trial by trial: the second structural term of the intrinsic intervals
     (lpvpc.uncertainty). None for a position-independent fit (order 0) and at the file
-    format's largest order."""
+    format's largest order.
+
+    >>> from lpvpc.basis import basis_from_data
+    >>> rho = np.linspace(-0.4, 0.2, 500)  # rad
+    >>> p = np.random.default_rng(0).uniform(-0.04, 0.04, 500)  # rad
+    >>> basis, Psi = richer_basis_irf(p, rho, basis_from_data(rho, "chebyshev", 5), [-1, 0, 1])
+    >>> basis.order, Psi.shape
+    (6, (500, 21))
+    """
     from .basis import Basis
 
     from .modelfile import MAX_BASIS_ORDER

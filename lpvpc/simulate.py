@@ -432,6 +432,11 @@ def recorded_acceleration(command, fs: float, params: SubjectParams | None = Non
     torque half a sample early. A linear IRF fitted to such data reads that as viscosity:
     +0.19 N m s/rad on this subject (IRF first moment 0.89 instead of B = 0.70 at 100 Hz);
     from the anti-aliased acceleration it gets 0.70.
+
+    >>> cmd = np.r_[np.zeros(50), np.full(150, 0.01)]  # rad: one step of the held command
+    >>> jump, recorded = servo(cmd, FS_SIM)[2][50], recorded_acceleration(cmd, FS_SIM)[50]  # rad/s^2
+    >>> bool(jump > 240), bool(recorded < 0.7 * jump)  # the jump wn^2 * 0.01 rad, and what is recorded
+    (True, True)
     """
     if oversample <= 1:
         return servo(command, fs, params)[2]

@@ -288,7 +288,19 @@ def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
     the intrinsic pathway (the IRF one lag shorter, the scheduling basis one order higher;
     each refitted to the same intrinsic torque). Biases from separate parts of the
     specification add, so the sum (not the root sum of squares) bounds them. Zeros when
-    the file stores none (then the intervals are the plain HAC ones)."""
+    the file stores none (then the intervals are the plain HAC ones).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> rho = np.array([-0.1, 0.1])  # rad
+    >>> K = model.elastic_stiffness(rho)  # N m/rad
+    >>> bound = structural_bias_bound(model, "stiffness", rho, K)  # N m/rad
+    >>> bool(np.all((bound > 0) & (bound < 0.5 * K)))  # 30 s of data: a few to 15 %
+    True
+    """
     from .basis import Basis
 
     u = _stored(model)
