@@ -18,12 +18,14 @@ Derived quantities:
 
 - K(rho), viscosity B(rho) and inertia I(rho) are linear in theta_i (sums and moments of
   the IRF weights), so their standard errors are exact propagations of the covariance.
-  The statistical part alone is calibrated on the virtual subject (z-scores with sd ~1),
-  but K carries a +1 % structural bias there (the perturbation's amplitude within a
-  nonlinear elastic curve, the short IRF): 79 % coverage. So the intervals are
-  bias-aware (:func:`bias_aware_critical_value`): the shift of the quantity when the IRF
-  is one lag shorter on each side (refitted to the same intrinsic torque) is taken as a
-  bound on the bias;
+  On the virtual subject the statistical part alone is conservative (against the same
+  trials identified without noise the K intervals cover 99 %), but the estimator has
+  structural bias (the IRF one lag short, a polynomial basis following an exponential K,
+  reflex torque the model misses leaking into K): HAC alone covers 89 %. So the
+  intervals are bias-aware (:func:`bias_aware_critical_value`) with
+  :func:`structural_bias_bound`: the sum of the shifts of the quantity when the IRF is
+  one lag shorter on each side and when the scheduling basis is one order higher (each
+  refitted to the same intrinsic torque) bounds the bias;
 - reflex gain and threshold come from a half-wave-rectifier fit to the nonlinearity
   (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`), not a smooth function of the
   parameters: their intervals are percentiles over parameter draws from the Gaussian
@@ -31,16 +33,17 @@ Derived quantities:
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
-the parameters as extra Jacobian columns. Not included: other structural errors (basis
-orders; the rectifier of 1 kHz velocity seen at 100 Hz, which biases the reflex gain high
-by ~7 % on the virtual subject, so gain and threshold intervals under-cover). Measured
-coverage: ``benchmarks/results/uncertainty.txt``.
+the parameters as extra Jacobian columns. Not included: the reflex nonlinearity's
+structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain by
+-1 % in plantarflexion to +19 % in dorsiflexion on the virtual subject, so gain and
+threshold intervals under-cover). Measured coverage: ``benchmarks/results/uncertainty.txt``.
 
 Stored in the model file as ``"uncertainty"`` (absent in older files; the interval methods
 then raise :class:`~lpvpc.errors.ModelFileError`)::
 
     method, block_length_s, n_samples, dof
     truncation    {"lags": [-(L-1)..L-1], "H": the one-lag-shorter IRF (N m/rad)}
+    richer_basis  {"basis": scheduling basis one order higher, "H": that IRF (N m/rad)}
     parameters    {"theta_i": n, "omega": n_v * n_r, "bd": m + 1, "den": m or 0}: order of
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)

@@ -399,12 +399,12 @@ def _physiology_table(model, level=0.95) -> str:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
                 f"(correlated residuals respected; <code>lpvpc.uncertainty</code>). Identification VAF "
-                f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). Viscosity is the first moment "
-                f"of the intrinsic IRF (biased high: compare positions, not absolute values). On the virtual subject "
-                f"the 95 % K intervals cover the truth less often than stated (a ~1 % structural bias they do not include; "
-                f"measured coverage in the benchmark below); reflex gain and "
-                f"threshold carry the bias of a 100 Hz model of a rectifier of 1 kHz velocity pulses, which the "
-                f"intervals do not include (<code>benchmarks/results/uncertainty.txt</code>).")
+                f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). The intervals of K and "
+                f"viscosity include a bound on the estimator's structural bias; K is the stiffness over the "
+                f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). Reflex gain and "
+                f"threshold carry the bias of a 100 Hz model of a rectifier of 1 kHz velocity pulses, which their "
+                f"intervals do not include. Coverage measured on the virtual subject: "
+                f"<code>benchmarks/results/uncertainty.txt</code>.")
     else:
         note = "This model file carries no confidence intervals (identified by an older lpvpc): re-identify to get them."
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
