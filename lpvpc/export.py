@@ -105,6 +105,7 @@ __all__ = [
     "DEFAULT_FMU_VARIANT",
     "ticks_per_sample",
     "fmu_constants",
+    "derivative_points",
     "fmu_variables",
     "fmu_parameter_name",
     "fmu_description",
@@ -207,7 +208,7 @@ def latency_samples(model, variant="causal") -> int:
     """Output delay of the exported step in samples: 0 for causal, L for exact."""
     _check_variant(variant)
     if variant == "sampled":  # the differences of sample k need position k + 1 (5-point: k + 2)
-        return 2 if getattr(model, "causal_derivatives", "central3") == "central5" else 1
+        return derivative_points(model) // 2
     return 0 if variant == "causal" else max(0, -min(model.lags))
 
 
@@ -671,7 +672,8 @@ def ticks_per_sample(model) -> int:
 def fmu_constants(model, variant="causal"):
     """Constant outputs that state the timing contract in the FMU itself: ``latency`` (s,
     the delay of a sample's torque in sample periods times the period) and
-    ``sample_period`` (s)."""
+    ``sample_period`` (s); the causal variant adds ``derivative_points`` (3 or 5: the central
+    differences its velocity and acceleration inputs must be)."""
     from .fmu_build import FmuVariable
 
     T = 1.0 / float(model.fs)
@@ -679,9 +681,27 @@ def fmu_constants(model, variant="causal"):
     when = ("the torque of sample k is the output from the end of the communication step that starts at sample "
             "time k + 1 (inputs taken at sample times)" if variant == "sampled" else
             "outputs have direct feedthrough of the inputs set at the same communication point")
-    return [FmuVariable("latency", "output", "s", f"output latency: {lat} sample(s) of {T!r} s; {when}",
-                        lat * T, dependencies=[]),
-            FmuVariable("sample_period", "output", "s", "model sample period 1/fs", T, dependencies=[])]
+    constants = [FmuVariable("latency", "output", "s", f"output latency: {lat} sample(s) of {T!r} s; {when}",
+                             lat * T, dependencies=[]),
+                 FmuVariable("sample_period", "output", "s", "model sample period 1/fs", T, dependencies=[])]
+    if variant == "causal":  # a master must supply the derivatives the coefficients were identified with
+        points = derivative_points(model)
+        constants.append(FmuVariable(
+            "derivative_points", "output", "", f"the velocity and acceleration inputs are {points}-point central "
+            f"differences of the position at the sample period (they need position k + {points // 2})",
+            float(points), dependencies=[]))
+    return constants
+
+
+def derivative_points(model) -> int:
+    """Points of the central differences (velocity rad/s, acceleration rad/s^2) the model's
+    causal form was identified with: 3 or 5 (files without the key: 3).
+
+    >>> from types import SimpleNamespace
+    >>> derivative_points(SimpleNamespace(causal_derivatives="central5")), derivative_points(SimpleNamespace())
+    (5, 3)
+    """
+    return 5 if getattr(model, "causal_derivatives", "central3") == "central5" else 3
 
 
 def fmu_variables(model, variant="causal"):

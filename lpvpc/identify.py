@@ -64,9 +64,9 @@ class LPVPCEstimator:
     horizon : block rows s of the MOESP Hankel matrices.
     causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
     causal_derivatives : offline velocity/acceleration estimate of the causal form,
-        "central3" (3-point differences; default: what the validation harness's
-        co-simulation master supplies) or "central5" (5-point: on the lab's pilot trial the
-        causal form then loses 1.2 instead of 4.3 points; needs p(k+2)): see
+        "central5" (default: 5-point differences; on the lab's pilot trial the causal form
+        loses 1.2 points to the two-sided IRF, with "central3" 4.7; they need p(k+2), so the
+        default FMU's latency is 2 samples) or "central3" (3-point, latency 1): see
         :data:`lpvpc.equations.DERIVATIVE_STENCILS`.
     refine : refine the MOESP poles by variable projection (see module docstring).
     tol, max_iter : stopping rule of the separable least squares.
@@ -132,7 +132,7 @@ class LPVPCEstimator:
         effects: tuple = (),
         irf_length: float = DEFAULT_IRF_LENGTH,
         stationary_range: float = 0.010,
-        causal_derivatives: str = "central3",
+        causal_derivatives: str = "central5",
         stationary_delays: tuple = STATIONARY_DELAYS,
     ):
         self.irf_lags = irf_lags

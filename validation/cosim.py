@@ -34,7 +34,12 @@ Velocity and acceleration fed to the model (``derivatives``)
     acceleration. This is what the model's velocity and acceleration coefficients were
     identified with (and what an FMU replay of a record uses). p(k+1) is available because
     the master steps the actuators over [t(k), t(k+1)] before it evaluates the model at
-    t(k) (position has no direct feedthrough). ``"actuator"``: the actuators' own
+    t(k) (position has no direct feedthrough). A causal FMU identified with 5-point
+    differences (constant output ``derivative_points`` = 5, the identification default)
+    gets them, (8 (p(j+1) - p(j-1)) - (p(j+2) - p(j-2))) / 12T and the matching second
+    difference, for sample j = k - 1: it is evaluated one model step late, its torque loads
+    the PT actuator one step later than a 3-point model's, and the run continues one step
+    past the record so every sample gets its torque. ``"actuator"``: the actuators' own
     instantaneous velocity and acceleration outputs, sampled at t(k): much broader-band
     than the 100 Hz model's central differences (measured: the VAF drops by tens of
     points) and, with a delayed load, unstable when the model's inertia coefficient
@@ -77,6 +82,7 @@ import numpy as np
 import scipy.signal
 
 from lpvpc.data import decimate_signal
+from lpvpc.equations import five_point_derivatives
 from lpvpc.errors import DataError, FMUError
 
 from .fmu import FMUInfo, FMUInstance
@@ -107,6 +113,20 @@ def model_fmu_sampled(info: FMUInfo) -> bool:
     period = next((float(v.start) for v in getattr(md, "modelVariables", ()) if v.name == "sample_period"), None)
     step = getattr(getattr(md, "defaultExperiment", None), "stepSize", None)
     return period is not None and step is not None and float(step) < period * (1 - 1e-9)
+
+
+def model_fmu_derivative_points(info: FMUInfo) -> int:
+    """Points (3 or 5) of the central differences a causal model FMU's velocity and
+    acceleration inputs must be: its constant output ``derivative_points`` (FMUs without
+    it: 3).
+
+    >>> from types import SimpleNamespace as NS
+    >>> fmu = NS(model_description=NS(modelVariables=[NS(name="derivative_points", start="5")]))
+    >>> model_fmu_derivative_points(fmu), model_fmu_derivative_points(NS(model_description=NS(modelVariables=[])))
+    (5, 3)
+    """
+    md = info.model_description
+    return int(next((float(v.start) for v in getattr(md, "modelVariables", ()) if v.name == "derivative_points"), 3))
 
 
 def model_variant_inputs(variant: str) -> tuple:
@@ -168,7 +188,7 @@ class CosimResult:
     model_inputs: dict  # name -> array at the model rate (what the model FMU received)
     ut: np.ndarray  # (n, 3) UT actuator position, velocity, acceleration at the actuator rate
     pt: np.ndarray  # (n, 3) PT actuator outputs
-    load_pt_model: np.ndarray  # N m, model torque applied to the PT actuator over each model step
+    load_pt_model: np.ndarray  # N m, the model torque loading the PT actuator for each sample (over model step k; k + 1 for a 5-point causal FMU)
     iterations: np.ndarray  # fixed-point iterations per model step (1 with coupling="delay")
     settings: CosimSettings
     parameters: dict  # actuator parameters set in both runs
@@ -289,10 +309,12 @@ def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, 
 # --------------------------------------------------------------------------- master
 
 
-def connections(settings: CosimSettings, signals=(), variant: str = "causal", latency: int = 0) -> list:
+def connections(settings: CosimSettings, signals=(), variant: str = "causal", latency: int = 0,
+                points: int = 3) -> list:
     """The signal connections of the experiment, by variable name, as readable lines
     (``signals``: names of an extended model's extra inputs, fed from the record;
-    ``variant``/``latency``: of the model FMU, :func:`model_fmu_variant`)."""
+    ``variant``/``latency``: of the model FMU, :func:`model_fmu_variant`; ``points``: of a
+    causal FMU's central differences, :func:`model_fmu_derivative_points`)."""
     load_ut = {"measured_ut+model": "record.UT torque (measured, at the actuator rate)",
                "model": "0", "none": "0"}[settings.load]
     load_pt = {"measured_ut+model": "record.UT torque + model.torque",
@@ -303,7 +325,13 @@ def connections(settings: CosimSettings, signals=(), variant: str = "causal", la
     if settings.load == "none":
         delay = ""
     cmd = "every actuator step" if settings.command_rate == "actuator" else "held over each model step"
-    if settings.derivatives == "central":
+    if settings.derivatives == "central" and points == 5:
+        vel = "5-point central difference of model.position at the model rate"
+        acc = "5-point central second difference of model.position at the model rate"
+        if settings.load != "none":  # the model is evaluated one model step late (it needs p(k + 2))
+            delay = (" (torque of the model step before the previous one)" if settings.coupling == "delay" else
+                     " (the previous model step's torque, iterated to convergence)")
+    elif settings.derivatives == "central":
         vel = "central difference of model.position at the model rate"
         acc = "central second difference of model.position at the model rate"
     else:
@@ -376,6 +404,10 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     if exact != (latency > 0):
         raise FMUError(f"model FMU {model_fmu.path.name}: variant {variant} with latency {latency} samples (an exact "
                        "or sampled FMU has a latency > 0, a causal one none)")
+    central = settings.derivatives == "central"
+    # 5-point differences of sample j need p(j + 2): with the actuators stepped to t(k + 1),
+    # the master evaluates a causal FMU for sample j = k - 1 (one model step late)
+    lag = 1 if (variant == "causal" and central and model_fmu_derivative_points(model_fmu) == 5) else 0
     r, h = drive.ratio, drive.step
     H = r * h
     K = drive.n_model
@@ -400,13 +432,13 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         cmd_u, cmd_p = cmd_u[idx], cmd_p[idx]
     load_u = drive.load_ut[:n_a] if settings.load == "measured_ut+model" else np.zeros(n_a)
     # an exact FMU runs past the end with everything held, so every sample gets its torque
-    cmd_u, cmd_p, load_u = (hold_tail(x, latency * r) for x in (cmd_u, cmd_p, load_u))
-    S = hold_tail(S, latency)
-    K_run = K + latency
+    tail = latency + lag
+    cmd_u, cmd_p, load_u = (hold_tail(x, tail * r) for x in (cmd_u, cmd_p, load_u))
+    S = hold_tail(S, tail)
+    K_run = K + tail
     n_run = K_run * r
     model_loads = settings.load != "none"
     iterate = settings.coupling == "iterate" and model_loads and not exact
-    central = settings.derivatives == "central"
 
     Yu = np.empty((n_run + 1, 3))
     Yp = np.empty((n_run + 1, 3))
@@ -458,6 +490,8 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
         Yu[0], Yp[0] = a_out[0].get(), a_out[1].get()  # positions at t(0) (no feedthrough)
         tq_prev = tq_prev2 = 0.0
         p_prev = None
+        P = np.empty(K_run + 1)  # perturbation position at the model's sample times
+        P[0] = Yp[0, 0] - Yu[0, 0]
         t_start = time.perf_counter()
         for k in range(K_run):
             i0 = k * r
@@ -492,16 +526,25 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                 run_actuator(pt, a_in[1], a_out[1], cmd_p, load_u, guess, Yp, i0)
                 check_actuators(i0)
                 p_k = Yp[i0, 0] - Yu[i0, 0]
-                if central:
-                    p_next = Yp[i0 + r, 0] - Yu[i0 + r, 0]
+                P[k + 1] = Yp[i0 + r, 0] - Yu[i0 + r, 0]
+                if lag:  # sample j = k - 1 from p(j - 2) .. p(j + 2); at rest before the record
+                    j = k - 1
+                    if j < 0:
+                        break  # nothing to evaluate yet: the actuators only move to t(1)
+                    pj = [P[max(i, 0)] for i in range(j - 2, j + 3)]
+                    vel, acc = five_point_derivatives(*pj, 1.0 / H)
+                    u = (pj[2], Yu[j * r, 0], vel, acc, *S[j])
+                elif central:
+                    p_next = P[k + 1]
                     p_before = p_k if p_prev is None else p_prev  # at rest before the record
                     vel = (p_next - p_before) / (2 * H)
                     acc = (p_next - 2 * p_k + p_before) / (H * H)
+                    u = (p_k, Yu[i0, 0], vel, acc, *S[k])
                 else:
                     vel = Yp[i0, 1] - Yu[i0, 1]
                     acc = Yp[i0, 2] - Yu[i0, 2]
-                u = (p_k, Yu[i0, 0], vel, acc, *S[k])
-                y = model_outputs(u, tk)
+                    u = (p_k, Yu[i0, 0], vel, acc, *S[k])
+                y = model_outputs(u, tk - lag * H)
                 if not iterate or abs(y[0] - guess) <= settings.iterate_tol or it >= settings.max_iterations:
                     break
                 pt.set_state(state)
@@ -510,21 +553,24 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
                 guess = _next_guess(tried)
             if state is not None:
                 pt.free_state(state)
-            ins[k] = u
-            tq[k] = y
-            load_model[k] = guess
-            iters[k] = it
-            mod.do_step(tk, H)
-            tq_prev2, tq_prev = tq_prev, y[0]
             p_prev = p_k
+            if k < lag:
+                continue
+            load_model[k - lag] = guess  # the load standing for the torque of sample k - lag
+            iters[k - lag] = it
+            ins[k - lag] = u
+            tq[k] = y  # the torque of sample k - lag (shifted back below)
+            mod.do_step(tk - lag * H, H)  # the model's clock is its sample's time
+            tq_prev2, tq_prev = tq_prev, y[0]
         elapsed = time.perf_counter() - t_start
     finally:
         for inst in reversed(instances):
             inst.close()
-    out = slice(latency, latency + K)  # output k + L is the torque of sample k
+    out = slice(tail, tail + K)  # output k + L is the torque of sample k
     return CosimResult(
         time=np.arange(K) * H, torque=tq[out, 0], torque_intrinsic=tq[out, 1], torque_reflex=tq[out, 2],
         model_inputs={name: ins[:K, j] for j, name in enumerate(tuple(base_inputs) + sig_names)},
         ut=Yu[:n_a], pt=Yp[:n_a], load_pt_model=load_model[:K], iterations=iters[:K], settings=settings,
         parameters=params, step_model=H, step_actuator=h, elapsed=elapsed,
-        connections=connections(settings, sig_names, variant, latency), variant=variant, latency=latency)
+        connections=connections(settings, sig_names, variant, latency, 5 if lag else 3), variant=variant,
+        latency=latency)
