@@ -50,8 +50,8 @@ def test_mapaccum_matches_numpy_on_two_minute_record(model, subject, variant, pa
         assert lat == -min(model.lags) > 0
         # before the record starts nothing is defined: the output is zero
         assert np.all(out["torque"].ravel()[:lat] == 0.0)
-    elif variant == "sampled":  # central differences of sample k need position k + 1
-        assert lat == 1 and out["torque"].ravel()[0] == 0.0
+    elif variant == "sampled":  # 5-point central differences of sample k need position k + 2
+        assert lat == ex.derivative_points(model) // 2 == 2 and np.all(out["torque"].ravel()[:lat] == 0.0)
     else:
         assert lat == 0
 
@@ -112,7 +112,8 @@ def test_parametric_step_follows_its_parameters(model, subject):
 def test_one_definition_of_the_equations(model, monkeypatch):
     """The step is built from lpvpc.equations (no second copy of the model equations)."""
     called = []
-    for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity", "central_acceleration"):
+    for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity", "central_acceleration",
+                 "five_point_derivatives"):
         original = getattr(eq, name)
 
         def spy(*args, _original=original, _name=name, **kwargs):
@@ -123,9 +124,9 @@ def test_one_definition_of_the_equations(model, monkeypatch):
     for variant in ex.VARIANTS:
         called.clear()
         ex.step_function(model, variant)
-        inside = ["central_acceleration", "central_velocity"] if variant == "sampled" else []  # derivatives inside
+        inside = ["five_point_derivatives"] if variant == "sampled" else []  # the model's derivatives inside
         assert sorted(called) == sorted(["central_velocity", "intrinsic_torque", "reflex_drive", "reflex_step"]
-                                        + inside)
+                                        + inside), (variant, called)
 
 
 @pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])

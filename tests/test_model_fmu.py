@@ -129,7 +129,9 @@ def test_model_description(model, fmus, variant, fmi):
     expected_inputs = ["position", "scheduling"] + (["velocity", "acceleration"] if variant == "causal" else [])
     assert [v.name for v in md.modelVariables if v.causality == "input"] == expected_inputs
     assert [v.name for v in md.modelVariables if v.causality == "output"] == list(ex.OUTPUT_NAMES[1:]) + [
-        "latency", "sample_period"]
+        "latency", "sample_period"] + (["derivative_points"] if variant == "causal" else [])
+    if variant == "causal":  # the differences a master must supply, as the model was identified
+        assert float(variables["derivative_points"].start) == ex.derivative_points(model) == 5
     # the timing contract as declared constant outputs
     assert variables["latency"].variability == "constant" and variables["latency"].unit == "s"
     assert float(variables["latency"].start) == pytest.approx(ex.latency_samples(model, variant) / model.fs)
