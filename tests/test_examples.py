@@ -299,7 +299,8 @@ def test_example_an_fmu_from_the_export_building_blocks(model, subject, tmp_path
     outputs, inputs, parameters = ex.fmu_variables(model, "causal")
     assert [v.name for v in inputs] == ["position", "scheduling", "velocity", "acceleration"]
     constants = ex.fmu_constants(model, "causal")
-    assert {c.name: c.start for c in constants} == {"latency": 0.0, "sample_period": 1.0 / model.fs}
+    assert {c.name: c.start for c in constants} == {"latency": 0.0, "sample_period": 1.0 / model.fs,
+                                                     "derivative_points": float(ex.derivative_points(model))}
     path = build_fmu(tmp_path / "my_ankle.fmu", model_identifier="my_ankle", author="a lab",
                      system_sources=[ex.model_source_dir() / "model_system.c", *sources], nx=layout.size,
                      step_size=1.0 / model.fs, outputs=outputs, inputs=inputs, parameters=parameters,
