@@ -722,6 +722,10 @@ class EffectDesign:
         return [out[n] for n in self.names if n in out]
 
 
+#: Bounds (c, 1/c) of the base reflex's rescaling in an extended fit with reflex effects.
+MIN_REFLEX_RESCALE = 0.05
+
+
 def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, y):
     """Complete an extended fit: attach the intrinsic-pathway effects estimated with the
     base model (``theta_effects``, the effect part of the projection's solution), then,
@@ -733,10 +737,23 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         model.effects = []
         X_r, blocks_r = design.reflex_columns(model)
         tq_r = model.predict(design.position, design.scheduling, warn=False).reflex
-        X = np.hstack([Psi_i_base, design.columns, X_r])
+        # The base reflex's scale joins the solve: a reflex effect modulates the gain about
+        # a base level (e.g. activation scales it by 1 + b a, a >= 0), whereas the base fit
+        # absorbed the trial's mean gain; held at that level, the effect could only add to
+        # it (measured: the refit then recovered 0.1 of the 1.8 points the effect cost).
+        X = np.hstack([Psi_i_base, design.columns, X_r, tq_r[:, None]])
         scale = np.sqrt(np.mean(X**2, axis=0))
         scale[scale == 0] = 1.0
-        theta = np.linalg.lstsq(X / scale, y - tq_r, rcond=None)[0] / scale
+        theta = np.linalg.lstsq(X / scale, y, rcond=None)[0] / scale
+        c = float(theta[-1])
+        if not MIN_REFLEX_RESCALE < c < 1.0 / MIN_REFLEX_RESCALE:  # degenerate: keep the base reflex
+            theta = np.linalg.lstsq(X[:, :-1] / scale[:-1], y - tq_r, rcond=None)[0] / scale[:-1]
+            c = 1.0
+        theta = theta[:X_r.shape[1] + Psi_i_base.shape[1] + design.columns.shape[1]]
+        # z (and with it every reflex state and effect feature) is linear in Omega: scale it,
+        # and the reflex effects' coefficients by the inverse, so predictions are unchanged
+        model.Omega = model.Omega * c
+        theta[Psi_i_base.shape[1] + design.columns.shape[1]:] /= c
         n_b = Psi_i_base.shape[1]
         model.H = theta[:n_b].reshape(model.H.shape)
         model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val, Psi_i_base @ theta[:n_b],
