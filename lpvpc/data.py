@@ -537,6 +537,44 @@ def decimate_trial(trial: Trial, target_fs) -> Trial:
 
 
 @dataclass
+class HighRate:
+    """The perturbation position (rad) and scheduling (rad) at the file's own rate ``fs``
+    (Hz), kept beside model-rate data decimated from it (:class:`PerturbationData`).
+
+    The reflex rectifier acts on velocity pulses about 20 ms wide: at 1 kHz they are
+    resolved, at 100 Hz smoothed, and the rectifier's threshold is not observable there.
+    Identification therefore evaluates the reflex nonlinearity on the delayed velocity at
+    this rate and decimates its output (:mod:`lpvpc.reflex`). Sample ``k * q`` here is
+    model-rate sample ``k`` (q = ``fs`` / model rate). ``segments``: trial bounds at this
+    rate when trials are joined. Memory: two float64 arrays at the file's rate (16 bytes
+    per sample: 1.9 MB for 2 minutes at 1 kHz).
+
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=2.0)  # 1 kHz trials
+    >>> data = pair_trials(sim.pt, sim.ut)  # decimated to 100 Hz, the 1 kHz signals kept
+    >>> data.fs, data.high_rate.fs, data.n, data.high_rate.n
+    (100.0, 1000.0, 200, 2000)
+    """
+
+    position: np.ndarray
+    scheduling: np.ndarray
+    fs: float
+    segments: tuple = ()
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=float)
+        self.scheduling = np.asarray(self.scheduling, dtype=float)
+        self.fs = float(self.fs)
+        self.segments = tuple((int(a), int(b)) for a, b in self.segments)
+        if len(self.segments) == 1:
+            self.segments = ()
+
+    @property
+    def n(self) -> int:
+        return len(self.position)
+
+
+@dataclass
 class PerturbationData:
     """Identification data: perturbation position ``position`` (rad), perturbation torque
     ``torque`` (N m), scheduling variable ``scheduling`` (rho, rad), sampling rate ``fs`` (Hz).
@@ -547,6 +585,9 @@ class PerturbationData:
     ``decimation``) so a model can report them. ``segments`` lists the ``(start, stop)``
     sample ranges of the trials when several are joined (:func:`join_trials`; empty: one
     trial); identification builds its regressors trial by trial (:mod:`lpvpc.segments`).
+    ``high_rate`` (:class:`HighRate` or None) keeps the perturbation position and the
+    scheduling at the file's rate when it was decimated (the reflex nonlinearity is
+    identified there).
     """
 
     position: np.ndarray
@@ -557,6 +598,7 @@ class PerturbationData:
     source: str = ""
     meta: dict = field(default_factory=dict)
     segments: tuple = ()
+    high_rate: HighRate | None = None
 
     def __post_init__(self):
         self.position = np.asarray(self.position, dtype=float)
@@ -583,6 +625,32 @@ class PerturbationData:
         if len(self.segments) == 1:
             self.segments = ()
         Segments(self.segments, self.n)  # they must tile the record
+        if self.high_rate is not None:
+            self._check_high_rate()
+
+    @property
+    def decimation(self) -> int:
+        """Factor q from the high-rate signals to this record (1 without them)."""
+        return 1 if self.high_rate is None else int(round(self.high_rate.fs / self.fs))
+
+    def _check_high_rate(self):
+        hr, q = self.high_rate, self.decimation
+        problems = []
+        if q < 2 or abs(hr.fs - q * self.fs) > RATE_TOLERANCE * hr.fs:
+            problems.append(f"high-rate signals at {hr.fs:.6g} Hz are not an integer multiple (> 1) of {self.fs:.6g} Hz")
+        elif hr.scheduling.shape != hr.position.shape or hr.position.ndim != 1:
+            problems.append(f"high-rate position and scheduling differ in shape: {hr.position.shape}, {hr.scheduling.shape}")
+        else:
+            hs = list(hr.segments) or [(0, hr.n)]
+            ms = list(self.segments) or [(0, self.n)]
+            if len(hs) != len(ms) or any(-(-(b - a) // q) != d - c for (a, b), (c, d) in zip(hs, ms)):
+                problems.append(f"high-rate record ({hr.n} samples in {len(hs)} trial(s) at {hr.fs:.6g} Hz) does not "
+                                f"decimate by {q} to the {self.n} samples in {len(ms)} trial(s) at {self.fs:.6g} Hz")
+            Segments(hr.segments, hr.n)
+            for name, x in (("high-rate position", hr.position), ("high-rate scheduling", hr.scheduling)):
+                problems += _finite_problems(name, x)
+        if problems:
+            raise DataError(problems, source=self.source or None)
 
     @property
     def n(self) -> int:
@@ -614,11 +682,31 @@ class PerturbationData:
         extra = {k: (np.asarray(v)[sl] if np.ndim(v) == 1 and len(v) == self.n else v) for k, v in self.extra.items()}
         lo, hi, _ = sl.indices(self.n)
         segments = [(max(a, lo) - lo, min(b, hi) - lo) for a, b in self.segments if min(b, hi) > max(a, lo)]
+        high = None
+        if self.high_rate is not None:
+            high = _high_rate_slice(self.high_rate, self.decimation, list(self.segments) or [(0, self.n)], lo, hi)
         return PerturbationData(
             self.position[sl], self.torque[sl], self.scheduling[sl], self.fs, extra,
             f"{self.source}[{'' if start is None else start}:{'' if stop is None else stop}]", dict(self.meta),
-            tuple(segments),
+            tuple(segments), high,
         )
+
+
+def _high_rate_slice(hr: HighRate, q: int, model_segments, lo: int, hi: int) -> HighRate:
+    """The high-rate samples of model-rate samples lo..hi-1 (trial by trial: a trial's last
+    model sample may stand for fewer than q high-rate samples)."""
+    high_segments = list(hr.segments) or [(0, hr.n)]
+    pieces, bounds, start = [], [], 0
+    for (a, b), (ha, hb) in zip(model_segments, high_segments):
+        ka, kb = max(a, lo), min(b, hi)
+        if kb <= ka:
+            continue
+        s0, s1 = ha + (ka - a) * q, min(ha + (kb - a) * q, hb)
+        pieces.append((s0, s1))
+        bounds.append((start, start + s1 - s0))
+        start += s1 - s0
+    idx = np.concatenate([np.arange(s0, s1) for s0, s1 in pieces]) if pieces else np.arange(0)
+    return HighRate(hr.position[idx], hr.scheduling[idx], hr.fs, tuple(bounds))
 
 
 def _check_perturbation(position: np.ndarray, source: str) -> None:
@@ -683,7 +771,9 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
         if k in low.channels:
             extra[k] = low.channels[k]
     meta = {"fs_original": float(pt.fs), "decimation": q}
-    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta)
+    high = HighRate(diff.position, ut_position, float(pt.fs)) if q > 1 else None
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta,
+                            high_rate=high)
 
 
 def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
@@ -711,7 +801,9 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
     meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
             "fs_original": float(trial.fs), "decimation": q}
-    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta)
+    high = HighRate(trial.position, trial.channels["scheduling"], float(trial.fs)) if q > 1 else None
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
+                            high_rate=high)
 
 
 def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
@@ -801,8 +893,21 @@ def join_trials(trials) -> PerturbationData:
     return PerturbationData(
         np.concatenate([d.position for d in trials]), np.concatenate([d.torque for d in trials]),
         np.concatenate([d.scheduling for d in trials]), trials[0].fs, extra,
-        " + ".join(d.source or "?" for d in trials), meta, tuple(segments),
+        " + ".join(d.source or "?" for d in trials), meta, tuple(segments), _joined_high_rate(trials),
     )
+
+
+def _joined_high_rate(trials) -> HighRate | None:
+    """The trials' high-rate signals end to end (None unless every trial has them)."""
+    if any(d.high_rate is None for d in trials):
+        return None
+    bounds, start = [], 0
+    for d in trials:
+        for a, b in d.high_rate.segments or ((0, d.high_rate.n),):
+            bounds.append((start + a, start + b))
+        start += d.high_rate.n
+    return HighRate(np.concatenate([d.high_rate.position for d in trials]),
+                    np.concatenate([d.high_rate.scheduling for d in trials]), trials[0].high_rate.fs, tuple(bounds))
 
 
 def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",

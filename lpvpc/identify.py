@@ -58,6 +58,15 @@ class LPVPCEstimator:
     velocity_order : basis order in delayed velocity of the reflex nonlinearity.
     velocity_basis : its family ("chebyshev" polynomials or "hinge" piecewise-linear);
         both continue linearly beyond the identified velocity range.
+    high_rate_velocity_basis, high_rate_velocity_order : family and order in delayed
+        velocity of the reflex nonlinearity when the data keep their file's higher rate
+        (1 kHz files loaded at the 100 Hz model rate: :class:`lpvpc.data.HighRate`). The
+        nonlinearity then acts on the high-rate delayed velocity, where the 20 ms
+        reflex-evoking pulses are resolved, and its output is decimated to the model rate
+        (:func:`lpvpc.reflex.high_rate_input`); a piecewise-linear basis can place the
+        rectifier's kink (virtual subject, 10 seeds, slope ratios to the truth, medians:
+        hinge order 8 gain 1.16, threshold 0.63; Chebyshev order 4 gain 1.34, threshold
+        0.28; from 100 Hz files 1.27 and 0.18: benchmarks/results/reflex_1k.txt).
     reflex_delay : reflex delay in s (rounded to samples).
     state_order : order m of the reflex dynamics; None chooses it from the data.
     min_state_order, max_state_order : range of orders considered when choosing.
@@ -134,7 +143,11 @@ class LPVPCEstimator:
         stationary_range: float = 0.010,
         causal_derivatives: str = "central5",
         stationary_delays: tuple = STATIONARY_DELAYS,
+        high_rate_velocity_basis: str = "hinge",
+        high_rate_velocity_order: int = 8,
     ):
+        self.high_rate_velocity_basis = high_rate_velocity_basis
+        self.high_rate_velocity_order = high_rate_velocity_order
         self.irf_lags = irf_lags
         self.irf_length = irf_length
         self.stationary_range = stationary_range
@@ -162,7 +175,8 @@ class LPVPCEstimator:
         return {k: getattr(self, k) for k in (
             "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
-            "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays")}
+            "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
+            "high_rate_velocity_basis", "high_rate_velocity_order")}
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -200,7 +214,31 @@ class LPVPCEstimator:
     def fit(self, data) -> "LPVPCEstimator":
         """Identify the model from :class:`lpvpc.data.PerturbationData` (or any object with
         ``position``, ``torque``, ``scheduling`` arrays and ``fs``), or from a list of them:
-        several trials fitted jointly (:func:`lpvpc.data.join_trials`)."""
+        several trials fitted jointly (:func:`lpvpc.data.join_trials`).
+
+        Data that keep their file's higher rate (``high_rate``) get the reflex nonlinearity
+        identified on the high-rate velocity; when that fit is not determined (too few
+        stretch velocities for its basis: InsufficientExcitationError) it is identified on
+        the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`."""
+        if isinstance(data, (list, tuple)):
+            from .data import join_trials
+
+            data = join_trials(data)
+        try:
+            return self._fit(data)
+        except InsufficientExcitationError as exc:
+            if getattr(data, "high_rate", None) is None or self.effects:
+                raise
+            from dataclasses import replace
+
+            from .errors import LpvpcWarning
+
+            warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz velocity "
+                          f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
+                          LpvpcWarning, stacklevel=2)
+            return self._fit(replace(data, high_rate=None))
+
+    def _fit(self, data) -> "LPVPCEstimator":
         from .model import LPVPCModel, vaf
         from .reflex import reflex_input_regressor
         from .subspace import PoleRefinement, candidate_orders, po_moesp
@@ -229,6 +267,9 @@ class LPVPCEstimator:
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
         Psi_i = seg.map(intrinsic_regressor, p, Gi_val, lags=lags)
         U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
+        high = _high_rate_input(self, data, G_r)  # None unless the file's rate exceeds the model's
+        if high is not None:  # the rectifier acts on the high-rate velocity (lpvpc.reflex.high_rate_input)
+            U_r_model, U_r = U_r, high.U_r
         design = None
         if self.effects and len(seg) > 1:
             raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
@@ -287,9 +328,16 @@ class LPVPCEstimator:
         H_causal = np.linalg.lstsq(Psi_c, Psi_i[:, :n_base] @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
 
         hf = best["hammerstein"]
+        Omega = hf.omega.reshape(-1, G_r.size)
+        high_nl = None
+        if high is not None:
+            from .model import HighRateNonlinearity
+
+            high_nl = HighRateNonlinearity(fs=high.fs, delay=high.delay, velocity_basis=high.velocity_basis, Omega=Omega)
+            Omega = _model_rate_stand_in(U_r_model, U_r, best, seg, G_r.size)
         model = LPVPCModel(
             fs=fs, lags=lags, H=H, intrinsic_basis=G_i, causal_lags=causal, H_causal=H_causal, delay=delay,
-            velocity_basis=V_b, reflex_rho_basis=G_r, Omega=hf.omega.reshape(V_b.size, G_r.size),
+            velocity_basis=V_b, reflex_rho_basis=G_r, Omega=Omega, high_rate=high_nl,
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
             settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
                       "stationary_delays": [float(c) for c in self.stationary_delays]},  # JSON: a list
@@ -303,6 +351,8 @@ class LPVPCEstimator:
             finish_extended_fit(design, model, best["theta_i"][n_base:], Psi_i[:, :n_base], y)
             sig = {"signals": design.signals}
         def predicted(causal):  # trial by trial
+            if high is not None:  # the high-rate path, as identified
+                return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
         if design is None:  # intervals (lpvpc.uncertainty); extended models carry none
@@ -321,8 +371,14 @@ class LPVPCEstimator:
             "vaf_causal": vaf(y, predicted(True)),
             "n_samples": int(n),
             "n_trials": len(seg),
-            "velocity_p99": float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else V_b.hi,
-            "data_density": data_density(rho, dvel, G_i, V_b),
+            # the top of the rectifier fit (model.reflex_gain_threshold). High rate: the top of the
+            # basis's range (99.5th percentile of the 1 kHz velocities); a percentile of the positive
+            # ones is fragile there (~90 % of the samples are holds whose 1e-7 rad/s velocities, or a
+            # file's rounding, fall on either side of zero: 2.6 or 4.5 rad/s for one recording), and
+            # beyond the range the curve is only the basis's linear continuation.
+            "velocity_p99": _velocity_p99(dvel, V_b) if high is None else high.velocity_basis.hi,
+            "data_density": data_density(rho, dvel, G_i, V_b) if high is None else
+            data_density(high.rho, high.dvel, G_i, high.velocity_basis),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
             "state_orders_failed": {str(m): str(err) for m, err in failed.items()},
@@ -457,6 +513,39 @@ class LPVPCEstimator:
                 f"({n_intrinsic} intrinsic, {n_reflex} reflex nonlinearity); need at least {need} "
                 f"(reduce basis orders, IRF lags or MOESP horizon, or record longer)"
             )
+
+
+def _high_rate_input(est, data, rho_basis):
+    """The reflex regressor from the data's high-rate signals (:class:`lpvpc.data.HighRate`),
+    or None when the data have none (100 Hz files, or loaded with ``target_fs=None``)."""
+    hr = getattr(data, "high_rate", None)
+    if hr is None or est.effects:  # extended models keep the model-rate nonlinearity (lpvpc.effects)
+        return None
+    from .reflex import high_rate_input
+
+    q = int(round(hr.fs / float(data.fs)))
+    return high_rate_input(hr, q, est.reflex_delay, rho_basis, est.high_rate_velocity_basis,
+                           est.high_rate_velocity_order)
+
+
+def _model_rate_stand_in(U_r_model, U_r_high, best, segments, n_r):
+    """Omega of the model-rate nonlinearity (exports, predictions from model-rate records):
+    least squares of the high-rate path's reflex drive through the identified dynamics, as
+    seen from the model-rate velocity basis (the dynamics and rho basis are shared)."""
+    from .reflex import reflex_regressor
+
+    hf = best["hammerstein"]
+    bd = np.append(hf.b, hf.d)
+    blocks_h = reflex_regressor(U_r_high, best["A"], best["C"], segments)
+    blocks_m = reflex_regressor(U_r_model, best["A"], best["C"], segments)
+    target = sum(c * (blk @ hf.omega) for c, blk in zip(bd, blocks_h))
+    X = sum(c * blk for c, blk in zip(bd, blocks_m))
+    return np.linalg.lstsq(X, target, rcond=None)[0].reshape(-1, n_r)
+
+
+def _velocity_p99(dvel, velocity_basis) -> float:
+    """99th percentile of the positive delayed velocities (rad/s): the top of the rectifier fit."""
+    return float(np.percentile(dvel[dvel > 0], 99)) if np.any(dvel > 0) else velocity_basis.hi
 
 
 def data_density(rho, dvel, rho_basis, velocity_basis, n_rho: int = 16, n_vel: int = 48) -> dict:

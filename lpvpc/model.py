@@ -11,7 +11,9 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
                          then velocity and acceleration at k, "derivatives": their
                          offline estimate, "central3" or "central5" (absent: central3)}
     reflex              {"delay": samples, "velocity_basis": Basis, "rho_basis": Basis,
-                         "Omega": n_v x n_r, "A": m x m, "B": m, "C": m, "D": scalar}
+                         "Omega": n_v x n_r, "A": m x m, "B": m, "C": m, "D": scalar,
+                         "high_rate" (optional): {"fs": Hz, "delay": samples at fs,
+                         "velocity_basis": Basis, "Omega": n_v' x n_r}}
     identified_ranges   {"scheduling": [lo, hi] (rad), "velocity": [lo, hi] (rad/s)}
     settings            estimator settings used
     provenance          {"data_hash", "lpvpc_version", "numpy_version", ...}
@@ -20,6 +22,16 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
     effects             (extended models only, ``format_version: 2``) list of effect terms
                         {"name", "options", "H", "H_causal", "Theta", "basis"}: see
                         :mod:`lpvpc.effects`; they need the extra input signals named there
+
+The reflex nonlinearity identified from files recorded faster than the model rate (1 kHz)
+acts on the delayed velocity at the file's rate: ``reflex.high_rate`` holds it
+(:class:`HighRateNonlinearity`), and the reflex gain, threshold and figures come from it.
+``reflex.Omega`` is then its model-rate stand-in: the same dynamics, the nonlinearity of
+the model-rate velocity refitted by least squares; exports (CasADi, FMUs) and predictions
+from model-rate records use it, predictions from records carrying high-rate signals use
+the high-rate one. Files without ``high_rate`` (and 100 Hz identifications) have one
+nonlinearity, at the model rate, whose threshold is biased (the 20 ms reflex-evoking
+velocity pulses are smoothed at 100 Hz).
 
 Floats are written with Python's shortest round-trip representation, so save/load is exact.
 A file is checked against this format and its limits (:mod:`lpvpc.modelfile`) before
@@ -71,6 +83,36 @@ class Prediction:
     reflex: np.ndarray
     out_of_range_fraction: float = 0.0
     effects: dict = field(default_factory=dict)
+
+
+@dataclass
+class HighRateNonlinearity:
+    """The reflex static nonlinearity identified on the delayed velocity at ``fs`` (Hz,
+    the file's rate, a multiple of the model's): velocity basis (rad/s), coefficients
+    Omega (n_v x n_r, with the model's rho basis) and the delay in samples at ``fs``.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0)  # 1 kHz trials
+    >>> model = identify(pair_trials(sim.pt, sim.ut))  # runs at 100 Hz
+    >>> model.fs, model.high_rate.fs, model.high_rate.delay, model.high_rate.Omega.shape
+    (100.0, 1000.0, 40, (9, 3))
+    """
+
+    fs: float
+    delay: int
+    velocity_basis: Basis
+    Omega: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {"fs": self.fs, "delay": int(self.delay), "velocity_basis": self.velocity_basis.to_dict(),
+                "Omega": self.Omega.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "HighRateNonlinearity":
+        return cls(fs=float(d["fs"]), delay=int(d["delay"]), velocity_basis=Basis.from_dict(d["velocity_basis"]),
+                   Omega=np.array(d["Omega"], dtype=float))
 
 
 @dataclass
@@ -129,6 +171,20 @@ class LPVPCModel:
     effects: list = field(default_factory=list)  # lpvpc.effects.FittedEffect terms (extended models)
     causal_derivatives: str = "central3"  # stencil of the causal form's velocity/acceleration
     uncertainty: dict = field(default_factory=dict)  # lpvpc.uncertainty.fit_uncertainty (empty: no intervals)
+    high_rate: HighRateNonlinearity | None = None  # the nonlinearity identified at the file's rate (module notes)
+
+    @property
+    def nonlinearity_fs(self) -> float:
+        """Rate (Hz) of the delayed velocity the identified reflex nonlinearity acts on."""
+        return self.fs if self.high_rate is None else self.high_rate.fs
+
+    def nonlinearity(self):
+        """(velocity basis, Omega) of the identified reflex nonlinearity: the high-rate one
+        when the model has it (gain, threshold, figures and intervals describe it), else the
+        model-rate one."""
+        if self.high_rate is not None:
+            return self.high_rate.velocity_basis, self.high_rate.Omega
+        return self.velocity_basis, self.Omega
 
     # -- prediction ---------------------------------------------------------------------
     @property
@@ -174,7 +230,9 @@ class LPVPCModel:
             if len(segments) > 1:  # joined trials: each predicted on its own, from rest
                 data = position
                 self._unpack_data(data, signals)  # the checks
-                parts = [self.predict(data.position[a:b], data.scheduling[a:b], causal=causal, warn=warn,
+                high = self._high_rate_of(data) is not None  # then each trial's high-rate signals too
+                parts = [self.predict(*((data.segment(a, b), None) if high else (data.position[a:b], data.scheduling[a:b])),
+                                      causal=causal, warn=warn,
                                       velocity=None if velocity is None else velocity[a:b],
                                       acceleration=None if acceleration is None else acceleration[a:b])
                          for a, b in segments]
@@ -183,7 +241,10 @@ class LPVPCModel:
                                   intrinsic=np.concatenate([q.intrinsic for q in parts]),
                                   reflex=np.concatenate([q.reflex for q in parts]),
                                   out_of_range_fraction=float(np.dot(n, [q.out_of_range_fraction for q in parts]) / n.sum()))
+            high = self._high_rate_of(position)
             position, scheduling, signals = self._unpack_data(position, signals)
+        else:
+            high = None
         extra_signals = signals  # (the name ``signals`` is reused below for the IRF inputs)
         position = np.asarray(position, dtype=float)
         scheduling = np.asarray(scheduling, dtype=float)
@@ -215,7 +276,7 @@ class LPVPCModel:
         for a, b in eq.blocks(len(position), H.shape[0]):  # bounded memory for any record length
             signals = eq.position_signals(position, self.fs, lags, a, b, causal=causal, vel=velocity, acc=acceleration)
             tq_i[a:b] = eq.intrinsic_torque(signals, Gi[a:b], H)
-        z = self.reflex_drive(position, scheduling)
+        z = self.reflex_drive(position, scheduling, high_rate=high)
         tq_r = self._reflex_filter(z)
         parts = {}
         if self.effects:
@@ -264,8 +325,26 @@ class LPVPCModel:
 
         return export_casadi(self, path, variant=variant)
 
-    def reflex_drive(self, position, scheduling):
-        """Output z(k) of the reflex static nonlinearity for a whole record."""
+    def _high_rate_of(self, data):
+        """The data's high-rate signals if this model identified its nonlinearity at their rate."""
+        high = getattr(data, "high_rate", None)
+        if high is None or self.high_rate is None or abs(high.fs - self.high_rate.fs) > 1e-9 * high.fs:
+            return None
+        return high
+
+    def reflex_drive(self, position, scheduling, high_rate=None):
+        """Output z(k) of the reflex static nonlinearity for a whole record (model rate).
+
+        ``high_rate`` (:class:`lpvpc.data.HighRate` at the rate of ``self.high_rate``): the
+        high-rate nonlinearity acts on its delayed velocity and its output is decimated
+        (:func:`lpvpc.reflex.high_rate_drive`); otherwise the model-rate nonlinearity acts on
+        the delayed velocity of ``position``."""
+        if high_rate is not None and self.high_rate is not None:
+            from .reflex import high_rate_drive
+
+            hr = self.high_rate
+            q = int(round(hr.fs / self.fs))
+            return high_rate_drive(high_rate, q, hr.delay, hr.velocity_basis, self.reflex_rho_basis, hr.Omega)
         dvel = eq.delayed_velocity(position, self.fs, self.delay)
         return eq.reflex_drive(self.velocity_basis.evaluate(dvel), self.reflex_rho_basis.evaluate(scheduling), self.Omega)
 
@@ -308,9 +387,10 @@ class LPVPCModel:
         Returns an array of shape (len(rho), len(velocity)): the steady reflex torque that
         a constant delayed velocity would evoke at each position.
         """
-        Vb = self.velocity_basis.evaluate(np.atleast_1d(velocity))
+        basis, Omega = self.nonlinearity()
+        Vb = basis.evaluate(np.atleast_1d(velocity))
         Rb = self.reflex_rho_basis.evaluate(np.atleast_1d(rho))
-        return self.reflex_static_gain() * (Rb @ self.Omega.T @ Vb.T)
+        return self.reflex_static_gain() * (Rb @ Omega.T @ Vb.T)
 
     def reflex_impulse_response(self, n: int | None = None):
         """Impulse response of the reflex linear dynamics, (time s, response) (Fig. 5B)."""
@@ -321,7 +401,7 @@ class LPVPCModel:
 
     def rectifier_velocity_grid(self, n_velocity: int = 200):
         """Velocities (rad/s) over which the rectifier is fitted, and the p99 top used."""
-        v_top = self.fit.get("velocity_p99", self.velocity_range[1])
+        v_top = self.fit.get("velocity_p99", self.nonlinearity()[0].hi)
         return np.linspace(0.0, v_top, n_velocity), v_top
 
     def reflex_gain_threshold(self, rho, n_velocity: int = 200):
@@ -409,6 +489,8 @@ class LPVPCModel:
             "conventions": self.conventions,
             "fit": self.fit,
         }
+        if self.high_rate is not None:
+            d["reflex"]["high_rate"] = self.high_rate.to_dict()
         if self.effects:
             d["effects"] = [fe.to_dict() for fe in self.effects]
         if self.uncertainty:
@@ -443,6 +525,7 @@ class LPVPCModel:
                 conventions=d.get("conventions", {}),
                 fit=d.get("fit", {}),
                 uncertainty=d.get("uncertainty") or {},
+                high_rate=HighRateNonlinearity.from_dict(refl["high_rate"]) if refl.get("high_rate") else None,
             )
             if d.get("effects"):
                 from .effects import FittedEffect
@@ -466,11 +549,22 @@ class LPVPCModel:
             problems.append(f"intrinsic derivatives {self.causal_derivatives!r} is not one of {eq.DERIVATIVE_STENCILS}")
         if self.Omega.shape != (n_v, n_r):
             problems.append(f"reflex Omega has shape {self.Omega.shape}, expected {(n_v, n_r)}")
+        if self.high_rate is not None:
+            hr = self.high_rate
+            q = hr.fs / self.fs
+            if hr.Omega.shape != (hr.velocity_basis.size, n_r):
+                problems.append(f"reflex high_rate Omega has shape {hr.Omega.shape}, expected {(hr.velocity_basis.size, n_r)}")
+            if not (q > 1.5 and abs(q - round(q)) < 1e-6 * q):
+                problems.append(f"reflex high_rate fs {hr.fs:g} Hz is not an integer multiple (> 1) of the model's {self.fs:g} Hz")
+            if hr.delay < 1:
+                problems.append(f"reflex high_rate delay must be at least 1 sample, got {hr.delay}")
         if m < 1 or self.A.shape != (m, m) or self.B.shape != (m,) or self.C.shape != (m,):
             problems.append(f"reflex state-space shapes inconsistent: A {self.A.shape}, B {self.B.shape}, C {self.C.shape}")
         if self.delay < 1:
             problems.append(f"reflex delay must be at least 1 sample, got {self.delay}")
         arrays = [self.H, self.H_causal, self.Omega, self.A, self.B, self.C, np.array([self.D, self.fs])]
+        if self.high_rate is not None:
+            arrays.append(self.high_rate.Omega)
         for fe in self.effects:
             arrays += [a for a in (fe.H, fe.H_causal, fe.Theta) if a is not None]
             n_c = n_i if fe.channel_basis is None else fe.channel_basis.size

@@ -315,11 +315,26 @@ def _check_reflex(x, where, problems, d, budget):
     _shape(_array(s.get("C"), f"{where}.C", problems, 1, budget), (m,), f"{where}.C", problems)
     if _number(s.get("D"), f"{where}.D", problems) is None:
         raise _Refused
+    if s.get("high_rate") is not None:  # optional: the nonlinearity identified at the file's rate (lpvpc.model)
+        _check_high_rate(s["high_rate"], f"{where}.high_rate", problems, d, budget, n_r)
     radius = float(np.max(np.abs(np.linalg.eigvals(A))))
     if not radius < MAX_SPECTRAL_RADIUS:
         problems.append(f"{where}.A: unstable reflex dynamics, spectral radius {radius:.6g} "
                         f"(must be below MAX_SPECTRAL_RADIUS = {MAX_SPECTRAL_RADIUS:g})")
         raise _Refused
+
+
+def _check_high_rate(x, where, problems, d, budget, n_r):
+    h = _dict(x, where, problems, required=True)
+    fs, model_fs = _number(h.get("fs"), f"{where}.fs", problems, lo=0.0, hi=MAX_FS, limit="MAX_FS"), d.get("fs")
+    if fs is not None and _is_number(model_fs) and _isfinite(model_fs) and model_fs > 0:
+        q = fs / model_fs
+        if not (q > 1.5 and abs(q - round(q)) < 1e-6 * q):
+            problems.append(f"{where}.fs = {fs!r} Hz is not an integer multiple (> 1) of the model's fs {model_fs!r} Hz")
+        else:
+            _integer(h.get("delay"), f"{where}.delay", problems, 1, MAX_DELAY * round(q), "MAX_DELAY (model samples)")
+    n_v = _basis(h.get("velocity_basis"), f"{where}.velocity_basis", problems)
+    _shape(_array(h.get("Omega"), f"{where}.Omega", problems, 2, budget), (n_v, n_r), f"{where}.Omega", problems)
 
 
 def _check_conventions(x, where, problems, d, budget):
@@ -382,7 +397,8 @@ def _check_uncertainty(x, where, problems, d, budget):
             raise _Refused
     intr, refl = d["intrinsic"], d["reflex"]
     m = len(refl["B"])
-    expect = {"theta_i": len(intr["H"]) * len(intr["H"][0]), "omega": len(refl["Omega"]) * len(refl["Omega"][0]),
+    om = (refl.get("high_rate") or refl)["Omega"]  # the identified nonlinearity's (lpvpc.model notes)
+    expect = {"theta_i": len(intr["H"]) * len(intr["H"][0]), "omega": len(om) * len(om[0]),
               "bd": m + 1}
     for key, val in expect.items():
         if n[key] != val:

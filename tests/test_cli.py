@@ -165,7 +165,9 @@ def test_single_file_forms_and_settings(run_dir, model_file, capsys, tmp_path):
                          "--json", tmp_path / "b.json"], capsys)
     assert status == 0
     a, b = (json.loads((tmp_path / f).read_text()) for f in ("a.json", "b.json"))
-    assert a["vaf"] == pytest.approx(b["vaf"], abs=1e-9)
+    # the 1 kHz PT/UT files keep their 1 kHz signals: the reflex on the 1 kHz path; the 100 Hz
+    # perturbation file: the model-rate stand-in (benchmarks/results/reflex_1k.txt)
+    assert a["vaf"] == pytest.approx(b["vaf"], abs=0.1)
     assert a["data_hash"] == b["data_hash"]
 
     status, out, _ = _run(["predict", model_file, tmp_path / "novel.csv", "--causal"], capsys)
@@ -365,9 +367,11 @@ def test_plotting_functions_draw(run_dir, model_file):
         _, ax = plt.subplots()
         fig = plotting.plot_reflex_nonlinearity(model, ax, truth=params)
         assert fig is ax.figure and len(ax.lines) >= 10 and _has_data(ax)
-        assert any("threshold is biased" in t.get_text() for t in ax.texts)  # 100 Hz model: said where shown
+        # said where shown when the nonlinearity saw 100 Hz velocity (not from these 1 kHz files)
+        biased = any("threshold is biased" in t.get_text() for t in ax.texts)
+        assert biased == (model.nonlinearity_fs < 500), model.nonlinearity_fs
         assert ax.get_legend() is not None and ax.get_legend().get_bbox_to_anchor().x0 > ax.bbox.x1 - 1  # outside
-        v_top = model.velocity_range[1]
+        v_top = model.nonlinearity()[0].hi
         drawn = ax.lines[0].get_xdata()[np.isfinite(ax.lines[0].get_ydata())]
         assert drawn.max() < v_top  # no curve beyond the data
         fig = plotting.plot_reflex_irf(model, truth=params)

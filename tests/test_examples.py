@@ -38,6 +38,8 @@ REGISTRY = {
     "lpvpc.data.load_trial": "test_matfiles.py::test_nldat_trial_read_by_variable",
     "lpvpc.data.decimate_trial": "test_data.py::test_decimation_in_stages",
     "lpvpc.data.PerturbationData": "test_data.py::test_perturbation_data_validates",
+    "lpvpc.reflex.high_rate_input": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
+    "lpvpc.reflex.high_rate_drive": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
     "lpvpc.data.pair_trials": "test_simulate.py::test_pair_trials_reproduces_the_simulated_perturbation",
     "lpvpc.data.load_perturbation_file": "test_data.py::test_load_perturbation_file_decimates",
     "lpvpc.data.join_trials": "test_trials.py::test_join_trials_checks_rate_and_conventions",

@@ -401,13 +401,24 @@ def _physiology_table(model, level=0.95) -> str:
                 f"(correlated residuals respected; <code>lpvpc.uncertainty</code>). Identification VAF "
                 f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). The intervals of K and "
                 f"viscosity include a bound on the estimator's structural bias; K is the stiffness over the "
-                f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). Reflex gain and "
-                f"threshold carry the bias of a 100 Hz model of a rectifier of 1 kHz velocity pulses, which their "
-                f"intervals do not include. Coverage measured on the virtual subject: "
+                f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). "
+                f"{_reflex_bias_note(model)} Coverage measured on the virtual subject: "
                 f"<code>benchmarks/results/uncertainty.txt</code>.")
     else:
         note = "This model file carries no confidence intervals (identified by an older lpvpc): re-identify to get them."
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
+
+
+def _reflex_bias_note(model) -> str:
+    """Where the reflex nonlinearity was seen: from 100 Hz files its threshold is biased."""
+    fs_v = getattr(model, "nonlinearity_fs", model.fs)
+    if fs_v < 500:
+        return (f"Reflex gain and threshold were seen on {fs_v:g} Hz velocity: they carry the bias of a rectifier of "
+                f"~20 ms velocity pulses smoothed at that rate (the threshold most), which the intervals do not include "
+                f"(identify from the 1 kHz files to avoid it; <code>benchmarks/results/reflex_1k.txt</code>).")
+    return (f"The reflex nonlinearity was identified on the {fs_v:g} Hz delayed velocity (its output decimated to the "
+            f"model rate); gain and threshold trends still scatter from seed to seed on the virtual subject "
+            f"(<code>benchmarks/results/reflex_1k.txt</code>), which the intervals do not include.")
 
 
 def _worst_bin(rows, key="rmse_numpy"):

@@ -1,0 +1,139 @@
+"""Reflex gain and threshold trends from 1 kHz files against 100 Hz files (issue 10, item 3).
+
+For each seed the virtual subject's identification and novel trials are written at 1 kHz
+(what a lab records) by the package's writer (``lpvpc.simulate.write_dataset``), and again
+at 100 Hz: the same trials read back, decimated by ``lpvpc.data.decimate_trial`` and written
+by ``write_trial_csv`` (a lab's 100 Hz export of the same recording: same noise, so the two
+paths differ only in the velocity the reflex nonlinearity sees). Both are read through
+``load_identification_data`` with default settings (model rate 100 Hz) and identified at
+default settings:
+
+- 1 kHz files: the data keep the 1 kHz position (``PerturbationData.high_rate``) and the
+  reflex nonlinearity is identified on the 1 kHz delayed velocity, its output decimated to
+  the model rate (``lpvpc.reflex.high_rate_input``);
+- 100 Hz files: the nonlinearity sees the 100 Hz velocity (its threshold is biased).
+
+Figures per seed: the slopes over the central 80 % of the identified positions of the
+rectifier gain and threshold fitted to the identified nonlinearity
+(``model.reflex_gain_threshold``), as ratios to the simulator's (1 = exact; target 0.8-1.2);
+novel-trajectory VAF of each path on the same novel recording (the 1 kHz model predicting
+the novel 1 kHz files, i.e. the high-rate path, and the novel 100 Hz files, i.e. its
+model-rate stand-in that the exports use; the 100 Hz model the novel 100 Hz files); load +
+identify time of each path (ratio in the same run).
+
+Run: python benchmarks/bench_reflex_1k.py [n_seeds]   (default 10; writes
+     benchmarks/results/reflex_1k.txt)
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from lpvpc.data import decimate_trial, load_identification_data, load_trial, write_trial_csv  # noqa: E402
+from lpvpc.identify import identify  # noqa: E402
+from lpvpc.model import vaf  # noqa: E402
+from lpvpc.simulate import SubjectParams, write_dataset  # noqa: E402
+
+TRUTH = SubjectParams()
+
+
+def slopes(model):
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
+    gain, thr = model.reflex_gain_threshold(rho)
+    g = np.polyfit(rho, gain, 1)[0] / np.polyfit(rho, TRUTH.reflex_gain(rho), 1)[0]
+    t = np.polyfit(rho, thr, 1)[0] / np.polyfit(rho, TRUTH.reflex_threshold(rho), 1)[0]
+    return float(g), float(t)
+
+
+def load_and_identify(folder):
+    t = time.perf_counter()
+    data = load_identification_data(pt=folder / "ident_PT.csv", ut=folder / "ident_UT.csv")
+    model = identify(data)
+    return model, time.perf_counter() - t
+
+
+def novel(folder):
+    return load_identification_data(pt=folder / "novel_PT.csv", ut=folder / "novel_UT.csv")
+
+
+def one_seed(seed, tmp):
+    out = {"seed": seed}
+    dirs = {1000: Path(tmp) / f"s{seed}_1000", 100: Path(tmp) / f"s{seed}_100"}
+    write_dataset(dirs[1000], seed=seed, fs_out=1000.0)
+    dirs[100].mkdir()
+    for stem in ("ident_PT", "ident_UT", "novel_PT", "novel_UT"):
+        write_trial_csv(decimate_trial(load_trial(dirs[1000] / f"{stem}.csv"), 100.0), dirs[100] / f"{stem}.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m1k, out["t1k"] = load_and_identify(dirs[1000])
+        m100, out["t100"] = load_and_identify(dirs[100])
+        n1k, n100 = novel(dirs[1000]), novel(dirs[100])
+        out["vaf_1k"] = vaf(n1k.torque, m1k.predict(n1k).total)            # high-rate path
+        out["vaf_1k_model_rate"] = vaf(n100.torque, m1k.predict(n100).total)  # stand-in (exports)
+        out["vaf_100"] = vaf(n100.torque, m100.predict(n100).total)
+    assert m1k.high_rate is not None and m100.high_rate is None
+    out["g1k"], out["t1k_slope"] = slopes(m1k)
+    out["g100"], out["t100_slope"] = slopes(m100)
+    return out
+
+
+def main():
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 10
+    t0 = time.time()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for s in range(n):
+            rows.append(one_seed(s, tmp))
+            print(rows[-1], flush=True)
+    a = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+    within = lambda x: int(np.sum((x > 0.8) & (x < 1.2)))  # noqa: E731
+    lines = [
+        "# Reflex trends from 1 kHz files vs 100 Hz files (python benchmarks/bench_reflex_1k.py)", "",
+        "Slope over position of the identified rectifier gain / threshold as a ratio to the simulator's",
+        "(1 = exact, target 0.8-1.2). Files written by lpvpc.simulate.write_dataset, read by",
+        "load_identification_data with default settings (model rate 100 Hz), identified with defaults.",
+        "'1 kHz': the nonlinearity on the 1 kHz delayed velocity (PerturbationData.high_rate), decimated;",
+        "'100 Hz': on the 100 Hz velocity. Novel VAF (%): '1 kHz' predicts the novel 1 kHz files (high-rate",
+        "path); '1 kHz model, 100 Hz files' uses the model-rate stand-in the CasADi/FMU exports carry.",
+        "Time: load + identify (s), both paths in the same run.", "",
+        "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | novel VAF 1 kHz | "
+        "novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['seed']} | {r['g1k']:.2f} | {r['t1k_slope']:.2f} | {r['g100']:.2f} | {r['t100_slope']:.2f} | "
+                     f"{r['vaf_1k']:.2f} | {r['vaf_1k_model_rate']:.2f} | {r['vaf_100']:.2f} | {r['t1k']:.1f} | "
+                     f"{r['t100']:.1f} |")
+    lines += [
+        "",
+        f"seeds: {n}",
+        f"gain slope ratio: 1 kHz median {np.median(a['g1k']):.2f} (range {a['g1k'].min():.2f}..{a['g1k'].max():.2f}, "
+        f"within 20 % on {within(a['g1k'])}/{n}); 100 Hz median {np.median(a['g100']):.2f} "
+        f"(within 20 % on {within(a['g100'])}/{n})",
+        f"threshold slope ratio: 1 kHz median {np.median(a['t1k_slope']):.2f} (range {a['t1k_slope'].min():.2f}.."
+        f"{a['t1k_slope'].max():.2f}, within 20 % on {within(a['t1k_slope'])}/{n}); 100 Hz median "
+        f"{np.median(a['t100_slope']):.2f} (within 20 % on {within(a['t100_slope'])}/{n})",
+        f"novel VAF: 1 kHz path minus 100 Hz path median {np.median(a['vaf_1k'] - a['vaf_100']):+.3f} points "
+        f"(min {np.min(a['vaf_1k'] - a['vaf_100']):+.3f}); model-rate stand-in minus 100 Hz path median "
+        f"{np.median(a['vaf_1k_model_rate'] - a['vaf_100']):+.3f} (min {np.min(a['vaf_1k_model_rate'] - a['vaf_100']):+.3f})",
+        f"load + identify time ratio 1 kHz / 100 Hz: median {np.median(a['t1k'] / a['t100']):.2f}x "
+        f"(max {np.max(a['t1k'] / a['t100']):.2f}x; floor 3x)",
+        f"total time {time.time() - t0:.0f} s",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    (ROOT / "benchmarks" / "results" / "reflex_1k.txt").write_text(text)
+
+
+if __name__ == "__main__":
+    main()
