@@ -732,7 +732,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "see --fmu-variant)")
     p.add_argument("--fmu-variant", choices=("exact", "causal", "sampled"), default="exact",
                    help="model FMU to export and validate: exact (the identified two-sided model; its declared "
-                        "latency is removed when comparing; default) or causal (latency-free, for closed loop)")
+                        "latency is removed when comparing; default) or causal (velocity and acceleration inputs, for closed loop)")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the exported FMUs (default 2)")
     p.add_argument("--actuator-fmu", metavar="F.fmu", help="actuator FMU (default: the project's actuator)")
     p.add_argument("--actuator-param", type=_actuator_param, action="append", default=[], metavar="NAME=VALUE",

@@ -26,7 +26,7 @@ numpy prediction, and added to the pathway they belong to.
 
 Variants
 --------
-``"causal"`` (default; latency-free, meant for closed loop)
+``"causal"`` (default of this module; meant for closed loop with an actuator that supplies the derivatives)
     tq_i(k) = sum_{l=0..Lc} h_l(rho(k)) pos(k-l) + h_v(rho(k)) vel(k) + h_a(rho(k)) acc(k)
     with the model's causal IRF ``H_causal``. ``velocity``/``acceleration`` are the
     current perturbation velocity (rad/s) and acceleration (rad/s^2): the actuator's
@@ -735,11 +735,12 @@ def fmu_description(model, variant="causal") -> str:
             f"model sha256 {model.model_hash}; variant {variant}; sample rate {model.fs!r} Hz. ")
     if variant == "sampled":
         T = 1.0 / float(model.fs)
-        text += (f"Inputs are positions only; velocity and acceleration are computed inside (central differences, "
-                 f"as identified), so the torque of sample k needs position k + 1: latency 1 sample ({T!r} s). "
+        text += (f"Inputs are positions only; velocity and acceleration are computed inside ({derivative_points(model)}"
+                 f"-point central differences, as identified), so the torque of sample k needs position k + {lat}: "
+                 f"latency {lat} sample(s) ({lat * T!r} s). "
                  f"Timing contract: the model is sampled at t_start + k*{T!r} s; a communication step that starts "
                  f"at a sample time takes the inputs set at its start, and from its end the outputs are the torque "
-                 f"of the previous sample (held; no direct feedthrough, the same in every master). Step at the "
+                 f"of sample k - {lat} (held; no direct feedthrough, the same in every master). Step at the "
                  f"DefaultExperiment step ({T / ticks_per_sample(model)!r} s) or any divisor of the sample period "
                  f"that is a multiple of it. ")
     elif variant == "causal":

@@ -13,8 +13,8 @@ Steps (equation numbers of the seed paper):
    projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y
    without N x N matrices);
 5. reflex torque (29) and separable least squares for B, d and Omega;
-6. a causal intrinsic IRF (lags 0..Lc) fitted to the two-sided intrinsic torque, for
-   latency-free use in closed loop (FMU default).
+6. a causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration terms) fitted to the
+   two-sided intrinsic torque, for closed loop (the default FMU's form).
 """
 
 from __future__ import annotations
