@@ -417,8 +417,9 @@ def reflex_interval(model, rho, level: float = 0.95, n_draws: int = N_DRAWS):
 
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = N_DRAWS):
-    """Pointwise percentile band (lower, upper) of the scaled reflex nonlinearity (N m),
-    shape (len(rho), len(velocity)) each (for figure bands).
+    """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
+    (len(rho), len(velocity)) each (for figure bands): the estimate minus/plus the distances
+    from the parameter draws' median to their percentiles, as :func:`reflex_interval`.
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
@@ -435,5 +436,8 @@ def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = 
     Vb = model.nonlinearity()[0].evaluate(np.atleast_1d(velocity))
     Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(rho))
     curves = dc[:, None, None] * np.einsum("rj,dij,vi->drv", Rb, Om, Vb)
-    lo, hi = np.percentile(curves, [50 * (1 - level), 50 * (1 + level)], axis=0)
-    return lo, hi
+    lo, mid, hi = np.percentile(curves, [50 * (1 - level), 50, 50 * (1 + level)], axis=0)
+    # the curve is nonlinear in the parameters (static gain of the reflex dynamics times the
+    # nonlinearity): the draws' median can sit away from the estimate, which the figure draws
+    est = np.asarray(model.reflex_nonlinearity(np.atleast_1d(velocity), np.atleast_1d(rho)), dtype=float)
+    return est - (mid - lo), est + (hi - mid)
