@@ -663,6 +663,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']})")
     p.add_argument("--reflex-delay", type=_positive_float, metavar="S",
                    help=f"reflex delay in s (default {d['reflex_delay']})")
+    p.add_argument("--high-rate-reflex", dest="high_rate_reflex", action="store_const", const=True, default=None,
+                   help="identify the reflex nonlinearity on the file's own rate (e.g. 1 kHz) delayed velocity "
+                        "instead of the model rate's (better reflex trends on the virtual subject, worse held-out "
+                        "prediction on the lab's pilot trial)")
     p.add_argument("--state-order", type=_state_order, metavar="M|auto",
                    help="order of the reflex dynamics (default auto: from the singular values and BIC)")
     p.add_argument("--max-state-order", type=int, metavar="M",

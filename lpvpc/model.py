@@ -95,7 +95,7 @@ class HighRateNonlinearity:
     >>> from lpvpc.identify import identify
     >>> from lpvpc.simulate import simulate_pair
     >>> sim = simulate_pair("multilevel", seed=0, duration=30.0)  # 1 kHz trials
-    >>> model = identify(pair_trials(sim.pt, sim.ut))  # runs at 100 Hz
+    >>> model = identify(pair_trials(sim.pt, sim.ut), high_rate_reflex=True)  # runs at 100 Hz
     >>> model.fs, model.high_rate.fs, model.high_rate.delay, model.high_rate.Omega.shape
     (100.0, 1000.0, 40, (9, 3))
     """
