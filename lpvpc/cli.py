@@ -238,8 +238,8 @@ def _physical_summary(model) -> list:
     K, B = model.elastic_stiffness(rho), model.viscosity(rho)
     gain, thr = model.reflex_gain_threshold(rho[[0, -1]])
     at = lambda v, r: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, r))  # noqa: E731
-    fs_velocity = getattr(model, "nonlinearity_fs", model.fs)
-    bias = " (threshold biased: rectifier seen on 100 Hz-rate velocity)" if fs_velocity < 500 else ""
+    bias = (f" (threshold biased: rectifier seen on {model.nonlinearity_fs:g} Hz velocity)"
+            if model.reflex_threshold_biased else "")
     s = model.settings
     if len(rho) == 1:  # a stationary trial: one operating point, one value each
         viscosity = f"B {B[0]:.2f} N m s/rad"
@@ -278,10 +278,7 @@ def cmd_predict(args) -> int:
         from .effects import signals_from_data
 
         signals = signals_from_data(data)
-    if getattr(data, "high_rate", None) is not None and getattr(model, "high_rate", None) is not None:
-        pred = model.predict(data, causal=args.causal, signals=signals)  # the 1 kHz reflex path, as identified
-    else:
-        pred = model.predict(data.position, data.scheduling, causal=args.causal, signals=signals)
+    pred = model.predict(data, causal=args.causal, signals=signals)  # a 1 kHz reflex model: its 1 kHz path
     measured = data.torque
     metrics = {
         "vaf": vaf(measured, pred.total),

@@ -174,7 +174,7 @@ def run(outdir) -> int:
     trend = lambda x: "rises" if x[-1] > x[0] else "falls"  # noqa: E731
     _say(f"  toward dorsiflexion the gain {trend(G)} (truth: {trend(G_true)}) and the threshold "
          f"{trend(th)} (truth: {trend(th_true)})")
-    if getattr(model, "high_rate", None) is not None:
+    if not model.reflex_threshold_biased:
         _say("  (nonlinearity identified on the files' 1 kHz delayed velocity; over 10 seeds the gain trend is\n"
              "   within 20 % on 6, the threshold trend the least certain: benchmarks/results/reflex_1k.txt)")
     else:

@@ -253,11 +253,7 @@ class LPVPCEstimator:
 
         t0 = time.perf_counter()
         timings = {}
-        if isinstance(data, (list, tuple)):
-            from .data import join_trials
-
-            data = join_trials(data)
-        if self._searches_delay(data):
+        if self._searches_delay(data):  # (fit joined a list of trials)
             return self._fit_stationary_delays(data)
         p, y, rho, fs = self._checked(data)
         seg = Segments.of(data, len(y))  # several trials: nothing crosses a seam (lpvpc.segments)

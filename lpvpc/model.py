@@ -59,6 +59,8 @@ from .basis import Basis
 from .errors import DataError, ModelFileError, OutOfRangeWarning, non_finite_problem
 
 FORMAT = "lpvpc-model"
+#: Lowest velocity rate (Hz) at which the reflex rectifier's threshold is observable.
+RECTIFIER_MIN_FS = 500.0
 FORMAT_VERSION = 1
 FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
 
@@ -177,6 +179,14 @@ class LPVPCModel:
     def nonlinearity_fs(self) -> float:
         """Rate (Hz) of the delayed velocity the identified reflex nonlinearity acts on."""
         return self.fs if self.high_rate is None else self.high_rate.fs
+
+    @property
+    def reflex_threshold_biased(self) -> bool:
+        """True when the nonlinearity saw velocity below :data:`RECTIFIER_MIN_FS`: the ~20 ms
+        reflex-evoking velocity pulses are smoothed there, so the rectifier looks softer and
+        its threshold is biased (benchmarks/results/reflex_observability.txt). Said wherever
+        the threshold is shown (identify summary, Fig. 5A, validation report)."""
+        return self.nonlinearity_fs < RECTIFIER_MIN_FS
 
     def nonlinearity(self):
         """(velocity basis, Omega) of the identified reflex nonlinearity: the high-rate one
@@ -310,10 +320,11 @@ class LPVPCModel:
         """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
         path. Thin method over :func:`lpvpc.export.export_fmu` (which documents variables,
         units and ``variant``). The default is what ``lpvpc export --fmu`` makes:
-        ``"sampled"``, inputs position and scheduling only, derivatives computed inside, one
-        sample of declared latency, the same timing in every co-simulation master (README,
-        "timing contract"); ``"causal"`` takes velocity and acceleration inputs and has direct
-        feedthrough; ``"exact"`` is the two-sided IRF delayed by L samples."""
+        ``"sampled"``, inputs position and scheduling only, derivatives computed inside, a
+        declared latency (2 samples with the default 5-point differences), the same timing
+        in every co-simulation master (README, "timing contract"); ``"causal"`` takes
+        velocity and acceleration inputs and has direct feedthrough; ``"exact"`` is the
+        two-sided IRF delayed by L samples."""
         from .export import export_fmu
 
         return export_fmu(self, path, fmi_version=fmi_version, variant=variant, **options)

@@ -267,7 +267,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     ax = _new_axes(ax)
     rho = _positions(model, positions) if np.ndim(positions) == 0 else np.asarray(positions, dtype=float)
     if velocity is None:
-        basis = model.nonlinearity()[0] if hasattr(model, "nonlinearity") else model.velocity_basis
+        basis = model.nonlinearity()[0]
         velocity = np.linspace(basis.lo, basis.hi, 241)
         ok = _supported(model, rho, velocity)
         cols = np.flatnonzero(ok.any(axis=0))
@@ -297,9 +297,8 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
         extra.append("dashed: truth")
     ax.set_title("reflex nonlinearity" + (f" ({'; '.join(extra)})" if extra else ""), fontsize="medium")
     _legend_outside(ax, title="position")
-    fs_v = getattr(model, "nonlinearity_fs", model.fs)  # 1 kHz files: the high-rate nonlinearity
-    if fs_v < 500:  # 20 ms velocity pulses are smoothed at this rate (benchmarks: reflex_observability)
-        ax.text(0.98, 0.02, f"seen on {fs_v:g} Hz velocity: the threshold is biased (a soft rectifier)",
+    if model.reflex_threshold_biased:
+        ax.text(0.98, 0.02, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)",
                 transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
     dens = _density(model)
     if dens is not None:

@@ -398,22 +398,29 @@ def reflex_interval(model, rho, level: float = 0.95, n_draws: int = N_DRAWS):
     from .model import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
-    Om, dc = parameter_draws(model, n_draws)
     v, _ = model.rectifier_velocity_grid()
-    Vb = model.nonlinearity()[0].evaluate(v)
-    Rb = model.reflex_rho_basis.evaluate(rho)
-    curves = dc[:, None, None] * np.einsum("rj,dij,vi->drv", Rb, Om, Vb)  # (draws, rho, v)
+    curves = _nonlinearity_draws(model, v, rho, n_draws)  # (draws, rho, v)
     gain, th = rectifier_fit(v, curves.reshape(-1, len(v)))
     gain, th = gain.reshape(n_draws, len(rho)), th.reshape(n_draws, len(rho))
-    q = [50 * (1 - level), 50, 50 * (1 + level)]
-    # The rectifier fit is a nonlinear function of the parameters: the draws' median can sit
-    # away from the estimate (a 1 kHz model's 27 hinge coefficients: the estimate's gain above
-    # the draws' 97.5th percentile). The interval keeps the draws' spread around the estimate.
-    out = []
-    for draws, est in zip((gain, th), model.reflex_gain_threshold(rho)):
-        lo, mid, hi = np.percentile(draws, q, axis=0)
-        out.append((est - (mid - lo), est + (hi - mid)))
-    return tuple(out)
+    return tuple(_spread_around(est, draws, level) for draws, est in zip((gain, th), model.reflex_gain_threshold(rho)))
+
+
+def _nonlinearity_draws(model, velocity, rho, n_draws):
+    """The scaled reflex nonlinearity (N m) of each parameter draw: (draws, rho, velocity)."""
+    Om, dc = parameter_draws(model, n_draws)
+    Vb = model.nonlinearity()[0].evaluate(np.atleast_1d(velocity))
+    Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(rho))
+    return dc[:, None, None] * np.einsum("rj,dij,vi->drv", Rb, Om, Vb)
+
+
+def _spread_around(estimate, draws, level):
+    """(lower, upper): the estimate minus/plus the distances from the draws' median to their
+    percentiles (axis 0). The reflex quantities are nonlinear in the parameters (static gain
+    of the dynamics times the nonlinearity; the rectifier fit): the draws' median can sit
+    away from the estimate (a 1 kHz model's 27 hinge coefficients, put back on the unit
+    sphere, shrink toward zero), so the interval keeps their spread around the estimate."""
+    lo, mid, hi = np.percentile(draws, [50 * (1 - level), 50, 50 * (1 + level)], axis=0)
+    return estimate - (mid - lo), estimate + (hi - mid)
 
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = N_DRAWS):
@@ -432,12 +439,5 @@ def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = 
     >>> lower.shape, bool(np.all((lower <= f) & (f <= upper)))
     ((1, 5), True)
     """
-    Om, dc = parameter_draws(model, n_draws)
-    Vb = model.nonlinearity()[0].evaluate(np.atleast_1d(velocity))
-    Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(rho))
-    curves = dc[:, None, None] * np.einsum("rj,dij,vi->drv", Rb, Om, Vb)
-    lo, mid, hi = np.percentile(curves, [50 * (1 - level), 50, 50 * (1 + level)], axis=0)
-    # the curve is nonlinear in the parameters (static gain of the reflex dynamics times the
-    # nonlinearity): the draws' median can sit away from the estimate, which the figure draws
     est = np.asarray(model.reflex_nonlinearity(np.atleast_1d(velocity), np.atleast_1d(rho)), dtype=float)
-    return est - (mid - lo), est + (hi - mid)
+    return _spread_around(est, _nonlinearity_draws(model, velocity, rho, n_draws), level)

@@ -1,7 +1,6 @@
 """The effect catalog and extended models: fit, predict, save/load, CasADi and FMU export
 with extra inputs, and ``lpvpc identify --effect``."""
 
-import dataclasses
 import json
 import shutil
 
@@ -172,7 +171,7 @@ def test_effect_columns_join_the_intrinsic_regressor(rich):
     base model) and the fitted effect reproduces its share of the torque."""
     data, model = rich
     est = LPVPCEstimator(effects=("drift",)).fit(data)
-    base = LPVPCEstimator().fit(dataclasses.replace(data, high_rate=None))  # effects: model-rate reflex
+    base = LPVPCEstimator().fit(data)
     (fe,) = est.model_.effects
     n_b = fe.channel_basis.size  # drift's own rho basis order (below the intrinsic one)
     assert est.n_features_ == base.n_features_ + len(est.model_.lags) * n_b

@@ -411,11 +411,12 @@ def _physiology_table(model, level=0.95) -> str:
 
 def _reflex_bias_note(model) -> str:
     """Where the reflex nonlinearity was seen: from 100 Hz files its threshold is biased."""
-    fs_v = getattr(model, "nonlinearity_fs", model.fs)
-    if fs_v < 500:
+    fs_v = model.nonlinearity_fs
+    if model.reflex_threshold_biased:
         return (f"Reflex gain and threshold were seen on {fs_v:g} Hz velocity: they carry the bias of a rectifier of "
                 f"~20 ms velocity pulses smoothed at that rate (the threshold most), which the intervals do not include "
-                f"(identify from the 1 kHz files to avoid it; <code>benchmarks/results/reflex_1k.txt</code>).")
+                f"(from 1 kHz files, <code>high_rate_reflex=True</code> identifies it on the 1 kHz velocity: "
+                f"<code>benchmarks/results/reflex_1k.txt</code>).")
     return (f"The reflex nonlinearity was identified on the {fs_v:g} Hz delayed velocity (its output decimated to the "
             f"model rate); gain and threshold trends still scatter from seed to seed on the virtual subject "
             f"(<code>benchmarks/results/reflex_1k.txt</code>), which the intervals do not include.")
