@@ -448,14 +448,16 @@ class LPVPCModel:
 
     def reflex_gain_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (N m s/rad) of the confidence interval of the reflex
-        rectifier gain at positions ``theta`` (rad) (percentiles over parameter draws)."""
+        rectifier gain at positions ``theta`` (rad) (delta method; an
+        :class:`lpvpc.uncertainty.Interval` whose ``biased`` is True for a model-rate
+        nonlinearity, :attr:`reflex_threshold_biased`: then it covers the noise only)."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[0]
 
     def reflex_threshold_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (rad/s) of the confidence interval of the reflex velocity
-        threshold (at 100 Hz the threshold is poorly observable: expect wide intervals)."""
+        threshold (an :class:`lpvpc.uncertainty.Interval`, ``biased`` as for the gain)."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[1]

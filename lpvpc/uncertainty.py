@@ -26,17 +26,21 @@ Derived quantities:
   :func:`structural_bias_bound`: the sum of the shifts of the quantity when the IRF is
   one lag shorter on each side and when the scheduling basis is one order higher (each
   refitted to the same intrinsic torque) bounds the bias;
-- reflex gain and threshold come from a half-wave-rectifier fit to the nonlinearity
-  (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`), not a smooth function of the
-  parameters: their intervals are percentiles over parameter draws from the Gaussian
-  with that covariance (a fixed seed, so intervals are reproducible);
+- reflex gain and threshold come from a half-wave-rectifier fit to the scaled
+  nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): the delta method
+  through the product of the nonlinearity and the dynamics' DC gain (only the product is
+  identifiable, :func:`nonlinearity_jacobian`) and the linearised rectifier fit. Checked
+  against the spread over noise realisations of the same trials (benchmark row "vs
+  noise-free identification");
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
 the parameters as extra Jacobian columns. Not included: the reflex nonlinearity's
 structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain by
--1 % in plantarflexion to +19 % in dorsiflexion on the virtual subject, so gain and
-threshold intervals under-cover). Measured coverage: ``benchmarks/results/uncertainty.txt``.
+-1 % in plantarflexion to +19 % in dorsiflexion on the virtual subject, and the 1 kHz path
+is +14 % high on average), so gain and threshold intervals under-cover the truth; those of
+a model-rate nonlinearity say so (``Interval.biased``). Measured coverage:
+``benchmarks/results/uncertainty.txt``.
 
 Stored in the model file as ``"uncertainty"`` (absent in older files; the interval methods
 then raise :class:`~lpvpc.errors.ModelFileError`)::
@@ -55,7 +59,6 @@ from __future__ import annotations
 import numpy as np
 
 BLOCK_LENGTH = 0.5  # s, batch length of the HAC estimate and block of the VAF bootstrap
-N_DRAWS = 400  # parameter draws for the reflex gain/threshold intervals
 N_BOOT = 1000  # moving-block bootstrap replicates of the VAF
 METHOD = "HAC sandwich (overlapping batch means, 0.5 s) of the final least squares incl. reflex poles"
 
@@ -341,92 +344,155 @@ def bias_aware_critical_value(t, level: float = 0.95):
     return 0.5 * (lo + hi)
 
 
-def parameter_draws(model, n_draws: int = N_DRAWS, seed: int = 0):
-    """Draws from the stored Gaussian: Omega (n_draws, n_v, n_r) and the reflex DC gain
-    C (I - A)^-1 B + D (n_draws,) (with pole draws when the file holds their covariance).
+class Interval(tuple):
+    """(lower, upper) arrays of a confidence interval, unpacked like a pair. ``biased`` is
+    True when the estimate is known to be biased beyond what the interval accounts for
+    (``note`` says why): then the interval describes the noise only, not the truth.
 
-    >>> from lpvpc.data import pair_trials
-    >>> from lpvpc.identify import identify
-    >>> from lpvpc.simulate import simulate_pair
-    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
-    >>> model = identify(pair_trials(sim.pt, sim.ut))
-    >>> omega, dc_gain = parameter_draws(model, n_draws=50)
-    >>> omega.shape == (50, *model.Omega.shape), dc_gain.shape
-    (True, (50,))
+    >>> lo, hi = Interval(np.array([1.0]), np.array([2.0]))
+    >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why").biased
+    (1.0, True)
     """
-    cov, n_i, n_w = _cov_blocks(model)
+
+    def __new__(cls, lower, upper, biased: bool = False, note: str = ""):
+        self = super().__new__(cls, (lower, upper))
+        self.biased, self.note = bool(biased), note
+        return self
+
+    @property
+    def lower(self):
+        return self[0]
+
+    @property
+    def upper(self):
+        return self[1]
+
+
+#: What the reflex intervals of a model-rate nonlinearity leave out (Interval.note).
+MODEL_RATE_BIAS_NOTE = ("reflex nonlinearity identified on the model-rate velocity: gain and threshold are biased "
+                        "(the ~20 ms reflex-evoking pulses are smoothed; LPVPCModel.reflex_threshold_biased) and "
+                        "the interval covers the noise only; identify with high_rate_reflex=True from >= 500 Hz files")
+
+
+def _reflex_parameters(model):
+    """Estimate and covariance of the reflex parameters [omega, B, D, den] (the order of the
+    stored covariance; den only when the file holds the poles' covariance)."""
+    cov, n_i, _ = _cov_blocks(model)
     n_den = _stored(model)["parameters"].get("den", 0)
-    c = cov[n_i:, n_i:]
     Omega = model.nonlinearity()[1]  # the identified one (high-rate when the model has it)
-    mean = np.concatenate([Omega.ravel(), model.B, [model.D], -model.A[:, 0] if n_den else []])
-    # the tangent-space covariance is singular along omega: draw with an eigen-factor
-    vals, vecs = np.linalg.eigh(c)
-    factor = vecs * np.sqrt(np.clip(vals, 0.0, None))
-    rng = np.random.default_rng(seed)
-    x = mean + rng.standard_normal((n_draws, len(mean))) @ factor.T
-    om = x[:, :n_w]
-    om = om / np.linalg.norm(om, axis=1, keepdims=True)  # back onto the sphere
+    x = np.concatenate([Omega.ravel(), model.B, [model.D], -model.A[:, 0] if n_den else []])
+    return x, cov[n_i:, n_i:], n_den
+
+
+def _dc_gain_gradient(model, n_den):
+    """Gradient of the reflex DC gain C (I - A)^-1 B + D with respect to [B, D, den]."""
+    from .subspace import companion_form
+
     m = model.state_order
-    B, D = x[:, n_w:n_w + m], x[:, n_w + m]
-    if n_den:  # DC gain of the companion form: sum(numerator) / sum([1, den])
-        from .subspace import companion_form
+    grad = np.empty(m + 1 + n_den)
+    grad[:m] = np.linalg.solve((np.eye(m) - model.A).T, model.C)  # d/dB = C (I - A)^-1
+    grad[m] = 1.0
+    den = -model.A[:, 0]
+    for k in range(n_den):  # the companion form's denominator: central differences
+        h = 1e-6 * max(1.0, abs(den[k]))
+        dc = []
+        for sgn in (1.0, -1.0):
+            d = den.copy()
+            d[k] += sgn * h
+            A, C = companion_form(d)
+            dc.append(float((C @ np.linalg.solve(np.eye(m) - A, model.B))[0]))
+        grad[m + 1 + k] = (dc[0] - dc[1]) / (2 * h)
+    return grad
 
-        dc = np.empty(n_draws)
-        for i, den in enumerate(x[:, n_w + m + 1:]):
-            A, C = companion_form(den)
-            dc[i] = float((C @ np.linalg.solve(np.eye(m) - A, B[i]))[0]) + D[i]
-    else:
-        dc = model.C @ np.linalg.solve(np.eye(m) - model.A, B.T) + D
-    return om.reshape(n_draws, *Omega.shape), dc
 
+def nonlinearity_jacobian(model, velocity, rho):
+    """The scaled reflex nonlinearity f (N m), shape (len(rho), len(velocity)), and its
+    Jacobian with respect to the reflex parameters [omega, B, D, den] (the stored
+    covariance's order), shape (p, len(rho), len(velocity)).
 
-def reflex_interval(model, rho, level: float = 0.95, n_draws: int = N_DRAWS):
-    """Intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``: the estimate
-    minus/plus the distances from the parameter draws' median to their percentiles;
-    ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), arrays of len(rho).
+    f = dc(B, D, den) * G_r(rho) Omega' V(v) is a product of the nonlinearity and the
+    dynamics' DC gain; their scale is not identifiable separately (|omega| = 1 fixes it),
+    only the product, and the two factors are each far less certain than it (on the virtual
+    subject's 1 kHz path the DC gain and the nonlinearity's slope are each ~30 % uncertain,
+    strongly anti-correlated, their product 5-10 %). So the covariance is propagated
+    linearly: Gaussian draws of the factors (the former method) add the product of the
+    two deviations, a second-order term that made the gain intervals 2-3x wider than the
+    estimate's spread over noise realisations.
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
     >>> from lpvpc.simulate import simulate_pair
     >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
     >>> model = identify(pair_trials(sim.pt, sim.ut))
-    >>> (g_lo, g_hi), (th_lo, th_hi) = reflex_interval(model, np.array([0.0]), n_draws=100)
+    >>> v, rho = np.linspace(0.0, 1.0, 5), np.array([-0.1, 0.1])  # rad/s, rad
+    >>> f, J = nonlinearity_jacobian(model, v, rho)
+    >>> bool(np.allclose(f, model.reflex_nonlinearity(v, rho))), J.shape[1:]
+    (True, (2, 5))
+    """
+    x, _, n_den = _reflex_parameters(model)
+    basis, Omega = model.nonlinearity()
+    Vb = basis.evaluate(np.atleast_1d(np.asarray(velocity, dtype=float)))
+    Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(np.asarray(rho, dtype=float)))
+    s = Rb @ Omega.T @ Vb.T  # the unit-norm nonlinearity, (rho, v)
+    dc = model.reflex_static_gain()
+    J_om = dc * np.einsum("vi,rj->ijrv", Vb, Rb).reshape(Omega.size, len(Rb), len(Vb))
+    J_dyn = _dc_gain_gradient(model, n_den)[:, None, None] * s[None]
+    return dc * s, np.concatenate([J_om, J_dyn])
+
+
+def _rectifier_sensitivity(v, g, th):
+    """Rows d(gain)/d(curve) and d(threshold)/d(curve), (2, len(v)), of the least-squares
+    rectifier G * max(v - th, 0) + c at its solution: the pseudo-inverse of its Jacobian
+    (the linearised least squares, threshold free)."""
+    J = np.column_stack([np.maximum(v - th, 0.0), -g * (v > th), np.ones_like(v)])
+    return np.linalg.pinv(J)[:2]
+
+
+def reflex_interval(model, rho, level: float = 0.95):
+    """Intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``:
+    ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), each an :class:`Interval` of
+    arrays of len(rho).
+
+    Delta method: the stored covariance propagated linearly through the scaled
+    nonlinearity (:func:`nonlinearity_jacobian`) and the rectifier fit (threshold free).
+    The threshold interval is clipped to the fit's search range. On a model whose
+    nonlinearity saw model-rate velocity the estimates are biased
+    (``Interval.biased``, :data:`MODEL_RATE_BIAS_NOTE`).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> (g_lo, g_hi), (th_lo, th_hi) = reflex_interval(model, np.array([0.0]))
     >>> gain, threshold = model.reflex_gain_threshold([0.0])  # N m s/rad, rad/s
-    >>> bool(g_lo[0] < gain[0] < g_hi[0]) and bool(th_lo[0] < threshold[0] < th_hi[0])
+    >>> bool(g_lo[0] < gain[0] < g_hi[0]) and bool(th_lo[0] <= threshold[0] < th_hi[0])
+    True
+    >>> reflex_interval(model, np.array([0.0]))[0].biased  # 100 Hz velocity
     True
     """
     from .model import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    _, cov, _ = _reflex_parameters(model)
     v, _ = model.rectifier_velocity_grid()
-    curves = _nonlinearity_draws(model, v, rho, n_draws)  # (draws, rho, v)
-    gain, th = rectifier_fit(v, curves.reshape(-1, len(v)))
-    gain, th = gain.reshape(n_draws, len(rho)), th.reshape(n_draws, len(rho))
-    return tuple(_spread_around(est, draws, level) for draws, est in zip((gain, th), model.reflex_gain_threshold(rho)))
+    f, J = nonlinearity_jacobian(model, v, rho)
+    gain, th = rectifier_fit(v, f)
+    se = np.empty((2, len(rho)))
+    for r in range(len(rho)):
+        grads = _rectifier_sensitivity(v, gain[r], th[r]) @ J[:, r, :].T  # (2, p)
+        se[:, r] = np.sqrt(np.clip(np.einsum("ip,pq,iq->i", grads, cov, grads), 0.0, None))
+    z = z_value(level)
+    biased = model.reflex_threshold_biased
+    note = MODEL_RATE_BIAS_NOTE if biased else ""
+    th_lo, th_hi = np.clip(th - z * se[1], v[0], v[-6]), np.clip(th + z * se[1], v[0], v[-6])
+    return (Interval(gain - z * se[0], gain + z * se[0], biased, note), Interval(th_lo, th_hi, biased, note))
 
 
-def _nonlinearity_draws(model, velocity, rho, n_draws):
-    """The scaled reflex nonlinearity (N m) of each parameter draw: (draws, rho, velocity)."""
-    Om, dc = parameter_draws(model, n_draws)
-    Vb = model.nonlinearity()[0].evaluate(np.atleast_1d(velocity))
-    Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(rho))
-    return dc[:, None, None] * np.einsum("rj,dij,vi->drv", Rb, Om, Vb)
-
-
-def _spread_around(estimate, draws, level):
-    """(lower, upper): the estimate minus/plus the distances from the draws' median to their
-    percentiles (axis 0). The reflex quantities are nonlinear in the parameters (static gain
-    of the dynamics times the nonlinearity; the rectifier fit): the draws' median can sit
-    away from the estimate (a 1 kHz model's 27 hinge coefficients, put back on the unit
-    sphere, shrink toward zero), so the interval keeps their spread around the estimate."""
-    lo, mid, hi = np.percentile(draws, [50 * (1 - level), 50, 50 * (1 + level)], axis=0)
-    return estimate - (mid - lo), estimate + (hi - mid)
-
-
-def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = N_DRAWS):
+def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
-    (len(rho), len(velocity)) each (for figure bands): the estimate minus/plus the distances
-    from the parameter draws' median to their percentiles, as :func:`reflex_interval`.
+    (len(rho), len(velocity)) each (for figure bands): the estimate plus/minus z standard
+    errors of the delta method (:func:`nonlinearity_jacobian`), as :func:`reflex_interval`.
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
@@ -434,10 +500,13 @@ def nonlinearity_band(model, velocity, rho, level: float = 0.95, n_draws: int = 
     >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
     >>> model = identify(pair_trials(sim.pt, sim.ut))
     >>> v = np.linspace(0.0, 1.0, 5)  # rad/s
-    >>> lower, upper = nonlinearity_band(model, v, np.array([0.0]), n_draws=100)  # N m
+    >>> lower, upper = nonlinearity_band(model, v, np.array([0.0]))  # N m
     >>> f = model.reflex_nonlinearity(v, [0.0])
     >>> lower.shape, bool(np.all((lower <= f) & (f <= upper)))
     ((1, 5), True)
     """
-    est = np.asarray(model.reflex_nonlinearity(np.atleast_1d(velocity), np.atleast_1d(rho)), dtype=float)
-    return _spread_around(est, _nonlinearity_draws(model, velocity, rho, n_draws), level)
+    _, cov, _ = _reflex_parameters(model)
+    f, J = nonlinearity_jacobian(model, np.atleast_1d(velocity), np.atleast_1d(rho))
+    se = np.sqrt(np.clip(np.einsum("prv,pq,qrv->rv", J, cov, J), 0.0, None))
+    half = z_value(level) * se
+    return f - half, f + half
