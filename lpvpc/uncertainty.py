@@ -350,14 +350,20 @@ class Interval(tuple):
     (``note`` says why): then the interval describes the noise only, not the truth.
 
     >>> lo, hi = Interval(np.array([1.0]), np.array([2.0]))
-    >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why").biased
-    (1.0, True)
+    >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why")
+    (1.0, Interval(lower=array([1.]), upper=array([2.]), biased=True))
     """
 
     def __new__(cls, lower, upper, biased: bool = False, note: str = ""):
         self = super().__new__(cls, (lower, upper))
         self.biased, self.note = bool(biased), note
         return self
+
+    def __getnewargs__(self):  # pickling/copying keeps the flag
+        return (self[0], self[1], self.biased, self.note)
+
+    def __repr__(self):
+        return f"Interval(lower={self[0]!r}, upper={self[1]!r}{', biased=True' if self.biased else ''})"
 
     @property
     def lower(self):
