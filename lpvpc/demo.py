@@ -99,6 +99,9 @@ def _run_fmu(fmu_path, position, scheduling):
     return res["torque"][shift:shift + len(position)], rate, L
 
 def run(outdir) -> int:
+    """The eight steps above into the folder ``outdir``, printing as it goes; returns 0.
+    Takes about 40 s (tests/test_examples.py runs it: the held-out VAF within 1.5 points of
+    the noise ceiling, K(theta) within 10 %, the improve loop finding the hidden effect)."""
     import matplotlib.pyplot as plt
 
     from . import plotting
@@ -326,6 +329,18 @@ def _validate(outdir, paths, fmu_path, v_ceiling):
 
 
 def main(argv=None) -> int:
+    """The command line ``python -m lpvpc.demo [OUTDIR]`` (what ``make demo`` runs): the
+    steps of :func:`run` into OUTDIR (default demo_out), the model's out-of-range and unit
+    warnings printed as lines; returns the exit status (an error: one line on stderr).
+
+    >>> try:  # doctest: +ELLIPSIS
+    ...     main(["--help"])
+    ... except SystemExit as exc:
+    ...     print("exit status", exc.code)
+    usage: python -m lpvpc.demo [-h] [outdir]
+    ...
+    exit status 0
+    """
     parser = argparse.ArgumentParser(prog="python -m lpvpc.demo", description=__doc__.splitlines()[0])
     parser.add_argument("outdir", nargs="?", default="demo_out", help="output folder (default demo_out)")
     args = parser.parse_args(argv)

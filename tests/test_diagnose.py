@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from lpvpc import simulate
-from lpvpc.cli import main
+from lpvpc.cli import build_parser, cmd_diagnose, cmd_improve, main
 from lpvpc.data import Trial, pair_trials
 from lpvpc.diagnose import BlockCV, diagnose, paired_test, write_report
 from lpvpc.effects import signals_from_data
 from lpvpc.identify import identify
-from lpvpc.improve import improve
+from lpvpc.improve import Ladder, Rung, improve
 from lpvpc.improve import write_report as write_ladder
 from lpvpc.model import vaf
 from lpvpc.simulate import simulate_pair, write_dataset
@@ -183,8 +183,19 @@ def test_paired_test():
 def test_improve_report(tmp_path):
     ident, novel = _pairs(0, ("nonlinear_viscosity",))
     ladder = improve(ident, novel, max_steps=2)
+    assert isinstance(ladder, Ladder) and all(isinstance(r, Rung) for r in ladder.rungs)
     assert [r.label for r in ladder.rungs] == ["base model", "+ nonlinear_viscosity"]
     assert ladder.stopped == "nothing significant left"
+    base, final = ladder.rungs
+    assert ladder.kept == ladder.rungs and ladder.final is final and final.kept
+    assert final.change == {"effect": "nonlinear_viscosity"} and final.effects == ("nonlinear_viscosity",)
+    assert final.diagnosis.top is None and base.diagnosis.top.effect == "nonlinear_viscosity"
+    assert final.heldout_vaf > base.heldout_vaf and final.heldout_rmse < base.heldout_rmse  # %, N m
+    assert "nonlinear_viscosity" in ladder.table().splitlines()[1]  # the base rung names the next step
+    summary = ladder.to_dict()
+    assert summary["final"] == {"effects": ["nonlinear_viscosity"], "settings": {},
+                                "heldout_vaf": round(final.heldout_vaf, 3)}
+    assert summary["steps"][1] == final.to_dict() and final.to_dict()["model_hash"] == final.model.model_hash
     path = write_ladder(ladder, novel, tmp_path / "imp")
     text = (tmp_path / "imp" / "improve.md").read_text()
     assert "held-out VAF" in text and "ladder.png" in text and "residual_step1.png" in text
@@ -200,17 +211,23 @@ def test_cli_diagnose_and_improve(tmp_path, capsys):
     model = tmp_path / "model.json"
     assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(model)]) == 0
     capsys.readouterr()
-    assert main(["diagnose", str(model), "--pt", str(paths["novel_PT"]), "--ut", str(paths["novel_UT"]),
-                 "--json", str(tmp_path / "d.json"), "--report", str(tmp_path / "drep")]) == 0
+    # the commands' handlers, as main calls them once the command line is parsed
+    assert cmd_diagnose(build_parser().parse_args([
+        "diagnose", str(model), "--pt", str(paths["novel_PT"]), "--ut", str(paths["novel_UT"]),
+        "--json", str(tmp_path / "d.json"), "--report", str(tmp_path / "drep")])) == 0
     out = capsys.readouterr().out
     assert "Missing: direction_dependent_stiffness" in out
     assert json.loads((tmp_path / "d.json").read_text())["candidates"][0]["effect"] == "direction_dependent_stiffness"
-    assert main(["improve", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]),
-                 "--heldout-pt", str(paths["novel_PT"]), "--heldout-ut", str(paths["novel_UT"]),
-                 "--report", str(tmp_path / "imp"), "-o", str(tmp_path / "final.json")]) == 0
+    assert cmd_improve(build_parser().parse_args([
+        "improve", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]),
+        "--heldout-pt", str(paths["novel_PT"]), "--heldout-ut", str(paths["novel_UT"]),
+        "--report", str(tmp_path / "imp"), "-o", str(tmp_path / "final.json")])) == 0
     out = capsys.readouterr().out
     assert "+ direction_dependent_stiffness" in out and "nothing significant left" in out
-    assert (tmp_path / "imp" / "improve.md").is_file() and (tmp_path / "final.json").is_file()
+    assert (tmp_path / "imp" / "improve.md").is_file()
+    from lpvpc.model import LPVPCModel
+
+    assert [fe.name for fe in LPVPCModel.load(tmp_path / "final.json").effects] == ["direction_dependent_stiffness"]
     assert (tmp_path / "imp" / "report.html").is_file() and (tmp_path / "drep" / "report.html").is_file()
     assert main(["diagnose", str(tmp_path / "missing.json"), "--pt", str(paths["novel_PT"]),
                  "--ut", str(paths["novel_UT"])]) == 2

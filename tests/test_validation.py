@@ -21,7 +21,7 @@ import pytest
 import report_browser
 from report_browser import assert_layout_ok, check_page
 
-from lpvpc.cli import main
+from lpvpc.cli import build_parser, cmd_validate, main
 from lpvpc.data import Trial, decimate_trial, write_trial_csv
 from lpvpc.errors import FMUError
 from lpvpc.model import LPVPCModel, vaf
@@ -234,11 +234,17 @@ def test_report_renders_in_headless_chromium(full, tmp_path):
 
 
 def test_min_vaf_failing_exits_1(full, short, model_file, tmp_path):
+    """The validate command's handler (what main calls once the command line is parsed)
+    returns 1 when a check fails, after writing the report and the metrics."""
     fmus = full["report"] / "fmus"
-    rc, out, err = _run(["validate", model_file, "--pt", short["PT"], "--ut", short["UT"], "--report", tmp_path / "r",
-                         "--min-vaf", "99.9", "--fmu", fmus / "model_exact_fmi2.fmu", "--actuator-fmu",
-                         fmus / "actuator_fmi2.fmu"])
-    assert rc == 1, err
+    args = build_parser().parse_args([str(a) for a in (
+        "validate", model_file, "--pt", short["PT"], "--ut", short["UT"], "--report", tmp_path / "r", "--min-vaf",
+        "99.9", "--fmu", fmus / "model_exact_fmi2.fmu", "--actuator-fmu", fmus / "actuator_fmi2.fmu")])
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = cmd_validate(args)
+    out = out.getvalue()
+    assert rc == 1, out
     assert "FAILED:      vaf >= min_vaf" in out and "result:      FAIL" in out
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["pass"] is False and not m["checks"][0]["pass"]

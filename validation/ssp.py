@@ -96,7 +96,29 @@ def ssp_connections(settings: CosimSettings | None = None, signals=(), wiring=No
     from another instance's output, ``start`` its (component, connector); "system": from
     the system input connector ``start`` (None, name); "constant": unconnected) and
     ``source`` (the master's description of the signal). A constant source is a system
-    input connector too (``kind`` "constant", ``value`` its value, bound as a parameter)."""
+    input connector too (``kind`` "constant", ``value`` its value, bound as a parameter).
+
+    With the default settings only the UT actuator's position reaches the model as a
+    component output (the scheduling, rad); the perturbation position PT - UT (rad) and
+    its derivatives are computed by the master, so they are system inputs. With the
+    one-step ``load="model"`` set-up the model torque (N m) loads the PT actuator directly
+    and the unloaded UT actuator's load is the constant 0:
+
+    >>> from lpvpc.validation.cosim import CosimSettings
+    >>> for c in ssp_connections():
+    ...     print(".".join(c["end"]), "<-", c["kind"], c["start"][1])
+    actuator_ut.command <- system actuator_ut_command
+    actuator_pt.command <- system actuator_pt_command
+    actuator_ut.load_torque <- system actuator_ut_load_torque
+    actuator_pt.load_torque <- system actuator_pt_load_torque
+    model.position <- system model_position
+    model.scheduling <- component position
+    model.velocity <- system model_velocity
+    model.acceleration <- system model_acceleration
+    >>> {".".join(c["end"]): c["start"] for c in ssp_connections(CosimSettings(load="model"))
+    ...  if c["kind"] != "system"}
+    {'actuator_ut.load_torque': (None, 'actuator_ut_load_torque'), 'actuator_pt.load_torque': ('model', 'torque'), 'model.scheduling': ('actuator_ut', 'position')}
+    """
     settings = (settings or CosimSettings()).check()
     out = []
     for target, source in (wiring if wiring is not None else connections(settings, tuple(signals))):
