@@ -82,3 +82,81 @@ def triangular_factor(M):
     for start in range(0, len(M), chunk):
         R = fold_rows(R, M[start : start + chunk])
     return R
+
+
+# Pivots of a Gram matrix's Cholesky factor, relative to the column's own squared norm.
+# At or below DEFLATE_TOL a pivot is roundoff (a column that repeats or combines earlier
+# ones: the Gram matrices of the subspace step leave pivots of 1e-15..1e-14 there, the
+# weakest independent columns 1e-13..1e-10): the column is dependent and gets a zero row.
+# The Gram matrix squares the conditioning, so the factor is checked: R^T R off G by more
+# than GRAM_RESIDUAL_TOL (relative to G's largest entry: roundoff grown through a
+# near-dependent column, seen as pivots of -40) sends the caller to a QR.
+DEFLATE_TOL = 1e-13
+GRAM_RESIDUAL_TOL = 1e-10
+
+
+def gram_factor_ok(G, R, pivots) -> bool:
+    """True when R from :func:`deflated_cholesky` reproduces G: finite, and
+    max |R^T R - G| <= GRAM_RESIDUAL_TOL max |G| (``pivots``, relative to each column's
+    norm, may be below zero for columns of roundoff size: what counts is the residual).
+
+    >>> G = np.array([[1.0, 1.0], [1.0, 1.0 + 1e-14]])  # the second column's pivot is 1e-14: deflated
+    >>> gram_factor_ok(G, *deflated_cholesky(G))
+    True
+    >>> G = np.array([[1.0, 1.0], [1.0, 0.5]])  # not positive semi-definite
+    >>> gram_factor_ok(G, *deflated_cholesky(G))
+    False
+    """
+    if not np.all(np.isfinite(R)):
+        return False
+    scale = np.abs(G).max(initial=0.0)
+    return bool(np.abs(R.T @ R - G).max(initial=0.0) <= GRAM_RESIDUAL_TOL * scale)
+
+
+def deflated_cholesky(G, tol: float = DEFLATE_TOL, block: int = 64):
+    """Upper triangular R with R^T R = G for a symmetric positive semi-definite G, without
+    pivoting (column order kept, as an LQ/QR factor of the data matrix would be); a column
+    whose pivot is at most ``tol`` times its diagonal entry is dependent on the earlier
+    ones and gets a zero row. Returns (R, pivots relative to diag(G)); pivots <= tol mark
+    the dependent columns. Blocked: the panel updates are matrix products.
+
+    The Gram matrix of a data matrix whose third column repeats the first gives the QR
+    factor of the data matrix (up to row signs), with a zero row for the repeat:
+
+    >>> M = np.random.default_rng(0).standard_normal((100, 3))
+    >>> M = np.column_stack([M[:, 0], M[:, 1], M[:, 0], M[:, 2]])
+    >>> R, pivots = deflated_cholesky(M.T @ M)
+    >>> bool(pivots[2] <= DEFLATE_TOL), bool(np.all(R[2] == 0))
+    (True, True)
+    >>> R_qr = np.linalg.qr(M[:, [0, 1, 3]], mode="r")
+    >>> bool(np.allclose(np.abs(R[[0, 1, 3]]), np.abs(R_qr[:, [0, 1, 0, 2]])))
+    True
+    """
+    A = np.array(G, dtype=float)
+    n = len(A)
+    diag0 = np.diag(A).copy()
+    diag0[~(diag0 > 0)] = 1.0
+    R = np.zeros_like(A)
+    kept = np.zeros(n, dtype=bool)
+    pivots = np.zeros(n)
+    for k0 in range(0, n, block):
+        k1 = min(k0 + block, n)
+        A11 = A[k0:k1, k0:k1]
+        R11 = R[k0:k1, k0:k1]
+        for j in range(k1 - k0):  # unblocked inside the diagonal block
+            piv = A11[j, j] - R11[:j, j] @ R11[:j, j]
+            pivots[k0 + j] = piv / diag0[k0 + j]
+            if not pivots[k0 + j] > tol:
+                continue
+            kept[k0 + j] = True
+            r = np.sqrt(piv)
+            R11[j, j] = r
+            R11[j, j + 1 :] = (A11[j, j + 1 :] - R11[:j, j] @ R11[:j, j + 1 :]) / r
+        if k1 < n:
+            kk = kept[k0:k1]
+            R12 = np.zeros((k1 - k0, n - k1))
+            R12[kk] = scipy.linalg.solve_triangular(R11[np.ix_(kk, kk)], A[k0:k1, k1:][kk], trans="T",
+                                                    check_finite=False)
+            R[k0:k1, k1:] = R12
+            A[k1:, k1:] -= R12.T @ R12
+    return R, pivots
