@@ -7,9 +7,10 @@
   range(Psi_r)) versus the literal formula with explicit pseudo-inverses and the N x N
   projector, at N = 12,000: time ratio and largest difference.
 
-- issue 10's speed floor: identification against a bare least-squares solve of the same
-  regressor, and load + identify from 1 kHz files against 100 Hz files (``--floor`` runs
-  only this, into benchmarks/results/identify_floor.txt).
+- issue 10's speed floor: identification against a bare least-squares solve of its final
+  regressor and against one of the subspace step's block-Hankel data matrix, and load +
+  identify from 1 kHz files against 100 Hz files (``--floor`` runs only this, into
+  benchmarks/results/identify_floor.txt).
 
 Run: python benchmarks/bench_identify.py   (writes benchmarks/results/identify.txt)
 """
@@ -126,36 +127,47 @@ def speed_floor() -> list:
         for _ in range(2):  # alternate, so that load changes hit both alike
             t100, (data, model) = _median_time(lambda: from_files("100"))
             t1k, (data1k, model1k) = _median_time(lambda: from_files("1k"))
-    t_ident, _ = _median_time(lambda: identify(data))
+    t_ident, model_t = _median_time(lambda: identify(data))
     # The paper's subspace step (PO-MOESP) factors a block-Hankel matrix of the inputs and
-    # torque, much wider than the final regressor: time that QR alone in one identification.
+    # torque, much wider than the final regressor: time that factorisation in one
+    # identification, and keep its inputs for a bare least-squares solve of that matrix.
     import lpvpc.subspace as subspace
 
     hankel = {}
-    streamed_r = subspace.streamed_r
+    moesp_factor = subspace.moesp_factor
 
-    def timed_streamed_r(*args, **kwargs):
+    def timed_factor(u_future, u_past, y, s, segments=None, chunk=None):
         t = time.perf_counter()
-        R = streamed_r(*args, **kwargs)
-        hankel.update(seconds=time.perf_counter() - t, rows=len(args[2]), cols=R.shape[1])
-        return R
+        R, how = moesp_factor(u_future, u_past, y, s, segments, chunk)
+        hankel.update(seconds=time.perf_counter() - t, how=how, args=(u_future, u_past, y, s))
+        return R, how
 
-    subspace.streamed_r = timed_streamed_r
+    subspace.moesp_factor = timed_factor
     try:
         identify(data)
     finally:
-        subspace.streamed_r = streamed_r
+        subspace.moesp_factor = moesp_factor
+    u_f, u_p, y_s, s = hankel["args"]
+    H = subspace.hankel_rows(u_f, u_p, y_s, 0, len(y_s) - 2 * s + 1, s)
+    # its bare solve: the last future output regressed on the other columns
+    t_ls_h, _ = _median_time(lambda: np.linalg.lstsq(H[:, :-1], H[:, -1], rcond=None))
+    t_qr_h, _ = _median_time(lambda: subspace.streamed_r(u_f, u_p, y_s, s))
     p, y, rho, fs = data.position, data.torque, data.scheduling, data.fs
     dvel = eq.delayed_velocity(p, fs, model.delay)
     Psi_i = intrinsic_regressor(p, model.intrinsic_basis.evaluate(rho), model.lags)
     U_r = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
     X = np.hstack([Psi_i] + reflex_regressor(U_r, model.A, model.C[None, :]))
     t_ls, _ = _median_time(lambda: np.linalg.lstsq(X, y, rcond=None))
-    lines.append(f"Speed floor (issue 10), one run, medians of 3: identify a 2-minute 100 Hz record {t_ident:.2f} s; "
-                 f"bare least-squares solve of its regressor ({X.shape[0]} x {X.shape[1]}, numpy lstsq) {t_ls:.3f} s: "
-                 f"ratio {t_ident / t_ls:.1f}x (floor 3x); of which the subspace step's QR of the "
-                 f"{hankel['rows']} x {hankel['cols']} block-Hankel matrix alone {hankel['seconds']:.3f} s = "
-                 f"{hankel['seconds'] / t_ls:.1f}x the bare solve")
+    stages = ", ".join(f"{k} {v:.3f} s" for k, v in model_t.fit["timings_s"].items())
+    lines.append(f"Speed floor (issue 10), one run, medians of 3: identify a 2-minute 100 Hz record {t_ident:.2f} s "
+                 f"(stages of the last run: {stages})")
+    lines.append(f"- against a bare least-squares solve of its final regressor ({X.shape[0]} x {X.shape[1]}, numpy lstsq) "
+                 f"{t_ls:.3f} s: ratio {t_ident / t_ls:.1f}x (floor 3x)")
+    lines.append(f"- against a bare least-squares solve of the subspace step's own data matrix (the {H.shape[0]} x "
+                 f"{H.shape[1]} block-Hankel matrix, numpy lstsq) {t_ls_h:.3f} s: ratio {t_ident / t_ls_h:.2f}x")
+    lines.append(f"- the subspace step's factor of that matrix: {hankel['seconds']:.3f} s by the {hankel['how']} route "
+                 f"(= {hankel['seconds'] / t_ls:.1f}x the final regressor's solve; its QR, the route before, "
+                 f"{t_qr_h:.3f} s = {t_qr_h / t_ls:.1f}x)")
     lines.append(f"From files, load + identify: 100 Hz CSV {t100:.2f} s, 1 kHz CSV (decimated to 100 Hz) {t1k:.2f} s: "
                  f"ratio {t1k / t100:.2f}x (floor 3x); same model rate {model1k.fs:g} Hz, VAF {model1k.fit['vaf']:.2f} / "
                  f"{model.fit['vaf']:.2f} %; reflex nonlinearity of the 1 kHz files on "
@@ -168,7 +180,12 @@ def main():
         one_length(float(sys.argv[2]))
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--floor":
-        write_results("identify_floor.txt", speed_floor(), echo=True)
+        load_before = os.getloadavg()
+        lines = speed_floor()
+        lines.append(f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+                     f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
+                     "(this process counts as 1; ratios are from one run, so load affects both sides)")
+        write_results("identify_floor.txt", lines, echo=True)
         return
     from lpvpc.identify import identify
 
