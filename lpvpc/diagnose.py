@@ -77,6 +77,15 @@ SANE_DROP = 2.0  # pp: a refitted base this much below the model's own VAF is no
 RANGE_TOL = 0.02  # fraction of the identified range: scheduling beyond it counts as outside
 MAX_OUTSIDE = 0.5  # records with more samples outside the identified range are refused
 TRANSFER_GAP = 10.0  # pp: a refitted structure this much better than the model itself is worth a note
+# Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
+# reflex's slow activation dynamics, a reflex delay that changes with position and reflex
+# dynamics that change with it give nearly the same phase lag (measured on the virtual
+# subject: their held-out gains within 0.03 pp of each other on a delay of 30-80 ms).
+TIES = {
+    frozenset(("position_dependent_reflex_delay", "position_dependent_reflex_dynamics")):
+        "reflex timing varies with position: delay or dynamics (not separable at this sampling rate)",
+}
+TIE_P = 0.05  # two-sided: the top candidate's held-out residual not smaller than its rival's at this level
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -297,6 +306,8 @@ class CandidateResult:
     signals: tuple = ()
     conditional_gain: float = float("nan")  # pp over the base plus the candidates ranked above it
     given: tuple = ()  # the candidates ranked above it that the conditional gain is over
+    tied_with: str = ""  # a rival the data do not tell apart from it (TIES), if any
+    tie_p: float = float("nan")  # two-sided p of the difference between the two
     blocks: dict | None = None  # surrogate blocks: {"add": name} or {"replace": {base: block}}
     residual: np.ndarray | None = None  # held-out residual of its (marginal) fit
 
@@ -308,6 +319,9 @@ class CandidateResult:
              "explanation": self.explanation, "available": bool(self.available)}
         if self.variant is not None:
             d["variant"] = self.variant
+        if self.tied_with:
+            d["tied_with"] = self.tied_with
+            d["tie_p_value"] = _g(self.tie_p)
         if self.signals:
             d["signals"] = list(self.signals)
         if self.reason:
@@ -481,7 +495,27 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
     order = _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s)
     rest = sorted((r for r in results if r not in order),
                   key=lambda r: (not r.available, -(r.vaf_gain if np.isfinite(r.vaf_gain) else -1e9)))
+    _mark_ties(order, results, sur.fs, block_s)
     return order + rest, r0
+
+
+def _mark_ties(order, results, fs, block_s):
+    """Mark the candidates named (``order``) that the data do not tell apart from their
+    rival of :data:`TIES`: the paired test of the two held-out residuals (the same test as
+    the gains') does not reject equality at TIE_P (two-sided)."""
+    by_name = {r.effect: r for r in results}
+    for top in order:
+        for pair in TIES:
+            if top.effect not in pair:
+                continue
+            (rival,) = pair - {top.effect}
+            other = by_name.get(rival)
+            if other is None or not other.available or other.residual is None or top.residual is None:
+                continue
+            t, p = paired_test(other.residual, top.residual, fs, block_s)  # one-sided: top better
+            p2 = 1.0 if t == 0 else min(1.0, 2.0 * min(p, 1.0 - p))
+            if p2 > TIE_P:
+                top.tied_with, top.tie_p = rival, p2
 
 
 def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> list:
@@ -800,6 +834,13 @@ class Diagnosis:
                           if top.signals else ""))
             text = (f"Missing: {top.effect}{extra}, {carried}: held-out VAF +{top.vaf_gain:.2f} pp "
                     f"(p = {top.p_value:.1e}). {top.explanation}")
+            if top.tied_with:
+                rival = next((c for c in self.candidates if c.effect == top.tied_with), None)
+                what = TIES[frozenset((top.effect, top.tied_with))]
+                text = (f"Missing: {what}, carried by the {top.pathway} pathway and the signal scheduling "
+                        f"(operating position): {top.effect} +{top.vaf_gain:.2f} pp (p = {top.p_value:.1e}), "
+                        f"{top.tied_with} +{rival.vaf_gain:.2f} pp: the difference is within the noise "
+                        f"(p = {top.tie_p:.2f}), so the data do not say which. {top.explanation}")
             more = self.significant[1:]
             if more:
                 text += " Also significant given the ones before: " + "; ".join(

@@ -25,7 +25,8 @@ extra inputs of the model's ``predict``, of the CasADi step and of the FMU) and 
 signals computed inside the model: the perturbation ``velocity``, the slow-movement
 ``direction`` memory (:func:`lpvpc.equations.direction_memory_step`, two states) and the
 reflex pathway's states ``x``, drive ``z`` and a second cascade ``w`` (m states) that
-rho-weighted copies of the reflex dynamics need.
+rho-weighted copies of the reflex dynamics need, and ``reflex_shift``: the model's reflex
+torque re-run at neighbouring delays (m states per delay step, more position history).
 
 Joint estimation: intrinsic-pathway effects are extra columns of the intrinsic
 regressor (appended to Psi_i), so MOESP, the pole refinement, the projection (27)-(28) and
@@ -79,6 +80,9 @@ DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the 
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
 QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
 ACTIVATION_CUTOFF = 1.0  # Hz: low-pass of the background activation estimate
+# s: delay changes about the model's delay at which the position-dependent reflex delay
+# entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
+REFLEX_DELAY_STEPS = (-0.02, -0.01, 0.01, 0.02, 0.03)
 
 
 class Context:
@@ -87,7 +91,8 @@ class Context:
     rad/s), the extra
     inputs of :data:`SIGNALS` that were given, ``direction`` (slow-movement memory, -1..1),
     ``x`` (list of m reflex states), ``z`` (reflex drive), ``w`` (list of m second-cascade
-    states)."""
+    states), ``reflex_shift`` ({delay step j in samples: the model's reflex torque with the
+    delay d + j minus that with the delay d})."""
 
     def __init__(self, **signals):
         self.__dict__.update(signals)
@@ -164,6 +169,29 @@ def _habituation_features(c, ops, options):
 def _activation_reflex_features(c, ops, options):
     """Reflex states and drive times the background activation."""
     return [f * c.activation for f in _reflex_output_features(c)]
+
+
+def reflex_delay_steps(delay, fs) -> list:
+    """Delay changes (samples, nonzero) of :data:`REFLEX_DELAY_STEPS` at ``fs`` about the
+    model's delay ``delay`` (samples), keeping the shifted delay >= 1 sample (causal).
+
+    >>> reflex_delay_steps(4, 100.0)  # 40 ms at 100 Hz: 20-70 ms
+    [-2, -1, 1, 2, 3]
+    """
+    out = []
+    for s in REFLEX_DELAY_STEPS:
+        j = int(round(s * fs))
+        if j != 0 and delay + j >= 1 and j not in out:
+            out.append(j)
+    return out
+
+
+def _reflex_delay_features(c, ops, options):
+    """The model's reflex torque re-run with the delay d + j, minus the torque at d, for the
+    steps j of ``options['steps']``: weighted by functions of position, their combination
+    is the reflex torque at a position-dependent (fractional: interpolated between the
+    integer steps) delay d(rho) = d + sum_j j w_j(rho)."""
+    return [c.reflex_shift[j] for j in options["steps"]]
 
 
 def _amplitude_features(c, ops, options):
@@ -270,6 +298,22 @@ CATALOG: dict[str, Effect] = {
             feature_constant=False,
             feature_names=lambda opt: ([f"reflex state x{i} - steady state" for i in range(opt["m"])]
                                        + [f"reflex cascade w{i} - steady state" for i in range(opt["m"])]),
+        ),
+        Effect(
+            "position_dependent_reflex_delay", "reflex",
+            "The reflex loop delay changes with joint position (e.g. a longer-latency reflex "
+            "component taking over as the muscle is stretched): the reflex torque is the model's "
+            "reflex re-run at neighbouring delays, weighted by functions of position (a delay "
+            "interpolated between whole samples; gain and dynamics unchanged).",
+            derived=("reflex", "reflex_delays"),
+            features=_reflex_delay_features,
+            feature_order=2,
+            # Without the constant, as the dynamics entry: only the change WITH position (a
+            # delay that is merely off everywhere is the reflex_delay setting's). With it, a
+            # clean model gained up to 0.07 pp and the dynamics entry's truth was taken for a delay.
+            feature_constant=False,
+            feature_names=lambda opt: [f"reflex torque at delay {j:+d} samples - at the model's delay"
+                                       for j in opt["steps"]],
         ),
     )
 }
@@ -525,9 +569,28 @@ def check_signals(signals: dict, needed, n: int, source="data"):
         raise DataError(problems, source=source)
 
 
-def record_context(position, scheduling, fs, signals, *, velocity=None, derived=(), reflex=None) -> Context:
+def shifted_reflex_torques(model, position, scheduling, steps) -> dict:
+    """{j: the model's reflex torque (N m) with its delay d + j samples, minus that with d}
+    over a record: the same nonlinearity (at rho(k)) and linear dynamics, the velocity
+    taken j samples later (j > 0) or earlier."""
+    p, rho = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
+    G_r = model.reflex_rho_basis.evaluate(rho)
+    C = np.asarray(model.C, dtype=float)
+
+    def torque(d):
+        z = np.reshape(eq.reflex_drive(model.velocity_basis.evaluate(eq.delayed_velocity(p, model.fs, d)), G_r,
+                                       model.Omega), -1)
+        return eq.state_trajectory(model.A, model.B, z) @ C + float(model.D) * z
+
+    t0 = torque(int(model.delay))
+    return {j: torque(int(model.delay) + j) - t0 for j in steps}
+
+
+def record_context(position, scheduling, fs, signals, *, velocity=None, derived=(), reflex=None,
+                   reflex_shift=None) -> Context:
     """numpy Context for a record: (N, 1) columns. ``reflex`` = (A, B, C, z) when the
-    reflex-derived signals are needed."""
+    reflex-derived signals are needed, ``reflex_shift`` ({j: array}, from
+    :func:`shifted_reflex_torques`) when the shifted-delay ones are."""
     col = lambda a: np.asarray(a, dtype=float).reshape(-1, 1)  # noqa: E731
     vel = eq.velocity(position, fs) if velocity is None else velocity
     ctx = {"rho": col(scheduling), "velocity": col(vel), "position": col(position)}
@@ -544,6 +607,8 @@ def record_context(position, scheduling, fs, signals, *, velocity=None, derived=
         ctx["x"] = [X[:, [i]] for i in range(X.shape[1])]
         ctx["z"] = col(z)
         ctx["w"] = [W[:, [i]] for i in range(W.shape[1])]
+    if reflex_shift is not None:
+        ctx["reflex_shift"] = {j: col(v) for j, v in reflex_shift.items()}
     return Context(**ctx)
 
 
@@ -565,17 +630,23 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
         if z is None:
             z = model.reflex_drive(position, scheduling)
         reflex = (model.A, model.B, model.C, z)
+    shift = None
+    if "reflex_delays" in derived:
+        steps = sorted({j for fe in model.effects if "reflex_delays" in fe.effect.derived for j in fe.options["steps"]})
+        shift = shifted_reflex_torques(model, position, scheduling, steps)
     if causal:  # the causal form's inputs as replayed into the FMU: the model's stencil unless given
         v_est, a_est = eq.derivatives(position, model.fs, model.causal_derivatives)
         velocity = v_est if velocity is None else velocity
         acceleration = a_est if acceleration is None else acceleration
-    ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex)
+    ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex,
+                         reflex_shift=shift)
     lags = model.causal_lags if causal else model.lags
     Gi = model.intrinsic_basis.evaluate(scheduling)
     out = {fe.name: (fe.effect.pathway, np.zeros(n)) for fe in model.effects}
     for a, b in eq.blocks(n, len(lags) + 2):  # bounded memory for any record length
         S = eq.position_signals(position, model.fs, lags, a, b, causal=causal, vel=velocity, acc=acceleration)
-        rows = Context(**{k: ([u[a:b] for u in v] if isinstance(v, list) else v[a:b])
+        rows = Context(**{k: ([u[a:b] for u in v] if isinstance(v, list) else
+                              {j: u[a:b] for j, u in v.items()} if isinstance(v, dict) else v[a:b])
                           for k, v in vars(ctx).items()})
         for fe in model.effects:
             tq = effect_term(fe, rows, S, Gi[a:b], "causal" if causal else "two_sided")
@@ -614,6 +685,8 @@ def effect_options(effect: Effect, signals: dict, model_like=None) -> dict:
         kappa = np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(model_like.B, dtype=float))
         opts.update(m=int(A.shape[0]), kappa=[float(k) for k in kappa],
                     c_kappa=float(np.asarray(model_like.C, dtype=float) @ kappa))
+        if "reflex_delays" in effect.derived:
+            opts["steps"] = reflex_delay_steps(int(model_like.delay), float(model_like.fs))
     return opts
 
 
@@ -691,11 +764,14 @@ class EffectDesign:
         if not self.reflex_effects:
             return np.zeros((len(self.position), 0)), []
         z = model.reflex_drive(self.position, self.scheduling)
-        ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=("reflex",),
-                             reflex=(model.A, model.B, model.C, z))
-        cols, blocks = [], []
         for e in self.reflex_effects:
             self.options[e.name] = effect_options(e, self.signals, model)
+        steps = sorted({j for e in self.reflex_effects for j in self.options[e.name].get("steps", ())})
+        shift = shifted_reflex_torques(model, self.position, self.scheduling, steps) if steps else None
+        ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=("reflex",),
+                             reflex=(model.A, model.B, model.C, z), reflex_shift=shift)
+        cols, blocks = [], []
+        for e in self.reflex_effects:
             _, static = effect_columns(e, self.options[e.name], ctx, self.position, self.lags, self.Gi_val,
                                        self.bases[e.name])
             cols.append(static)

@@ -20,7 +20,8 @@ Outputs have direct feedthrough: they use the inputs of the same sample.
 Extended models (:mod:`lpvpc.effects`) take the extra signals their effects need as
 further inputs after these, in the order of :data:`lpvpc.effects.SIGNAL_ORDER`
 (``trial_time`` s, ``scheduling_velocity`` rad/s, ``emg``, ``emg_ut``), and keep the
-effects' own states (slow-movement direction memory, reflex cascade) in the state; the
+effects' own states (slow-movement direction memory, reflex cascade, the reflex re-run at
+neighbouring delays) in the state; the
 effect terms are evaluated by :func:`lpvpc.effects.effect_term`, the same code as the
 numpy prediction, and added to the pathway they belong to.
 
@@ -173,7 +174,15 @@ def _effect_states(model) -> list:
         names += ["direction_latched", "direction_smoothed"]
     if "reflex" in derived:
         names += [f"reflex_cascade[{i}]" for i in range(int(model.A.shape[0]))]
+    for j in _reflex_delay_steps(model):  # the reflex re-run at the delay d + j
+        names += [f"reflex_delay{j:+d}_state[{i}]" for i in range(int(model.A.shape[0]))]
     return names
+
+
+def _reflex_delay_steps(model) -> list:
+    """Delay steps (samples) at which an extended model's effects re-run the reflex."""
+    return sorted({j for fe in getattr(model, "effects", None) or () if "reflex_delays" in fe.effect.derived
+                   for j in fe.options["steps"]})
 
 
 # ---------------------------------------------------------------------------------------
@@ -186,7 +195,7 @@ class StateLayout:
     n_pos: int  # position history length P
     n_sched: int  # scheduling history length
     m: int  # reflex state order
-    start: int  # saturation value of the sample counter (latency + delay)
+    start: int  # saturation value of the sample counter (latency + delay, + the largest effect delay step)
     signals: tuple = ()  # extra input signals of an extended model (history kept for latency > 0)
     effect_states: tuple = ()  # names of the effect states
 
@@ -221,9 +230,12 @@ def state_layout(model, variant="causal") -> StateLayout:
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
     if variant == "sampled":
         needed += [2 * lat]  # differences at j = k - lat reach back to j - lat
+    steps = _reflex_delay_steps(model)
     if getattr(model, "effects", None):
         needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
-    return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]), start=lat + d,
+        needed += [lat + d + j + 1 for j in steps]  # the reflex re-run at the delay d + j
+    return StateLayout(latency=lat, n_pos=max(needed), n_sched=lat, m=int(model.A.shape[0]),
+                       start=lat + d + max([0] + steps),
                        signals=_effect_signals(model), effect_states=tuple(_effect_states(model)))
 
 
@@ -391,7 +403,7 @@ def step_function(model, variant="causal", parametric=False, name=None):
     # Reflex pathway at sample j: dvel(j) = vel(j - d), zero before the record starts.
     d = int(model.delay)
     dvel = eq.central_velocity(p_at(lat + d - 1), p_at(lat + d + 1), fs)
-    dvel = ca.if_else(seen >= lay.start, dvel, 0.0)
+    dvel = ca.if_else(seen >= lat + d, dvel, 0.0)
     z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), model.reflex_rho_basis.evaluate(rho, ops),
                         c["Omega"], ops)
     x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
@@ -400,7 +412,7 @@ def step_function(model, variant="causal", parametric=False, name=None):
     if getattr(model, "effects", None):  # extended model: effect terms (lpvpc.effects)
         v_j = vel if _irf(variant) == "causal" else eq.central_velocity(p_at(lat - 1), p_at(lat + 1), fs)
         tq_ei, tq_er, eff_next = _effect_torques(model, variant, c, lay, ops, signals, rho, v_j, sig, x, z,
-                                                 eff_state, p_at(lat))
+                                                 eff_state, p_at(lat), p_at, seen)
         tq_i, tq_r = tq_i + tq_ei, tq_r + tq_er
 
     if lat > 0:  # nothing is defined before the record starts: hold x = 0, output 0
@@ -432,7 +444,7 @@ def step_function(model, variant="causal", parametric=False, name=None):
     )
 
 
-def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig, x, z, eff_state, p_j):
+def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig, x, z, eff_state, p_j, p_at, seen):
     """Effect torques of an extended model at sample j (intrinsic, reflex) and the next
     effect states; the terms come from :func:`lpvpc.effects.effect_term`."""
     import casadi as ca
@@ -458,6 +470,23 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
         ctx.update(x=[x[i] for i in range(m)], z=z, w=[w[i] for i in range(m)])
         nxt += [w_next[i] for i in range(m)]
         k += m
+    steps = _reflex_delay_steps(model)
+    if steps:  # the model's reflex re-run at the delay d + j (as lpvpc.effects.shifted_reflex_torques)
+        m, d, lat, fs = lay.m, int(model.delay), lay.latency, float(model.fs)
+        C = c["C"].T
+        _, tq0 = eq.reflex_step(c["A"], c["B"], C, c["D"], x, z)
+        shift = {}
+        for j in steps:
+            dv = eq.central_velocity(p_at(lat + d + j - 1), p_at(lat + d + j + 1), fs)
+            dv = ca.if_else(seen >= lat + d + j, dv, 0.0)
+            zj = eq.reflex_drive(model.velocity_basis.evaluate(dv, ops), model.reflex_rho_basis.evaluate(rho, ops),
+                                 c["Omega"], ops)
+            xj = eff_state[k: k + m]
+            xj_next, tqj = eq.reflex_step(c["A"], c["B"], C, c["D"], xj, zj)
+            shift[j] = tqj - tq0
+            nxt += [xj_next[i] for i in range(m)]
+            k += m
+        ctx["reflex_shift"] = shift
     context = fx.Context(**ctx)
     Gi = model.intrinsic_basis.evaluate(rho, ops)
     tq_i = tq_r = 0.0

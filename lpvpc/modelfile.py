@@ -480,6 +480,13 @@ def _check_effects(x, where, problems, d, budget):
                     and len(opts["kappa"]) == m and _is_number(opts.get("c_kappa"))):
                 problems.append(f"{w}.options: needs m = {m} (the reflex state order), kappa ({m} numbers) and c_kappa")
                 raise _Refused
+        if "reflex_delays" in eff.derived:  # the reflex re-run at delays d + j: causal, within MAX_DELAY
+            d0, steps = d["reflex"].get("delay"), opts.get("steps")
+            if not (isinstance(steps, list) and steps and all(_is_int(j) and j != 0 and 1 <= d0 + j <= MAX_DELAY
+                                                              for j in steps) and len(set(steps)) == len(steps)):
+                problems.append(f"{w}.options.steps: needs distinct nonzero delay steps j (samples) with "
+                                f"1 <= delay + j <= MAX_DELAY ({MAX_DELAY})")
+                raise _Refused
         intr = d["intrinsic"]
         if eff.channels is not None:
             n_c = sizes.get("channel_basis", intr["basis"]["order"] + 1)

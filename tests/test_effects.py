@@ -201,3 +201,31 @@ def test_cli_identify_with_effects(tmp_path, capsys):
     assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
                  "--effect", "background_activation"]) == 2
     assert "channel 'activation'" in capsys.readouterr().err
+
+
+def test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays():
+    """The position-dependent reflex delay's features are the model's own reflex torque
+    with the delay d + j minus that with d (what a model with that delay predicts), and a
+    fitted term interpolates between them; the exported step keeps the history it needs."""
+    import copy
+
+    pair = simulate_pair("multilevel", seed=1, effects=("position_dependent_reflex_delay",), duration=40.0)
+    data = pair_trials(pair.pt, pair.ut)
+    model = identify(data)
+    steps = fx.reflex_delay_steps(model.delay, model.fs)
+    assert steps == [-2, -1, 1, 2, 3] and model.delay == 4  # 20-70 ms at 100 Hz about 40 ms
+    shift = fx.shifted_reflex_torques(model, data.position, data.scheduling, steps)
+    base = model.predict(data.position, data.scheduling, warn=False).reflex
+    for j in steps:
+        other = copy.deepcopy(model)
+        other.delay = model.delay + j
+        np.testing.assert_allclose(shift[j], other.predict(data.position, data.scheduling, warn=False).reflex - base,
+                                   atol=1e-9)
+    extended = identify(data, effects=("position_dependent_reflex_delay",))
+    fe = extended.effects[0]
+    assert fe.options["steps"] == steps and fe.Theta.shape == (len(steps), 2)  # order-2 basis, no constant
+    assert vaf(data.torque, extended.predict(data.position, data.scheduling, warn=False).total) > \
+        vaf(data.torque, model.predict(data.position, data.scheduling, warn=False).total)
+    lay = export.state_layout(extended, "causal")
+    assert lay.n_pos >= extended.delay + max(steps) + 1 and lay.start == extended.delay + max(steps)
+    assert sum(s.startswith("reflex_delay+3_state") for s in lay.effect_states) == extended.A.shape[0]

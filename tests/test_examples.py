@@ -48,6 +48,7 @@ REGISTRY = {
     "lpvpc.data.write_perturbation_csv": "test_data.py::test_perturbation_csv_round_trip_is_exact",
     "lpvpc.diagnose.BlockCV": "test_diagnose.py::test_block_cv_equals_explicit_least_squares",
     "lpvpc.diagnose.paired_test": "test_diagnose.py::test_paired_test",
+    "lpvpc.effects.shifted_reflex_torques": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
     "lpvpc.diagnose.Surrogate": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
     "lpvpc.diagnose.signal_leaks": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
     "lpvpc.diagnose.diagnose": "test_diagnose.py::test_position_dependent_reflex_dynamics_strong",
