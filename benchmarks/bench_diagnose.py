@@ -195,12 +195,21 @@ def speed(say):
     say("")
 
 
+def _tie(d):
+    """The rival the top candidate is tied with (lpvpc.diagnose.TIES), its gain and the tie's p."""
+    top = d.candidates[0]
+    if not top.tied_with:
+        return "-"
+    rival = next(c for c in d.candidates if c.effect == top.tied_with)
+    return f"{rival.effect} ({rival.vaf_gain:+.3f}, p = {top.tie_p:.2f})"
+
+
 def detection(say, scenarios, clean_vaf):
     """Section 2: each hidden effect on EFFECT_SEEDS; ``clean_vaf`` {seed: VAF} is filled in."""
     say("## 2. Hidden effect: rank, significance, and the improve loop")
     say("")
     say("| hidden | seed | rank | gain (pp) | p | significant | base VAF | improved VAF | clean base VAF | "
-        "gap (pp) | steps | tied with |")
+        "gap (pp) | steps | tied with (its gain, p) |")
     say("|---|---|---|---|---|---|---|---|---|---|---|---|")
     summary = []
     for name, (effects, settings, expected) in scenarios.items():
@@ -223,7 +232,7 @@ def detection(say, scenarios, clean_vaf):
             steps = " -> ".join(r.label for r in ladder.rungs[1:]) or "none"
             say(f"| {name} | {seed} | {rank} | {c.vaf_gain:+.3f} | {c.p_value:.1e} | {'yes' if c.significant else 'no'} | "
                 f"{ladder.rungs[0].heldout_vaf:.2f} | {final:.2f} | {clean_vaf[seed]:.2f} | {gap:+.2f} | {steps} | "
-                f"{d.candidates[0].tied_with or '-'} |")
+                f"{_tie(d)} |")
         summary.append((name, ok_rank, ok_sig, ok_vaf, len(EFFECT_SEEDS)))
     say("")
     say("| hidden | ranked first | significant | improved VAF within 1 pp of clean base |")
