@@ -700,11 +700,13 @@ def channel_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
 
 def effect_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
     """The rho basis of an effect's static features (same family and range as the
-    intrinsic basis, the effect's own order)."""
+    intrinsic basis, the effect's own order; order 0 with an order-0 intrinsic basis: a
+    stationary trial, one operating position, cannot determine their position dependence)."""
     if effect.features is None:
         return None
     family = rho_basis.family
-    return Basis(family=family, order=effect.feature_order, lo=rho_basis.lo, hi=rho_basis.hi)
+    order = 0 if rho_basis.order == 0 else effect.feature_order
+    return Basis(family=family, order=order, lo=rho_basis.lo, hi=rho_basis.hi)
 
 
 def causal_irf(position, fs, causal_lags, sched_values, two_sided_torque, stencil="central3"):

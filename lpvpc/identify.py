@@ -91,7 +91,8 @@ class LPVPCEstimator:
     stationary_delays : on a stationary trial, the reflex delays (s) among which the delay
         is chosen by BIC of the complete fit, with the IRF half-width equal to it (the
         longest IRF whose regressors stay independent of the reflex's); used while
-        ``reflex_delay``, ``irf_length`` and ``irf_lags`` keep their defaults (``()``: off).
+        ``reflex_delay``, ``irf_length`` and ``irf_lags`` keep their defaults (``()``: off;
+        given ``effects`` stay in every candidate).
         On the lab's five stationary trials BIC chose 60-80 ms and the held-out VAF rose on
         every trial (benchmarks/bench_real_stationary.py); on the virtual subject (40 ms) it
         chose 40-50 ms and K moved by < 0.3 %. Up to 80 ms: a longer intrinsic IRF starts
@@ -403,9 +404,9 @@ class LPVPCEstimator:
     # ------------------------------------------------------------------------------------
     def _searches_delay(self, data) -> bool:
         """True for a stationary trial whose reflex delay and IRF length are left to the
-        data (``stationary_delays``)."""
+        data (``stationary_delays``; with or without effects, which each candidate keeps)."""
         rho = np.asarray(data.scheduling, dtype=float)
-        return (bool(self.stationary_delays) and not self.effects and self.irf_lags is None
+        return (bool(self.stationary_delays) and self.irf_lags is None
                 and self.reflex_delay == DEFAULT_REFLEX_DELAY and self.irf_length == DEFAULT_IRF_LENGTH
                 and rho.size > 0 and np.all(np.isfinite(rho)) and float(np.ptp(rho)) < self.stationary_range)
 
