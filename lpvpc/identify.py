@@ -63,7 +63,10 @@ class LPVPCEstimator:
         trial (1 kHz file, split 70/30) it predicted the held-out part worse than the
         model-rate velocity (93.47 % against 94.10 %; K(theta) with a dip to 5 N m/rad that
         the model-rate fit does not have), although on the virtual subject it recovers the
-        reflex gain and threshold trends better (benchmarks/results/reflex_1k.txt).
+        reflex gain and threshold trends better (benchmarks/results/reflex_1k.txt). Their
+        remaining bias there is mostly structural, not noise: the elastic torque's curvature
+        in the perturbation (0.5 K'(theta) p^2, which the IRF, linear in p, cannot hold)
+        leaks into the nonlinearity (benchmarks/results/reflex_1k_bias.txt).
     high_rate_velocity_basis, high_rate_velocity_order : family and order in delayed
         velocity of the reflex nonlinearity when ``high_rate_reflex`` and the data keep their file's higher rate
         (1 kHz files loaded at the 100 Hz model rate: :class:`lpvpc.data.HighRate`). The
