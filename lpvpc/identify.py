@@ -288,8 +288,13 @@ class LPVPCEstimator:
                                   source=getattr(data, "source", "") or "data")
             Psi_i = np.hstack([Psi_i, design.columns])
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
-        check_full_rank(Psi_i, "intrinsic")  # fail before the expensive subspace step
-        check_full_rank(U_r, "reflex input")
+        # Fail before the expensive subspace step. The pivoted QR runs on the regressors'
+        # triangular factors (the same column norms, pivots and rank as the N-row matrices,
+        # at 4x less cost: blocked QR, then pivoting on n x n).
+        from .linalg import triangular_factor
+
+        check_full_rank(triangular_factor(Psi_i), "intrinsic")
+        check_full_rank(triangular_factor(U_r), "reflex input")
         timings["regressors"] = time.perf_counter() - t0
 
         t = time.perf_counter()

@@ -209,6 +209,26 @@ def test_constant_scheduling_with_forced_lpv_orders_is_rank_deficient(subject):
         identify(const, state_order=2, stationary_range=0.0)  # automatic LTI switched off
 
 
+def test_rank_check_on_the_triangular_factor_matches_the_full_regressor(subject):
+    # identify checks rank on Psi_i's triangular factor (cheaper): the same rank as the
+    # pivoted QR of the N-row regressor itself (which columns of an exactly dependent set
+    # get named is a tie among roundoff-sized norms, in either)
+    from lpvpc.basis import basis_from_data
+    from lpvpc.identify import check_full_rank
+    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.linalg import triangular_factor
+
+    d = subject["ident"]
+    rho = np.where(np.arange(d.n) < d.n // 2, -0.1, 0.05)  # two levels: order-5 basis columns depend
+    Psi = intrinsic_regressor(d.position, basis_from_data(rho, "chebyshev", 5).evaluate(rho), two_sided_lags(4))
+    messages = []
+    for M in (Psi, triangular_factor(Psi)):
+        with pytest.raises(InsufficientExcitationError) as err:
+            check_full_rank(M, "intrinsic")
+        messages.append(str(err.value))
+    assert all(m.startswith("rank-deficient intrinsic regressor: rank 18 of 54 columns (columns [") for m in messages)
+
+
 def test_non_finite_identification_data_names_channel_and_index():
     pos = 0.02 * np.random.default_rng(0).standard_normal(3000)
     pos[17] = np.nan
