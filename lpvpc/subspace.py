@@ -415,12 +415,20 @@ class PoleRefinement:
         Vc = seg.map(lambda x: scipy.signal.lfilter([1.0], a, x, axis=0), W @ fit["coef"].reshape(m, -1).T)
         z = sum(seg.map(_delay, Vc[:, j - 1], lag=j) for j in range(1, m + 1))  # -dX_k c = q^-k z
         S = np.column_stack([seg.map(_delay, z, lag=k) for k in range(1, m + 1)])
-        S -= self.Q0 @ (self.Q0.T @ S)
         g = seg.map(lambda x: scipy.signal.lfilter([1.0], a, x[::-1])[::-1], r)  # F^T r
-        corr = {lag: sum(W[i : j - lag].T @ g[i + lag : j] for i, j in seg)  # (q^-lag V)^T r
-                for lag in range(2, 2 * m + 1)}
+        # (q^-lag V)^T r = W^T (g advanced by lag) within each trial, all lags in one product
+        lags = range(2, 2 * m + 1)
+        g_lags = np.zeros((len(g), len(lags)))
+        for i, j in seg:
+            for c, lag in enumerate(lags):
+                g_lags[i : j - lag, c] = g[i + lag : j]
+        corr = dict(zip(lags, (W.T @ g_lags).T))
         H = np.column_stack([np.concatenate([corr[j + k] for j in range(1, m + 1)]) for k in range(1, m + 1)])
-        return S + self._perp_x(X, B, G_pinv @ (H - X.T @ S))
+        # P S + P X w with P the projector off range(Q0), in two passes over Q0: with
+        # T = Q0^T S, X^T P S = X^T S - B^T T and P S + P X w = S + X w - Q0 (T + B w)
+        T = self.Q0.T @ S
+        w = G_pinv @ (H - (X.T @ S - B.T @ T))
+        return S + X @ w - self.Q0 @ (T + B @ w)
 
 
 def _delays(W, m: int):
