@@ -343,22 +343,35 @@ def _wait_for(pattern_dir, pattern, proc, limit=90.0):
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
 def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
-    """A signal while gcc runs: exit 128 + signal, one line, no temporary files in the
-    target folder or the temporary directory, no FMU."""
+    """A signal while the compiler runs: exit 128 + signal, one line, no temporary files in
+    the target folder or the temporary directory, no FMU.
+
+    The compiler is gcc behind a wrapper (the CC the build honours) that, once gcc has
+    written the library, marks that it got there and holds on: the signal then always falls
+    inside the compile step, however loaded the machine (a bare gcc can finish between the
+    build folder appearing and the signal, and the export then rightly succeeds)."""
     import signal
+    import time
 
     d = copy.deepcopy(base)
-    d["reflex"]["delay"] = 250  # MAX_DELAY: a longer compile, easier to interrupt
     (tmp_path / "model.json").write_text(json.dumps(d))
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
     (tmp_path / "out").mkdir()
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir),
+    marker = tmp_path / "compiled"
+    cc = tmp_path / "held-gcc"
+    cc.write_text(f'#!/bin/sh\ngcc "$@" || exit $?\ntouch "{marker}"\nexec sleep 60\n')
+    cc.chmod(0o755)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir), CC=str(cc),
                PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "export", "model.json", "--fmu", "out/m.fmu"],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait_for(tmp_path / "out", ".lpvpc_model-*", proc), "the build folder never appeared"
+        t0 = time.monotonic()
+        while not marker.exists() and proc.poll() is None and time.monotonic() - t0 < 120:
+            time.sleep(0.01)
+        assert marker.exists() and proc.poll() is None, "the compiler never ran"
         proc.send_signal(getattr(signal, sig))
         out, err = proc.communicate(timeout=60)
     finally:
