@@ -376,7 +376,8 @@ class LPVPCEstimator:
             model.uncertainty = fit_uncertainty(model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y,
                                                 np.append(hf.b, hf.d), hf.omega, best["theta_i"], U_r, best["A"],
                                                 truncated_irf(p, Gi_val, L, seg), segments=seg,
-                                                richer=richer_basis_irf(p, rho, G_i, lags, seg))
+                                                richer=richer_basis_irf(p, rho, G_i, lags, seg),
+                                                curvature=(p ** 2)[:, None] * Gi_val)
             timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {

@@ -425,6 +425,11 @@ def _check_uncertainty(x, where, problems, d, budget):
         n_b = _basis(r.get("basis"), f"{where}.richer_basis.basis", problems)
         _shape(_array(r.get("H"), f"{where}.richer_basis.H", problems, 2, [0]), (len(intr["H"]), n_b),
                f"{where}.richer_basis.H", problems)
+    if "curvature_reflex" in u:
+        c = _dict(u["curvature_reflex"], f"{where}.curvature_reflex", problems, required=True)
+        for key, size in (("omega", n["omega"]), ("bd", m + 1)):
+            _shape(_array(c.get(key), f"{where}.curvature_reflex.{key}", problems, 1, [0]), (size,),
+                   f"{where}.curvature_reflex.{key}", problems)
     v = _dict(u.get("vaf"), f"{where}.vaf", problems, required=True)
     for key in ("estimate", "lower", "upper"):
         _number(v.get(key), f"{where}.vaf.{key}", problems)

@@ -31,7 +31,9 @@ Derived quantities:
   through the product of the nonlinearity and the dynamics' DC gain (only the product is
   identifiable, :func:`nonlinearity_jacobian`) and the linearised rectifier fit. Checked
   against the spread over noise realisations of the same trials (benchmark row "vs
-  noise-free identification");
+  noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
+  shift when the intrinsic pathway also holds the elastic torque's curvature, which the
+  linear IRF leaves to the reflex (it bounds the trend over position, not the level);
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
@@ -48,6 +50,8 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
     method, block_length_s, n_samples, dof
     truncation    {"lags": [-(L-1)..L-1], "H": the one-lag-shorter IRF (N m/rad)}
     richer_basis  {"basis": scheduling basis one order higher, "H": that IRF (N m/rad)}
+    curvature_reflex {"omega": n_v * n_r, "bd": m + 1}: the reflex refitted with the elastic
+                  torque's curvature in the intrinsic pathway (:func:`reflex_bias_bound`)
     parameters    {"theta_i": n, "omega": n_v * n_r, "bd": m + 1, "den": m or 0}: order of
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
@@ -107,7 +111,7 @@ def _reflex_output(z, bd, den, segments=None):
 
 
 def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=None, truncated=None,
-                    segments=None, richer=None) -> dict:
+                    segments=None, richer=None, curvature=None) -> dict:
     """The ``uncertainty`` entry of the model file for the fit ``y ~ Psi_i theta_i +
     sum_j bd_j blocks_j omega`` (see the module docstring). Arrays in SI units.
 
@@ -117,7 +121,9 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     ``truncated`` = (lags, Psi) of a one-lag-shorter IRF: refitted to the same intrinsic
     torque for the truncation term of the intrinsic intervals; ``richer`` = (basis, Psi) of
     the IRF with the scheduling basis one order higher, refitted likewise for the basis
-    term (module docstring).
+    term; ``curvature`` = columns p^2 G_i(theta) of the elastic torque's second-order
+    term: the final separable least squares refitted with them for the reflex bias bound
+    (:func:`reflex_bias_bound`).
 
     :func:`lpvpc.identify.identify` calls it; the model (and its file) keeps the result:
 
@@ -127,7 +133,7 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
     >>> model = identify(pair_trials(sim.pt, sim.ut))
     >>> sorted(model.uncertainty)[:4], model.uncertainty["n_samples"]
-    (['block_length_s', 'covariance', 'dof', 'method'], 3000)
+    (['block_length_s', 'covariance', 'curvature_reflex', 'dof'], 3000)
     """
     from .subspace import companion_form
 
@@ -181,7 +187,31 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         basis_b, Psi_b = richer
         theta_b = np.linalg.lstsq(Psi_b, y_i, rcond=None)[0]
         out["richer_basis"] = {"basis": basis_b.to_dict(), "H": theta_b.reshape(len(model.lags), -1).tolist()}
+    if curvature is not None:
+        from .errors import InsufficientExcitationError
+
+        try:
+            out["curvature_reflex"] = _reflex_refit(blocks, np.hstack([Psi_i, curvature]), y, omega)
+        except InsufficientExcitationError:  # the columns are already in Psi_i, or p^2 is unexcited
+            pass
     return out
+
+
+def _reflex_refit(blocks, Psi, y, omega) -> dict:
+    """The final separable least squares of the identification (reflex dynamics A, C
+    fixed; intrinsic part after projecting out the reflex regressors, then the Hammerstein
+    fit) with intrinsic columns ``Psi``: {"Omega": ..., "bd": [B; D]} (the nonlinearity's
+    sign as ``omega``'s)."""
+    from .identify import project_out_and_solve
+    from .linalg import triangular_factor
+    from .reflex import fit_hammerstein
+
+    k_r = sum(blk.shape[1] for blk in blocks)
+    R = triangular_factor(np.hstack(list(blocks) + [Psi, y[:, None]]))
+    blocks_c, Psi_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
+    theta = project_out_and_solve(R[:, :k_r], Psi_c, y_c)
+    hf = fit_hammerstein(blocks_c, y_c - Psi_c @ theta, omega)
+    return {"omega": hf.omega.tolist(), "bd": np.append(hf.b, hf.d).tolist()}
 
 
 def vaf_interval(y, fitted, block: int, level: float = 0.95, n_boot: int = N_BOOT) -> dict:
@@ -454,13 +484,51 @@ def _rectifier_sensitivity(v, g, th):
     return np.linalg.pinv(J)[:2]
 
 
+def reflex_bias_bound(model, rho):
+    """Bounds (gain N m s/rad, threshold rad/s) on the structural bias of the reflex gain
+    and threshold at ``rho``: their shifts when the intrinsic pathway also holds the
+    elastic torque's curvature, 0.5 K'(theta) p^2 (columns p^2 G_i(theta) refitted with
+    the final separable least squares). The IRF is linear in the perturbation p, so that
+    term is left over, and the reflex nonlinearity of stretch velocity takes up part of
+    it (PRALDS steps make velocity and p^2 move together); on the virtual subject this
+    is most of the 1 kHz path's gain bias (benchmarks/results/uncertainty.txt). Zeros when
+    the file stores no such refit.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut))
+    >>> g_bound, th_bound = reflex_bias_bound(model, np.array([-0.1, 0.1]))  # N m s/rad, rad/s
+    >>> bool(np.all(g_bound >= 0)), th_bound.shape
+    (True, (2,))
+    """
+    from .model import rectifier_fit
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    alt = _stored(model).get("curvature_reflex")
+    if not alt:
+        return np.zeros(len(rho)), np.zeros(len(rho))
+    basis, Omega = model.nonlinearity()
+    v, _ = model.rectifier_velocity_grid()
+    bd = np.asarray(alt["bd"], dtype=float)
+    m = model.state_order
+    dc = float(model.C @ np.linalg.solve(np.eye(m) - model.A, bd[:m]) + bd[m])
+    Om = np.asarray(alt["omega"], dtype=float).reshape(Omega.shape)
+    f = dc * (model.reflex_rho_basis.evaluate(rho) @ Om.T @ basis.evaluate(v).T)
+    g_alt, th_alt = rectifier_fit(v, f)
+    g, th = model.reflex_gain_threshold(rho)
+    return np.abs(g_alt - g), np.abs(th_alt - th)
+
+
 def reflex_interval(model, rho, level: float = 0.95):
     """Intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``:
     ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), each an :class:`Interval` of
     arrays of len(rho).
 
     Delta method: the stored covariance propagated linearly through the scaled
-    nonlinearity (:func:`nonlinearity_jacobian`) and the rectifier fit (threshold free).
+    nonlinearity (:func:`nonlinearity_jacobian`) and the rectifier fit (threshold free),
+    widened for :func:`reflex_bias_bound` (:func:`bias_aware_critical_value`).
     The threshold interval is clipped to the fit's search range. On a model whose
     nonlinearity saw model-rate velocity the estimates are biased
     (``Interval.biased``, :data:`MODEL_RATE_BIAS_NOTE`).
@@ -488,11 +556,12 @@ def reflex_interval(model, rho, level: float = 0.95):
     for r in range(len(rho)):
         grads = _rectifier_sensitivity(v, gain[r], th[r]) @ J[:, r, :].T  # (2, p)
         se[:, r] = np.sqrt(np.clip(np.einsum("ip,pq,iq->i", grads, cov, grads), 0.0, None))
-    z = z_value(level)
+    bound = np.array(reflex_bias_bound(model, rho))
+    half = bias_aware_critical_value(bound / np.maximum(se, 1e-300), level) * se
     biased = model.reflex_threshold_biased
     note = MODEL_RATE_BIAS_NOTE if biased else ""
-    th_lo, th_hi = np.clip(th - z * se[1], v[0], v[-6]), np.clip(th + z * se[1], v[0], v[-6])
-    return (Interval(gain - z * se[0], gain + z * se[0], biased, note), Interval(th_lo, th_hi, biased, note))
+    th_lo, th_hi = np.clip(th - half[1], v[0], v[-6]), np.clip(th + half[1], v[0], v[-6])
+    return (Interval(gain - half[0], gain + half[0], biased, note), Interval(th_lo, th_hi, biased, note))
 
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95):

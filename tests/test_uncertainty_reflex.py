@@ -3,16 +3,19 @@ method through the identifiable product of nonlinearity and dynamics, checked ag
 spread of the estimate over noise realisations of the same trials."""
 
 import dataclasses
+import json
 import warnings
 
 import numpy as np
 import pytest
 
 from lpvpc.data import pair_trials
+from lpvpc.errors import ModelFileError
 from lpvpc.identify import identify
+from lpvpc.model import LPVPCModel
 from lpvpc.simulate import coloured_noise
 from lpvpc.subspace import companion_form
-from lpvpc.uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, z_value
+from lpvpc.uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, reflex_bias_bound, z_value
 
 
 def central_rho(model, n=9):
@@ -62,6 +65,30 @@ def test_nonlinearity_jacobian_matches_finite_differences(model_1k):
         assert np.allclose((fs[0] - fs[1]) / (2 * h), J[n_w + j], rtol=1e-4, atol=1e-6 * np.max(np.abs(f)))
 
 
+def without_bias_bound(m):
+    """The model with the statistical part of the reflex intervals only."""
+    return dataclasses.replace(m, uncertainty={k: v for k, v in m.uncertainty.items() if k != "curvature_reflex"})
+
+
+def test_reflex_bias_bound_widens_the_intervals_and_is_stored(model_1k, tmp_path):
+    rho = central_rho(model_1k, 5)
+    g_bound, th_bound = reflex_bias_bound(model_1k, rho)
+    gain, thr = model_1k.reflex_gain_threshold(rho)
+    assert np.all(g_bound >= 0) and np.any(g_bound > 0.005 * gain) and np.all(g_bound < 0.5 * gain), g_bound / gain
+    plain = without_bias_bound(model_1k)
+    assert np.all(reflex_bias_bound(plain, rho)[0] == 0)
+    (lo, hi), (lo0, hi0) = model_1k.reflex_gain_interval(rho), plain.reflex_gain_interval(rho)
+    assert np.all(lo <= lo0) and np.all(hi0 <= hi) and np.any(hi - lo > 1.01 * (hi0 - lo0))
+    path = tmp_path / "m.json"
+    model_1k.save(path)
+    assert np.array_equal(np.array(LPVPCModel.load(path).reflex_gain_interval(rho)), np.array((lo, hi)))
+    d = json.loads(path.read_text())
+    d["uncertainty"]["curvature_reflex"]["bd"].pop()
+    path.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=r"uncertainty.curvature_reflex.bd has shape"):
+        LPVPCModel.load(path)
+
+
 def test_model_rate_reflex_intervals_are_marked_biased(model, model_1k):
     rho = central_rho(model, 3)
     for interval in (model.reflex_gain_interval(rho), model.reflex_threshold_interval(rho)):
@@ -90,7 +117,7 @@ def test_gain_intervals_match_the_spread_over_noise_realisations(subject, model_
             models.append(identify(pair_trials(pt, ut), high_rate_reflex=True))
     rho = central_rho(clean, 7)
     gain = np.array([m.reflex_gain_threshold(rho)[0] for m in models])
-    lo, hi = (np.array(x) for x in zip(*(m.reflex_gain_interval(rho) for m in models)))
+    lo, hi = (np.array(x) for x in zip(*(without_bias_bound(m).reflex_gain_interval(rho) for m in models)))
     se = np.median((hi - lo) / 2 / z_value(0.95), axis=0)
     ratio = se / gain.std(axis=0, ddof=1)
     assert 0.6 < np.median(ratio) < 1.6, ratio
