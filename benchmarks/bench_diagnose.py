@@ -10,8 +10,9 @@
 5. Real data (../shared/real/pilot_ident.csv, skipped when absent; torque sign -1): a short
    held-out part (32 s) and a long one, and the improve ladder.
 
-``--only NAME``: section 2 for the scenarios whose name contains NAME (5 seeds), printed,
-no result file (for development).
+``--only NAME``: section 2 for the scenarios whose name contains NAME (5 seeds), printed;
+their rows (per seed and summary) replace the same scenarios' rows in
+results/diagnose.txt, the other rows and sections are kept.
 
 The virtual subject is the realistic one (lpvpc.simulate): EMG envelopes in volts with
 reflex-evoked bursts in the perturbed trial, tonic activation in both, measurement noise.
@@ -243,6 +244,26 @@ def detection(say, scenarios, clean_vaf):
 
 
 
+def update_rows(names, lines, target="diagnose.txt"):
+    """Replace the table rows of scenarios ``names`` (lines starting "| name | ") in the
+    recorded results by those of ``lines``, in order; everything else stays."""
+    from _results import RESULTS
+
+    path = RESULTS / target
+    if not path.exists():
+        print(f"{path} absent: nothing updated (run the whole benchmark)")
+        return
+    new = {n: [ln for ln in lines if ln.startswith(f"| {n} | ")] for n in names}
+    out = []
+    for ln in path.read_text().splitlines():
+        name = next((n for n in names if ln.startswith(f"| {n} | ")), None)
+        out.append(new[name].pop(0) if name and new[name] else ln)
+    left = {n: len(v) for n, v in new.items() if v}
+    if left:
+        print(f"rows without a place in {path} (not written): {left}")
+    write_results(target, out)
+
+
 def main():
     lines = [__doc__.split("\n\n")[0].strip(), ""]
 
@@ -253,7 +274,9 @@ def main():
     t_all = time.perf_counter()
     clean_vaf = {}
     if ONLY:
-        detection(say, {k: v for k, v in SCENARIOS.items() if ONLY in k}, clean_vaf)
+        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
+        detection(say, chosen, clean_vaf)
+        update_rows(chosen, lines)
         return
     # ---- 1. false alarms
     say("## 1. No hidden effect: false alarms")

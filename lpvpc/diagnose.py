@@ -61,7 +61,7 @@ import scipy.stats
 
 from . import equations as eq
 from .basis import Basis
-from .effects import CATALOG, SETTINGS, EffectDesign, signals_from_data
+from .effects import CATALOG, SETTINGS, EffectDesign, reflex_latency, signals_from_data
 from .intrinsic import two_sided_lags
 from .model import vaf
 from .reflex import reflex_input_regressor
@@ -86,6 +86,13 @@ TIES = {
         "reflex timing varies with position: delay or dynamics (not separable at this sampling rate)",
 }
 TIE_P = 0.05  # two-sided: the top candidate's held-out residual not smaller than its rival's at this level
+# The EMG breaks that tie: it is recorded before the muscle's activation and contraction, so
+# its reflex latency moves with the reflex delay and not with the reflex dynamics. A latency
+# trend with position (p below EMG_TREND_P, change over the range at least one sample and
+# EMG_MIN_CHANGE) names the delay; a flat latency names the dynamics.
+EMG_TIE = ("position_dependent_reflex_delay", "position_dependent_reflex_dynamics")  # (trend, flat)
+EMG_TREND_P = 0.05
+EMG_MIN_CHANGE = 0.01  # s
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -280,6 +287,20 @@ class Surrogate:
         z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(dvel), m.reflex_rho_basis.evaluate(self.rho), m.Omega), -1)
         return np.hstack([scipy.signal.lfilter(num[0], den, U, axis=0), eq.state_trajectory(m.A, m.B, z), z[:, None]])
 
+    def emg_latency(self):
+        """:func:`lpvpc.effects.reflex_latency` of the perturbed trial's EMG against the
+        model's reflex nonlinearity on the undelayed velocity (None without EMG)."""
+        if not hasattr(self, "_emg_latency"):
+            self._emg_latency = None
+            if "emg" in self.signals:
+                m = self.model
+                v = eq.velocity(self.p, self.fs)
+                z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(v), m.reflex_rho_basis.evaluate(self.rho),
+                                               m.Omega), -1)
+                mask = None if self.cv.w is None else self.cv.w > 0
+                self._emg_latency = reflex_latency(self.signals["emg"], z, self.rho, self.fs, mask=mask)
+        return self._emg_latency
+
     def reflex_drive(self):
         if self.z is None:
             self.z = self.model.reflex_drive(self.p, self.rho)
@@ -308,6 +329,7 @@ class CandidateResult:
     given: tuple = ()  # the candidates ranked above it that the conditional gain is over
     tied_with: str = ""  # a rival the data do not tell apart from it (TIES), if any
     tie_p: float = float("nan")  # two-sided p of the difference between the two
+    settled_by: dict | None = None  # the EMG's reflex latency that broke the tie (EMG_TIE), if it did
     blocks: dict | None = None  # surrogate blocks: {"add": name} or {"replace": {base: block}}
     residual: np.ndarray | None = None  # held-out residual of its (marginal) fit
 
@@ -322,6 +344,8 @@ class CandidateResult:
         if self.tied_with:
             d["tied_with"] = self.tied_with
             d["tie_p_value"] = _g(self.tie_p)
+        if self.settled_by:
+            d["settled_by"] = self.settled_by
         if self.signals:
             d["signals"] = list(self.signals)
         if self.reason:
@@ -518,6 +542,38 @@ def _mark_ties(order, results, fs, block_s):
                 top.tied_with, top.tie_p = rival, p2
 
 
+def _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s):
+    """(candidate, residual) to join the base: ``best``, or its EMG_TIE rival when the two
+    tie on torque and the EMG's reflex latency names the rival. The rival must pass the
+    same test as ``best`` (it only reorders; nothing becomes significant). The one the
+    EMG names gets ``settled_by``."""
+    if best.effect not in EMG_TIE:
+        return best, r1
+    (rival_name,) = set(EMG_TIE) - {best.effect}
+    hit = next(((r, res) for r, res in scored if r.effect == rival_name), None)
+    if hit is None:
+        return best, r1
+    t, p = paired_test(hit[1], r1, sur.fs, block_s)
+    if (1.0 if t == 0 else min(1.0, 2.0 * min(p, 1.0 - p))) <= TIE_P:
+        return best, r1
+    lat = sur.emg_latency()
+    if lat is None:
+        return best, r1
+    change = lat["latency_hi"] - lat["latency_lo"]
+    trend = lat["p_value"] < EMG_TREND_P and abs(change) >= max(EMG_MIN_CHANGE, 1.0 / sur.fs)
+    named = EMG_TIE[0] if trend else EMG_TIE[1]
+    if named == rival_name:
+        r = hit[0]
+        if not (r.conditional_gain >= min_gain and r.p_value <= level):
+            return best, r1
+        best, r1 = hit
+    best.settled_by = {"signal": "emg", "latency_lo_ms": _r(1000 * lat["latency_lo"], 1),
+                       "latency_hi_ms": _r(1000 * lat["latency_hi"], 1),
+                       "position_lo": _r(lat["position_lo"], 3), "position_hi": _r(lat["position_hi"], 3),
+                       "p_value": _g(lat["p_value"]), "trend": bool(trend), "blocks": lat["blocks"]}
+    return best, r1
+
+
 def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> list:
     """Forward selection among the significant candidates: returns them in the order they
     join the base; the ones that lose significance given those above are marked."""
@@ -549,6 +605,7 @@ def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> lis
         if not scored:
             break
         best, r1 = max(scored, key=lambda t: t[0].conditional_gain)
+        best, r1 = _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s)
         if not (best.conditional_gain >= min_gain and best.p_value <= level):
             for r in pool:
                 r.significant = False
@@ -837,10 +894,28 @@ class Diagnosis:
             if top.tied_with:
                 rival = next((c for c in self.candidates if c.effect == top.tied_with), None)
                 what = TIES[frozenset((top.effect, top.tied_with))]
-                text = (f"Missing: {what}, carried by the {top.pathway} pathway and the signal scheduling "
-                        f"(operating position): {top.effect} +{top.vaf_gain:.2f} pp (p = {top.p_value:.1e}), "
-                        f"{top.tied_with} +{rival.vaf_gain:.2f} pp: the difference is within the noise "
-                        f"(p = {top.tie_p:.2f}), so the data do not say which. {top.explanation}")
+                sb = top.settled_by
+                if sb:
+                    how = (f"rises from {sb['latency_lo_ms']:.0f} to {sb['latency_hi_ms']:.0f} ms"
+                           if sb["latency_hi_ms"] >= sb["latency_lo_ms"] else
+                           f"falls from {sb['latency_lo_ms']:.0f} to {sb['latency_hi_ms']:.0f} ms")
+                    emg = (f"the EMG's reflex latency {how} over the range {sb['position_lo']:+.2f}..{sb['position_hi']:+.2f} rad "
+                           f"(p = {sb['p_value']:.1e}), so the delay changes"
+                           if sb["trend"] else
+                           f"the EMG's reflex latency stays at {sb['latency_lo_ms']:.0f} ms "
+                           f"(change {sb['latency_hi_ms'] - sb['latency_lo_ms']:+.1f} ms) "
+                           f"over the range {sb['position_lo']:+.2f}..{sb['position_hi']:+.2f} rad, so the delay does not "
+                           f"change: the dynamics do")
+                    text = (f"Missing: {top.effect}, carried by the {top.pathway} pathway and the signal scheduling "
+                            f"(operating position): held-out VAF +{top.vaf_gain:.2f} pp (p = {top.p_value:.1e}). "
+                            f"On torque it ties with {top.tied_with} (+{rival.vaf_gain:.2f} pp, p = {top.tie_p:.2f}: "
+                            f"{what}); the EMG settles it: {emg} (the EMG precedes the reflex's activation "
+                            f"dynamics, so only a delay moves its bursts). {top.explanation}")
+                else:
+                    text = (f"Missing: {what}, carried by the {top.pathway} pathway and the signal scheduling "
+                            f"(operating position): {top.effect} +{top.vaf_gain:.2f} pp (p = {top.p_value:.1e}), "
+                            f"{top.tied_with} +{rival.vaf_gain:.2f} pp: the difference is within the noise "
+                            f"(p = {top.tie_p:.2f}), so the data do not say which. {top.explanation}")
             more = self.significant[1:]
             if more:
                 text += " Also significant given the ones before: " + "; ".join(

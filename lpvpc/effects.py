@@ -80,6 +80,7 @@ DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the 
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
 QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
 ACTIVATION_CUTOFF = 1.0  # Hz: low-pass of the background activation estimate
+MIN_BURST_CORRELATION = 0.2  # reflex_latency: a block's EMG-drive peak correlation below this is noise
 # s: delay changes about the model's delay at which the position-dependent reflex delay
 # entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
 REFLEX_DELAY_STEPS = (-0.02, -0.01, 0.01, 0.02, 0.03)
@@ -551,6 +552,62 @@ def background_emg(emg, position, fs, *, cutoff=ACTIVATION_CUTOFF) -> np.ndarray
         b, a = scipy.signal.butter(2, cutoff, fs=fs)
         x = scipy.signal.filtfilt(b, a, x, padlen=min(n - 1, 3 * int(fs / cutoff)))
     return x
+
+
+def reflex_latency(emg, drive, scheduling, fs, *, block_s=2.0, max_latency=0.15, mask=None) -> dict | None:
+    """Latency (s) of the EMG's reflex-evoked bursts and how it changes with position.
+
+    ``drive``: the reflex's input without delay (e.g. the model's nonlinearity on the
+    undelayed velocity). In each ``block_s`` block the demeaned EMG is cross-correlated
+    with the demeaned drive at lags 0..``max_latency``; the peak (parabola through its
+    neighbours) is that block's latency. The latencies are regressed on the blocks' mean
+    scheduling value (ordinary least squares; blocks are nearly independent). The EMG is
+    recorded before the muscle's activation and contraction dynamics, so its latency
+    moves with the reflex delay but not with the reflex's dynamics. Blocks without drive
+    or with samples left out (``mask`` False) are skipped, and so are blocks whose peak is at
+    either end of the lags or correlates less than MIN_BURST_CORRELATION (the reflex
+    hardly fires there: the peak is noise). Returns None with fewer than 5
+    blocks, else {"slope" (s/rad), "p_value" (two-sided, slope = 0), "latency_lo",
+    "latency_hi" (s, fitted at the 5th and 95th percentile of the blocks' positions),
+    "position_lo", "position_hi" (rad), "blocks"}.
+
+    >>> fs, rng = 100.0, np.random.default_rng(0)
+    >>> rho = np.repeat(np.linspace(-0.3, 0.1, 20), 400)  # rad, slow position levels
+    >>> drive = (rng.random(rho.size) < 0.05).astype(float)  # reflex input pulses
+    >>> lag = np.round((0.03 + 0.125 * (rho + 0.3)) * fs).astype(int)  # 30 ms -> 80 ms
+    >>> emg = drive[np.clip(np.arange(rho.size) - lag, 0, None)] + 0.01 * rng.standard_normal(rho.size)
+    >>> r = reflex_latency(emg, drive, rho, fs)
+    >>> round(1000 * r["latency_lo"]), round(1000 * r["latency_hi"]), r["p_value"] < 0.05
+    (33, 77, True)
+    """
+    import scipy.stats
+
+    emg, drive, rho = (np.asarray(x, dtype=float) for x in (emg, drive, scheduling))
+    b, L = int(round(block_s * fs)), int(round(max_latency * fs))
+    lat, pos = [], []
+    for i in range(len(emg) // b):
+        sl = slice(i * b, (i + 1) * b)
+        if mask is not None and not np.all(mask[sl]):
+            continue
+        e, z = emg[sl] - emg[sl].mean(), drive[sl] - drive[sl].mean()
+        if z @ z <= 0 or b <= L + 2:
+            continue
+        c = np.array([e[k:] @ z[:b - k] for k in range(L + 1)])
+        k = int(np.argmax(c))
+        curv = c[k - 1] - 2 * c[k] + c[k + 1] if 0 < k < L else 0.0
+        if curv >= 0 or c[k] < MIN_BURST_CORRELATION * np.sqrt((e @ e) * (z @ z)):
+            continue  # no burst peak inside the lags (a block where the reflex hardly fires)
+        dk = 0.5 * (c[k - 1] - c[k + 1]) / curv
+        lat.append((k + dk) / fs)
+        pos.append(rho[sl].mean())
+    if len(lat) < 5 or np.ptp(pos) <= 0:
+        return None
+    fit = scipy.stats.linregress(pos, lat)
+    lo, hi = np.percentile(pos, [5, 95])
+    p = float(fit.pvalue) if np.isfinite(fit.pvalue) else (0.0 if fit.slope != 0 else 1.0)
+    return {"slope": float(fit.slope), "p_value": p, "latency_lo": float(fit.intercept + fit.slope * lo),
+            "latency_hi": float(fit.intercept + fit.slope * hi), "position_lo": float(lo), "position_hi": float(hi),
+            "blocks": len(lat)}
 
 
 def check_signals(signals: dict, needed, n: int, source="data"):

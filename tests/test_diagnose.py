@@ -5,6 +5,7 @@ novel record of seed s + 1 (100 Hz, SNR 18 dB), as in benchmarks/bench_diagnose.
 which runs the same checks over more seeds (12 for false alarms, 5 per effect).
 """
 
+import dataclasses
 import json
 import re
 
@@ -354,25 +355,55 @@ def test_tied_reflex_timing_candidates_are_reported_as_a_tie():
 
 def test_position_dependent_reflex_delay_is_found_and_named_honestly():
     """The virtual subject's reflex delay grows from 30 to 80 ms toward dorsiflexion: the
-    delay entry is significant, and when the data cannot tell it from position-dependent
-    reflex dynamics the answer says so (pathway and signal named) instead of pretending;
-    refitting with it restores the held-out VAF to within 1 point of the clean model."""
+    delay entry is significant; on torque it ties with position-dependent reflex dynamics,
+    and the perturbed trial's EMG (its bursts move with the delay, not with the dynamics)
+    names the delay. Without EMG the answer says the data cannot tell them apart (pathway and
+    signal named) instead of pretending. Refitting with it restores the held-out VAF to within
+    1 point of the clean model."""
     ident, novel = _pairs(0, ("position_dependent_reflex_delay",))
     ladder = improve(ident, novel, max_steps=1)
     d = ladder.rungs[0].diagnosis
     top = d.top
-    pair = {"position_dependent_reflex_delay", "position_dependent_reflex_dynamics"}
-    assert top is not None and top.effect in pair and top.vaf_gain >= d.settings["min_gain"]
-    rival = next(c for c in d.candidates if c.effect in pair - {top.effect})
+    assert top is not None and top.effect == "position_dependent_reflex_delay" and top.vaf_gain >= d.settings["min_gain"]
+    # a tie on torque (seed 0: p = 1.0) that the EMG breaks: its latency rises with position
+    assert top.tied_with == "position_dependent_reflex_dynamics" and top.significant
+    sb = top.to_dict()["settled_by"]
+    assert sb["signal"] == "emg" and sb["trend"] and sb["latency_hi_ms"] - sb["latency_lo_ms"] >= 30, sb
+    assert "the EMG's reflex latency rises from" in d.answer() and "not separable" in d.answer()
+    assert ladder.rungs[1].kept and ladder.rungs[1].heldout_vaf >= clean(0)[2].vaf - 1.0
+    # the same record without EMG: a tie stays a tie
+    bare = dataclasses.replace(novel, extra={k: v for k, v in novel.extra.items() if not k.startswith("emg")})
+    d = diagnose(ladder.rungs[0].model, bare)
+    top = d.top
+    assert top is not None and top.settled_by is None
     if top.tied_with:
-        assert top.tied_with == rival.effect
         assert ("reflex timing varies with position: delay or dynamics (not separable at this sampling rate), "
                 "carried by the reflex pathway and the signal scheduling") in d.answer()
-    else:
-        assert "not separable" not in d.answer()
-    assert ladder.rungs[1].kept and ladder.rungs[1].heldout_vaf >= clean(0)[2].vaf - 1.0
-    # on the dynamics' own truth the delay entry does not win
-    ident, novel = _pairs(0, ("position_dependent_reflex_dynamics",))
-    d = diagnose(identify(ident), novel)
-    gains = {c.effect: c.vaf_gain for c in d.candidates}
-    assert gains["position_dependent_reflex_dynamics"] > gains["position_dependent_reflex_delay"]
+
+
+def test_emg_latency_breaks_the_reflex_timing_tie_toward_dynamics(monkeypatch):
+    """Reflex dynamics that vary with position (three times the simulator's range, seed 4:
+    on torque the delay entry scores as well) leave the EMG's reflex latency flat, and the
+    diagnosis names the dynamics, saying the EMG settled it."""
+    from lpvpc.effects import reflex_latency
+
+    def strong(s):
+        s.reflex_wn = s.params.reflex_wn * 3.0 ** ((s.theta + 0.1) / 0.3)
+        return {"ratio": 3.0}
+
+    monkeypatch.setitem(simulate.EFFECTS, "strong_reflex_dynamics", ("wn ratio 3", strong))
+    ident, novel = _pairs(4, ("strong_reflex_dynamics",))
+    model = identify(ident)
+    d = diagnose(model, novel)
+    top = d.top
+    assert top is not None and top.effect == "position_dependent_reflex_dynamics", d.answer()
+    assert top.tied_with == "position_dependent_reflex_delay" and not top.settled_by["trend"], top.to_dict()
+    assert "the EMG's reflex latency stays at" in d.answer()
+    assert not next(c for c in d.candidates if c.effect == "position_dependent_reflex_delay").significant
+    # the latency estimate itself: flat here, against the model's drive on the undelayed velocity
+    from lpvpc import equations as eq
+
+    z = eq.reflex_drive(model.velocity_basis.evaluate(eq.velocity(novel.position, novel.fs)),
+                        model.reflex_rho_basis.evaluate(novel.scheduling), model.Omega).ravel()
+    lat = reflex_latency(novel.extra["emg"], z, novel.scheduling, novel.fs)
+    assert abs(lat["latency_hi"] - lat["latency_lo"]) < 0.005 and lat["blocks"] >= 40, lat
