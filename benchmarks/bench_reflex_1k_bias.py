@@ -40,18 +40,8 @@ from _results import write_results  # noqa: E402
 
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-
-TRUTH = SubjectParams()
-
-
-def slopes(model):
-    lo, hi = model.scheduling_range
-    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
-    gain, thr = model.reflex_gain_threshold(rho)
-    g = np.polyfit(rho, gain, 1)[0] / np.polyfit(rho, TRUTH.reflex_gain(rho), 1)[0]
-    t = np.polyfit(rho, thr, 1)[0] / np.polyfit(rho, TRUTH.reflex_threshold(rho), 1)[0]
-    return float(g), float(t)
+from bench_reflex_1k import TRUTH, slopes  # noqa: E402  (one definition of the slope ratios)
+from lpvpc.simulate import simulate_pair  # noqa: E402
 
 
 def elastic_remainder(pt, ut):
