@@ -373,11 +373,15 @@ class LPVPCEstimator:
             from .uncertainty import fit_uncertainty
 
             t = time.perf_counter()
-            model.uncertainty = fit_uncertainty(model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y,
-                                                np.append(hf.b, hf.d), hf.omega, best["theta_i"], U_r, best["A"],
-                                                truncated_irf(p, Gi_val, L, seg), segments=seg,
-                                                richer=richer_basis_irf(p, rho, G_i, lags, seg),
-                                                curvature=(p ** 2)[:, None] * Gi_val)
+            try:
+                model.uncertainty = fit_uncertainty(
+                    model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y, np.append(hf.b, hf.d),
+                    hf.omega, best["theta_i"], U_r, best["A"], truncated_irf(p, Gi_val, L, seg), segments=seg,
+                    richer=richer_basis_irf(p, rho, G_i, lags, seg), curvature=(p ** 2)[:, None] * Gi_val)
+            except np.linalg.LinAlgError as exc:  # the model stands; only its intervals are missing
+                from .errors import LpvpcWarning
+
+                warnings.warn(f"no confidence intervals for this model: {exc}", LpvpcWarning, stacklevel=3)
             timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {

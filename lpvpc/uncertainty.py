@@ -159,6 +159,13 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     p = J.shape[1]
     block = max(1, int(round(BLOCK_LENGTH * model.fs)))
     R = np.linalg.qr(J, mode="r")
+    diag = np.abs(np.diag(R))
+    if not diag.size or diag.min() <= 1e-10 * diag.max():
+        # e.g. a reflex pathway that came out zero (B = D = 0): its nonlinearity's direction
+        # is then unidentified, and an inverse would be noise, not an interval
+        raise np.linalg.LinAlgError(
+            f"the final fit's parameters are not all identified ({int(np.sum(diag > 1e-10 * diag.max()))} of "
+            f"{p} directions; a reflex pathway that came out zero leaves its nonlinearity undetermined)")
     Rinv = np.linalg.inv(R)
     S = long_run_covariance(J * e[:, None], block)
     cov_z = Rinv @ (Rinv.T @ S @ Rinv) @ Rinv.T * (N / max(N - p, 1))  # small-sample dof correction
@@ -282,8 +289,9 @@ def _stored(model):
 
     u = getattr(model, "uncertainty", None)
     if not u:
-        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, or an extended "
-                             "model): re-identify it to get intervals")
+        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, an extended "
+                             "model, or a fit whose parameters were not all identified: see the warning "
+                             "identify gave): re-identify it to get intervals")
     return u
 
 

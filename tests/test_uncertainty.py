@@ -164,3 +164,21 @@ def test_old_model_figures_draw_without_bands_or_density(model):
     assert not ax.child_axes and not ax.collections and len(ax.lines) >= 5
     fig = plotting.plot_intrinsic_gain(old)
     assert not fig.axes[0].child_axes
+
+
+def test_unidentified_parameters_give_no_interval_rather_than_noise(model):
+    """A reflex pathway that came out zero (B = D = 0) leaves the nonlinearity's direction
+    undetermined: the final fit's Jacobian is singular, and fit_uncertainty says so instead of
+    inverting rounding errors into enormous 'intervals'. With a reflex it gives finite ones."""
+    from lpvpc.uncertainty import fit_uncertainty
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    psi_i, y = rng.standard_normal((n, 6)), rng.standard_normal(n)
+    blocks = [rng.standard_normal((n, 4)) for _ in range(3)]
+    omega = np.full(4, 0.5)
+    with pytest.raises(np.linalg.LinAlgError, match="not all identified"):
+        fit_uncertainty(model, psi_i, blocks, y, np.zeros(3), omega, np.zeros(6))
+    out = fit_uncertainty(model, psi_i, blocks, y, np.array([1.0, 0.5, 0.2]), omega, np.zeros(6))
+    cov = np.asarray(out["covariance"])
+    assert cov.shape == (6 + 4 + 3, 6 + 4 + 3) and np.all(np.isfinite(cov)) and np.all(np.diag(cov) >= 0)
