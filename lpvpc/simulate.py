@@ -26,7 +26,8 @@ Both trials record an EMG envelope (V): tonic activation in both, reflex-evoked 
 (~40 ms after each velocity pulse, with the reflex's gain and threshold) in the perturbed
 one, measurement noise. Effects the base LPV-PC model does not contain are switchable by
 name through the :data:`EFFECTS` registry; each has its diagnosis-catalog counterpart of
-the same name in :data:`lpvpc.effects.CATALOG`.
+the same name in :data:`lpvpc.effects.CATALOG`, except those marked "outside the diagnosis
+catalog" (they test what the diagnosis says of effects it has no entry for).
 
 Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
 :func:`write_dataset`, :data:`EFFECTS`, and the element functions
@@ -781,6 +782,33 @@ def _effect_position_dependent_reflex_dynamics(s: TrialState) -> dict:
             "wn_at_+0.2": float(s.params.reflex_wn * ratio)}
 
 
+# Effects outside the diagnosis catalog (no counterpart in lpvpc.effects.CATALOG): they test
+# whether the diagnosis's signal-dependence probes point to the right signal and pathway.
+
+
+def _effect_oscillating_reflex_gain(s: TrialState) -> dict:
+    """Reflex gain that oscillates with trial time, 1 + 0.4 sin(2 pi t / 35 s): a slow
+    periodic swing of attention / motoneuron excitability. Not habituation: it returns to
+    where it started every 35 s, so a trend in t and t^2 cannot follow it. Outside the
+    diagnosis catalog."""
+    depth, period = 0.4, 35.0  # 1, s
+    s.reflex_gain_scale *= 1.0 + depth * np.sin(2.0 * np.pi * s.t / period)
+    return {"reflex_gain_scale": f"1 + {depth} sin(2 pi t / {period} s)", "outside_catalog": True}
+
+
+def _effect_stiffness_by_slow_speed(s: TrialState) -> dict:
+    """Short-range stiffness that falls while the joint moves slowly (thixotropy: the slow
+    movement detaches cross-bridges; they re-form in holds): the elastic torque of the
+    perturbation about the slow operating point is scaled by 1 - 0.4 tanh(|v_slow| / 0.05
+    rad/s), whichever the direction of the movement (unlike ``direction_dependent_stiffness``,
+    nothing is latched). Outside the diagnosis catalog."""
+    depth, v0 = 0.4, 0.05  # 1, rad/s
+    pr = s.params
+    drop = depth * np.tanh(np.abs(s.slow_velocity) / v0)
+    s.extra_torque -= drop * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta))
+    return {"perturbation_stiffness_scale": f"1 - {depth} tanh(|v_slow| / {v0} rad/s)", "outside_catalog": True}
+
+
 #: name -> (description, apply function). An apply function takes a :class:`TrialState`,
 #: modifies its modulation fields in place and returns a JSON-serialisable dict of its
 #: parameters (recorded in ``truth['effects']``). To add an effect: write such a function
@@ -805,6 +833,12 @@ EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
                                            _effect_position_dependent_reflex_dynamics),
     "position_dependent_reflex_delay": ("reflex delay grows toward dorsiflexion, 30 ms up to -0.2 rad, "
                                         "80 ms at +0.2 rad", _effect_position_dependent_reflex_delay),
+    # outside the diagnosis catalog
+    "oscillating_reflex_gain": ("reflex gain oscillates with trial time, 1+0.4 sin(2 pi t/35 s) "
+                                "(outside the diagnosis catalog)", _effect_oscillating_reflex_gain),
+    "stiffness_by_slow_speed": ("perturbation stiffness falls while the joint moves slowly, "
+                                "1-0.4 tanh(|v_slow|/0.05) (outside the diagnosis catalog)",
+                                _effect_stiffness_by_slow_speed),
 }
 
 
