@@ -76,7 +76,10 @@ MIN_RECORD_S = 20.0  # s: shorter records are refused (10 folds of 2 s, each a f
 SANE_DROP = 2.0  # pp: a refitted base this much below the model's own VAF is not trusted (short/narrow record)
 RANGE_TOL = 0.02  # fraction of the identified range: scheduling beyond it counts as outside
 MAX_OUTSIDE = 0.5  # records with more samples outside the identified range are refused
-TRANSFER_GAP = 10.0  # pp: a refitted structure this much better than the model itself is worth a note
+# pp: a refitted structure this much better than the model itself is worth a note: the model
+# does not carry over to the record (the mirror of SANE_DROP; an effect that is constant within
+# the record but differs from the identification record shows only here)
+TRANSFER_GAP = SANE_DROP
 # Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
 # reflex's slow activation dynamics, a reflex delay that changes with position and reflex
 # dynamics that change with it give nearly the same phase lag (measured on the virtual
@@ -943,7 +946,9 @@ class Diagnosis:
             out.append(f"The model explains {self.vaf:.1f} % of these data, its structure refitted on them "
                        f"{self.surrogate_vaf:.1f} % (cross-validated): the candidates are judged on the structure; "
                        f"the model's own parameters do not carry over to this record (identification record too "
-                       f"short or different from it).")
+                       f"short, or different from it: a trajectory that moves differently, e.g. faster, or another "
+                       f"state of the subject). A missing effect that stays nearly constant within this record is "
+                       f"invisible to the candidates and shows only in this gap.")
         leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
         if leaky:
             out.append(f"Explained by the model's reflex drive, not used to name an effect: {', '.join(leaky)}.")
