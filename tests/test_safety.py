@@ -329,6 +329,26 @@ def test_every_output_has_the_same_mode(model, subject, tmp_path):
     assert not list(tmp_path.glob(".*lpvpc-tmp"))
 
 
+def _held_compiler(folder):
+    """(CC, marker): gcc behind a wrapper (the CC the FMU build honours) that, once gcc has
+    written the library, touches ``marker`` and holds on, so that a signal sent after the
+    marker appears always falls inside a compile step, however loaded the machine."""
+    marker = Path(folder) / "compiled"
+    cc = Path(folder) / "held-gcc"
+    cc.write_text(f'#!/bin/sh\ngcc "$@" || exit $?\ntouch "{marker}"\nexec sleep 60\n')
+    cc.chmod(0o755)
+    return str(cc), marker
+
+
+def _wait_for_marker(marker, proc, limit=120.0):
+    import time
+
+    t0 = time.monotonic()
+    while not marker.exists() and proc.poll() is None and time.monotonic() - t0 < limit:
+        time.sleep(0.01)
+    return marker.exists() and proc.poll() is None
+
+
 def _wait_for(pattern_dir, pattern, proc, limit=90.0):
     import time
 
@@ -351,27 +371,20 @@ def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
     inside the compile step, however loaded the machine (a bare gcc can finish between the
     build folder appearing and the signal, and the export then rightly succeeds)."""
     import signal
-    import time
 
     d = copy.deepcopy(base)
     (tmp_path / "model.json").write_text(json.dumps(d))
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
     (tmp_path / "out").mkdir()
-    marker = tmp_path / "compiled"
-    cc = tmp_path / "held-gcc"
-    cc.write_text(f'#!/bin/sh\ngcc "$@" || exit $?\ntouch "{marker}"\nexec sleep 60\n')
-    cc.chmod(0o755)
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir), CC=str(cc),
+    cc, marker = _held_compiler(tmp_path)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir), CC=cc,
                PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "export", "model.json", "--fmu", "out/m.fmu"],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait_for(tmp_path / "out", ".lpvpc_model-*", proc), "the build folder never appeared"
-        t0 = time.monotonic()
-        while not marker.exists() and proc.poll() is None and time.monotonic() - t0 < 120:
-            time.sleep(0.01)
-        assert marker.exists() and proc.poll() is None, "the compiler never ran"
+        assert _wait_for_marker(marker, proc), "the compiler never ran"
         proc.send_signal(getattr(signal, sig))
         out, err = proc.communicate(timeout=60)
     finally:
@@ -384,7 +397,9 @@ def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
 @pytest.mark.slow
 def test_interrupted_validate_keeps_the_previous_report(model, subject, tmp_path):
     """SIGTERM in the middle of a validation into a folder holding a previous report: the
-    previous report stays whole, and no half-built folder is left beside it."""
+    previous report stays whole, and no half-built folder is left beside it. The signal
+    falls while the model FMU compiles into the half-built report (a held compiler: on a
+    loaded machine the validation could otherwise finish first)."""
     import signal
 
     from lpvpc.data import Trial, write_trial_csv
@@ -399,12 +414,17 @@ def test_interrupted_validate_keeps_the_previous_report(model, subject, tmp_path
     previous = {"metrics.json": '{"pass": true, "model": "previous"}', "report.html": "<p>previous</p>"}
     for name, text in previous.items():
         (report / name).write_text(text)
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    held = tmp_path.parent / f"{tmp_path.name}-cc"  # outside the folder whose contents are checked
+    held.mkdir()
+    cc, marker = _held_compiler(held)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", CC=cc,
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "validate", "model.json", "--pt", "PT.csv", "--ut",
                              "UT.csv", "--report", "report"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        assert _wait_for(tmp_path, ".report.*lpvpc-tmp/fmus/*.fmu", proc), "no FMU was built"
+        assert _wait_for_marker(marker, proc), "the model FMU never compiled"
+        assert list(tmp_path.glob(".report.*lpvpc-tmp/fmus")), "no half-built report while compiling"
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=120)
     finally:
