@@ -1116,13 +1116,19 @@ def format_table(diag: Diagnosis, n=None) -> str:
     return "\n".join(lines)
 
 
+def _breakable(text) -> str:
+    """Escaped text that may wrap inside its long words (candidate names in notes), so that a
+    table keeps to the page's width instead of scrolling sideways."""
+    return f'<span class="brk">{html.escape(str(text))}</span>'
+
+
 def _html_page(title, body) -> str:
     """A self-contained HTML page in the validate report's style (images inline)."""
     from .validation.report import _CSS
 
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><meta name="viewport" '
             f'content="width=device-width, initial-scale=1"><title>{html.escape(title)}</title>'
-            f'<style>{_CSS}.wide{{overflow-x:auto}}</style></head><body>{body}</body></html>\n')
+            f'<style>{_CSS}.wide{{overflow-x:auto}}.brk{{overflow-wrap:anywhere}}</style></head><body>{body}</body></html>\n')
 
 
 def _html_img(path: Path, caption: str) -> str:
@@ -1139,12 +1145,12 @@ def candidates_html(diag: Diagnosis, n=None) -> str:
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
         if not c.available:
-            rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a", _e(c.reason)])
+            rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a", _breakable(c.reason)])
             continue
         cond = (f"{c.conditional_gain:+.3f}" + (f" (given {', '.join(c.given)})" if c.given else "")
                 if c.significant else "–")
         rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
-                     '<span class="pass">YES</span>' if c.significant else "no", _e(c.reason)])
+                     '<span class="pass">YES</span>' if c.significant else "no", _breakable(c.reason)])
     return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
                                           "p", "significant", "note"], rows, left=(1, 2, 3, 5, 8)) + "</div>"
 

@@ -65,16 +65,21 @@ _PROBE = r"""
     }
     return false;
   };
-  const over = [];
+  const over = [], sideways = [];
   for (const el of document.body.querySelectorAll('*')) {
     const r = el.getBoundingClientRect();
     if (r.width === 0 && r.height === 0) continue;
     if (r.right > docW + 0.5 && !clipped(el)) over.push({element: describe(el), right: Math.round(r.right)});
+    // a box that scrolls or clips sideways hides part of its content (scrollbars are hidden here)
+    const ox = getComputedStyle(el).overflowX;
+    if (ox !== 'visible' && el.scrollWidth > el.clientWidth + 1)
+      sideways.push({element: describe(el), scroll_width: el.scrollWidth, width: el.clientWidth});
   }
   return {
     images: imgs.map(im => ({src: (im.getAttribute('src') || '').slice(0, 80), alt: im.alt || '',
                              natural_width: im.naturalWidth, width: Math.round(im.getBoundingClientRect().width)})),
     overflowing: over,
+    sideways: sideways,
     document_width: docW,
     scroll_width: document.documentElement.scrollWidth,
     height: Math.ceil(document.documentElement.scrollHeight),
@@ -96,6 +101,7 @@ class PageCheck:
     title: str
     images: list = field(default_factory=list)  # {"src", "alt", "natural_width", "width"}
     overflowing: list = field(default_factory=list)  # {"element", "right"}
+    sideways: list = field(default_factory=list)  # {"element", "scroll_width", "width"}: boxes hiding content sideways
     screenshot: Path | None = None
 
     @property
@@ -112,6 +118,9 @@ class PageCheck:
             out.append(f"page scrolls sideways: scrollWidth {self.scroll_width} > {self.document_width} px")
         for o in self.overflowing[:20]:
             out.append(f"element overflows the page width ({o['right']} > {self.document_width} px): {o['element']}")
+        for o in self.sideways[:20]:
+            out.append(f"element hides content sideways (scrolls or clips: {o['scroll_width']} > {o['width']} px): "
+                       f"{o['element']}")
         return out
 
 
@@ -205,7 +214,8 @@ def check_page(html: str | Path, screenshot: str | Path | None = None, *, width:
             raise RuntimeError(f"layout probe failed in the page: {res['exceptionDetails']}")
         v = res["result"]["value"]
         check = PageCheck(url=url, width=width, document_width=v["document_width"], scroll_width=v["scroll_width"],
-                          height=v["height"], title=v["title"], images=v["images"], overflowing=v["overflowing"])
+                          height=v["height"], title=v["title"], images=v["images"], overflowing=v["overflowing"],
+                          sideways=v["sideways"])
         if screenshot is not None:
             shot = cdp.send("Page.captureScreenshot", {
                 "format": "png", "captureBeyondViewport": True,

@@ -307,6 +307,20 @@ def test_missing_chromium_fails_unless_allowed(monkeypatch):
         report_browser.chromium_or_skip()
 
 
+def test_layout_check_sees_a_table_that_scrolls_sideways(tmp_path):
+    """The Chromium layout check flags a table wider than its scrolling box (a reader would
+    scroll sideways to see its last column), and passes the same table once its long words
+    may wrap."""
+    cell = "position_dependent_reflex_dynamics_" * 3
+    page = ('<!DOCTYPE html><html><body style="max-width:600px"><div style="overflow-x:auto">'
+            '<table><tr><td>{}</td><td>{}</td></tr></table></div></body></html>')
+    wide, wrapped = tmp_path / "wide.html", tmp_path / "wrapped.html"
+    wide.write_text(page.format(cell, cell))
+    wrapped.write_text(page.format(*[f'<span style="overflow-wrap:anywhere">{cell}</span>'] * 2))
+    assert any("hides content sideways" in p for p in check_page(wide).problems())
+    assert check_page(wrapped).problems() == []
+
+
 def test_records_of_different_lengths_exit_2(short, model_file, tmp_path):
     ut = short["UT_raw"]
     n = len(ut.time) - 500
