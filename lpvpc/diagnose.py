@@ -526,6 +526,13 @@ def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alph
     return order + rest, r0
 
 
+def _tie_p(resid_a, resid_b, fs, block_s) -> float:
+    """Two-sided p of the difference between two candidates' held-out residuals (the paired
+    test of the gains, made two-sided): above TIE_P the data do not tell them apart."""
+    t, p = paired_test(resid_a, resid_b, fs, block_s)
+    return 1.0 if t == 0 else min(1.0, 2.0 * min(p, 1.0 - p))
+
+
 def _mark_ties(order, results, fs, block_s):
     """Mark the candidates named (``order``) that the data do not tell apart from their
     rival of :data:`TIES`: the paired test of the two held-out residuals (the same test as
@@ -539,8 +546,7 @@ def _mark_ties(order, results, fs, block_s):
             other = by_name.get(rival)
             if other is None or not other.available or other.residual is None or top.residual is None:
                 continue
-            t, p = paired_test(other.residual, top.residual, fs, block_s)  # one-sided: top better
-            p2 = 1.0 if t == 0 else min(1.0, 2.0 * min(p, 1.0 - p))
+            p2 = _tie_p(other.residual, top.residual, fs, block_s)
             if p2 > TIE_P:
                 top.tied_with, top.tie_p = rival, p2
 
@@ -556,8 +562,7 @@ def _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s):
     hit = next(((r, res) for r, res in scored if r.effect == rival_name), None)
     if hit is None:
         return best, r1
-    t, p = paired_test(hit[1], r1, sur.fs, block_s)
-    if (1.0 if t == 0 else min(1.0, 2.0 * min(p, 1.0 - p))) <= TIE_P:
+    if _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:
         return best, r1
     lat = sur.emg_latency()
     if lat is None:

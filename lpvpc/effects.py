@@ -187,6 +187,13 @@ def reflex_delay_steps(delay, fs) -> list:
     return out
 
 
+def model_reflex_delay_steps(model) -> list:
+    """Delay steps (samples) at which a fitted model's effects re-run its reflex (the union of
+    their ``steps`` options; empty for a model without such an effect)."""
+    return sorted({j for fe in getattr(model, "effects", None) or () if "reflex_delays" in fe.effect.derived
+                   for j in fe.options["steps"]})
+
+
 def _reflex_delay_features(c, ops, options):
     """The model's reflex torque re-run with the delay d + j, minus the torque at d, for the
     steps j of ``options['steps']``: weighted by functions of position, their combination
@@ -689,8 +696,7 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
         reflex = (model.A, model.B, model.C, z)
     shift = None
     if "reflex_delays" in derived:
-        steps = sorted({j for fe in model.effects if "reflex_delays" in fe.effect.derived for j in fe.options["steps"]})
-        shift = shifted_reflex_torques(model, position, scheduling, steps)
+        shift = shifted_reflex_torques(model, position, scheduling, model_reflex_delay_steps(model))
     if causal:  # the causal form's inputs as replayed into the FMU: the model's stencil unless given
         v_est, a_est = eq.derivatives(position, model.fs, model.causal_derivatives)
         velocity = v_est if velocity is None else velocity

@@ -92,6 +92,19 @@ def reflex_step(A, B, C, D, x, z):
     return A @ x + B * z, C @ x + D * z
 
 
+def static_gain(A, B, C, D) -> float:
+    """Steady-state (DC) gain C (I - A)^-1 B + D of the discrete reflex dynamics of
+    :func:`reflex_step` (numpy): the steady reflex torque per unit of constant drive.
+
+    >>> import numpy as np
+    >>> static_gain(np.array([[0.5]]), np.array([1.0]), np.array([1.0]), 0.0)  # 1 / (1 - 0.5)
+    2.0
+    """
+    A = np.asarray(A, dtype=float)
+    return float(np.asarray(C, dtype=float).ravel() @ np.linalg.solve(np.eye(len(A)) - A, np.asarray(B, dtype=float).ravel())
+                 + float(D))
+
+
 def lagged(signal, lags):
     """(N, len(lags)) array whose column l is signal(k - lags[l]): zero before the record,
     the last value after it (see the module notes on record edges).

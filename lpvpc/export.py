@@ -166,7 +166,7 @@ def _effect_states(model) -> list:
     """Names of the effect states of an extended model (direction memory, reflex cascade)."""
     if model is None or not getattr(model, "effects", None):
         return []
-    from .effects import model_derived
+    from .effects import model_derived, model_reflex_delay_steps
 
     derived = model_derived(model)
     names = []
@@ -174,15 +174,9 @@ def _effect_states(model) -> list:
         names += ["direction_latched", "direction_smoothed"]
     if "reflex" in derived:
         names += [f"reflex_cascade[{i}]" for i in range(int(model.A.shape[0]))]
-    for j in _reflex_delay_steps(model):  # the reflex re-run at the delay d + j
+    for j in model_reflex_delay_steps(model):  # the reflex re-run at the delay d + j
         names += [f"reflex_delay{j:+d}_state[{i}]" for i in range(int(model.A.shape[0]))]
     return names
-
-
-def _reflex_delay_steps(model) -> list:
-    """Delay steps (samples) at which an extended model's effects re-run the reflex."""
-    return sorted({j for fe in getattr(model, "effects", None) or () if "reflex_delays" in fe.effect.derived
-                   for j in fe.options["steps"]})
 
 
 # ---------------------------------------------------------------------------------------
@@ -230,7 +224,9 @@ def state_layout(model, variant="causal") -> StateLayout:
     needed = [lat + int(l) for l in lags] + [lat + d - 1, lat + d + 1]
     if variant == "sampled":
         needed += [2 * lat]  # differences at j = k - lat reach back to j - lat
-    steps = _reflex_delay_steps(model)
+    from .effects import model_reflex_delay_steps
+
+    steps = model_reflex_delay_steps(model)
     if getattr(model, "effects", None):
         needed += [lat + 1]  # perturbation velocity at j for effects (central difference)
         needed += [lat + d + j + 1 for j in steps]  # the reflex re-run at the delay d + j
@@ -470,7 +466,7 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
         ctx.update(x=[x[i] for i in range(m)], z=z, w=[w[i] for i in range(m)])
         nxt += [w_next[i] for i in range(m)]
         k += m
-    steps = _reflex_delay_steps(model)
+    steps = fx.model_reflex_delay_steps(model)
     if steps:  # the model's reflex re-run at the delay d + j (as lpvpc.effects.shifted_reflex_torques)
         m, d, lat, fs = lay.m, int(model.delay), lay.latency, float(model.fs)
         C = c["C"].T

@@ -389,8 +389,7 @@ class LPVPCModel:
 
     def reflex_static_gain(self) -> float:
         """DC gain of the reflex linear dynamics C (I - A)^-1 B + D."""
-        m = self.state_order
-        return float(self.C @ np.linalg.solve(np.eye(m) - self.A, self.B) + self.D)
+        return eq.static_gain(self.A, self.B, self.C, self.D)
 
     def reflex_nonlinearity(self, velocity, rho):
         """Static nonlinearity f(v, rho) scaled by the reflex DC gain, in N m (Fig. 5A).

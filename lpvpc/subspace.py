@@ -12,8 +12,8 @@ are removed as future inputs.
 The block Hankel matrix (about ``2 s n_u`` rows by N columns) is never formed. MOESP
 needs only its LQ factor L = R^T, and R is the Cholesky factor of the Gram matrix H^T H,
 whose entries are lagged cross-products of the ~n_u base signals: one matrix product per
-lag (2s of them, on N x n_u) instead of a QR of N x 2s n_u (``hankel_gram``; 5-8x
-faster at N = 12,000). Columns that repeat earlier ones (a constant basis function at
+lag (2s of them, on N x n_u) instead of a QR of N x 2s n_u (``hankel_gram``; 2-3x
+faster at N = 12,000: benchmarks/results/identify_floor.txt). Columns that repeat earlier ones (a constant basis function at
 every shift, a lagged position seen at two shifts) are dependent: they get zero rows
 (``lpvpc.linalg.deflated_cholesky``). Where that factor does not reproduce the Gram
 matrix (squared conditioning: short records, whose scheduling takes few levels), the

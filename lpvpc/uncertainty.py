@@ -62,6 +62,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .equations import static_gain
+
 BLOCK_LENGTH = 0.5  # s, batch length of the HAC estimate and block of the VAF bootstrap
 N_BOOT = 1000  # moving-block bootstrap replicates of the VAF
 METHOD = "HAC sandwich (overlapping batch means, 0.5 s) of the final least squares incl. reflex poles"
@@ -418,14 +420,11 @@ MODEL_RATE_BIAS_NOTE = ("reflex nonlinearity identified on the model-rate veloci
                         "the interval covers the noise only; identify with high_rate_reflex=True from >= 500 Hz files")
 
 
-def _reflex_parameters(model):
-    """Estimate and covariance of the reflex parameters [omega, B, D, den] (the order of the
-    stored covariance; den only when the file holds the poles' covariance)."""
+def _reflex_covariance(model):
+    """(covariance of the reflex parameters [omega, B, D, den], number of den entries): den
+    only when the file holds the poles' covariance."""
     cov, n_i, _ = _cov_blocks(model)
-    n_den = _stored(model)["parameters"].get("den", 0)
-    Omega = model.nonlinearity()[1]  # the identified one (high-rate when the model has it)
-    x = np.concatenate([Omega.ravel(), model.B, [model.D], -model.A[:, 0] if n_den else []])
-    return x, cov[n_i:, n_i:], n_den
+    return cov[n_i:, n_i:], _stored(model)["parameters"].get("den", 0)
 
 
 def _dc_gain_gradient(model, n_den):
@@ -444,7 +443,7 @@ def _dc_gain_gradient(model, n_den):
             d = den.copy()
             d[k] += sgn * h
             A, C = companion_form(d)
-            dc.append(float((C @ np.linalg.solve(np.eye(m) - A, model.B))[0]))
+            dc.append(static_gain(A, model.B, C, model.D))
         grad[m + 1 + k] = (dc[0] - dc[1]) / (2 * h)
     return grad
 
@@ -473,7 +472,7 @@ def nonlinearity_jacobian(model, velocity, rho):
     >>> bool(np.allclose(f, model.reflex_nonlinearity(v, rho))), J.shape[1:]
     (True, (2, 5))
     """
-    x, _, n_den = _reflex_parameters(model)
+    _, n_den = _reflex_covariance(model)
     basis, Omega = model.nonlinearity()
     Vb = basis.evaluate(np.atleast_1d(np.asarray(velocity, dtype=float)))
     Rb = model.reflex_rho_basis.evaluate(np.atleast_1d(np.asarray(rho, dtype=float)))
@@ -521,7 +520,7 @@ def reflex_bias_bound(model, rho):
     v, _ = model.rectifier_velocity_grid()
     bd = np.asarray(alt["bd"], dtype=float)
     m = model.state_order
-    dc = float(model.C @ np.linalg.solve(np.eye(m) - model.A, bd[:m]) + bd[m])
+    dc = static_gain(model.A, bd[:m], model.C, bd[m])
     Om = np.asarray(alt["omega"], dtype=float).reshape(Omega.shape)
     f = dc * (model.reflex_rho_basis.evaluate(rho) @ Om.T @ basis.evaluate(v).T)
     g_alt, th_alt = rectifier_fit(v, f)
@@ -556,7 +555,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     from .model import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
-    _, cov, _ = _reflex_parameters(model)
+    cov, _ = _reflex_covariance(model)
     v, _ = model.rectifier_velocity_grid()
     f, J = nonlinearity_jacobian(model, v, rho)
     gain, th = rectifier_fit(v, f)
@@ -588,7 +587,7 @@ def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     >>> lower.shape, bool(np.all((lower <= f) & (f <= upper)))
     ((1, 5), True)
     """
-    _, cov, _ = _reflex_parameters(model)
+    cov, _ = _reflex_covariance(model)
     f, J = nonlinearity_jacobian(model, np.atleast_1d(velocity), np.atleast_1d(rho))
     se = np.sqrt(np.clip(np.einsum("prv,pq,qrv->rv", J, cov, J), 0.0, None))
     half = z_value(level) * se

@@ -224,6 +224,7 @@ def test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays():
     extended = identify(data, effects=("position_dependent_reflex_delay",))
     fe = extended.effects[0]
     assert fe.options["steps"] == steps and fe.Theta.shape == (len(steps), 2)  # order-2 basis, no constant
+    assert fx.model_reflex_delay_steps(extended) == steps and fx.model_reflex_delay_steps(model) == []
     assert vaf(data.torque, extended.predict(data.position, data.scheduling, warn=False).total) > \
         vaf(data.torque, model.predict(data.position, data.scheduling, warn=False).total)
     lay = export.state_layout(extended, "causal")

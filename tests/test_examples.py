@@ -34,6 +34,7 @@ REGISTRY = {
     "lpvpc.cli.main": "test_cli.py::test_export",
     "lpvpc.cli.cmd_validate": "test_validation.py::test_min_vaf_failing_exits_1",
     "lpvpc.data.Trial": "test_data.py::test_degree_conversion",
+    "lpvpc.effects.model_reflex_delay_steps": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
     "lpvpc.data.write_trial_csv": "test_data.py::test_csv_round_trip",
     "lpvpc.data.check_trial": "test_data.py::test_uneven_time_named",
     "lpvpc.data.load_trial": "test_matfiles.py::test_nldat_trial_read_by_variable",
@@ -801,7 +802,7 @@ def test_example_the_whole_joint_model_on_a_held_out_record(model, subject, held
     assert Path(metrics["fmu"]) == tmp_path / "whole_joint_fmi2.fmu" and metrics["fmi_version"] == 2
     assert metrics["vaf_total"] > 98 and abs(metrics["vaf_total_fmu"] - metrics["vaf_total"]) < 0.05  # %
     assert metrics["fmu_vs_numpy"] < 1e-9 and metrics["casadi_vs_numpy"] < 1e-9
-    assert metrics["vaf_perturbation"] > metrics["vaf_two_input"] - 3
+    assert metrics["vaf_perturbation"] > metrics["vaf_two_input"] - 2  # issue 12's floor
     assert metrics["latency_s"] == metrics["latency_samples"] / model.fs
     assert all(len(v) == meas.n for v in traces.values())
     assert np.allclose(traces["angle"], meas.position + meas.scheduling)  # the PT trial's joint angle, rad
