@@ -1,8 +1,11 @@
 """Identification speed and memory.
 
 - 2-minute 100 Hz record: wall time per stage (median of 3 runs);
-- cost versus record length (2, 7.5, 15, 30 minutes), each length in a fresh subprocess
-  so that its peak resident memory (ru_maxrss) is its own;
+- cost versus record length (2, 7.5, 15, 30 minutes): the records are simulated here and
+  written as 100 Hz CSV files; each length is loaded and identified in a fresh subprocess,
+  so that its peak resident memory is that of loading and identifying, not of the
+  simulator (VmHWM of /proc/self/status: ru_maxrss would carry the parent's resident size
+  at the fork over the exec on Linux, and the parent holds the simulated records);
 - the projection (27)-(28) computed as lpvpc does (least squares after projecting out
   range(Psi_r)) versus the literal formula with explicit pseudo-inverses and the N x N
   projector, at N = 12,000: time ratio and largest difference.
@@ -39,19 +42,27 @@ def subject_data(duration, seed=0):
     return pair_trials(pair.pt, pair.ut)
 
 
-def one_length(duration):
-    """Child process: identify one record, print JSON with time and peak memory."""
-    import resource
+def _peak_rss_kib() -> float:
+    """This process's peak resident size (KiB) since its exec: VmHWM (Linux)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1])
+    raise RuntimeError("no VmHWM in /proc/self/status (Linux only)")
 
+
+def one_length(pt, ut):
+    """Child process: load and identify one record from its files, print JSON with time and
+    peak memory."""
+    from lpvpc.data import load_identification_data
     from lpvpc.identify import identify
 
-    data = subject_data(duration)
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    data = load_identification_data(pt=pt, ut=ut)
+    rss0 = _peak_rss_kib()
     t = time.perf_counter()
     model = identify(data)
     elapsed = time.perf_counter() - t
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
-    print(json.dumps({"duration_s": duration, "n": data.n, "time_s": elapsed, "peak_rss_mb": peak / 1024,
+    peak = _peak_rss_kib()
+    print(json.dumps({"n": data.n, "time_s": elapsed, "peak_rss_mb": peak / 1024,
                       "rss_before_identify_mb": rss0 / 1024, "vaf": model.fit["vaf"], "timings": model.fit["timings_s"]}))
 
 
@@ -176,8 +187,8 @@ def speed_floor() -> list:
 
 
 def main():
-    if len(sys.argv) > 2 and sys.argv[1] == "--one":
-        one_length(float(sys.argv[2]))
+    if len(sys.argv) > 3 and sys.argv[1] == "--one":
+        one_length(sys.argv[2], sys.argv[3])
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--floor":
         load_before = os.getloadavg()
@@ -202,16 +213,29 @@ def main():
     lines.append(f"2-minute record (N = {data.n}, 100 Hz): median {med:.2f} s of 3 runs; stages of that run: "
                  + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
     lines.append("")
-    lines.append("| record | samples | identify time (s) | time per 1k samples (ms) | peak RSS (MB) |")
-    lines.append("|---|---|---|---|---|")
+    lines.append("| record | samples | identify time (s) | time per 1k samples (ms) | RSS after loading (MB) "
+                 "| peak RSS, load + identify (MB) |")
+    lines.append("|---|---|---|---|---|---|")
+    import tempfile
+
+    from lpvpc.data import write_trial_csv
+    from lpvpc.simulate import simulate_pair
+
     for minutes in (2, 7.5, 15, 30):
-        out = subprocess.run([sys.executable, __file__, "--one", str(60 * minutes)], capture_output=True, text=True,
-                             env={**os.environ, "PYTHONWARNINGS": "ignore"})
+        with tempfile.TemporaryDirectory() as tmp:
+            pair = simulate_pair("multilevel", seed=0, duration=60 * minutes, fs_out=100.0)
+            files = [str(Path(tmp) / f"{k}.csv") for k in ("PT", "UT")]
+            for trial, path in zip((pair.pt, pair.ut), files):
+                write_trial_csv(trial, path)
+            del pair
+            out = subprocess.run([sys.executable, __file__, "--one", *files], capture_output=True, text=True,
+                                 env={**os.environ, "PYTHONWARNINGS": "ignore"})
         if out.returncode != 0:
             lines.append(f"| {minutes} min | failed: {out.stderr.strip().splitlines()[-1]} |")
             continue
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        lines.append(f"| {minutes} min | {r['n']} | {r['time_s']:.2f} | {1000 * r['time_s'] / (r['n'] / 1000):.1f} | {r['peak_rss_mb']:.0f} |")
+        lines.append(f"| {minutes} min | {r['n']} | {r['time_s']:.2f} | {1000 * r['time_s'] / (r['n'] / 1000):.1f} "
+                     f"| {r['rss_before_identify_mb']:.0f} | {r['peak_rss_mb']:.0f} |")
     lines.append("")
     pc = projection_comparison()
     lines.append(f"Projection (27)-(28) at N = {pc['n']}: lpvpc {1000 * pc['t_lpvpc_s']:.1f} ms, literal pinv formula "
