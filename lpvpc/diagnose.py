@@ -38,7 +38,12 @@ Two questions (see :func:`diagnose`):
    When no candidate is significant, :func:`signal_dependence` says which measured or
    derived signal the residual depends on most, and through which pathway: the same
    cross-validated test for probes "static function of s", "intrinsic IRF modulated by
-   s" and "reflex modulated by s" for each signal s.
+   s" and "reflex modulated by s" for each signal s. A probe's shape follows the signal's
+   rank in the record (its empirical distribution), so it resolves the values the record
+   dwells on (e.g. slow speeds near zero) whatever their spread. Trial time is probed as a
+   slowly varying gain of each pathway (cubic B-splines, knots every TIME_KNOT_S s) scored
+   with interleaved folds: a contiguous fold would have to extrapolate a time-local gain
+   into a block no training fold saw.
 
 :class:`Diagnosis` holds the answer; ``to_dict()`` is the ``diagnosis.json`` format
 (candidates in rank order with ``effect``, ``vaf_gain``, ``significant``,
@@ -71,6 +76,10 @@ BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
 MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains are never called significant
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
 OUTSIDE_RATIO = 1.5  # a signal probe this many times better than the top candidate: say so
+# s: knot spacing of the trial-time gain probes: a pathway's gain that changes on time scales of
+# ~20 s and longer (attention, fatigue, habituation, a slow swing of excitability), a handful of
+# parameters per pathway and minute
+TIME_KNOT_S = 10.0
 LEAK_R2 = 0.2  # a signal this well explained by the model's reflex drive is not used to name an effect
 MIN_RECORD_S = 20.0  # s: shorter records are refused (10 folds of 2 s, each a few perturbation steps)
 SANE_DROP = 2.0  # pp: a refitted base this much below the model's own VAF is not trusted (short/narrow record)
@@ -289,6 +298,23 @@ class Surrogate:
         num, den = scipy.signal.ss2tf(m.A, m.B[:, None], m.C[None, :], np.array([[m.D]]))
         z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(dvel), m.reflex_rho_basis.evaluate(self.rho), m.Omega), -1)
         return np.hstack([scipy.signal.lfilter(num[0], den, U, axis=0), eq.state_trajectory(m.A, m.B, z), z[:, None]])
+
+    def interleaved(self):
+        """(BlockCV, held-out base residual) of the same base on interleaved folds (2-s
+        blocks dealt to the folds in turn; the fixed design's own folds already are): a
+        held-out block then lies between training blocks, which a slowly varying function
+        of trial time needs."""
+        if self.cv.parts and not isinstance(self.cv.parts[0], slice):
+            return self.cv, self.cv.fit(self.base)[0]
+        if not hasattr(self, "_interleaved"):
+            w = None if self.cv.w is None else self.cv.w > 0
+            cv = BlockCV(np.asarray(self.data.torque, dtype=float), self.cv.K, w,
+                         interleave=int(round(BLOCK_S * self.fs)))
+            cv.ridge = self.cv.ridge
+            for b in self.base:
+                cv.add(b, self.cv.blocks[b])
+            self._interleaved = (cv, cv.fit(self.base)[0])
+        return self._interleaved
 
     def emg_latency(self):
         """:func:`lpvpc.effects.reflex_latency` of the perturbed trial's EMG against the
@@ -639,11 +665,52 @@ def _cheb(x, order):
     lo, hi = np.percentile(x, [1, 99])
     if hi - lo < 1e-12:
         return None
-    s = np.clip((2 * x - (hi + lo)) / (hi - lo), -1, 1)
+    return _cheb_of(np.clip((2 * x - (hi + lo)) / (hi - lo), -1, 1), order)
+
+
+def _cheb_of(s, order):
     T = [np.ones_like(s), s]
     for _ in range(1, order):
         T.append(2 * s * T[-1] - T[-2])
     return np.column_stack(T[1:order + 1])
+
+
+def _rank_cheb(x, order):
+    """Chebyshev T1..T_order of x's rank in the record (its empirical distribution function,
+    mapped to [-1, 1]; ties share their mean rank): the probe's resolution goes where the
+    samples are, and outliers do not stretch it. None for a constant signal."""
+    x = np.asarray(x, dtype=float)
+    if np.ptp(x) < 1e-12 * max(1.0, float(np.max(np.abs(x)))):
+        return None
+    u = (scipy.stats.rankdata(x) - 0.5) / len(x)
+    return _cheb_of(2 * u - 1, order)
+
+
+def time_basis(t, knot_s=TIME_KNOT_S):
+    """Cubic B-splines of trial time ``t`` (s) over the record, knots every ~``knot_s`` s,
+    each minus its mean (N, n_knots + 2): their span holds every smooth function of time
+    except a constant, so a gain they modulate changes with time but not on average.
+
+    >>> t = np.arange(0.0, 60.0, 0.01)  # a 60-s record at 100 Hz
+    >>> B = time_basis(t)
+    >>> B.shape  # 6 intervals of 10 s: 9 cubic B-splines
+    (6000, 9)
+    >>> g = np.sin(2 * np.pi * t / 30.0)  # a gain swinging every 30 s is followed ...
+    >>> c = np.linalg.lstsq(B, g - g.mean(), rcond=None)[0]
+    >>> bool(np.max(np.abs(B @ c - (g - g.mean()))) < 0.1)
+    True
+    >>> c = np.linalg.lstsq(B, np.ones_like(t), rcond=None)[0]  # ... a constant is not
+    >>> bool(np.max(np.abs(B @ c)) < 1e-9)
+    True
+    """
+    import scipy.interpolate
+
+    t = np.asarray(t, dtype=float)
+    a, b = float(t.min()), float(t.max())
+    n_int = max(1, int(np.ceil((b - a) / knot_s - 1e-9)))
+    knots = np.r_[[a] * 3, np.linspace(a, b, n_int + 1), [b] * 3]
+    B = scipy.interpolate.BSpline.design_matrix(np.clip(t, a, b), knots, 3).toarray()
+    return B - B.mean(axis=0)
 
 
 def candidate_signals(sur: Surrogate) -> dict:
@@ -660,6 +727,8 @@ def candidate_signals(sur: Surrogate) -> dict:
         "delayed_velocity": (dv, f"perturbation velocity delayed by the reflex delay {1000 * m.delay / fs:.0f} ms (rad/s)"),
         "scheduling": (sur.rho, "operating position rho (rad)"),
         "scheduling_velocity": (sur.signals["scheduling_velocity"], "slow-movement velocity (rad/s)"),
+        "scheduling_speed": (np.abs(sur.signals["scheduling_velocity"]),
+                             "slow-movement speed, |velocity| whichever the direction (rad/s)"),
         "trial_time": (sur.signals["trial_time"], "time in the trial (s)"),
     }
     for k, text in (("emg", "EMG of the perturbed trial, as recorded (reflex bursts included)"),
@@ -677,13 +746,20 @@ FORMS = {
 }
 
 
-def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, leaks=None) -> list:
+def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, leaks=None, pathways=None) -> list:
     """Cross-validated VAF gain of probes (signal x form) over the surrogate base, in
-    descending order: [{signal, form, pathway, vaf_gain, t, p_value, description, leak}]
-    (``leak``: R^2 of the signal explained by the model's reflex drive, EMG channels)."""
+    descending order: [{signal, form, pathway, vaf_gain, t, p_value, description, folds,
+    leak}] (``leak``: R^2 of the signal explained by the model's reflex drive, EMG
+    channels; ``folds``: "contiguous" or "interleaved", the cross-validation the probe was
+    scored with, its gain relative to the base on the same folds).
+
+    Each signal's shape is :func:`_rank_cheb` (T1..T3 static; T1, T2 modulating the
+    intrinsic IRF's lags and the reflex's states and drive). Trial time: the model's
+    intrinsic and reflex torques (``pathways``, default the model's prediction), each times
+    :func:`time_basis`, and the basis alone (static), on :meth:`Surrogate.interleaved`
+    folds."""
     leaks = leaks or {}
     cv = sur.cv
-    y = cv.y
     sst = sur.sst
     if r0 is None:
         r0, _ = cv.fit(sur.base)
@@ -693,25 +769,32 @@ def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, lea
     R = np.column_stack([reflex_parts, sur.reflex_drive()])
     out = []
     for name, (x, desc) in candidate_signals(sur).items():
-        T = _cheb(x, 3)
-        if T is None:
-            continue
         delayed = name == "delayed_velocity"
-        probes = {
-            "static": T,
-            "intrinsic": _kron_rows(P, T[:, :2]),
-            "reflex": _kron_rows(R, T[:, :2]),
-        }
+        if name == "trial_time":
+            if pathways is None:
+                pred = m.predict(sur.p, sur.rho, warn=False, signals=sur.signals)
+                pathways = (pred.intrinsic, pred.reflex)
+            B = time_basis(x)
+            probes = {"static": B, "intrinsic": np.asarray(pathways[0], dtype=float)[:, None] * B,
+                      "reflex": np.asarray(pathways[1], dtype=float)[:, None] * B}
+            pcv, pr0, folds = *sur.interleaved(), "interleaved"
+        else:
+            T = _rank_cheb(x, 3)
+            if T is None:
+                continue
+            probes = {"static": T, "intrinsic": _kron_rows(P, T[:, :2]), "reflex": _kron_rows(R, T[:, :2])}
+            pcv, pr0 = cv, r0
+            folds = "contiguous" if isinstance(cv.parts[0], slice) else "interleaved"
         for form, X in probes.items():
-            key = cv.add(f"probe:{name}:{form}", X)
-            r1, _ = cv.fit(sur.base + [key])
-            t, pv = paired_test(r0, r1, sur.fs, block_s)
+            key = pcv.add(f"probe:{name}:{form}", X)
+            r1, _ = pcv.fit(sur.base + [key])
+            t, pv = paired_test(pr0, r1, sur.fs, block_s)
             pathway = form if form != "static" else ("reflex" if delayed else
                                                      "neither (tonic)" if name in ("emg", "emg_ut", "trial_time") else
                                                      "intrinsic")
             out.append({"signal": name, "form": form, "pathway": pathway, "description": desc,
-                        "vaf_gain": _r(100.0 * float(r0 @ r0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _g(pv),
-                        **({"leak": leaks[name]} if name in leaks else {})})
+                        "vaf_gain": _r(100.0 * float(pr0 @ pr0 - r1 @ r1) / sst), "t": _r(t, 3), "p_value": _g(pv),
+                        "folds": folds, **({"leak": leaks[name]} if name in leaks else {})})
     out.sort(key=lambda d: -d["vaf_gain"])
     return out[:top] if top else out
 
@@ -879,9 +962,11 @@ class Diagnosis:
         sig = self.significant
         return sig[0] if sig else None
 
-    def answer(self) -> str:
-        """One paragraph: the missing effect, or the signal and pathway the residual depends on."""
-        top = self.top
+    @property
+    def signal_finding(self) -> dict | None:
+        """The signal probe the answer names: the best one whose signal is not explained by
+        the model's reflex drive, if it passes the candidates' test (gain >= min_gain, p
+        below alpha / number of probes); else None."""
         usable = [d for d in self.dependence if d.get("leak", 0.0) < LEAK_R2]
         dep = usable[0] if usable else None
         if dep is not None:
@@ -889,6 +974,12 @@ class Diagnosis:
             if not (dep["vaf_gain"] is not None and dep["vaf_gain"] >= self.settings.get("min_gain", MIN_GAIN)
                     and dep["p_value"] is not None and dep["p_value"] <= level):
                 dep = None
+        return dep
+
+    def answer(self) -> str:
+        """One paragraph: the missing effect, or the signal and pathway the residual depends on."""
+        top = self.top
+        dep = self.signal_finding
         if dep is not None:
             where = (f"{dep['signal']} ({dep['description']}): {FORMS[dep['form']]}, {dep['pathway']} pathway "
                      f"(held-out VAF +{dep['vaf_gain']:.2f} pp, p = {dep['p_value']:.1e})")
@@ -1086,7 +1177,8 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
                                    leaks=leaks)
     timings["candidates"] = time.perf_counter() - t
     t = time.perf_counter()
-    dep = signal_dependence(sur, r0, block_s=block_s, leaks=leaks) if dependence else []
+    dep = (signal_dependence(sur, r0, block_s=block_s, leaks=leaks, pathways=(pred.intrinsic, pred.reflex))
+           if dependence else [])
     timings["dependence"] = time.perf_counter() - t
     t = time.perf_counter()
     where = where_it_fails(model, data, resid, signals=sig)

@@ -420,3 +420,25 @@ def test_a_model_that_does_not_carry_over_is_said_to():
     assert d.design == "refit" and d.surrogate_vaf - d.vaf > 2.0, (d.vaf, d.surrogate_vaf)
     assert any("do not carry over" in n for n in d.notes()), d.notes()
     assert not any("do not carry over" in n for n in clean(0)[2].notes())
+    # What remains within the record (the stiffness recovers around the slow movement's
+    # turning points) is a dependence on the slow speed, whichever the direction, through the
+    # intrinsic pathway: the probe's rank-based shape resolves the speeds near zero that the
+    # record dwells on (a polynomial over the whole velocity range did not, 2/5 seeds).
+    top = d.dependence[0]
+    assert (top["signal"], top["pathway"]) == ("scheduling_speed", "intrinsic"), d.dependence[:3]
+    assert d.signal_finding is top and "depends most on scheduling_speed" in d.answer()
+
+
+def test_a_gain_that_swings_with_trial_time_is_found_on_its_pathway():
+    """Reflex gain 1 + 0.4 sin(2 pi t / 35 s) (outside the catalog): a trend in t and t^2 on
+    contiguous folds cannot follow it (0/5 seeds). The trial-time probes are slowly varying
+    gains of each pathway scored on interleaved folds: the reflex pathway's is found."""
+    ident, novel = _pairs(1, ("oscillating_reflex_gain",))
+    d = diagnose(identify(ident), novel)
+    assert not d.significant
+    top = d.dependence[0]
+    assert (top["signal"], top["pathway"], top["folds"]) == ("trial_time", "reflex", "interleaved"), d.dependence[:3]
+    assert d.signal_finding is top and "depends most on trial_time" in d.answer() and "reflex pathway" in d.answer()
+    # the intrinsic pathway's gain over time explains far less
+    intrinsic = next(x for x in d.dependence if (x["signal"], x["form"]) == ("trial_time", "intrinsic"))
+    assert intrinsic["vaf_gain"] < 0.5 * top["vaf_gain"]
