@@ -867,12 +867,14 @@ class EffectDesign:
 MIN_REFLEX_RESCALE = 0.05
 
 
-def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, y):
+def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, y, Psi_irf=None):
     """Complete an extended fit: attach the intrinsic-pathway effects estimated with the
     base model (``theta_effects``, the effect part of the projection's solution), then,
     if there are reflex-pathway effects, re-solve the intrinsic part, the intrinsic effects
     and the reflex effects jointly with the identified reflex held. Updates ``model``
-    (H, H_causal, effects) in place."""
+    (H, H_causal, curvature, effects) in place. ``Psi_i_base``: the base model's intrinsic
+    columns (with the elastic curvature tied in, if the model has it), ``Psi_irf`` the IRF's
+    alone (default: the same)."""
     effects = design.fitted(theta_effects, design.blocks, model.causal_lags, model.causal_derivatives)
     if design.reflex_effects:
         model.effects = []
@@ -897,8 +899,12 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         theta[Psi_i_base.shape[1] + design.columns.shape[1]:] /= c
         n_b = Psi_i_base.shape[1]
         model.H = theta[:n_b].reshape(model.H.shape)
-        model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val, Psi_i_base @ theta[:n_b],
-                                    model.causal_derivatives)
+        if model.curvature is not None:
+            from .intrinsic import curvature_from_irf
+
+            model.curvature = curvature_from_irf(model.H, model.intrinsic_basis)
+        model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val,
+                                    (Psi_i_base if Psi_irf is None else Psi_irf) @ theta[:n_b], model.causal_derivatives)
         n_e = design.columns.shape[1]
         effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
                                 design.blocks + blocks_r, model.causal_lags, model.causal_derivatives)

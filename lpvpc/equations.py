@@ -9,6 +9,7 @@ rows (one sample).
 Notation (seed paper, eqs. 3-20), at sample k, sampling period T = 1/fs:
 
     intrinsic:  tq_i(k) = sum_l  h_l(rho(k)) * pos(k - l),   h_l(rho) = G_i(rho) . H[l]
+                          + (G_i(rho(k)) . c) * pos(k)^2          (elastic curvature, not in the paper)
     velocity:   vel(k)  = (pos(k+1) - pos(k-1)) / (2T)            (central difference)
     reflex in:  z(k)    = sum_ij Omega[i, j] g_i(dvel(k)) G_r(rho(k))_j,  dvel(k) = vel(k - delay)
     reflex:     x(k+1)  = A x(k) + B z(k),   tq_r(k) = C x(k) + D z(k)
@@ -43,6 +44,24 @@ def intrinsic_torque(lagged_position, rho_basis, H, ops=NUMPY):
     """
     weights = ops.mtimes(rho_basis, H.T)  # h_l(rho(k)) for every lag, (N, n_lags)
     return ops.row_sum(weights * lagged_position)
+
+
+def elastic_curvature_torque(position, rho_basis, curvature, ops=NUMPY):
+    """Second-order elastic torque within a perturbation (N m): (G_i(rho) . c) pos^2.
+
+    The elastic torque of a perturbation p about rho is E(rho + p) - E(rho) = K(rho) p +
+    0.5 K'(rho) p^2 + ...; the IRF, linear in p, holds the first term, this the second
+    (``curvature`` c: (n_i,) coefficients in N m/rad^2, G_i(rho) . c = 0.5 K'(rho)). Without it the
+    reflex nonlinearity of stretch velocity takes up part of p^2 (a stretch step raises
+    both) and its gain comes out ~10 % high on the virtual subject
+    (benchmarks/results/reflex_1k_bias.txt).
+
+    position: (N,) pos(k) in rad; rho_basis: (N, n_i) G_i(rho(k)).
+
+    >>> float(elastic_curvature_torque(np.array([0.02]), np.ones((1, 1)), np.array([500.0]))[0])  # N m
+    0.2
+    """
+    return ops.mtimes(rho_basis, curvature) * position * position
 
 
 def central_velocity(pos_ahead, pos_behind, fs):

@@ -249,7 +249,8 @@ def _coefficient_blocks(model, variant):
         ("B", np.asarray(model.B, dtype=float).reshape(-1)),
         ("C", np.asarray(model.C, dtype=float).reshape(-1)),
         ("D", np.array([float(model.D)])),
-    ] + [blk for fe in getattr(model, "effects", ()) for blk in fe.coefficient_blocks(_irf(variant))]
+    ] + ([("curvature", np.asarray(model.curvature, dtype=float).reshape(-1))]
+         if getattr(model, "curvature", None) is not None else []) + [blk for fe in getattr(model, "effects", ()) for blk in fe.coefficient_blocks(_irf(variant))]
 
 
 def parameter_vector(model, variant="causal") -> np.ndarray:
@@ -295,6 +296,9 @@ def parameter_info(model, variant="causal") -> list:
                     for i in range(a.shape[0]) for j in range(a.shape[1])]
         elif name in ("B", "C"):
             out += [(f"reflex dynamics {name}[{i}]", "") for i in range(a.shape[0])]
+        elif name == "curvature":
+            out += [(f"elastic curvature coefficient (scheduling basis function {i})", "N.m/rad2")
+                    for i in range(a.shape[0])]
         elif name != "D":  # an effect term of an extended model (lpvpc.effects)
             effect, kind = name.rsplit("_", 1) if not name.endswith("H_causal") else (name[:-9], "H_causal")
             what = {"H": "two-sided IRF", "H_causal": "causal IRF", "Theta": "static term"}[kind]
@@ -394,14 +398,17 @@ def step_function(model, variant="causal", parametric=False, name=None):
     else:
         signals = ops.hcat([p_at(lat + int(l)) for l in model.lags])
         H = c["H"]
-    tq_i = eq.intrinsic_torque(signals, model.intrinsic_basis.evaluate(rho, ops), H, ops)
+    Gi = model.intrinsic_basis.evaluate(rho, ops)
+    tq_i = eq.intrinsic_torque(signals, Gi, H, ops)
+    if "curvature" in c:  # the elastic curvature term at sample j
+        tq_i = tq_i + eq.elastic_curvature_torque(p_at(lat), Gi, c["curvature"], ops)
 
     # Reflex pathway at sample j: dvel(j) = vel(j - d), zero before the record starts.
     d = int(model.delay)
     dvel = eq.central_velocity(p_at(lat + d - 1), p_at(lat + d + 1), fs)
     dvel = ca.if_else(seen >= lat + d, dvel, 0.0)
-    z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), model.reflex_rho_basis.evaluate(rho, ops),
-                        c["Omega"], ops)
+    G_r = model.reflex_rho_basis.evaluate(rho, ops)
+    z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), G_r, c["Omega"], ops)
     x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
 
     eff_next = eff_state

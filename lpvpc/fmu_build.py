@@ -78,6 +78,7 @@ UNITS: dict[str, dict[str, float]] = {
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "kg.m2": {"kg": 1, "m": 2},
     "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m/rad2": {"kg": 1, "m": 2, "s": -2, "rad": -2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
     "N.m.s2/rad": {"kg": 1, "m": 2, "rad": -1},
     "N.m/(rad/s)": {"kg": 1, "m": 2, "s": -1, "rad": -1},

@@ -9,7 +9,10 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
     intrinsic           {"lags": [-L..L], "H": n_lags x n_i (N m/rad), "basis": Basis,
                          "causal_lags": [0..Lc], "H_causal": (Lc + 3) x n_i: lags 0..Lc,
                          then velocity and acceleration at k, "derivatives": their
-                         offline estimate, "central3" or "central5" (absent: central3)}
+                         offline estimate, "central3" or "central5" (absent: central3),
+                         "curvature" (format 3): n_i elastic curvature coefficients,
+                         N m/rad^2 (:func:`lpvpc.equations.elastic_curvature_torque`;
+                         absent: none)}
     reflex              {"delay": samples, "velocity_basis": Basis, "rho_basis": Basis,
                          "Omega": n_v x n_r, "A": m x m, "B": m, "C": m, "D": scalar,
                          "high_rate" (optional): {"fs": Hz, "delay": samples at fs,
@@ -19,7 +22,9 @@ Saved-model JSON format (``format: "lpvpc-model"``, ``format_version: 1``)::
     provenance          {"data_hash", "lpvpc_version", "numpy_version", ...}
     units, conventions  {"position": "rad", "torque": "N m", "torque_sign": +1|-1, ...}
     fit                 identification diagnostics (VAF, singular values, order, iterations)
-    effects             (extended models only, ``format_version: 2``) list of effect terms
+    format_version      1; 2 with effects; 3 when the model has the elastic curvature term
+                        (older readers refuse files they would predict wrongly)
+    effects             (extended models only) list of effect terms
                         {"name", "options", "H", "H_causal", "Theta", "basis"}: see
                         :mod:`lpvpc.effects`; they need the extra input signals named there
 
@@ -63,6 +68,7 @@ FORMAT = "lpvpc-model"
 RECTIFIER_MIN_FS = 500.0
 FORMAT_VERSION = 1
 FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
+FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
 
 
 @dataclass
@@ -174,6 +180,7 @@ class LPVPCModel:
     causal_derivatives: str = "central3"  # stencil of the causal form's velocity/acceleration
     uncertainty: dict = field(default_factory=dict)  # lpvpc.uncertainty.fit_uncertainty (empty: no intervals)
     high_rate: HighRateNonlinearity | None = None  # the nonlinearity identified at the file's rate (module notes)
+    curvature: np.ndarray | None = None  # (n_i,) elastic curvature coefficients, N m/rad^2 (None: no such term)
 
     @property
     def nonlinearity_fs(self) -> float:
@@ -286,6 +293,8 @@ class LPVPCModel:
         for a, b in eq.blocks(len(position), H.shape[0]):  # bounded memory for any record length
             signals = eq.position_signals(position, self.fs, lags, a, b, causal=causal, vel=velocity, acc=acceleration)
             tq_i[a:b] = eq.intrinsic_torque(signals, Gi[a:b], H)
+        if self.curvature is not None:  # static in pos(k): the same term in both IRF forms
+            tq_i = tq_i + eq.elastic_curvature_torque(position, Gi, self.curvature)
         z = self.reflex_drive(position, scheduling, high_rate=high)
         tq_r = self._reflex_filter(z)
         parts = {}
@@ -474,7 +483,8 @@ class LPVPCModel:
     def to_dict(self) -> dict:
         d = {
             "format": FORMAT,
-            "format_version": FORMAT_VERSION_EFFECTS if self.effects else FORMAT_VERSION,
+            "format_version": (FORMAT_VERSION_CURVATURE if self.curvature is not None
+                               else FORMAT_VERSION_EFFECTS if self.effects else FORMAT_VERSION),
             "fs": self.fs,
             "intrinsic": {
                 "lags": list(map(int, self.lags)),
@@ -501,6 +511,8 @@ class LPVPCModel:
             "conventions": self.conventions,
             "fit": self.fit,
         }
+        if self.curvature is not None:
+            d["intrinsic"]["curvature"] = self.curvature.tolist()
         if self.high_rate is not None:
             d["reflex"]["high_rate"] = self.high_rate.to_dict()
         if self.effects:
@@ -538,6 +550,7 @@ class LPVPCModel:
                 fit=d.get("fit", {}),
                 uncertainty=d.get("uncertainty") or {},
                 high_rate=HighRateNonlinearity.from_dict(refl["high_rate"]) if refl.get("high_rate") else None,
+                curvature=np.array(intr["curvature"], dtype=float) if intr.get("curvature") is not None else None,
             )
             if d.get("effects"):
                 from .effects import FittedEffect
@@ -555,6 +568,8 @@ class LPVPCModel:
             problems.append(f"intrinsic H has shape {self.H.shape}, expected {(len(self.lags), n_i)}")
         if self.H_causal.shape != (len(self.causal_lags) + 2, n_i):
             problems.append(f"intrinsic H_causal has shape {self.H_causal.shape}, expected {(len(self.causal_lags) + 2, n_i)}")
+        if self.curvature is not None and self.curvature.shape != (n_i,):
+            problems.append(f"intrinsic curvature has shape {self.curvature.shape}, expected {(n_i,)}")
         if min(self.causal_lags, default=0) < 0:
             problems.append("causal_lags must be non-negative")
         if self.causal_derivatives not in eq.DERIVATIVE_STENCILS:
@@ -575,6 +590,8 @@ class LPVPCModel:
         if self.delay < 1:
             problems.append(f"reflex delay must be at least 1 sample, got {self.delay}")
         arrays = [self.H, self.H_causal, self.Omega, self.A, self.B, self.C, np.array([self.D, self.fs])]
+        if self.curvature is not None:
+            arrays.append(self.curvature)
         if self.high_rate is not None:
             arrays.append(self.high_rate.Omega)
         for fe in self.effects:

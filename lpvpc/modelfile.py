@@ -294,6 +294,9 @@ def _check_intrinsic(x, where, problems, d, budget):
     _shape(_array(s.get("H"), f"{where}.H", problems, 2, budget), (len(lags), n_i), f"{where}.H", problems)
     _shape(_array(s.get("H_causal"), f"{where}.H_causal", problems, 2, budget), (len(causal) + 2, n_i),
            f"{where}.H_causal", problems)
+    if s.get("curvature") is not None:
+        _shape(_array(s.get("curvature"), f"{where}.curvature", problems, 1, budget), (n_i,), f"{where}.curvature",
+               problems)
     if s.get("derivatives", "central3") not in DERIVATIVE_STENCILS:  # absent in older files: central3
         problems.append(f"{where}.derivatives = {_show(s.get('derivatives'))} is not one of {DERIVATIVE_STENCILS}")
 
@@ -546,14 +549,14 @@ def check_model_dict(d, source: str = "model") -> None:
     ...
     lpvpc.errors.ModelFileError: model: corrupt model file: fs = inf Hz outside (0, ...] (MAX_FS)
     """
-    from .model import FORMAT, FORMAT_VERSION, FORMAT_VERSION_EFFECTS
+    from .model import FORMAT, FORMAT_VERSION, FORMAT_VERSION_CURVATURE, FORMAT_VERSION_EFFECTS
 
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
     version = d.get("format_version")
-    if not _is_int(version) or version not in (FORMAT_VERSION, FORMAT_VERSION_EFFECTS):
+    if not _is_int(version) or version not in (FORMAT_VERSION, FORMAT_VERSION_EFFECTS, FORMAT_VERSION_CURVATURE):
         raise ModelFileError(f"{source}: unsupported model format_version {_show(version)} "
-                             f"(expected {FORMAT_VERSION} or {FORMAT_VERSION_EFFECTS})")
+                             f"(expected {FORMAT_VERSION}, {FORMAT_VERSION_EFFECTS} or {FORMAT_VERSION_CURVATURE})")
     problems = []
     fs = d.get("fs")
     if not _is_number(fs):

@@ -32,16 +32,17 @@ Derived quantities:
   identifiable, :func:`nonlinearity_jacobian`) and the linearised rectifier fit. Checked
   against the spread over noise realisations of the same trials (benchmark row "vs
   noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
-  shift when the intrinsic pathway also holds the elastic torque's curvature, which the
-  linear IRF leaves to the reflex (it bounds the trend over position, not the level);
+  shift when the elastic torque's curvature in the intrinsic pathway is free instead of
+  tied to the IRF's K'(theta) (the specification's neighbour);
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
 the parameters as extra Jacobian columns. Not included: the reflex nonlinearity's
-structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain by
--1 % in plantarflexion to +19 % in dorsiflexion on the virtual subject, and the 1 kHz path
-is +14 % high on average), so gain and threshold intervals under-cover the truth; those of
-a model-rate nonlinearity say so (``Interval.biased``). Measured coverage:
+structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain,
+up to +19 % in dorsiflexion on the virtual subject), so the gain and threshold intervals
+of a model-rate nonlinearity under-cover the truth and say so (``Interval.biased``); those
+of the 1 kHz path cover it (the elastic curvature term removed most of its +14 % bias).
+Measured coverage:
 ``benchmarks/results/uncertainty.txt``.
 
 Stored in the model file as ``"uncertainty"`` (absent in older files; the interval methods
@@ -50,8 +51,8 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
     method, block_length_s, n_samples, dof
     truncation    {"lags": [-(L-1)..L-1], "H": the one-lag-shorter IRF (N m/rad)}
     richer_basis  {"basis": scheduling basis one order higher, "H": that IRF (N m/rad)}
-    curvature_reflex {"omega": n_v * n_r, "bd": m + 1}: the reflex refitted with the elastic
-                  torque's curvature in the intrinsic pathway (:func:`reflex_bias_bound`)
+    curvature_reflex {"omega": n_v * n_r, "bd": m + 1}: the reflex refitted with free elastic
+                  curvature columns in the intrinsic pathway (:func:`reflex_bias_bound`)
     parameters    {"theta_i": n, "omega": n_v * n_r, "bd": m + 1, "den": m or 0}: order of
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
@@ -113,7 +114,7 @@ def _reflex_output(z, bd, den, segments=None):
 
 
 def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=None, truncated=None,
-                    segments=None, richer=None, curvature=None) -> dict:
+                    segments=None, richer=None, free_curvature=None, curvature_torque=None) -> dict:
     """The ``uncertainty`` entry of the model file for the fit ``y ~ Psi_i theta_i +
     sum_j bd_j blocks_j omega`` (see the module docstring). Arrays in SI units.
 
@@ -123,9 +124,11 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     ``truncated`` = (lags, Psi) of a one-lag-shorter IRF: refitted to the same intrinsic
     torque for the truncation term of the intrinsic intervals; ``richer`` = (basis, Psi) of
     the IRF with the scheduling basis one order higher, refitted likewise for the basis
-    term; ``curvature`` = columns p^2 G_i(theta) of the elastic torque's second-order
-    term: the final separable least squares refitted with them for the reflex bias bound
-    (:func:`reflex_bias_bound`).
+    term (both refits after the model's elastic curvature torque ``curvature_torque`` is
+    removed); ``free_curvature`` = columns p^2 G_i(theta) of the elastic torque's
+    second-order term with free coefficients (the model's are tied to its K'(theta), or
+    absent): the final separable least squares refitted with them for the reflex bias
+    bound (:func:`reflex_bias_bound`).
 
     :func:`lpvpc.identify.identify` calls it; the model (and its file) keeps the result:
 
@@ -187,7 +190,9 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         "covariance": cov.tolist(),
         "vaf": vaf_interval(y, fitted, block),
     }
-    y_i = y - X_om @ omega  # the intrinsic torque of the fit
+    y_i = y - X_om @ omega  # the IRF's torque of the fit
+    if curvature_torque is not None:
+        y_i = y_i - curvature_torque
     if truncated is not None:
         lags_t, Psi_t = truncated
         theta_t = np.linalg.lstsq(Psi_t, y_i, rcond=None)[0]
@@ -196,11 +201,11 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         basis_b, Psi_b = richer
         theta_b = np.linalg.lstsq(Psi_b, y_i, rcond=None)[0]
         out["richer_basis"] = {"basis": basis_b.to_dict(), "H": theta_b.reshape(len(model.lags), -1).tolist()}
-    if curvature is not None:
+    if free_curvature is not None:
         from .errors import InsufficientExcitationError
 
         try:
-            out["curvature_reflex"] = _reflex_refit(blocks, np.hstack([Psi_i, curvature]), y, omega)
+            out["curvature_reflex"] = _reflex_refit(blocks, np.hstack([Psi_i, free_curvature]), y, omega)
         except InsufficientExcitationError:  # the columns are already in Psi_i, or p^2 is unexcited
             pass
     return out
@@ -493,13 +498,13 @@ def _rectifier_sensitivity(v, g, th):
 
 def reflex_bias_bound(model, rho):
     """Bounds (gain N m s/rad, threshold rad/s) on the structural bias of the reflex gain
-    and threshold at ``rho``: their shifts when the intrinsic pathway also holds the
-    elastic torque's curvature, 0.5 K'(theta) p^2 (columns p^2 G_i(theta) refitted with
-    the final separable least squares). The IRF is linear in the perturbation p, so that
-    term is left over, and the reflex nonlinearity of stretch velocity takes up part of
-    it (PRALDS steps make velocity and p^2 move together); on the virtual subject this
-    is most of the 1 kHz path's gain bias (benchmarks/results/uncertainty.txt). Zeros when
-    the file stores no such refit.
+    and threshold at ``rho``: their shifts when the elastic torque's second-order term
+    0.5 K'(theta) p^2 is fitted freely (columns p^2 G_i(theta), refitted with the final
+    separable least squares) instead of as the model has it (tied to the IRF's K'(theta),
+    :func:`lpvpc.intrinsic.curvature_from_irf`; or absent, in files before it). The
+    reflex nonlinearity of stretch velocity takes up whatever of that term the
+    intrinsic pathway misses (PRALDS steps make velocity and p^2 move together). Zeros
+    when the file stores no such refit.
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify

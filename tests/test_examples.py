@@ -544,7 +544,7 @@ def test_example_an_extended_fit_by_hand():
     from lpvpc import equations as eq
     from lpvpc.data import pair_trials
     from lpvpc.identify import identify
-    from lpvpc.intrinsic import intrinsic_regressor
+    from lpvpc.intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor
     from lpvpc.model import vaf
     from lpvpc.simulate import simulate_pair
 
@@ -568,13 +568,16 @@ def test_example_an_extended_fit_by_hand():
                                     design.channel_values["drift"], design.bases["drift"])
     assert static is None and np.array_equal(irf, design.columns)
 
-    Psi = intrinsic_regressor(p, Gi, base.lags)
+    Psi_irf = intrinsic_regressor(p, Gi, base.lags)
+    # the elastic curvature, tied to the IRF's stiffness, adds its share to every lag's columns
+    Psi = Psi_irf + np.tile(curvature_regressor(p, Gi, base.intrinsic_basis), len(base.lags))
     y = data.torque - base.predict(data, warn=False).reflex  # N m: the intrinsic share, the reflex held
     theta = np.linalg.lstsq(np.hstack([Psi, design.columns]), y, rcond=None)[0]
     model = copy.deepcopy(base)
     model.H = theta[:Psi.shape[1]].reshape(base.H.shape)
-    model.H_causal = fx.causal_irf(p, fs, model.causal_lags, Gi, Psi @ theta[:Psi.shape[1]], model.causal_derivatives)
-    fx.finish_extended_fit(design, model, theta[Psi.shape[1]:], Psi, data.torque)
+    model.curvature = curvature_from_irf(model.H, base.intrinsic_basis)  # N m/rad^2
+    model.H_causal = fx.causal_irf(p, fs, model.causal_lags, Gi, Psi_irf @ theta[:Psi.shape[1]], model.causal_derivatives)
+    fx.finish_extended_fit(design, model, theta[Psi.shape[1]:], Psi, data.torque, Psi_irf=Psi_irf)
     (fe,) = model.effects
     assert fe.name == "drift" and fe.H.size == width and model.signals == ("trial_time",)
     pred = model.predict(data, warn=False)

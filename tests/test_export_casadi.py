@@ -78,14 +78,17 @@ def test_parameter_vector_and_names(model):
         vec = ex.parameter_vector(model, variant)
         info = ex.parameter_info(model, variant)
         m = model.A.shape[0]
-        assert len(names) == len(vec) == len(info) == H.size + model.Omega.size + m * m + 2 * m + 1
+        n_i = model.intrinsic_basis.size
+        assert len(names) == len(vec) == len(info) == H.size + model.Omega.size + m * m + 2 * m + 1 + n_i
         assert len(set(names)) == len(names)
         i = names.index(f"{H_name}[2,1]")
         assert vec[i] == H[2, 1]
         r, c = model.Omega.shape
         assert vec[names.index(f"Omega[{r - 1},{c - 1}]")] == model.Omega[r - 1, c - 1]
         assert vec[names.index(f"A[0,{m - 1}]")] == model.A[0, m - 1]
-        assert names[-1] == "D" and vec[-1] == model.D
+        assert vec[names.index("D")] == model.D
+        assert names[-n_i:] == [f"curvature[{j}]" for j in range(n_i)]  # the elastic curvature term's
+        assert np.array_equal(vec[-n_i:], model.curvature) and info[-1][1] == "N.m/rad2"
         assert info[0][1] == "N.m/rad"
     assert ex.fmu_parameter_name("H_causal[2,1]") == "H_causal_2_1"
 
@@ -101,6 +104,7 @@ def test_parametric_step_follows_its_parameters(model, subject):
         B=model.B * 1.1,
         C=model.C * 0.8,
         D=model.D + 0.1,
+        curvature=model.curvature * 1.5,
     )
     data = subject["ident"].segment(0, 2000)
     step = ex.step_function(model, "causal", parametric=True)
@@ -113,7 +117,7 @@ def test_one_definition_of_the_equations(model, monkeypatch):
     """The step is built from lpvpc.equations (no second copy of the model equations)."""
     called = []
     for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity", "central_acceleration",
-                 "five_point_derivatives"):
+                 "five_point_derivatives", "elastic_curvature_torque"):
         original = getattr(eq, name)
 
         def spy(*args, _original=original, _name=name, **kwargs):
@@ -125,8 +129,8 @@ def test_one_definition_of_the_equations(model, monkeypatch):
         called.clear()
         ex.step_function(model, variant)
         inside = ["five_point_derivatives"] if variant == "sampled" else []  # the model's derivatives inside
-        assert sorted(called) == sorted(["central_velocity", "intrinsic_torque", "reflex_drive", "reflex_step"]
-                                        + inside), (variant, called)
+        assert sorted(called) == sorted(["central_velocity", "intrinsic_torque", "reflex_drive", "reflex_step",
+                                         "elastic_curvature_torque"] + inside), (variant, called)
 
 
 @pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])

@@ -51,6 +51,28 @@ def test_predicted_intrinsic_torque_matches_true_intrinsic(subject, model):
     assert got >= 95.0, f"intrinsic VAF {got:.2f} %"
 
 
+def test_elastic_curvature_follows_the_subjects_stiffness_gradient(model):
+    """The second-order elastic term is 0.5 K'(theta) of the identified K (tied), and so close
+    to the virtual subject's 0.5 dK/dtheta where K rises steeply (dorsiflexion)."""
+    rho = central_rho(model)
+    half_slope = 0.5 * (TRUTH.K(rho + 1e-5) - TRUTH.K(rho - 1e-5)) / 2e-5  # N m/rad^2
+    got = model.intrinsic_basis.evaluate(rho) @ model.curvature
+    steep = half_slope > 40.0  # N m/rad^2: the dorsiflexion half, where the term matters
+    assert steep.sum() >= 5
+    err = got[steep] / half_slope[steep] - 1
+    assert np.max(np.abs(err)) < 0.3, f"curvature error {np.round(100 * err, 1)} %"
+    own = got
+    h = 1e-5
+    own_half_slope = 0.5 * (model.elastic_stiffness(rho + h) - model.elastic_stiffness(rho - h)) / (2 * h)
+    assert np.allclose(own, own_half_slope, rtol=1e-3, atol=1e-3 * np.abs(own_half_slope).max())
+
+
+def test_model_without_elastic_curvature_keeps_the_papers_structure_and_file_format(subject):
+    est = LPVPCEstimator(elastic_curvature=False).fit(subject["ident"].segment(0, 3000))
+    assert est.model_.curvature is None and est.model_.to_dict()["format_version"] == 1
+    assert "curvature" not in est.model_.to_dict()["intrinsic"]
+
+
 def test_reflex_gain_rises_toward_dorsiflexion(model):
     rho = central_rho(model)
     gain, _ = model.reflex_gain_threshold(rho)
