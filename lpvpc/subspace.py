@@ -320,6 +320,10 @@ def companion_form(den):
     return A, C
 
 
+#: Poles of at least this radius count as unstable in the pole refinement.
+STABLE_POLE_RADIUS = 0.999
+
+
 class PoleRefinement:
     """Refinement of the poles of (A, C) by variable projection on the complete fit.
 
@@ -346,8 +350,9 @@ class PoleRefinement:
     array([0.7, 0.9])
     """
 
-    def __init__(self, u_state, fixed_regressor, y, segments=None):
+    def __init__(self, u_state, fixed_regressor, y, segments=None, max_radius=STABLE_POLE_RADIUS):
         self.u = np.asfortranarray(u_state)  # lfilter runs along columns
+        self.max_radius = float(min(max_radius, STABLE_POLE_RADIUS))  # poles stay inside this radius
         # Trials joined end to end: filters and delays restart in each (lpvpc.segments).
         self.segments = segments if segments is not None else Segments((), len(y))
         self.Q0 = orthonormal_range(np.hstack([fixed_regressor, u_state]))
@@ -355,8 +360,12 @@ class PoleRefinement:
         self._cache = (None, None)
 
     def refine(self, A0, max_nfev: int = 60):
-        """(A, C) in observable canonical form, and the optimiser result."""
-        den0 = np.poly(np.linalg.eigvals(A0)).real[1:]
+        """(A, C) in observable canonical form, and the optimiser result. MOESP poles at
+        or beyond ``max_radius`` start just inside it (the optimiser refuses them)."""
+        z = np.linalg.eigvals(A0)
+        r = np.abs(z)
+        inside = 0.97 * self.max_radius
+        den0 = np.poly(np.where(r > inside, z / np.maximum(r, 1e-300) * inside, z)).real[1:]
         result = scipy.optimize.least_squares(self._residual, den0, jac=self._jacobian, method="lm",
                                               max_nfev=max_nfev, x_scale="jac", ftol=1e-6, xtol=1e-6)
         A, C = companion_form(result.x)
@@ -364,7 +373,7 @@ class PoleRefinement:
 
     def _fit(self, den):
         """Least-squares fit at ``den`` (cached: the optimiser asks for the residual and
-        the Jacobian at the same point), or None where the reflex would be unstable.
+        the Jacobian at the same point), or None where a pole reaches ``max_radius`` (unstable, or slower than allowed).
 
         X is never projected explicitly: with B = Q0^T X the projected Gram matrix is
         X^T X - B^T B and the projection of any X w is X w - Q0 (B w). These normal
@@ -375,7 +384,7 @@ class PoleRefinement:
         if self._cache[0] == key:
             return self._cache[1]
         fit = None
-        if np.all(np.abs(np.roots(np.r_[1.0, den])) < 0.999):
+        if np.all(np.abs(np.roots(np.r_[1.0, den])) < self.max_radius):
             a = np.r_[1.0, den]
             W = self.segments.map(lambda x: scipy.signal.lfilter([1.0], a, x, axis=0), self.u)
             X = self.segments.map(_delays, W, m=len(den))

@@ -87,6 +87,24 @@ def test_model_without_elastic_curvature_keeps_the_papers_structure_and_file_for
     assert "curvature" not in est.model_.to_dict()["intrinsic"]
 
 
+def test_reflex_poles_stay_within_the_time_constant_limit_under_slow_unmodelled_torque():
+    """A hidden background activation (slow torque the model lacks): uncapped, the refined
+    reflex poles run to the stability limit (0.999 per sample, an integrator that follows
+    the slow torque) and the model fails on another record; capped at the default 1 s they
+    stay inside exp(-1 / (1 s * fs)) and the novel-record VAF is far higher."""
+    ident = simulate_pair("multilevel", seed=4, effects=("background_activation",), fs_out=100.0)
+    novel = simulate_pair("novel", seed=5, effects=("background_activation",), fs_out=100.0)
+    data, test = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        capped = identify(data)
+        free = identify(data, max_reflex_time_constant=None)
+        v_capped, v_free = (vaf(test.torque, m.predict(test, warn=False).total) for m in (capped, free))
+    radius = np.abs(np.linalg.eigvals(capped.A))
+    assert radius.max() < np.exp(-1.0 / (1.0 * 100.0)) and np.abs(np.linalg.eigvals(free.A)).max() > 0.995
+    assert v_capped > v_free + 10.0, (v_capped, v_free)
+
+
 def test_reflex_gain_rises_toward_dorsiflexion(model):
     rho = central_rho(model)
     gain, _ = model.reflex_gain_threshold(rho)
