@@ -81,10 +81,17 @@ def test_elastic_curvature_keeps_the_reflex_gain_level_on_the_1khz_path(subject)
     assert abs(ratio[True] - 1) < 0.06 and ratio[False] > ratio[True] + 0.03, ratio
 
 
-def test_model_without_elastic_curvature_keeps_the_papers_structure_and_file_format(subject):
-    est = LPVPCEstimator(elastic_curvature=False).fit(subject["ident"].segment(0, 3000))
+def test_model_without_elastic_curvature_keeps_the_papers_structure_and_file_format(subject, tmp_path):
+    data = subject["ident"].segment(0, 3000)
+    est = LPVPCEstimator(elastic_curvature=False).fit(data)
     assert est.model_.curvature is None and est.model_.to_dict()["format_version"] == 1
     assert "curvature" not in est.model_.to_dict()["intrinsic"]
+    est.model_.save(tmp_path / "v1.json")  # a format-1 file (as older lpvpc wrote) loads and predicts alike
+    again = LPVPCModel.load(tmp_path / "v1.json")
+    assert again.curvature is None
+    assert np.array_equal(again.predict(data, warn=False).total, est.model_.predict(data, warn=False).total)
+    with_term = identify(data)
+    assert with_term.to_dict()["format_version"] == 3 and len(with_term.to_dict()["intrinsic"]["curvature"]) == 6
 
 
 def test_reflex_poles_stay_within_the_time_constant_limit_under_slow_unmodelled_torque():
