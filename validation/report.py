@@ -102,10 +102,16 @@ def _legend_above(ax, handles=None, ncol=4):
                      frameon=False, borderaxespad=0.0)
 
 
-def _edge(x) -> str:
-    """A bin edge for a tick label: 3 significant digits, signed, and never "-0.00"."""
-    if x == 0 or not math.isfinite(x):
-        return "0" if x == 0 else f"{x}"
+def _edge(x, resolution=0.0) -> str:
+    """A bin edge for a tick label: 3 significant digits, signed, and never "-0.00"; edges
+    within ``resolution`` of zero read "0" (in prose, 1 mrad/s: a hold's +2.03e-05 rad/s
+    is a hold).
+
+    >>> _edge(-0.0301), _edge(2.03e-05), _edge(2.03e-05, resolution=1e-3)
+    ('-0.0301', '+2.03e-05', '0')
+    """
+    if abs(x) <= resolution or not math.isfinite(x):
+        return "0" if abs(x) <= resolution else f"{x}"
     return f"{x:+.3g}"
 
 
@@ -595,8 +601,9 @@ def _html(m: dict, figs: dict, model) -> str:
     wv, wp = _worst_bin(fa["by_ut_velocity"]), _worst_bin(fa["by_perturbation_velocity"])
     if wv and wp:
         prediction.append(f"<p class=\"what\">By velocity: the error is largest for movement velocities "
-                     f"{_edge(wv['lo'])}..{_edge(wv['hi'])} rad/s (RMSE {wv['rmse_numpy']:.3f} N m) and for perturbation "
-                     f"velocities {_edge(wp['lo'])}..{_edge(wp['hi'])} rad/s (RMSE {wp['rmse_numpy']:.3f} N m).</p>")
+                     f"{_edge(wv['lo'], 1e-3)}..{_edge(wv['hi'], 1e-3)} rad/s (RMSE {wv['rmse_numpy']:.3f} N m) and for "
+                     f"perturbation velocities {_edge(wp['lo'], 1e-3)}..{_edge(wp['hi'], 1e-3)} rad/s "
+                     f"(RMSE {wp['rmse_numpy']:.3f} N m).</p>")
     prediction.append(_img(figs["error_by_velocity.png"], FIGURES["error_by_velocity.png"]))
     ot = fa["over_time"]
     j = int(np.argmax(ot["rmse_numpy"]))
