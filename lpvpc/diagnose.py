@@ -296,7 +296,7 @@ class Surrogate:
         dvel = eq.delayed_velocity(self.p, self.fs, delay)
         U = reflex_input_regressor(velocity_basis.evaluate(dvel), rho_basis.evaluate(self.rho))
         num, den = scipy.signal.ss2tf(m.A, m.B[:, None], m.C[None, :], np.array([[m.D]]))
-        z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(dvel), m.reflex_rho_basis.evaluate(self.rho), m.Omega), -1)
+        z = m.reflex_drive(self.p, self.rho, delay=delay)
         return np.hstack([scipy.signal.lfilter(num[0], den, U, axis=0), eq.state_trajectory(m.A, m.B, z), z[:, None]])
 
     def interleaved(self):
@@ -322,10 +322,7 @@ class Surrogate:
         if not hasattr(self, "_emg_latency"):
             self._emg_latency = None
             if "emg" in self.signals:
-                m = self.model
-                v = eq.velocity(self.p, self.fs)
-                z = np.reshape(eq.reflex_drive(m.velocity_basis.evaluate(v), m.reflex_rho_basis.evaluate(self.rho),
-                                               m.Omega), -1)
+                z = self.model.reflex_drive(self.p, self.rho, delay=0)  # the undelayed velocity
                 mask = None if self.cv.w is None else self.cv.w > 0
                 self._emg_latency = reflex_latency(self.signals["emg"], z, self.rho, self.fs, mask=mask)
         return self._emg_latency

@@ -638,12 +638,10 @@ def shifted_reflex_torques(model, position, scheduling, steps) -> dict:
     over a record: the same nonlinearity (at rho(k)) and linear dynamics, the velocity
     taken j samples later (j > 0) or earlier."""
     p, rho = np.asarray(position, dtype=float), np.asarray(scheduling, dtype=float)
-    G_r = model.reflex_rho_basis.evaluate(rho)
     C = np.asarray(model.C, dtype=float)
 
     def torque(d):
-        z = np.reshape(eq.reflex_drive(model.velocity_basis.evaluate(eq.delayed_velocity(p, model.fs, d)), G_r,
-                                       model.Omega), -1)
+        z = model.reflex_drive(p, rho, delay=d)
         return eq.state_trajectory(model.A, model.B, z) @ C + float(model.D) * z
 
     t0 = torque(int(model.delay))

@@ -407,8 +407,8 @@ def step_function(model, variant="causal", parametric=False, name=None):
     d = int(model.delay)
     dvel = eq.central_velocity(p_at(lat + d - 1), p_at(lat + d + 1), fs)
     dvel = ca.if_else(seen >= lat + d, dvel, 0.0)
-    G_r = model.reflex_rho_basis.evaluate(rho, ops)
-    z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), G_r, c["Omega"], ops)
+    z = eq.reflex_drive(model.velocity_basis.evaluate(dvel, ops), model.reflex_rho_basis.evaluate(rho, ops),
+                        c["Omega"], ops)
     x_next, tq_r = eq.reflex_step(c["A"], c["B"], c["C"].T, c["D"], x, z)
 
     eff_next = eff_state
@@ -479,11 +479,11 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
         C = c["C"].T
         _, tq0 = eq.reflex_step(c["A"], c["B"], C, c["D"], x, z)
         shift = {}
+        G_r = model.reflex_rho_basis.evaluate(rho, ops)
         for j in steps:
             dv = eq.central_velocity(p_at(lat + d + j - 1), p_at(lat + d + j + 1), fs)
             dv = ca.if_else(seen >= lat + d + j, dv, 0.0)
-            zj = eq.reflex_drive(model.velocity_basis.evaluate(dv, ops), model.reflex_rho_basis.evaluate(rho, ops),
-                                 c["Omega"], ops)
+            zj = eq.reflex_drive(model.velocity_basis.evaluate(dv, ops), G_r, c["Omega"], ops)
             xj = eff_state[k: k + m]
             xj_next, tqj = eq.reflex_step(c["A"], c["B"], C, c["D"], xj, zj)
             shift[j] = tqj - tq0

@@ -35,7 +35,6 @@ def intrinsic_regressor(position, rho_basis, lags):
     return (P[:, :, None] * rho_basis[:, None, :]).reshape(n, len(lags) * n_i)
 
 
-
 def derivative_matrix(basis) -> np.ndarray:
     """Dm (n_i, n_i) with G_i'(rho) = G_i(rho) Dm over the basis range: a weight vector s
     has d/drho [G_i(rho) . s] = G_i(rho) . (Dm s). Exact for polynomial bases (the derivative
@@ -73,8 +72,8 @@ def curvature_from_irf(H, basis) -> np.ndarray:
 
 
 def curvature_regressor(position, rho_basis, basis) -> np.ndarray:
-    """The elastic curvature term's share of each IRF column (N, n_lags-independent n_i):
-    with the curvature tied to the IRF (:func:`curvature_from_irf`), the intrinsic torque
+    """The elastic curvature term's share of each IRF column, (N, n_i), the same for every
+    lag: with the curvature tied to the IRF (:func:`curvature_from_irf`), the intrinsic torque
     is ``(Psi_i + tile(curvature_regressor, n_lags)) @ H.ravel()``: column j is
     0.5 pos(k)^2 [G_i(rho(k)) Dm]_j, the same for every lag.
 

@@ -352,20 +352,21 @@ class LPVPCModel:
             return None
         return high
 
-    def reflex_drive(self, position, scheduling, high_rate=None):
+    def reflex_drive(self, position, scheduling, high_rate=None, delay=None):
         """Output z(k) of the reflex static nonlinearity for a whole record (model rate).
 
         ``high_rate`` (:class:`lpvpc.data.HighRate` at the rate of ``self.high_rate``): the
         high-rate nonlinearity acts on its delayed velocity and its output is decimated
         (:func:`lpvpc.reflex.high_rate_drive`); otherwise the model-rate nonlinearity acts on
-        the delayed velocity of ``position``."""
+        the velocity of ``position`` delayed by ``delay`` samples (default the model's; the
+        diagnosis and the delay effect re-run the same nonlinearity at other delays)."""
         if high_rate is not None and self.high_rate is not None:
             from .reflex import high_rate_drive
 
             hr = self.high_rate
             q = int(round(hr.fs / self.fs))
             return high_rate_drive(high_rate, q, hr.delay, hr.velocity_basis, self.reflex_rho_basis, hr.Omega)
-        dvel = eq.delayed_velocity(position, self.fs, self.delay)
+        dvel = eq.delayed_velocity(position, self.fs, self.delay if delay is None else delay)
         return eq.reflex_drive(self.velocity_basis.evaluate(dvel), self.reflex_rho_basis.evaluate(scheduling), self.Omega)
 
     def _reflex_filter(self, z):

@@ -564,8 +564,8 @@ def reflex_torque(theta, vel, fs: float, params: SubjectParams | None = None, *,
         dvel, dtheta = delay_signal(vel, p.reflex_delay, fs), delay_signal(theta, p.reflex_delay, fs)
     else:  # vel(t - delay(t)), linear interpolation, vel[0] before the start
         t = np.arange(len(vel)) / fs
-        dvel = np.interp(t - np.asarray(delay, dtype=float), t, np.asarray(vel, dtype=float))
-        dtheta = np.interp(t - np.asarray(delay, dtype=float), t, np.asarray(theta, dtype=float))
+        t_d = t - np.asarray(delay, dtype=float)
+        dvel, dtheta = np.interp(t_d, t, np.asarray(vel, dtype=float)), np.interp(t_d, t, np.asarray(theta, dtype=float))
     z = gain_scale * p.reflex_gain(dtheta) * np.maximum(dvel - p.reflex_threshold(dtheta), 0.0)
     if wn is None:
         b, a = reflex_lowpass_coefficients(p.reflex_wn, p.reflex_zeta, fs)
@@ -835,7 +835,7 @@ EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
                                "only, by 1+1.5a", _effect_activation_reflex_gain),
     "amplitude_dependent_stiffness": ("perturbation stiffness falls with amplitude, 1-|p|/0.12 rad",
                                       _effect_amplitude_dependent_stiffness),
-    "position_dependent_reflex_dynamics": ("reflex low-pass wn varies with position (10.7-24 rad/s)",
+    "position_dependent_reflex_dynamics": ("reflex low-pass wn varies with position (9.4-27 rad/s)",
                                            _effect_position_dependent_reflex_dynamics),
     "position_dependent_reflex_delay": ("reflex delay grows toward dorsiflexion, 30 ms up to -0.2 rad, "
                                         "80 ms at +0.2 rad", _effect_position_dependent_reflex_delay),
