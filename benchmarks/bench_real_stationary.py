@@ -63,6 +63,7 @@ from _results import write_results  # noqa: E402
 
 NAMES = ("z_df", "z_pf", "z_df2", "z_df3", "z_pf2")
 TREND_HZ = 0.3
+CONSTRUCTIONS = ("means removed", f"{TREND_HZ:g} Hz trend removed")
 
 
 def load(path):
@@ -85,6 +86,42 @@ def perturbation(trial, construction):
     p, y = pos - scipy.signal.filtfilt(b, a, pos), tq - scipy.signal.filtfilt(b, a, tq)
     low = decimate_trial(Trial(trial.time, p, y, {"scheduling": np.full_like(pos, pos.mean())}, name=trial.name), 100.0)
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], 100.0, source=trial.name)
+
+
+# Every table uses the same splits and the same two reference predictions; they are made
+# once per (construction, trial) and kept.
+_SPLITS, _PACKAGE, _FLEXIBLE = {}, {}, {}
+
+
+def split(trials, construction, name):
+    """(perturbation data, k): the trial in that construction and its 70 % split."""
+    key = (construction, name)
+    if key not in _SPLITS:
+        d = perturbation(trials[name], construction)
+        _SPLITS[key] = (d, int(0.7 * d.n))
+    return _SPLITS[key]
+
+
+def package_prediction(trials, construction, name):
+    """The whole record predicted by the package identified at default settings on the
+    first 70 % (N m)."""
+    key = (construction, name)
+    if key not in _PACKAGE:
+        d, k = split(trials, construction, name)
+        _PACKAGE[key] = quiet_identify(d.segment(0, k)).predict(d, warn=False).total
+    return _PACKAGE[key]
+
+
+def flexible_prediction(trials, construction, name):
+    """(the whole record predicted by the flexible fit of the first 70 % (N m), the seconds
+    that fit and prediction took)."""
+    key = (construction, name)
+    if key not in _FLEXIBLE:
+        d, k = split(trials, construction, name)
+        t0 = time.perf_counter()
+        pred = FlexibleFit(d.fs).fit(d.position[:k], d.torque[:k], d.scheduling[:k]).predict(d.position, d.scheduling)
+        _FLEXIBLE[key] = (pred, time.perf_counter() - t0)
+    return _FLEXIBLE[key]
 
 
 def rank1_flexible(p, y, k, fs, memory=0.31, iterations=60):
@@ -136,20 +173,16 @@ def terms_table(trials):
              "# zero displacement) and the mean slope over the trial's displacements, N m/rad",
              f"{'construction':22} {'trial':6} " + " ".join(f"{n:>9}" for n in TERM_SETS) + f" {'by BIC':>16} "
              f"{'K none':>7} {'K BIC':>7} {'K slope':>8} {'s':>5}"]
-    for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
+    for construction in CONSTRUCTIONS:
         diffs = []
         for name in NAMES:
-            d = perturbation(trials[name], construction)
-            k = int(0.7 * d.n)
+            d, k = split(trials, construction, name)
             held = d.torque[k:]
-            v_fl = vaf(held, FlexibleFit(d.fs).fit(d.position[:k], d.torque[:k], d.scheduling[:k])
-                       .predict(d.position, d.scheduling)[k:])
+            v_fl = vaf(held, flexible_prediction(trials, construction, name)[0][k:])
             t0 = time.perf_counter()
             fits = {}
             for label, terms in TERM_SETS.items():
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    m = identify(d.segment(0, k), effects=terms)
+                m = quiet_identify(d.segment(0, k), effects=terms)
                 bic = min(m.fit["stationary_delay_bic"].values())
                 fits[label] = (bic, m, vaf(held, m.predict(d, warn=False).total[k:]) - v_fl)
             best = min(fits, key=lambda lab: fits[lab][0])
@@ -186,13 +219,11 @@ def settings_table(trials):
              "# m=3, m=4: reflex state order forced (delay search as default); 'oracle': the grid point best held out",
              f"{'construction':22} {'trial':6} {'default':>8} {'grid BIC':>9} {'at ms':>7} {'m=3':>7} {'m=4':>7} "
              f"{'oracle':>7} {'at ms':>7}"]
-    for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
+    for construction in CONSTRUCTIONS:
         for name in NAMES:
-            d = perturbation(trials[name], construction)
-            k = int(0.7 * d.n)
+            d, k = split(trials, construction, name)
             held = d.torque[k:]
-            v_fl = vaf(held, FlexibleFit(d.fs).fit(d.position[:k], d.torque[:k], d.scheduling[:k])
-                       .predict(d.position, d.scheduling)[k:])
+            v_fl = vaf(held, flexible_prediction(trials, construction, name)[0][k:])
 
             def score(m):
                 return vaf(held, m.predict(d, warn=False).total[k:]) - v_fl
@@ -209,7 +240,7 @@ def settings_table(trials):
                         continue
                     grid.append((min(m.fit["state_order_candidates"].values()), score(m), delay, irf))
             by_bic, oracle = min(grid), max(grid, key=lambda g: g[1])
-            row = [score(quiet_identify(d.segment(0, k)))]
+            row = [vaf(held, package_prediction(trials, construction, name)[k:]) - v_fl]
             forced = [score(quiet_identify(d.segment(0, k), state_order=m)) for m in (3, 4)]
             lines.append(f"{construction:22} {name:6} {row[0]:+8.2f} {by_bic[1]:+9.2f} {1e3 * by_bic[2]:3.0f}/{1e3 * by_bic[3]:<3.0f} "
                          f"{forced[0]:+7.2f} {forced[1]:+7.2f} {oracle[1]:+7.2f} {1e3 * oracle[2]:3.0f}/{1e3 * oracle[3]:<3.0f}")
@@ -228,17 +259,16 @@ def residual_table(trials):
              f"{'construction':22} {'trial':6} {'p -5..50':>9} {'p^2 0':>7} {'p|p| p^3':>9} {'v+ 4..54':>9} "
              f"{'v- 4..54':>9} {'|v| 0..54':>10} {'p^2 0..54':>10} {'|v| lp':>7} {'tau s':>6} {'coef':>6} "
              f"{'pkg+|v|lp - flex':>17}"]
-    for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
+    for construction in CONSTRUCTIONS:
         diffs = []
         for name in NAMES:
-            d = perturbation(trials[name], construction)
-            k = int(0.7 * d.n)
+            d, k = split(trials, construction, name)
             p, y = d.position, d.torque
             vel = eq.velocity(p, d.fs)
-            pred = quiet_identify(d.segment(0, k)).predict(d, warn=False).total
+            pred = package_prediction(trials, construction, name)
             r = y - pred
             base = vaf(y[k:], pred[k:])
-            v_fl = vaf(y[k:], FlexibleFit(d.fs).fit(p[:k], y[:k], d.scheduling[:k]).predict(p, d.scheduling)[k:])
+            v_fl = vaf(y[k:], flexible_prediction(trials, construction, name)[0][k:])
 
             def added(X):
                 X = np.column_stack([X, np.ones(len(p))])
@@ -274,13 +304,12 @@ def band_table(trials):
     lines = ["", "# where in frequency: held-out error energy of the package minus the flexible fit's per band",
              "# (zero-phase 4th-order Butterworth), VAF points (positive: the package's error is larger)",
              f"{'construction':22} {'trial':6} {'total':>7} " + " ".join(f"{f'{lo}-{hi} Hz':>9}" for lo, hi in BANDS)]
-    for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
+    for construction in CONSTRUCTIONS:
         for name in NAMES:
-            d = perturbation(trials[name], construction)
-            k = int(0.7 * d.n)
+            d, k = split(trials, construction, name)
             y = d.torque
-            e_pkg = y - quiet_identify(d.segment(0, k)).predict(d, warn=False).total
-            e_fl = y - FlexibleFit(d.fs).fit(d.position[:k], y[:k], d.scheduling[:k]).predict(d.position, d.scheduling)
+            e_pkg = y - package_prediction(trials, construction, name)
+            e_fl = y - flexible_prediction(trials, construction, name)[0]
             held = y[k:] - y[k:].mean()
             scale = 100.0 / float(held @ held)
             row = []
@@ -308,29 +337,26 @@ def main():
              f"{'construction':22} {'trial':6} {'op. rad':>8} {'lpvpc':>7} {'causal':>7} {'40ms':>6} {'flexible':>9} "
              f"{'diff':>6} {'delay ms':>8} {'K N m/rad':>10} {'G N m s/rad':>11} {'K 40ms':>7} {'G 40ms':>7} "
              f"{'lpvpc s':>8} {'flex s':>7}  note"]
-    for construction in ("means removed", f"{TREND_HZ:g} Hz trend removed"):
+    for construction in CONSTRUCTIONS:
         diffs = []
         for name in NAMES:
-            d = perturbation(trials[name], construction)
+            d, k = split(trials, construction, name)
             pos = trials[name].position
-            k = int(0.7 * d.n)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 m = identify(d.segment(0, k))
-                two = m.predict(d.position, d.scheduling, warn=False).total[k:]
-                cau = m.predict(d.position, d.scheduling, causal=True, warn=False).total[k:]
+                _PACKAGE[(construction, name)] = m.predict(d, warn=False).total  # the later tables' too
+                two = _PACKAGE[(construction, name)][k:]
+                cau = m.predict(d, causal=True, warn=False).total[k:]
             t_pkg = time.perf_counter() - t0
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", StationaryWarning)
                 m40 = identify(d.segment(0, k), stationary_delays=())
             v40 = vaf(d.torque[k:], m40.predict(d.position, d.scheduling, warn=False).total[k:])
-            t0 = time.perf_counter()
-            fl = FlexibleFit(d.fs).fit(d.position[:k], d.torque[:k], d.scheduling[:k])
-            pf = fl.predict(d.position, d.scheduling)[k:]
-            t_fl = time.perf_counter() - t0
+            pf, t_fl = flexible_prediction(trials, construction, name)
             held = d.torque[k:]
-            v_pkg, v_fl = vaf(held, two), vaf(held, pf)
+            v_pkg, v_fl = vaf(held, two), vaf(held, pf[k:])
             diffs.append(v_pkg - v_fl)
             note = "LTI (StationaryWarning)" if any(issubclass(w.category, StationaryWarning) for w in caught) else ""
             op = [d.scheduling[0]]
@@ -345,10 +371,9 @@ def main():
               f"{'trial':6} {'flexible':>9} {'mem 0.1s':>9} {'mem 0.2s':>9} {'mem 0.5s':>9} {'linear v':>9} "
               f"{'rank 1':>7}"]
     for name in NAMES:
-        d = perturbation(trials[name], "means removed")
-        k = int(0.7 * d.n)
-        row = []
-        for kw in ({}, {"reflex_length": 0.1}, {"reflex_length": 0.2}, {"reflex_length": 0.5}, {"velocity_order": 1}):
+        d, k = split(trials, CONSTRUCTIONS[0], name)
+        row = [vaf(d.torque[k:], flexible_prediction(trials, CONSTRUCTIONS[0], name)[0][k:])]
+        for kw in ({"reflex_length": 0.1}, {"reflex_length": 0.2}, {"reflex_length": 0.5}, {"velocity_order": 1}):
             fl = FlexibleFit(d.fs, **kw).fit(d.position[:k], d.torque[:k], d.scheduling[:k])
             row.append(vaf(d.torque[k:], fl.predict(d.position, d.scheduling)[k:]))
         row.append(vaf(d.torque[k:], rank1_flexible(d.position, d.torque, k, d.fs)[k:]))
@@ -357,11 +382,8 @@ def main():
               "# the package's identification residual (first 70 %) to its prediction",
               f"{'trial':6} {'flexible':>9} {'mem 0.1s':>9} {'mem 0.5s':>9} {'linear v':>9}"]
     for name in NAMES:
-        d = perturbation(trials[name], "means removed")
-        k = int(0.7 * d.n)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", StationaryWarning)
-            pred = identify(d.segment(0, k)).predict(d.position, d.scheduling, warn=False).total
+        d, k = split(trials, CONSTRUCTIONS[0], name)
+        pred = package_prediction(trials, CONSTRUCTIONS[0], name)
         base = vaf(d.torque[k:], pred[k:])
         row = []
         for kw in ({}, {"reflex_length": 0.1}, {"reflex_length": 0.5}, {"velocity_order": 1}):
