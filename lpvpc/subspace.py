@@ -361,11 +361,12 @@ class PoleRefinement:
 
     def refine(self, A0, max_nfev: int = 60):
         """(A, C) in observable canonical form, and the optimiser result. MOESP poles at
-        or beyond ``max_radius`` start just inside it (the optimiser refuses them)."""
+        or beyond ``max_radius``, where the optimiser refuses to evaluate, start just inside
+        it; the others where MOESP put them."""
         z = np.linalg.eigvals(A0)
         r = np.abs(z)
-        inside = 0.97 * self.max_radius
-        den0 = np.poly(np.where(r > inside, z / np.maximum(r, 1e-300) * inside, z)).real[1:]
+        inside = 0.999 * self.max_radius
+        den0 = np.poly(np.where(r >= self.max_radius, z / np.maximum(r, 1e-300) * inside, z)).real[1:]
         result = scipy.optimize.least_squares(self._residual, den0, jac=self._jacobian, method="lm",
                                               max_nfev=max_nfev, x_scale="jac", ftol=1e-6, xtol=1e-6)
         A, C = companion_form(result.x)
@@ -373,7 +374,8 @@ class PoleRefinement:
 
     def _fit(self, den):
         """Least-squares fit at ``den`` (cached: the optimiser asks for the residual and
-        the Jacobian at the same point), or None where a pole reaches ``max_radius`` (unstable, or slower than allowed).
+        the Jacobian at the same point), or None where a pole reaches ``max_radius``
+        (unstable, or slower than the allowed time constant).
 
         X is never projected explicitly: with B = Q0^T X the projected Gram matrix is
         X^T X - B^T B and the projection of any X w is X w - Q0 (B w). These normal

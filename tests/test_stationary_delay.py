@@ -126,7 +126,9 @@ def test_unstable_moesp_poles_are_refined_inside_or_lose(late_reflex, monkeypatc
         return A, C
 
     monkeypatch.setattr(SubspaceResult, "system", unstable_at_three)
-    limit = np.exp(-1.0 / (1.0 * late_reflex[0].fs))  # the default 1-s time constant
+    from lpvpc.identify import DEFAULT_MAX_REFLEX_TIME_CONSTANT
+
+    limit = np.exp(-1.0 / (DEFAULT_MAX_REFLEX_TIME_CONSTANT * late_reflex[0].fs))
     m = fit_quiet(late_reflex[0], stationary_delays=())
     m3 = fit_quiet(late_reflex[0], stationary_delays=(), state_order=3)
     for model in (m, m3):
