@@ -704,6 +704,12 @@ def check_physiology(model, stacklevel: int = 3) -> None:
     identified range: joint tissue is never negative-stiff there, and the usual cause is a
     torque sign convention opposite to the position's.
 
+    In a model extended by effects, K(rho) is the stiffness at zero displacement with the
+    effects' inputs at zero (trial start, rest, no direction): negative there, the effect
+    terms have traded with the linear stiffness (seen on a lab stationary trial: the
+    amplitude term p|p|, p^3 left K = -41 N m/rad with a positive slope at the trial's
+    displacements), and the warning names them instead of the torque sign.
+
     A torque recorded with the opposite sign gives a negative stiffness, and a warning:
 
     >>> import warnings
@@ -718,18 +724,25 @@ def check_physiology(model, stacklevel: int = 3) -> None:
     >>> [type(w.message).__name__ for w in caught]
     ['PhysiologyWarning']
     """
-    if model.effects:  # the stiffness then depends on the effects' extra inputs too
-        return
     lo, hi = model.scheduling_range
     K = model.elastic_stiffness(np.linspace(lo, hi, 51))
     negative = float(np.mean(K < 0))
-    if negative > 0.5:
-        sign = float((model.conventions or {}).get("torque_sign", 1.0))
-        flip = "-1" if sign > 0 else "1"
+    if negative <= 0.5:
+        return
+    where = f"negative over {100 * negative:.0f} % of the identified position range (median {np.median(K):.1f} N m/rad)"
+    if model.effects:
+        names = ", ".join(fe.name for fe in model.effects)
         warnings.warn(
-            f"elastic stiffness K(theta) is negative over {100 * negative:.0f} % of the identified position range "
-            f"(median {np.median(K):.1f} N m/rad): the torque sign convention is probably reversed; identify again "
-            f"with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
+            f"elastic stiffness K(theta) at zero displacement is {where} in the model extended by {names}: the "
+            f"effect terms have traded with the linear stiffness, which is not physical; prefer the model without "
+            f"them (if that one is negative too, the torque sign convention is reversed)", PhysiologyWarning,
+            stacklevel=stacklevel)
+        return
+    sign = float((model.conventions or {}).get("torque_sign", 1.0))
+    flip = "-1" if sign > 0 else "1"
+    warnings.warn(
+        f"elastic stiffness K(theta) is {where}: the torque sign convention is probably reversed; identify again "
+        f"with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
 
 
 def _conventions(data) -> dict:

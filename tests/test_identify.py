@@ -335,6 +335,19 @@ def test_reversed_torque_sign_warns_with_the_option_to_use(subject):
     assert np.all(m.elastic_stiffness(central_rho(m)) < 0)
 
 
+def test_negative_stiffness_of_an_extended_model_names_its_effect_terms(subject):
+    # K(theta) of an extended model is the stiffness at zero displacement with the effects'
+    # inputs at zero: negative there, the warning names the effect terms, not only the sign.
+    from lpvpc.errors import PhysiologyWarning
+
+    d = subject["ident"]
+    flipped = PerturbationData(position=d.position, torque=-d.torque, scheduling=d.scheduling, fs=d.fs)
+    with pytest.warns(PhysiologyWarning, match=r"zero displacement is negative over \d+ % .*extended by "
+                                               r"amplitude_dependent_stiffness"):
+        m = identify(flipped, state_order=2, effects=("amplitude_dependent_stiffness",))
+    assert np.mean(m.elastic_stiffness(central_rho(m)) < 0) > 0.5
+
+
 def test_correct_torque_sign_gives_no_physiology_warning(model):
     from lpvpc.errors import PhysiologyWarning
     from lpvpc.identify import check_physiology
