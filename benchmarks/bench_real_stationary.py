@@ -17,7 +17,8 @@ run: the package (which detects the stationary trial, identifies the LTI paralle
 and chooses the reflex delay with the IRF half-width by BIC on the first 70 %, saying so
 with a StationaryWarning), the package with the fixed 40 ms of moving trials
 (``stationary_delays=()``, what it did before) and the crude flexible least-squares fit
-(``flexible_fit.py``).
+(``flexible_fit.py``). Below it, how sure each difference is: its 95 % interval over
+moving-block bootstrap resamples of the held-out part.
 
 Then why the flexible fit can still win, on the means-removed data: the flexible fit with
 its reflex memory shortened or lengthened, with a linear (not nonlinear) velocity term, and
@@ -197,6 +198,37 @@ def terms_table(trials):
     return lines
 
 
+def paired_block_bootstrap(y, a, b, block, n_boot=2000, seed=0):
+    """95 % interval of VAF(y, a) - VAF(y, b) (points) over moving-block bootstrap resamples
+    of the held-out samples (blocks of ``block`` samples: the errors are correlated)."""
+    rng = np.random.default_rng(seed)
+    n = len(y)
+    idx = rng.integers(0, n - block + 1, (n_boot, n // block))[:, :, None] + np.arange(block)
+    d = [vaf(y[i], a[i]) - vaf(y[i], b[i]) for i in idx.reshape(n_boot, -1)]
+    return np.percentile(d, [2.5, 97.5])
+
+
+def uncertainty_table(trials, block_s=1.0):
+    """Is each difference from the flexible fit larger than the held-out part's sampling
+    uncertainty? (Both predictions as in the first table.)"""
+    lines = ["", f"# how sure the differences are: lpvpc - flexible held-out VAF (points) with its 95 % interval over",
+             f"# moving-block bootstrap resamples ({block_s:g}-s blocks) of the last 30 %; 'clear' when the interval excludes 0",
+             f"{'construction':22} {'trial':6} {'diff':>6} {'95 % interval':>16}  verdict"]
+    for construction in CONSTRUCTIONS:
+        verdicts = []
+        for name in NAMES:
+            d, k = split(trials, construction, name)
+            held, pkg = d.torque[k:], package_prediction(trials, construction, name)[k:]
+            flex = flexible_prediction(trials, construction, name)[0][k:]
+            lo, hi = paired_block_bootstrap(held, pkg, flex, int(round(block_s * d.fs)))
+            verdicts.append("lpvpc clearly better" if lo > 0 else "flexible clearly better" if hi < 0 else "not distinguishable")
+            lines.append(f"{construction:22} {name:6} {vaf(held, pkg) - vaf(held, flex):+6.2f} [{lo:+6.2f}, {hi:+6.2f}]  "
+                         f"{verdicts[-1]}")
+        lines.append(f"{construction:22} the flexible fit clearly better on {verdicts.count('flexible clearly better')} "
+                     f"of {len(verdicts)}, lpvpc on {verdicts.count('lpvpc clearly better')}")
+    return lines
+
+
 GRID_DELAYS = (0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.10, 0.12)  # s
 GRID_IRF = (0.02, 0.04, 0.06, 0.08)  # s, IRF half-widths up to the delay
 SLOW_TAUS = (0.1, 0.3, 0.6, 1.0)  # s, time constants of the slow even column
@@ -367,6 +399,7 @@ def main():
                          f"{t_pkg:8.2f} {t_fl:7.2f}  {note}")
         lines.append(f"{construction:22} lpvpc - flexible: median {np.median(diffs):+.2f}, worst {min(diffs):+.2f} points; "
                      f"lpvpc at least as good on {sum(x >= 0 for x in diffs)} of {len(diffs)}")
+    lines += uncertainty_table(trials)
     lines += ["", "# why the flexible fit can win (means removed): held-out VAF % of flexible-fit variants",
               f"{'trial':6} {'flexible':>9} {'mem 0.1s':>9} {'mem 0.2s':>9} {'mem 0.5s':>9} {'linear v':>9} "
               f"{'rank 1':>7}"]
