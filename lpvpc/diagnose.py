@@ -641,7 +641,7 @@ def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> lis
             for r in pool:
                 r.significant = False
                 r.reason = (f"explained by {', '.join(c.effect for c in chosen)} ranked above: "
-                            f"+{r.conditional_gain:.2f} pp given them")
+                            f"{r.conditional_gain:+.2f} pp given them")
             break
         chosen.append(best)
         pool.remove(best)
@@ -1232,21 +1232,27 @@ def _html_img(path: Path, caption: str) -> str:
 
 
 def candidates_html(diag: Diagnosis, n=None) -> str:
-    """The ranked candidates as an HTML table (significant ones first, in conditional order)."""
-    from .validation.report import _e, _table
+    """The ranked candidates as an HTML table (significant ones first, in conditional order).
+    A candidate's note (why it is not available, or what its refit found) takes a full-width
+    row under it: as a ninth column it was squeezed to a word per line."""
+    from .validation.report import _e
 
-    rows = []
+    header = ["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)", "p", "significant"]
+    left = (1, 2, 3, 5)
+    body = "<tr>" + "".join(f'<th class="{"l" if i in left else ""}">{_e(h)}</th>' for i, h in enumerate(header)) + "</tr>"
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
         if not c.available:
-            rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a", _breakable(c.reason)])
-            continue
-        cond = (f"{c.conditional_gain:+.3f}" + (f" (given {', '.join(c.given)})" if c.given else "")
-                if c.significant else "–")
-        rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
-                     '<span class="pass">YES</span>' if c.significant else "no", _breakable(c.reason)])
-    return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
-                                          "p", "significant", "note"], rows, left=(1, 2, 3, 5, 8)) + "</div>"
+            cells = [str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a"]
+        else:
+            cond = (f"{c.conditional_gain:+.3f}" + (f" (given {', '.join(c.given)})" if c.given else "")
+                    if c.significant else "–")
+            cells = [str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
+                     '<span class="pass">YES</span>' if c.significant else "no"]
+        note = (f'<tr class="note"><td></td><td class="l small" colspan="{len(header) - 1}">{_breakable(c.reason)}</td></tr>'
+                if c.reason else "")
+        body += "<tr>" + "".join(f'<td class="{"l" if j in left else ""}">{x}</td>' for j, x in enumerate(cells)) + "</tr>" + note
+    return f'<div class="wide"><table>{body}</table></div>'
 
 
 def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:

@@ -317,6 +317,8 @@ def test_diagnose_and_improve_reports_render_in_chromium(tmp_path):
     rep = write_report(d, novel, tmp_path / "diag")
     text = rep.read_text()
     assert "Candidates, ranked" in text and "background_activation" in text and "residual" in text
+    # each candidate's note has a full-width row of its own (as a column it wrapped a word per line)
+    assert text.count('<tr class="note">') == sum(bool(c.reason) for c in d.candidates) > 0
     check = check_page(rep, shots / "diagnose_report.png")
     assert_layout_ok(check, n_images=2)
     n_img = page.read_text().count("<img")

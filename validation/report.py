@@ -317,7 +317,7 @@ color:#222;line-height:1.45;padding:0 1em}
 h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.25em;margin-top:1.8em;border-bottom:1px solid #ddd}
 p.what{color:#333;font-style:italic} table{border-collapse:collapse;margin:.6em 0;font-size:.92em}
 td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right} th{background:#f3f3f3}
-td.l,th.l{text-align:left} h3{font-size:1.08em;margin-top:1.4em} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
+td.l,th.l{text-align:left} td:not(.l){white-space:nowrap} h3{font-size:1.08em;margin-top:1.4em} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
 .flag{background:#fff3f3;border-left:4px solid #d33;padding:.5em 1em} figure{margin:1em 0}
 figure img{max-width:100%;height:auto;border:1px solid #eee} figcaption{font-size:.9em;color:#555}
 code{background:#f6f6f6;padding:0 .2em} details{margin:1em 0} summary{cursor:pointer;font-weight:bold} .small{font-size:.85em;color:#555}
