@@ -159,9 +159,10 @@ def cmd_simulate(args) -> int:
     if args.duration * args.fs < 100:
         raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
     paths = write_dataset(args.out, seed=args.seed, fs_out=args.fs, snr_db=args.snr,
-                          effects=tuple(args.effect), duration=args.duration)
+                          effects=tuple(args.effect), duration=args.duration, perturbation=args.perturbation)
     effects = f", effects: {', '.join(args.effect)}" if args.effect else ""
-    print(f"virtual subject, seed {args.seed}, {args.duration:g} s at {args.fs:g} Hz, SNR {args.snr:g} dB{effects}")
+    print(f"virtual subject, seed {args.seed}, {args.duration:g} s at {args.fs:g} Hz, SNR {args.snr:g} dB, "
+          f"perturbation {args.perturbation}{effects}")
     for path in paths.values():
         print(path)
     return 0
@@ -639,6 +640,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="switch on a physical effect the LPV-PC model lacks (repeatable)")
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
+    p.add_argument("--perturbation", choices=("pralds", "lab_pulses"), default="pralds",
+                   help="pralds: levels uniform in +-0.04 rad (default); lab_pulses: the lab pilot trial's "
+                        "design, holds alternating between 0 and +-0.02..0.04 rad")
     p.set_defaults(func=cmd_simulate)
 
     d = _estimator_defaults()

@@ -31,7 +31,7 @@ catalog" (they test what the diagnosis says of effects it has no entry for).
 
 Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
 :func:`write_dataset`, :data:`EFFECTS`, and the element functions
-:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`servo`,
+:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`lab_pulses`, :func:`servo`,
 :func:`intrinsic_torque`, :func:`reflex_torque`, :func:`coloured_noise`.
 """
 
@@ -380,6 +380,36 @@ def pralds(duration: float, fs: float, rng: np.random.Generator, *, amplitude: f
         out[i:i + m] = rng.uniform(-amplitude, amplitude)
         i += m
     return out
+
+
+def lab_pulses(duration: float, fs: float, rng: np.random.Generator, *, amplitude: float = 0.04,
+               hold=(0.25, 0.35), smallest: float = 0.5) -> np.ndarray:
+    """The perturbation of the lab's pilot trial (rad) at ``fs`` (Hz): holds of
+    ``hold`` s that alternate between 0 and a pulse level +-A, A uniform in
+    [``smallest``, 1] x ``amplitude``, sign random.
+
+    Measured on ``pilot_ident.csv`` (1 kHz, 248 velocity pulses): holds 257-344 ms (5-95 %),
+    every other hold at 0 and the others at -42..+41 mrad, steps 22-42 mrad (5-95 %). Unlike
+    :func:`pralds` (levels uniform in +-amplitude: steps of every size) every step is
+    large: peak stretch velocities fall in a narrow band (pilot 2.3-5.2 rad/s), well above
+    a reflex threshold of a few tenths of a rad/s.
+
+    >>> p = lab_pulses(10.0, 1000.0, np.random.default_rng(0))
+    >>> levels = p[np.r_[0, np.flatnonzero(np.diff(p)) + 1]]  # the level of each hold
+    >>> bool(np.all(levels[::2] == 0.0) and np.all(np.abs(levels[1::2]) >= 0.02))
+    True
+    """
+    n = _n_samples(duration, fs)
+    out = np.empty(n)
+    i, k = 0, 0
+    while i < n:
+        m = max(1, int(round(rng.uniform(*hold) * fs)))
+        out[i:i + m] = 0.0 if k % 2 == 0 else rng.choice((-1.0, 1.0)) * rng.uniform(smallest, 1.0) * amplitude
+        i, k = i + m, k + 1
+    return out
+
+
+PERTURBATIONS = {"pralds": pralds, "lab_pulses": lab_pulses}
 
 
 # ---------------------------------------------------------------------------------------
@@ -963,7 +993,7 @@ def _rms(x):
 def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: float = 120.0,
                   fs_out: float = 1000.0, snr_db: float = 18.0,
                   perturbation_amplitude: float = 0.04, params: SubjectParams | None = None,
-                  effects=(), emg_unit: str = "V") -> SimulatedPair:
+                  effects=(), emg_unit: str = "V", perturbation: str = "pralds") -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
     ``trajectory``: "multilevel" (identification), "novel" (held-out shapes that also
@@ -973,7 +1003,9 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     (1000: no decimation; 100: ``scipy.signal.decimate(q=10, ftype='fir', zero_phase=True)``).
     ``snr_db``: SNR of the PERTURBATION torque, 10 log10(var(PT-UT clean) / var(PT-UT
     noise)), exact at the output rate (``inf`` or ``None``: no noise).
-    ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``effects``:
+    ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``perturbation``:
+    "pralds" (:func:`pralds`) or "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
+    design: every step large). ``effects``:
     names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
     quantisation is negligible next to the torque noise). Both trials carry channel
     'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
@@ -983,6 +1015,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         raise ValueError(f"unknown EMG unit {emg_unit!r}; use one of {sorted(EMG_UNITS)}")
     if trajectory not in _TRAJECTORIES:
         raise ValueError(f"unknown trajectory {trajectory!r}; use one of {sorted(_TRAJECTORIES)}")
+    if perturbation not in PERTURBATIONS:
+        raise ValueError(f"unknown perturbation {perturbation!r}; use one of {sorted(PERTURBATIONS)}")
     effects = _check_effects(effects)
     params = params or SubjectParams()
     fs = FS_SIM
@@ -999,7 +1033,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     r_mpt, r_mut = (np.random.default_rng(s) for s in ss.spawn(2))  # EMG noise (after the others: same streams)
 
     traj = make_traj(duration, fs, r_traj)
-    pert = pralds(duration, fs, r_pert, amplitude=perturbation_amplitude)
+    pert = PERTURBATIONS[perturbation](duration, fs, r_pert, amplitude=perturbation_amplitude)
     cmd = {"UT": traj, "PT": traj + pert}
     ut = _simulate_trial(cmd["UT"], None, False, fs, params, effects, r_eut)
     pt = _simulate_trial(cmd["PT"], ut, True, fs, params, effects, r_ept)
@@ -1049,6 +1083,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         "fs_out": float(fs_out),
         "snr_db": None if snr_db is None else float(snr_db),
         "perturbation_amplitude": float(perturbation_amplitude),
+        "perturbation": perturbation,
         "params": params.to_dict(),
         "curves": params.curves(),
         "reflex_delay": params.reflex_delay,
@@ -1102,14 +1137,16 @@ def _save_truth_npz(path, pair: SimulatedPair):
 
 
 def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: float = 18.0,
-                  effects=(), duration: float = 120.0, params: SubjectParams | None = None) -> dict:
+                  effects=(), duration: float = 120.0, params: SubjectParams | None = None,
+                  perturbation: str = "pralds") -> dict:
     """Write an identification pair and a novel (held-out) pair with their truth.
 
     Files in ``out_dir``: ident_PT.csv, ident_UT.csv, novel_PT.csv, novel_UT.csv
     (header ``time,position,torque[,emg],command``; s, rad, N m, rad), truth.json
     (parameters, curves, per-pair truth) and truth_ident.npz / truth_novel.npz (time,
     positions, clean PT/UT torques, the four components and the perturbation intrinsic
-    and reflex torques, all at the output rate). Returns {stem: Path}.
+    and reflex torques, all at the output rate). ``perturbation`` as in
+    :func:`simulate_pair`. Returns {stem: Path}.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1119,7 +1156,7 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
                                   "command": "rad", "emg": "V"}}
     for key, kind in (("ident", "multilevel"), ("novel", "novel")):
         pair = simulate_pair(kind, seed=seed, duration=duration, fs_out=fs_out, snr_db=snr_db,
-                             params=params, effects=effects)
+                             params=params, effects=effects, perturbation=perturbation)
         for which, tr in (("PT", pair.pt), ("UT", pair.ut)):
             p = out_dir / f"{key}_{which}.csv"
             write_trial_csv(tr, p)

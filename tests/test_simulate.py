@@ -10,6 +10,7 @@ from lpvpc.simulate import (
     EFFECTS,
     SimulatedPair,
     SubjectParams,
+    lab_pulses,
     pralds,
     reflex_torque,
     servo,
@@ -131,6 +132,26 @@ def test_pralds_levels_and_holds():
     edges = np.flatnonzero(np.diff(x) != 0) + 1
     holds = np.diff(edges) / FS
     assert holds.min() >= 0.25 - 1e-9 and holds.max() <= 0.35 + 1e-9
+
+
+def test_lab_pulses_alternate_between_zero_and_large_levels():
+    x = lab_pulses(60.0, FS, np.random.default_rng(1), amplitude=0.04)
+    starts = np.r_[0, np.flatnonzero(np.diff(x) != 0) + 1]
+    levels, holds = x[starts], np.diff(starts) / FS
+    assert np.all(levels[::2] == 0.0)
+    assert np.all((np.abs(levels[1::2]) >= 0.02) & (np.abs(levels[1::2]) <= 0.04))
+    assert np.any(levels[1::2] > 0) and np.any(levels[1::2] < 0)
+    assert holds.min() >= 0.25 - 1e-9 and holds.max() <= 0.35 + 1e-9
+
+
+def test_the_pair_takes_the_lab_pulse_perturbation_and_records_it():
+    pr = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=1000.0, perturbation="lab_pulses")
+    d = pr.pt.channels["command"] - pr.ut.channels["command"]
+    starts = np.r_[0, np.flatnonzero(np.abs(np.diff(d)) > 1e-12) + 1]
+    assert np.all(np.abs(d[starts[::2]]) < 1e-12) and np.all(np.abs(d[starts[1::2]]) >= 0.02)
+    assert pr.truth["perturbation"] == "lab_pulses"
+    with pytest.raises(ValueError, match="unknown perturbation 'prbs'"):
+        simulate_pair("multilevel", seed=0, duration=20.0, perturbation="prbs")
 
 
 # ---- the pair ---------------------------------------------------------------------------
