@@ -1,6 +1,7 @@
 """Identification on the virtual subject (known truth) and its failure modes."""
 
 import json
+import re
 import warnings
 
 import numpy as np
@@ -346,6 +347,29 @@ def test_negative_stiffness_of_an_extended_model_names_its_effect_terms(subject)
                                                r"amplitude_dependent_stiffness"):
         m = identify(flipped, state_order=2, effects=("amplitude_dependent_stiffness",))
     assert np.mean(m.elastic_stiffness(central_rho(m)) < 0) > 0.5
+
+
+def test_negative_reflex_gain_warns_with_settings_that_constrain_the_nonlinearity(subject, model):
+    # A reflex gain turned negative (the lab's pilot trial gave -8.8 N m s/rad with the 1 kHz
+    # hinge basis) warns, naming settings that constrain the nonlinearity more: for the 1 kHz
+    # path and for the model-rate one (the session's model).
+    import copy
+
+    from lpvpc.errors import PhysiologyWarning
+    from lpvpc.identify import check_physiology
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysiologyWarning)  # the models as identified: no warning
+        model_1k = identify(subject["ident"], high_rate_reflex=True)
+        check_physiology(model)
+    for m, advice in ((model_1k, "high_rate_velocity_basis='chebyshev'"), (model, "lower velocity_order")):
+        flipped = copy.deepcopy(m)
+        if flipped.high_rate is not None:
+            flipped.high_rate.Omega = -flipped.high_rate.Omega
+        else:
+            flipped.Omega = -flipped.Omega
+        with pytest.warns(PhysiologyWarning, match=rf"reflex gain is negative over \d+ % .*{re.escape(advice)}"):
+            check_physiology(flipped)
 
 
 def test_correct_torque_sign_gives_no_physiology_warning(model):
