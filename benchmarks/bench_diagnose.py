@@ -1,4 +1,4 @@
-"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME]).
+"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --lab-pulses]).
 
 1. False alarms: data without a hidden effect, 20 noise seeds: is any candidate significant?
 2. Detection: each catalog effect hidden in the subject (settings candidates: the model is
@@ -14,6 +14,9 @@
 printed; their rows (per seed and summary) replace the same scenarios' rows in
 results/diagnose.txt (a section-3 scenario not recorded yet is appended to its table),
 the other rows and sections are kept.
+``--lab-pulses``: sections 1 and 2 (6 and 3 seeds) on the lab's perturbation design
+(``simulate_pair(perturbation="lab_pulses")``: holds alternating between 0 and 20-40 mrad,
+every step large) instead of PRALDS; writes results/diagnose_lab_pulses.txt.
 
 The virtual subject is the realistic one (lpvpc.simulate): EMG envelopes in volts with
 reflex-evoked bursts in the perturbed trial, tonic activation in both, measurement noise.
@@ -49,8 +52,9 @@ warnings.simplefilter("ignore")
 
 QUICK = "--quick" in sys.argv
 ONLY = sys.argv[sys.argv.index("--only") + 1] if "--only" in sys.argv else None
-H0_SEEDS = range(3) if QUICK else range(20)
-EFFECT_SEEDS = range(2) if QUICK else range(5)
+PERTURBATION = "lab_pulses" if "--lab-pulses" in sys.argv else "pralds"
+H0_SEEDS = range(3) if QUICK else range(6) if PERTURBATION == "lab_pulses" else range(20)
+EFFECT_SEEDS = range(2) if QUICK else range(3) if PERTURBATION == "lab_pulses" else range(5)
 
 # hidden truth -> (simulator effects, estimator settings of the user's model, expected candidate)
 SCENARIOS = {
@@ -76,7 +80,7 @@ SCENARIOS = {
 def pairs(seed, effects=(), modify=None):
     out = []
     for kind, s in (("multilevel", seed), ("novel", seed + 1)):
-        pair = simulate_pair(kind, seed=s, effects=effects)
+        pair = simulate_pair(kind, seed=s, effects=effects, perturbation=PERTURBATION)
         pt, ut = (modify(pair) if modify else (pair.pt, pair.ut))
         data = pair_trials(pt, ut)  # with the UT trial's EMG as extra['emg_ut']
         out.append(data)
@@ -304,26 +308,8 @@ def update_rows(names, lines, target="diagnose.txt", section=None):
     write_results(target, out)
 
 
-def main():
-    lines = [__doc__.split("\n\n")[0].strip(), ""]
-
-    def say(text=""):
-        print(text, flush=True)
-        lines.append(text)
-
-    t_all = time.perf_counter()
-    clean_vaf = {}
-    if ONLY:
-        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
-        if chosen:
-            detection(say, chosen, clean_vaf)
-            update_rows(chosen, lines)
-        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k}
-        if chosen:
-            outside(say, chosen)
-            update_rows(chosen, lines, section=SECTION3)
-        return
-    # ---- 1. false alarms
+def false_alarms(say, clean_vaf):
+    """Section 1: no hidden effect, H0_SEEDS; ``clean_vaf`` {seed: VAF} is filled in."""
     say("## 1. No hidden effect: false alarms")
     say("")
     say("| seed | held-out VAF | top candidate | gain (pp) | p | significant | top signal probe | its gain (pp) | "
@@ -351,7 +337,35 @@ def main():
         f"probes): {named} of {len(H0_SEEDS)}; largest top probe gain {max_probe:+.3f} pp")
     say("")
 
+
+def main():
+    lines = [__doc__.split("\n\n")[0].strip(), ""]
+
+    def say(text=""):
+        print(text, flush=True)
+        lines.append(text)
+
+    t_all = time.perf_counter()
+    clean_vaf = {}
+    if ONLY:
+        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
+        if chosen:
+            detection(say, chosen, clean_vaf)
+            update_rows(chosen, lines)
+        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k}
+        if chosen:
+            outside(say, chosen)
+            update_rows(chosen, lines, section=SECTION3)
+        return
+    if PERTURBATION != "pralds":
+        say(f"Perturbation: {PERTURBATION} (lpvpc.simulate.lab_pulses), not PRALDS; sections 1 and 2 only.")
+        say("")
+    false_alarms(say, clean_vaf)
     detection(say, SCENARIOS, clean_vaf)
+    if PERTURBATION != "pralds":
+        say(f"total benchmark time {time.perf_counter() - t_all:.0f} s")
+        write_results(f"diagnose_{PERTURBATION}.txt", lines)
+        return
 
     outside(say, OUT_OF_CATALOG)
 
