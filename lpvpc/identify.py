@@ -750,15 +750,17 @@ def check_physiology(model, stacklevel: int = 3) -> None:
 
 # Share of the identified range over which a negative reflex gain is reported. A stretch
 # reflex adds torque against the stretch: a negative rectifier slope is a nonlinearity the
-# data did not determine (the lab's pilot trial with the 1 kHz hinge basis: -1.8 and -8.8
-# N m s/rad at the range's ends; the virtual subject with the default paths: never).
+# model could not get right. Seen: the lab's pilot trial with the 1 kHz hinge basis (-1.8 and
+# -8.8 N m s/rad at the range's ends), and the virtual subject with a hidden background
+# activation, default path (-12.9 at the plantarflexed end; with the effect, 2.2 there); the
+# virtual subject without a hidden effect: never.
 NEGATIVE_GAIN_SHARE = 0.1
 
 
 def _check_reflex_gain(model, stacklevel: int) -> None:
     """PhysiologyWarning when the reflex rectifier gain is negative over more than
-    NEGATIVE_GAIN_SHARE of the identified range, with the settings that constrain the
-    nonlinearity more."""
+    NEGATIVE_GAIN_SHARE of the identified range, naming the causes seen and the settings
+    that constrain the nonlinearity more."""
     lo, hi = model.scheduling_range
     rho = np.linspace(lo, hi, 51)
     gain, _ = model.reflex_gain_threshold(rho)
@@ -766,15 +768,16 @@ def _check_reflex_gain(model, stacklevel: int) -> None:
     if share <= NEGATIVE_GAIN_SHARE:
         return
     if model.high_rate is not None:
-        advice = ("identify with high_rate_velocity_basis='chebyshev', high_rate_velocity_order=4 (held up on the lab's "
-                  "pilot trial) or without high_rate_reflex")
+        setting = ("identify with high_rate_velocity_basis='chebyshev', high_rate_velocity_order=4 (held up on the "
+                   "lab's pilot trial) or without high_rate_reflex")
     else:
-        advice = "identify with a lower velocity_order"
+        setting = "identify with a lower velocity_order"
     k = int(np.argmin(gain))
     warnings.warn(
         f"reflex gain is negative over {100 * share:.0f} % of the identified position range ({gain[k]:.1f} N m s/rad at "
-        f"{rho[k]:+.2f} rad): a stretch reflex that lowers the torque is not physiological, so these data do not "
-        f"determine the reflex nonlinearity (perturbation steps all of one size leave it free); {advice}",
+        f"{rho[k]:+.2f} rad): a stretch reflex that lowers the torque is not physiological. Causes seen: an effect "
+        f"the model lacks (lpvpc diagnose on held-out data names it), or perturbation steps all of one size, which "
+        f"leave the nonlinearity free ({setting})",
         PhysiologyWarning, stacklevel=stacklevel)
 
 

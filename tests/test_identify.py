@@ -372,6 +372,22 @@ def test_negative_reflex_gain_warns_with_settings_that_constrain_the_nonlinearit
             check_physiology(flipped)
 
 
+def test_a_missing_effect_that_turns_the_reflex_gain_negative_is_named_as_a_cause():
+    # Seed 2 with a hidden background activation: the base model's reflex gain is -12.9 N m
+    # s/rad at the plantarflexed end; with the effect in the model it is positive (2.2).
+    from lpvpc.errors import PhysiologyWarning
+
+    pair = simulate_pair("multilevel", seed=2, effects=("background_activation",))
+    data = pair_trials(pair.pt, pair.ut)
+    with pytest.warns(PhysiologyWarning, match=r"reflex gain is negative .*an effect the model lacks"):
+        identify(data)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysiologyWarning)
+        extended = identify(data, effects=("background_activation",))
+    lo, hi = extended.scheduling_range
+    assert np.all(extended.reflex_gain_threshold(np.linspace(lo, hi, 51))[0] > 0)
+
+
 def test_correct_torque_sign_gives_no_physiology_warning(model):
     from lpvpc.errors import PhysiologyWarning
     from lpvpc.identify import check_physiology
