@@ -17,8 +17,8 @@ run: the package (which detects the stationary trial, identifies the LTI paralle
 and chooses the reflex delay with the IRF half-width by BIC on the first 70 %, saying so
 with a StationaryWarning), the package with the fixed 40 ms of moving trials
 (``stationary_delays=()``, what it did before) and the crude flexible least-squares fit
-(``flexible_fit.py``). Below it, how sure each difference is: its 95 % interval over
-moving-block bootstrap resamples of the held-out part.
+(``flexible_fit.py``). Below it, how sure each difference is: its 95 % interval from the
+paired test of the held-out residuals that the diagnosis uses (``lpvpc.diagnose.paired_test``).
 
 Then why the flexible fit can still win, on the means-removed data: the flexible fit with
 its reflex memory shortened or lengthened, with a linear (not nonlinear) velocity term, and
@@ -198,21 +198,29 @@ def terms_table(trials):
     return lines
 
 
-def paired_block_bootstrap(y, a, b, block, n_boot=2000, seed=0):
-    """95 % interval of VAF(y, a) - VAF(y, b) (points) over moving-block bootstrap resamples
-    of the held-out samples (blocks of ``block`` samples: the errors are correlated)."""
-    rng = np.random.default_rng(seed)
-    n = len(y)
-    idx = rng.integers(0, n - block + 1, (n_boot, n // block))[:, :, None] + np.arange(block)
-    d = [vaf(y[i], a[i]) - vaf(y[i], b[i]) for i in idx.reshape(n_boot, -1)]
-    return np.percentile(d, [2.5, 97.5])
+def difference_interval(y, a, b, fs, block_s, level=0.95):
+    """``level`` interval of VAF(y, a) - VAF(y, b) (points) from the package's paired test of
+    held-out residuals (lpvpc.diagnose.paired_test: means over ``block_s``-s blocks, which
+    absorb the residuals' colour; the test the diagnosis judges its candidates by)."""
+    import scipy.stats
+
+    from lpvpc.diagnose import paired_test
+
+    ra, rb = y - a, y - b
+    diff = vaf(y, a) - vaf(y, b)
+    t, _ = paired_test(rb, ra, fs, block_s)  # t > 0: a's squared residual is smaller
+    n_blocks = len(y) // int(round(block_s * fs))
+    se = abs(100.0 * float(np.mean(rb**2 - ra**2)) / np.var(y) / t) if t else np.inf
+    half = scipy.stats.t.ppf(0.5 + level / 2, n_blocks - 1) * se
+    return diff - half, diff + half
 
 
 def uncertainty_table(trials, block_s=1.0):
     """Is each difference from the flexible fit larger than the held-out part's sampling
     uncertainty? (Both predictions as in the first table.)"""
-    lines = ["", f"# how sure the differences are: lpvpc - flexible held-out VAF (points) with its 95 % interval over",
-             f"# moving-block bootstrap resamples ({block_s:g}-s blocks) of the last 30 %; 'clear' when the interval excludes 0",
+    lines = ["", "# how sure the differences are: lpvpc - flexible held-out VAF (points) with its 95 % interval from the",
+             f"# paired test of the held-out residuals over {block_s:g}-s blocks (lpvpc.diagnose.paired_test, the",
+             "# diagnosis's test); 'clearly' when the interval excludes 0",
              f"{'construction':22} {'trial':6} {'diff':>6} {'95 % interval':>16}  verdict"]
     for construction in CONSTRUCTIONS:
         verdicts = []
@@ -220,7 +228,7 @@ def uncertainty_table(trials, block_s=1.0):
             d, k = split(trials, construction, name)
             held, pkg = d.torque[k:], package_prediction(trials, construction, name)[k:]
             flex = flexible_prediction(trials, construction, name)[0][k:]
-            lo, hi = paired_block_bootstrap(held, pkg, flex, int(round(block_s * d.fs)))
+            lo, hi = difference_interval(held, pkg, flex, d.fs, block_s)
             verdicts.append("lpvpc clearly better" if lo > 0 else "flexible clearly better" if hi < 0 else "not distinguishable")
             lines.append(f"{construction:22} {name:6} {vaf(held, pkg) - vaf(held, flex):+6.2f} [{lo:+6.2f}, {hi:+6.2f}]  "
                          f"{verdicts[-1]}")

@@ -148,11 +148,13 @@ def _estimator_defaults() -> dict:
 
 
 def cmd_simulate(args) -> int:
-    from .simulate import EFFECTS, FS_SIM, write_dataset
+    from .simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
 
     unknown = [e for e in args.effect if e not in EFFECTS]
     if unknown:
         raise _UsageError(f"unknown effect {', '.join(map(repr, unknown))} (known: {', '.join(sorted(EFFECTS))})")
+    if args.perturbation not in PERTURBATIONS:
+        raise _UsageError(f"unknown perturbation {args.perturbation!r} (known: {', '.join(sorted(PERTURBATIONS))})")
     q = FS_SIM / args.fs
     if args.fs <= 0 or abs(q - round(q)) > 1e-9:
         raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
@@ -640,7 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="switch on a physical effect the LPV-PC model lacks (repeatable)")
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
-    p.add_argument("--perturbation", choices=("pralds", "lab_pulses"), default="pralds",
+    p.add_argument("--perturbation", default="pralds", metavar="NAME",
                    help="pralds: levels uniform in +-0.04 rad (default); lab_pulses: the lab pilot trial's "
                         "design, holds alternating between 0 and +-0.02..0.04 rad")
     p.set_defaults(func=cmd_simulate)

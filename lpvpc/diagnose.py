@@ -1235,24 +1235,21 @@ def candidates_html(diag: Diagnosis, n=None) -> str:
     """The ranked candidates as an HTML table (significant ones first, in conditional order).
     A candidate's note (why it is not available, or what its refit found) takes a full-width
     row under it: as a ninth column it was squeezed to a word per line."""
-    from .validation.report import _e
+    from .validation.report import _e, _table
 
-    header = ["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)", "p", "significant"]
-    left = (1, 2, 3, 5)
-    body = "<tr>" + "".join(f'<th class="{"l" if i in left else ""}">{_e(h)}</th>' for i, h in enumerate(header)) + "</tr>"
+    rows, notes = [], []
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
         if not c.available:
-            cells = [str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a"]
+            rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a"])
         else:
             cond = (f"{c.conditional_gain:+.3f}" + (f" (given {', '.join(c.given)})" if c.given else "")
                     if c.significant else "–")
-            cells = [str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
-                     '<span class="pass">YES</span>' if c.significant else "no"]
-        note = (f'<tr class="note"><td></td><td class="l small" colspan="{len(header) - 1}">{_breakable(c.reason)}</td></tr>'
-                if c.reason else "")
-        body += "<tr>" + "".join(f'<td class="{"l" if j in left else ""}">{x}</td>' for j, x in enumerate(cells)) + "</tr>" + note
-    return f'<div class="wide"><table>{body}</table></div>'
+            rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
+                         '<span class="pass">YES</span>' if c.significant else "no"])
+        notes.append(_breakable(c.reason) if c.reason else "")
+    return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
+                                          "p", "significant"], rows, left=(1, 2, 3, 5), notes=notes) + "</div>"
 
 
 def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:

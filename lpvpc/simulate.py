@@ -372,13 +372,19 @@ def pralds(duration: float, fs: float, rng: np.random.Generator, *, amplitude: f
     >>> bool(holds.min() >= 0.25 - 1e-9 and holds.max() <= 0.35 + 1e-9)
     True
     """
+    return _held_levels(duration, fs, rng, hold, lambda k: rng.uniform(-amplitude, amplitude))
+
+
+def _held_levels(duration, fs, rng, hold, level) -> np.ndarray:
+    """Piecewise-constant signal at ``fs`` (Hz): holds of uniform(*hold) s, hold k at
+    ``level(k)`` (drawn after its duration: the random streams of :func:`pralds` as before)."""
     n = _n_samples(duration, fs)
     out = np.empty(n)
-    i = 0
+    i, k = 0, 0
     while i < n:
         m = max(1, int(round(rng.uniform(*hold) * fs)))
-        out[i:i + m] = rng.uniform(-amplitude, amplitude)
-        i += m
+        out[i:i + m] = level(k)
+        i, k = i + m, k + 1
     return out
 
 
@@ -399,14 +405,8 @@ def lab_pulses(duration: float, fs: float, rng: np.random.Generator, *, amplitud
     >>> bool(np.all(levels[::2] == 0.0) and np.all(np.abs(levels[1::2]) >= 0.02))
     True
     """
-    n = _n_samples(duration, fs)
-    out = np.empty(n)
-    i, k = 0, 0
-    while i < n:
-        m = max(1, int(round(rng.uniform(*hold) * fs)))
-        out[i:i + m] = 0.0 if k % 2 == 0 else rng.choice((-1.0, 1.0)) * rng.uniform(smallest, 1.0) * amplitude
-        i, k = i + m, k + 1
-    return out
+    return _held_levels(duration, fs, rng, hold, lambda k: 0.0 if k % 2 == 0 else
+                        rng.choice((-1.0, 1.0)) * rng.uniform(smallest, 1.0) * amplitude)
 
 
 PERTURBATIONS = {"pralds": pralds, "lab_pulses": lab_pulses}

@@ -349,12 +349,16 @@ def _num(x, fmt="{:.2f}") -> str:
     return fmt.format(x)
 
 
-def _table(header, rows, left=(0,)) -> str:
-    """HTML table; ``left``: indices of left-aligned (text) columns, the others are numbers."""
+def _table(header, rows, left=(0,), notes=None) -> str:
+    """HTML table; ``left``: indices of left-aligned (text) columns, the others are numbers.
+    ``notes``: per row, HTML for a full-width row under it (empty: none), for text too long
+    for a column."""
     h = "".join(f'<th class="{"l" if i in left else ""}">{_e(c)}</th>' for i, c in enumerate(header))
     body = ""
-    for r in rows:
+    for k, r in enumerate(rows):
         body += "<tr>" + "".join(f'<td class="{"l" if i in left else ""}">{c}</td>' for i, c in enumerate(r)) + "</tr>"
+        if notes and notes[k]:
+            body += f'<tr class="note"><td></td><td class="l small" colspan="{len(header) - 1}">{notes[k]}</td></tr>'
     return f"<table><tr>{h}</tr>{body}</table>"
 
 
