@@ -13,7 +13,9 @@
 - issue 10's speed floor: identification against a bare least-squares solve of its final
   regressor and against one of the subspace step's block-Hankel data matrix, and load +
   identify from 1 kHz files against 100 Hz files (``--floor`` runs only this, into
-  benchmarks/results/identify_floor.txt).
+  benchmarks/results/identify_floor.txt);
+- a library session's identification on one BLAS thread (lpvpc.linalg.one_blas_thread)
+  against OpenBLAS threads on every CPU.
 
 Run: python benchmarks/bench_identify.py   (writes benchmarks/results/identify.txt)
 """
@@ -186,13 +188,47 @@ def speed_floor() -> list:
     return lines
 
 
+def _library_identify_time():
+    """Child of blas_threads: median of 3 identifications of the 2-minute 100 Hz record in a
+    library session (numpy imported first, as in a notebook)."""
+    import warnings
+
+    from lpvpc.identify import identify
+
+    data = subject_data(120.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        identify(data)
+        print(json.dumps({"time_s": _median_time(lambda: identify(data))[0]}))
+
+
+def blas_threads() -> list:
+    """Identification in a library session (``import lpvpc``, no BLAS variable set), where
+    lpvpc.linalg.one_blas_thread limits BLAS to one thread, against the same session with
+    OPENBLAS_NUM_THREADS set to the CPU count (a user's choice, which lpvpc leaves alone:
+    OpenBLAS's own default). Each in a fresh process, since BLAS reads the variables at load."""
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    times = {}
+    for tag, extra in (("one thread (lpvpc's default)", {}),
+                       (f"OPENBLAS_NUM_THREADS={os.cpu_count()}", {"OPENBLAS_NUM_THREADS": str(os.cpu_count())})):
+        out = subprocess.run([sys.executable, __file__, "--library-time"], capture_output=True, text=True,
+                             env={**env, **extra}, check=True)
+        times[tag] = json.loads(out.stdout.strip().splitlines()[-1])["time_s"]
+    (a, ta), (b, tb) = times.items()
+    return [f"Library session (import lpvpc, no BLAS variable set), 2-minute 100 Hz record, medians of 3: {a} {ta:.2f} s, "
+            f"{b} {tb:.2f} s ({tb / ta:.2f}x)"]
+
+
 def main():
     if len(sys.argv) > 3 and sys.argv[1] == "--one":
         one_length(sys.argv[2], sys.argv[3])
         return
+    if len(sys.argv) > 1 and sys.argv[1] == "--library-time":
+        _library_identify_time()
+        return
     if len(sys.argv) > 1 and sys.argv[1] == "--floor":
         load_before = os.getloadavg()
-        lines = speed_floor()
+        lines = speed_floor() + blas_threads()
         lines.append(f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
                      f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
                      "(this process counts as 1; ratios are from one run, so load affects both sides)")
@@ -240,7 +276,7 @@ def main():
     pc = projection_comparison()
     lines.append(f"Projection (27)-(28) at N = {pc['n']}: lpvpc {1000 * pc['t_lpvpc_s']:.1f} ms, literal pinv formula "
                  f"{pc['t_pinv_s']:.2f} s, ratio {pc['ratio']:.0f}x, max relative difference {pc['max_rel_diff']:.1e}")
-    lines += [""] + speed_floor()
+    lines += [""] + speed_floor() + blas_threads()
     # Timings depend on what else runs on the machine: record the conditions with them.
     lines += ["", f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
                   f"1-minute load average {load_before[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "

@@ -255,6 +255,12 @@ class LPVPCEstimator:
         the reflex nonlinearity identified on the high-rate velocity; when that fit is not determined (too few
         stretch velocities for its basis: InsufficientExcitationError) it is identified on
         the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`."""
+        from .linalg import one_blas_thread
+
+        with one_blas_thread():
+            return self._fit_or_fall_back(data)
+
+    def _fit_or_fall_back(self, data) -> "LPVPCEstimator":
         if isinstance(data, (list, tuple)):
             from .data import join_trials
 
@@ -270,7 +276,7 @@ class LPVPCEstimator:
 
             warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz velocity "
                           f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
-                          LpvpcWarning, stacklevel=2)
+                          LpvpcWarning, stacklevel=3)
             return self._fit(replace(data, high_rate=None))
 
     def _fit(self, data) -> "LPVPCEstimator":

@@ -2,11 +2,43 @@
 
 from __future__ import annotations
 
+import os
+from contextlib import contextmanager
+
 import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
+from threadpoolctl import threadpool_limits
 
 RANK_TOL = 1e-9  # relative to the largest |R_ii| of a pivoted QR
+
+#: Environment variables by which a user sets the BLAS thread count; one_blas_thread leaves
+#: any such setting alone.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextmanager
+def one_blas_thread():
+    """Run the enclosed linear algebra on one BLAS thread, unless the user has chosen a
+    thread count (:data:`BLAS_THREAD_VARIABLES`).
+
+    Identification is many tall-skinny QR and least-squares steps, which BLAS threads slow
+    down: a 2-minute 100 Hz record took 1.05 s with OpenBLAS's default threads on 2 cores and
+    0.47 s on one; a 15-minute record 4.8 s either way (benchmarks/results/identify_floor.txt).
+    The command line and the demo set the variables before numpy loads; this covers a
+    library user's ``import lpvpc`` in a notebook, where BLAS has already started its threads.
+
+    >>> from threadpoolctl import threadpool_info
+    >>> with one_blas_thread():
+    ...     counts = {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    >>> counts <= {1} or any(v in os.environ for v in BLAS_THREAD_VARIABLES)
+    True
+    """
+    if any(v in os.environ for v in BLAS_THREAD_VARIABLES):
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def pivoted_qr(M):

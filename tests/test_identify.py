@@ -439,3 +439,39 @@ def test_five_point_causal_form_is_closer_to_the_two_sided_model(subject):
     c3 = vaf(nv.torque, predict_quiet(m3, nv, causal=True).total)
     c5 = vaf(nv.torque, predict_quiet(m5, nv, causal=True).total)
     assert two - c5 < two - c3 and two - c5 < 0.3, (two, c3, c5)
+
+
+# -- BLAS threads -----------------------------------------------------------------------
+def _blas_threads_inside_fit(monkeypatch, data):
+    """BLAS thread counts seen inside the identification (set to 2 around it)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    seen = []
+    fit = LPVPCEstimator._fit
+
+    def spy(self, d):
+        seen.extend(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+        return fit(self, d)
+
+    monkeypatch.setattr(LPVPCEstimator, "_fit", spy)
+    with threadpool_limits(limits=2, user_api="blas"):
+        identify(data, intrinsic_order=1, reflex_order=1)
+        after = {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    return set(seen), after
+
+
+def test_identification_runs_on_one_blas_thread_and_restores_the_callers(monkeypatch):
+    # a notebook's `import lpvpc` after BLAS started its threads (2 here)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    sim = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=100.0)
+    inside, after = _blas_threads_inside_fit(monkeypatch, pair_trials(sim.pt, sim.ut))
+    assert inside == {1}
+    assert after == {2}
+
+
+def test_identification_leaves_a_users_blas_thread_setting_alone(monkeypatch):
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    sim = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=100.0)
+    inside, _ = _blas_threads_inside_fit(monkeypatch, pair_trials(sim.pt, sim.ut))
+    assert inside == {2}
