@@ -460,8 +460,7 @@ def cmd_diagnose(args) -> int:
     data = _load_for_model(args, model)
     diag = diagnose(model, data)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
-    print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; its structure refitted "
-          f"with {diag.settings['folds']}-fold blocked cross-validation: {diag.surrogate_vaf:.2f} %")
+    print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
     print(format_table(diag))
     print(f"answer:    {diag.answer()}")
     for note in diag.notes():

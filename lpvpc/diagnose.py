@@ -1024,6 +1024,13 @@ class Diagnosis:
             return f"No catalog effect explains the residual. It depends most on {where}."
         return "Nothing significant: no candidate effect or signal explains a meaningful part of the residual."
 
+    def base_description(self) -> str:
+        """What the candidates' gains are measured against, with its VAF (%)."""
+        if self.design == "refit":
+            return (f"its structure refitted with {self.settings['folds']}-fold blocked cross-validation: "
+                    f"{self.surrogate_vaf:.2f} %")
+        return f"model held fixed (see the note), on the samples scored: {self.surrogate_vaf:.2f} %"
+
     def notes(self) -> list:
         """What the reader must know about this diagnosis's design and data (sentences)."""
         out = []
@@ -1282,8 +1289,7 @@ def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
     _write_html(diag, folder / "report.html", title, figs, change, first)
     w = diag.where
     lines = [f"# {title}", "", f"Model `{diag.model_hash[:12]}` on `{diag.data_source}` ({diag.n_samples} samples at "
-             f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; model structure refitted with "
-             f"{diag.settings['folds']}-fold blocked cross-validation: {diag.surrogate_vaf:.2f} %.", "",
+             f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; {diag.base_description()}.", "",
              "## Answer", "", diag.answer(), "", "## Candidates (held-out VAF gain)", "", "```", format_table(diag), "```", "",
              "Significant: p below alpha / number of candidates (alpha = "
              f"{diag.settings['alpha']}) and a gain of at least {diag.settings['min_gain']} pp.", "",
@@ -1324,9 +1330,8 @@ def diagnosis_html(diag: Diagnosis, figs=None, change=None, first=None, *, level
     parts = [f"<p>Model <code>{_e(diag.model_hash[:12])}</code> on <code>{_e(diag.data_source)}</code>: "
              f"{diag.n_samples} samples at {diag.fs:g} Hz ({c.get('duration_s', 0):.1f} s, "
              f"{100 * c.get('covered_fraction_of_range', 1):.0f} % of the identified range); VAF {diag.vaf:.2f} %, "
-             f"RMSE {diag.rmse:.4g} N m; design <b>{_e(diag.design)}</b> "
-             f"({'structure refitted' if diag.design == 'refit' else 'model held fixed'}, "
-             f"{diag.settings['folds']}-fold blocked cross-validation): base {diag.surrogate_vaf:.2f} %.</p>",
+             f"RMSE {diag.rmse:.4g} N m; design <b>{_e(diag.design)}</b>: "
+             f"{_e(diag.base_description())}.</p>",
              f"<{h}>Answer</{h}>", f"<p class=\"what\">{_e(diag.answer())}</p>"]
     for note in diag.notes():
         parts.append(f'<p class="flag">{_e(note)}</p>')

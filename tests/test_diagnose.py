@@ -289,6 +289,9 @@ def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path
         diagnose(model, cut(novel, 0, 1500))
     d = diagnose(model, cut(novel, 0, 3200), design="fixed")
     assert d.design == "fixed" and d.notes()[0].startswith("Model held fixed")
+    # what the gains are measured against: the model itself, not a refit of its structure
+    assert d.base_description().startswith("model held fixed") and "refitted" not in d.base_description()
+    assert "refitted" in diagnose(model, novel).base_description()
     assert d.surrogate_vaf == pytest.approx(vaf(cut(novel, 0, 3200).torque, d.prediction), abs=0.5)
     assert all(abs(c.vaf_gain) <= 100 - d.surrogate_vaf for c in d.candidates if c.available)
     assert not d.significant
