@@ -92,8 +92,10 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
     if data and (pts or uts):
         raise _UsageError("give either DATA or --pt and --ut, not both")
     if stationary:
+        if data and not (pts or uts):  # DATA --stationary: the stationary trial's file itself
+            data, pts = [], data
         if data or uts:
-            raise _UsageError("--stationary reads --pt alone (a perturbed trial recorded without UT)")
+            raise _UsageError("--stationary reads one perturbed trial, DATA or --pt, recorded without UT")
         if not pts:
             raise _UsageError("missing --pt")
     elif not data:
@@ -608,8 +610,8 @@ def _add_data_args(p, what, several: bool = False):
     p.add_argument("--ut", action="append" if several else "store", metavar="UT",
                    help="unperturbed trial on the same trajectory")
     p.add_argument("--stationary", action="store_true",
-                   help="--pt alone: a perturbed trial around one fixed operating position recorded without UT; "
-                        "the operating point is its mean position (and torque)")
+                   help="DATA or --pt alone: a perturbed trial around one fixed operating position recorded "
+                        "without UT; the operating point is its mean position (and torque)")
     p.add_argument("--variable", metavar="NAME",
                    help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
     p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",

@@ -400,8 +400,10 @@ def select_channels(records, required, optional=(), *, channels=None, variable=N
 def _choice_problem(role, hits, pool, variable) -> str:
     if not hits:
         what = f"in variable '{variable}'" if variable else "in the file"
+        also = ("; or, for a trial around one fixed position recorded without UT, read it as stationary "
+                "(stationary=True, --stationary)" if role == "scheduling" else "")
         return (f"no {role} channel found {what} (found: {found(pool)}); name it with "
-                f"channels={{'{role}': NAME}} (--channel {role}=NAME)")
+                f"channels={{'{role}': NAME}} (--channel {role}=NAME){also}")
     records = {h[0].name for h in hits}
     listed = ", ".join(f"{r.name}.{c}" if r.name != TOP_LEVEL else c for r, c in hits)
     hint = ("choose the variable with variable=NAME (--variable NAME)" if len(records) > 1 and variable is None

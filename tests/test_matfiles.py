@@ -22,6 +22,7 @@ from lpvpc.data import (
 )
 from lpvpc.errors import DataError
 from lpvpc.matfiles import read_mat
+from lpvpc.model import LPVPCModel
 
 FS = 1000.0
 
@@ -252,7 +253,11 @@ def test_cli_reads_nldat_pairs_like_csv(tmp_path, capsys):
     (["--pt", "{lab}", "--stationary"], "ambiguous torque channel: z_df.tq1, z_pf.tq1"),
     (["--pt", "{lab}", "--stationary", "--variable", "z_df", "--channel", "torque=tq7"], "no channel 'tq7'"),
     (["--pt", "{lab}", "--stationary", "--channel", "torque"], "--channel: expected ROLE=NAME"),
-    (["--pt", "{lab}", "--ut", "{lab}", "--stationary"], "--stationary reads --pt alone"),
+    (["--pt", "{lab}", "--ut", "{lab}", "--stationary"], "--stationary reads one perturbed trial"),
+    (["{lab}", "--pt", "{lab}", "--stationary"], "give either DATA or --pt and --ut, not both"),
+    # a stationary trial read as a moving one: the error points to --stationary
+    (["{lab}", "--variable", "z_df"], "no scheduling channel found in variable 'z_df'"),
+    (["{lab}", "--variable", "z_df"], "read it as stationary (stationary=True, --stationary)"),
 ])
 def test_cli_mat_errors_are_one_line(tmp_path, lab_file, capsys, argv, expected):
     none = write_mat(tmp_path / "none.mat", {"note": "nothing"})
@@ -260,6 +265,17 @@ def test_cli_mat_errors_are_one_line(tmp_path, lab_file, capsys, argv, expected)
     assert main(["identify", *argv, "-o", str(tmp_path / "m.json")]) == 2
     assert expected in _one_error_line(capsys)
     assert not (tmp_path / "m.json").exists()
+
+
+def test_cli_reads_a_stationary_trial_given_as_data(tmp_path, lab_file, capsys):
+    """`lpvpc identify FILE.mat --variable z_df --stationary` (the file as DATA) is the same
+    identification as with --pt."""
+    path, _ = lab_file
+    for tag, argv in (("data", [str(path)]), ("pt", ["--pt", str(path)])):
+        assert main(["identify", *argv, "--variable", "z_df", "--stationary", "-o", str(tmp_path / f"{tag}.json")]) == 0
+    capsys.readouterr()
+    a, b = (LPVPCModel.load(tmp_path / f"{t}.json") for t in ("data", "pt"))
+    assert a.fit["vaf"] == b.fit["vaf"] and a.model_hash == b.model_hash
 
 
 # --------------------------------------------------------------------------- the lab's real file
