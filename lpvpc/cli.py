@@ -615,8 +615,9 @@ def _add_data_args(p, what, several: bool = False):
     p.add_argument("--variable", metavar="NAME",
                    help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
     p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
-                   help="channel of a .mat file for a role (position, torque, scheduling, time, emg, command), "
-                        "e.g. --channel torque=tq1 or --channel 'scheduling=sv.Ankle Position (rad)' (repeatable)")
+                   help="channel of a .mat file or column of a CSV file for a role (position, torque, scheduling, "
+                        "time, emg, command), e.g. --channel torque=tq1, --channel 'scheduling=sv.Ankle Position "
+                        "(rad)' or --channel 'torque=Torque (N m)' (repeatable)")
 
 
 def build_parser() -> argparse.ArgumentParser:

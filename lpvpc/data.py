@@ -182,8 +182,10 @@ def check_trial(trial: Trial, source=None) -> Trial:
 # --------------------------------------------------------------------------- reading files
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    """Columns of a CSV file with one header row (leading ``#`` comment lines are skipped)."""
+def _read_csv(path: Path, channels=None) -> dict[str, np.ndarray]:
+    """Columns of a CSV file with one header row (leading ``#`` comment lines are skipped).
+    ``channels`` maps roles to the file's own column names (``{"position": "Pert (rad)"}``,
+    case-insensitive); a column already named after a mapped role is then not read."""
     try:
         text = path.read_text(encoding="utf-8-sig")  # tolerate a BOM (spreadsheet exports)
     except (OSError, UnicodeDecodeError) as exc:
@@ -206,6 +208,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     if header_at is None:
         raise DataError(["empty file (no header row)"], source=str(path))
     names = [c.strip().lower() for c in lines[header_at].strip().lstrip("#").split(",")]
+    if channels:
+        names = _renamed_columns(names, channels, path)
     duplicates = sorted({c for c in names if names.count(c) > 1})
     problems = [f"duplicate column '{c}'" for c in duplicates]
     problems += [f"empty column name at position {i + 1}" for i, c in enumerate(names) if not c]
@@ -232,6 +236,26 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
         if problems:
             raise DataError(problems, source=str(path))
     return _Table({names[i]: values[:, k] for k, i in enumerate(use)}, names)
+
+
+def _renamed_columns(names: list[str], channels: dict, path: Path) -> list[str]:
+    """The header with each mapped column renamed to its role (columns that carried a
+    mapped role's name before are renamed away, so they are not read)."""
+    known = set(REQUIRED_CHANNELS + OPTIONAL_CHANNELS + PERTURBATION_EMG)
+    problems = []
+    unknown = sorted(set(channels) - known)
+    if unknown:
+        problems.append(f"unknown channel role(s) {', '.join(unknown)} (roles: {', '.join(sorted(known))})")
+    wanted = {str(col).strip().lower(): role for role, col in channels.items()}
+    for col, role in wanted.items():
+        if col not in names:
+            problems.append(f"no column '{col}' for {role} (columns found: {', '.join(names)})")
+    if len(wanted) < len(channels):
+        problems.append("two roles name the same column")
+    if problems:
+        raise DataError(problems, source=str(path))
+    mapped = set(wanted.values())
+    return [wanted[c] if c in wanted else f"{c} (not read: --channel {c}=...)" if c in mapped else c for c in names]
 
 
 class _Table(dict):
@@ -317,10 +341,10 @@ def _read_table(path, required=REQUIRED_CHANNELS, optional=OPTIONAL_CHANNELS, *,
     if os.path.getsize(path) == 0:
         raise DataError(["empty file"], source=str(path))
     if suffix == ".csv":
-        if variable is not None or channels:
-            raise DataError(["variable and channel names choose within .mat files; a CSV file's columns are "
-                             f"named {', '.join(required)} in its header"], source=str(path))
-        return _read_csv(path), path
+        if variable is not None:
+            raise DataError([f"a variable ({variable}) names a variable in .mat files; a CSV file holds one table"],
+                            source=str(path))
+        return _read_csv(path, channels), path
     return _read_mat(path, required, optional, variable, channels), path
 
 
@@ -328,9 +352,10 @@ def _require(table: dict, required, path) -> None:
     missing = [c for c in required if c not in table]
     if missing:
         found = ", ".join(getattr(table, "columns", table)) or "none"
-        raise DataError(
-            [f"missing required column '{c}' (columns found: {found})" for c in missing], source=str(path)
-        )
+        listed = ", ".join(f"'{c}'" for c in missing)
+        raise DataError([f"missing required column{'s' if len(missing) > 1 else ''} {listed} (columns found: "
+                         f"{found}); a column named otherwise is chosen with channels={{'{missing[0]}': COLUMN}} "
+                         f"(--channel {missing[0]}=COLUMN)"], source=str(path))
 
 
 # --------------------------------------------------------------------------- units and signs

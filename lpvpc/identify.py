@@ -257,27 +257,24 @@ class LPVPCEstimator:
         the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`."""
         from .linalg import one_blas_thread
 
-        with one_blas_thread():
-            return self._fit_or_fall_back(data)
+        with one_blas_thread():  # in this frame: the warnings' stacklevels count from fit
+            if isinstance(data, (list, tuple)):
+                from .data import join_trials
 
-    def _fit_or_fall_back(self, data) -> "LPVPCEstimator":
-        if isinstance(data, (list, tuple)):
-            from .data import join_trials
+                data = join_trials(data)
+            try:
+                return self._fit(data)
+            except InsufficientExcitationError as exc:
+                if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
+                    raise
+                from dataclasses import replace
 
-            data = join_trials(data)
-        try:
-            return self._fit(data)
-        except InsufficientExcitationError as exc:
-            if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
-                raise
-            from dataclasses import replace
+                from .errors import LpvpcWarning
 
-            from .errors import LpvpcWarning
-
-            warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz velocity "
-                          f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
-                          LpvpcWarning, stacklevel=3)
-            return self._fit(replace(data, high_rate=None))
+                warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz velocity "
+                              f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
+                              LpvpcWarning, stacklevel=2)
+                return self._fit(replace(data, high_rate=None))
 
     def _fit(self, data) -> "LPVPCEstimator":
         from .model import LPVPCModel, vaf

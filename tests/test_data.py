@@ -151,7 +151,7 @@ def test_perturbation_file_requires_scheduling(tmp_path):
     with pytest.raises(DataError) as err:
         load_perturbation_file(path)
     msg = str(err.value)
-    assert "missing required column 'scheduling'" in msg
+    assert "missing required column 'scheduling'" in msg and "--channel scheduling=COLUMN" in msg
     assert "time, position, torque" in msg  # lists the columns found
 
 
@@ -233,8 +233,43 @@ def test_nan_in_file_is_not_dropped(tmp_path):
 def test_missing_column(tmp_path):
     path = tmp_path / "t.csv"
     path.write_text("time,angle,torque\n0,0,0\n0.001,0,0\n")
-    with pytest.raises(DataError, match=r"missing required column 'position' \(columns found: time, angle, torque\)"):
+    with pytest.raises(DataError, match=r"missing required column 'position' \(columns found: time, angle, torque\); "
+                                        r"a column named otherwise is chosen with channels=\{'position': COLUMN\}"):
         load_trial(path)
+
+
+def test_csv_columns_chosen_by_name(tmp_path):
+    """A lab's own header: channels maps roles to its columns (case-insensitive); a column
+    already named after a mapped role is not read."""
+    path = tmp_path / "t.csv"
+    path.write_text("Time (s),Position,Pert Angle (rad),Torque (N m)\n0,9,0.01,1\n0.001,9,0.02,2\n0.002,9,0.03,3\n")
+    trial = load_trial(path, channels={"time": "time (s)", "position": "Pert Angle (rad)", "torque": "TORQUE (N M)"})
+    np.testing.assert_array_equal(trial.position, [0.01, 0.02, 0.03])
+    np.testing.assert_array_equal(trial.torque, [1, 2, 3])
+    np.testing.assert_array_equal(trial.time, [0, 0.001, 0.002])
+    for channels, message in (({"position": "pert angle"}, r"no column 'pert angle' for position \(columns found: "),
+                              ({"angle": "pert angle (rad)"}, r"unknown channel role\(s\) angle"),
+                              ({"position": "position", "torque": "Position"}, "two roles name the same column")):
+        with pytest.raises(DataError, match=message):
+            load_trial(path, channels=channels)
+    with pytest.raises(DataError, match=r"a variable \(z_df\) names a variable in .mat files"):
+        load_trial(path, variable="z_df")
+
+
+def test_perturbation_csv_columns_chosen_by_name(tmp_path):
+    """The one-file form (perturbation and scheduling) with the lab's own column names, as
+    `lpvpc identify FILE.csv --channel ...` reads it."""
+    pt, ut, _ = make_trials()
+    ref = pair_trials(pt, ut)
+    t = np.arange(ref.n) / ref.fs
+    path = tmp_path / "own.csv"
+    np.savetxt(path, np.column_stack([t, ref.scheduling, ref.torque, ref.position]), delimiter=",", comments="",
+               header="Time (s),Ankle Angle (rad),Tq (N m),Perturbation (rad)")
+    data = load_identification_data(data=path, channels={"time": "time (s)", "scheduling": "ankle angle (rad)",
+                                                         "torque": "tq (n m)", "position": "perturbation (rad)"})
+    np.testing.assert_allclose(data.position, ref.position, atol=1e-12)
+    np.testing.assert_allclose(data.scheduling, ref.scheduling, atol=1e-12)
+    np.testing.assert_allclose(data.torque, ref.torque, atol=1e-12)
 
 
 def test_unparsable_value_located(tmp_path):
