@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import scipy.signal
 
-from lpvpc.errors import DataError, InsufficientExcitationError, UnitWarning
+from lpvpc.errors import DataError, InsufficientExcitationError, LpvpcWarning, UnitWarning
 from lpvpc.segments import Segments
 
 _log = logging.getLogger(__name__)  # notes (e.g. ignored CSV columns); the CLI shows them with --verbose
@@ -37,6 +37,12 @@ ANGLE_CHANNELS = ("position", "command", "scheduling")
 
 # Relative deviation of a time step from the median step above which sampling is uneven.
 JITTER_TOLERANCE = 1e-3
+# ... unless every stamp stays within this fraction of a step of the uniform grid from the
+# first to the last stamp: a time column rounded (single precision: 0.4 % of a 1 ms step at
+# 60 s) or stamped by a software clock, over samples the converter's clock spaced evenly.
+# The samples are then read as uniform, with a warning; a dropped or doubled sample moves
+# the grid by half a step or more and stays an error.
+GRID_TOLERANCE = 0.1
 # Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
 RATE_TOLERANCE = 1e-4
 # A stationary trial (no UT) holds one operating position: its mean over STATIONARY_WINDOW s
@@ -100,8 +106,22 @@ def _finite_problems(name: str, x: np.ndarray) -> list[str]:
     return problems
 
 
+def grid_deviation(t) -> float:
+    """Largest distance of the time stamps from the uniform grid through the first and the
+    last one, in steps of that grid (0 for uniform sampling).
+
+    >>> t = np.arange(6) / 1000.0
+    >>> round(grid_deviation(t + np.array([0, 2e-5, -3e-5, 0, 1e-5, 0])), 6)  # jitter by 3 % of a step
+    0.03
+    """
+    t = np.asarray(t, dtype=float)
+    step = (t[-1] - t[0]) / (len(t) - 1)
+    return float(np.max(np.abs(t - (t[0] + step * np.arange(len(t))))) / step)
+
+
 def _time_problems(t: np.ndarray) -> list[str]:
-    """Non-increasing and unevenly spaced time stamps (index = sample that breaks the rule)."""
+    """Non-increasing and unevenly spaced time stamps (index = sample that breaks the rule);
+    stamps that only jitter about a uniform grid (GRID_TOLERANCE) are not a problem."""
     problems = []
     dt = np.diff(t)
     finite = np.isfinite(dt)
@@ -119,6 +139,8 @@ def _time_problems(t: np.ndarray) -> list[str]:
         # Steps already reported as non-increasing are not counted again as uneven.
         uneven = positive & (np.abs(dt - step) > JITTER_TOLERANCE * step)
         count = int(np.count_nonzero(uneven))
+        if count and not problems and grid_deviation(t) <= GRID_TOLERANCE:
+            count = 0  # jitter about a uniform grid: check_trial warns
         if count:
             first = int(np.flatnonzero(uneven)[0]) + 1
             problems.append(
@@ -170,12 +192,20 @@ def check_trial(trial: Trial, source=None) -> Trial:
     """Raise one :class:`DataError` listing every problem of ``trial``; return it if usable.
 
     Checks: NaN/inf per channel, unequal channel lengths, time not strictly increasing,
-    uneven sampling (a step deviating from the median step by more than 1e-3 of it),
-    fewer than 2 samples. ``source`` (default: the trial's name) prefixes the message.
+    uneven sampling (a step deviating from the median step by more than 1e-3 of it, unless
+    every stamp lies within 0.1 step of the uniform grid: then an LpvpcWarning), fewer than
+    2 samples. ``source`` (default: the trial's name) prefixes the message.
     """
     problems = trial_problems(trial)
+    where = str(source) if source is not None else (trial.name or None)
     if problems:
-        raise DataError(problems, source=str(source) if source is not None else (trial.name or None))
+        raise DataError(problems, source=where)
+    t = np.asarray(trial.time, dtype=float)
+    steps = np.diff(t)
+    if np.any(np.abs(steps - np.median(steps)) > JITTER_TOLERANCE * np.median(steps)):
+        warnings.warn(f"{where + ': ' if where else ''}time stamps jitter by up to {100 * grid_deviation(t):.2g} % of "
+                      f"a step about a uniform grid (a rounded or software-clock time column); read as sampled "
+                      f"uniformly at {trial.fs:.6g} Hz", LpvpcWarning, stacklevel=2)
     return trial
 
 

@@ -204,6 +204,27 @@ def test_small_jitter_accepted():
     assert check_trial(tr) is tr
 
 
+def test_rounded_or_jittering_time_stamps_read_as_uniform_with_a_warning(tmp_path):
+    """A time column in single precision (60 s at 1 kHz: steps off by up to 0.4 %) or from a
+    software clock (+-5 % of a step) over evenly clocked samples: read as uniform, said in a
+    warning; a dropped sample stays an error."""
+    from lpvpc.errors import LpvpcWarning
+
+    n = 60000
+    t = np.arange(n) / 1000.0
+    x = 0.01 * np.sin(2 * np.pi * t)
+    for stamps in (t.astype(np.float32).astype(float), t + np.random.default_rng(0).uniform(-5e-5, 5e-5, n)):
+        path = tmp_path / "t.csv"
+        write_trial_csv(Trial(stamps, x, 3 * x), path)
+        with pytest.warns(LpvpcWarning, match=r"t\.csv: time stamps jitter by up to .* % of a step about a uniform "
+                                              r"grid .*read as sampled uniformly at 1000 Hz"):
+            trial = load_trial(path)
+        assert trial.fs == pytest.approx(1000.0, rel=1e-6) and len(trial.time) == n
+    dropped = np.delete(t, 30000)
+    with pytest.raises(DataError, match="uneven sampling, 1 step"):
+        check_trial(Trial(dropped, np.delete(x, 30000), np.delete(x, 30000)))
+
+
 def test_too_few_samples():
     with pytest.raises(DataError, match=r"fewer than 2 samples \(1\)"):
         check_trial(Trial(np.array([0.0]), np.array([0.0]), np.array([0.0])))
