@@ -212,7 +212,8 @@ def cmd_identify(args) -> int:
     fit = model.fit
     lo, hi = model.scheduling_range
     q = data.meta.get("decimation", 1)
-    rate = f"{data.fs:g} Hz" + (f" (decimated from {data.meta['fs_original']:g} Hz)" if q > 1 else "")
+    via = f" via {data.meta['resampled_to']:g} Hz" if "resampled_to" in data.meta else ""
+    rate = f"{data.fs:g} Hz" + (f" (decimated from {data.meta['fs_original']:g} Hz{via})" if q > 1 else "")
     trials = f"{len(data.segments)} trials, " if data.segments else ""
     print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")

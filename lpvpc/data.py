@@ -565,6 +565,62 @@ def decimate_signal(x, q: int) -> np.ndarray:
     return y + ramp[::q]
 
 
+def multiple_rate(fs: float, target_fs) -> float:
+    """The rate (Hz) a file at ``fs`` is brought to before decimation to ``target_fs``: ``fs``
+    itself when it is an integer multiple of ``target_fs`` (or ``target_fs`` is None, or
+    above ``fs``: decimation_factor says so), else the largest multiple below it.
+
+    >>> multiple_rate(1000.0, 100.0), multiple_rate(1024.0, 100.0), multiple_rate(250.0, 100.0)
+    (1000.0, 1000.0, 200.0)
+    """
+    if target_fs is None or fs < float(target_fs) * (1 - RATE_TOLERANCE):
+        return float(fs)
+    target_fs = float(target_fs)
+    q = round(fs / target_fs)
+    if abs(fs - q * target_fs) <= RATE_TOLERANCE * fs:
+        return float(fs)
+    return float(math.floor(fs / target_fs) * target_fs)
+
+
+def resample_trial(trial: Trial, fs_new: float) -> Trial:
+    """Every channel of ``trial`` resampled to ``fs_new`` (Hz) by a rational factor with a
+    zero-phase polyphase anti-alias FIR (the decimation's filter design), for files whose
+    rate is not a multiple of the model rate (1024 Hz -> 1000 Hz: 125/128; 250 Hz -> 200 Hz:
+    4/5). Time restarts from the first stamp at the new step.
+
+    A 3 Hz sine at 1024 Hz keeps its shape at 1000 Hz:
+
+    >>> t = np.arange(2048) / 1024.0
+    >>> x = np.sin(2 * np.pi * 3 * t)
+    >>> r = resample_trial(Trial(t, x, x), 1000.0)
+    >>> len(r.time), r.fs, bool(np.max(np.abs(r.position - np.sin(2 * np.pi * 3 * r.time))[40:-40]) < 1e-4)
+    (2000, 1000.0, True)
+    """
+    from fractions import Fraction
+
+    ratio = Fraction(float(fs_new) / trial.fs).limit_denominator(1000)
+    up, down = ratio.numerator, ratio.denominator
+    n_out = -(-len(trial.time) * up // down)
+    if n_out < 2:
+        raise DataError([f"fewer than 2 samples after resampling to {fs_new:g} Hz"], source=trial.name or None)
+    fs_out = trial.fs * up / down
+
+    def one(x):
+        x = np.asarray(x, dtype=float)
+        ramp = np.linspace(x[0], x[-1], len(x))  # as decimate_signal: no droop toward zero at the ends
+        out_ramp = np.linspace(x[0], x[-1], n_out)
+        y = scipy.signal.resample_poly(x - ramp, up, down, window=_antialias_fir(max(up, down)))  # gain up: scipy
+        return y[:n_out] + out_ramp
+
+    return Trial(
+        time=float(trial.time[0]) + np.arange(n_out) / fs_out,
+        position=one(trial.position),
+        torque=one(trial.torque),
+        channels={k: one(v) for k, v in trial.channels.items()},
+        name=trial.name,
+    )
+
+
 def decimate_trial(trial: Trial, target_fs) -> Trial:
     """Decimate every channel of ``trial`` to ``target_fs`` (Hz) with the same anti-alias filter.
 
@@ -817,16 +873,21 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
         channels=channels,
         name=source,
     )
-    q = decimation_factor(pt.fs, target_fs, source=source)
+    fs_file, fs_multiple = float(pt.fs), multiple_rate(pt.fs, target_fs)
+    if fs_multiple != fs_file:  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
+        diff = resample_trial(diff, fs_multiple)
+    q = decimation_factor(diff.fs, target_fs, source=source)
     low = decimate_trial(diff, target_fs) if q > 1 else diff
-    fs = _output_rate(pt.fs, target_fs)
+    fs = _output_rate(diff.fs, target_fs)
     _check_perturbation(low.position, source)
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
     for k in ("emg", "emg_ut"):
         if k in low.channels:
             extra[k] = low.channels[k]
-    meta = {"fs_original": float(pt.fs), "decimation": q}
-    high = HighRate(diff.position, ut_position, float(pt.fs)) if q > 1 else None
+    meta = {"fs_original": fs_file, "decimation": q}
+    if fs_multiple != fs_file:
+        meta["resampled_to"] = fs_multiple
+    high = HighRate(diff.position, diff.channels["scheduling"], fs_multiple) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta,
                             high_rate=high)
 
@@ -848,6 +909,9 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
                               channels=channels)
     trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
     trial = _to_si(trial, position_unit, torque_sign, str(path))
+    fs_file, fs_multiple = float(trial.fs), multiple_rate(trial.fs, target_fs)
+    if fs_multiple != fs_file:  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
+        trial = resample_trial(trial, fs_multiple)
     q = decimation_factor(trial.fs, target_fs, source=str(path))
     low = decimate_trial(trial, target_fs) if q > 1 else trial
     fs = _output_rate(trial.fs, target_fs)
@@ -855,8 +919,10 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
     extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
     meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
-            "fs_original": float(trial.fs), "decimation": q}
-    high = HighRate(trial.position, trial.channels["scheduling"], float(trial.fs)) if q > 1 else None
+            "fs_original": fs_file, "decimation": q}
+    if fs_multiple != fs_file:
+        meta["resampled_to"] = fs_multiple
+    high = HighRate(trial.position, trial.channels["scheduling"], fs_multiple) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
                             high_rate=high)
 

@@ -211,12 +211,14 @@ def fit_quasi_static(angle, torque, order: int = DEFAULT_ORDER, family: str = "c
 def fit_whole_joint(model, ut, *, cutoff: float = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER) -> WholeJointModel:
     """Whole-joint model from an identified LPV-PC ``model`` and the UT trial it came from.
 
-    ``ut``: :class:`lpvpc.data.Trial` (any rate that is a multiple of ``model.fs``; it is
-    decimated with the package's anti-alias filter) or a ``(angle, torque)`` pair at ``model.fs``.
+    ``ut``: :class:`lpvpc.data.Trial` (any rate above ``model.fs``; it is resampled and
+    decimated with the package's anti-alias filter, as the identification data) or a ``(angle, torque)`` pair at ``model.fs``.
     """
-    from .data import Trial, decimate_trial
+    from .data import Trial, decimate_trial, multiple_rate, resample_trial
 
     if isinstance(ut, Trial):
+        if multiple_rate(ut.fs, model.fs) != ut.fs:  # as the identification data (lpvpc.data.pair_trials)
+            ut = resample_trial(ut, multiple_rate(ut.fs, model.fs))
         q = ut.fs / model.fs
         low = ut if abs(q - 1.0) < 1e-9 else decimate_trial(ut, model.fs)
         angle, torque = low.position, low.torque

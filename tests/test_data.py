@@ -350,10 +350,10 @@ def test_no_perturbation():
         pair_trials(ut, ut)
 
 
-def test_rate_not_integer_multiple_and_below_target():
+def test_rate_below_target():
     pt, ut, _ = make_trials(fs=250.0)
-    with pytest.raises(DataError, match="not an integer multiple"):
-        pair_trials(pt, ut, target_fs=100.0)
+    with pytest.raises(DataError, match="not an integer multiple"):  # decimation alone: integer factors
+        decimate_trial(pt, 100.0)
     pt, ut, _ = make_trials(fs=50.0, n=300)
     with pytest.raises(DataError, match="below the target rate"):
         pair_trials(pt, ut, target_fs=100.0)
@@ -455,6 +455,37 @@ def test_decimation_in_stages():
     low = decimate_trial(tr, 100.0)  # factor 20 > 13 -> stages 10 and 2
     assert len(low.time) == 1000
     np.testing.assert_allclose(low.position[20:-20], np.sin(2 * np.pi * 2.0 * low.time[20:-20]), atol=2e-3)
+
+
+@pytest.mark.parametrize("fs_file, via", [(1024.0, 1000.0), (250.0, 200.0), (1111.0, 1100.0)])
+def test_rate_not_a_multiple_of_the_model_rate_is_resampled(tmp_path, fs_file, via):
+    """A 1024-Hz (or 250-Hz, 1111-Hz) recording reads with defaults: resampled to the
+    largest multiple of 100 Hz below its rate, then decimated as usual; the perturbation
+    keeps its amplitude and phase, and an alias above the model's Nyquist rate is removed."""
+    n = int(30 * fs_file)
+    t = np.arange(n) / fs_file
+    ut_pos = -0.1 + 0.2 * np.sin(2 * np.pi * 0.2 * t)
+    pert = 0.03 * np.sin(2 * np.pi * 3.0 * t)
+    alias = 0.01 * np.sin(2 * np.pi * 0.7 * fs_file / 2 * t)  # above 50 Hz, below the file's Nyquist
+    paths = [tmp_path / "pt.csv", tmp_path / "ut.csv"]
+    write_trial_csv(Trial(t, ut_pos + pert, 40 * (pert + alias), {}, "pt"), paths[0])
+    write_trial_csv(Trial(t, ut_pos, np.zeros(n), {}, "ut"), paths[1])
+    data = load_identification_data(pt=paths[0], ut=paths[1])
+    assert data.fs == 100.0 and data.meta["fs_original"] == pytest.approx(fs_file)
+    assert data.meta["resampled_to"] == via and data.high_rate.fs == via
+    assert data.n == pytest.approx(3000, abs=1) and data.high_rate.n == pytest.approx(30 * via, abs=1)
+    tm = data.extra["time"]
+    inner = slice(50, -50)
+    np.testing.assert_allclose(data.position[inner], 0.03 * np.sin(2 * np.pi * 3.0 * tm[inner]), atol=2e-4)
+    np.testing.assert_allclose(data.scheduling[inner], -0.1 + 0.2 * np.sin(2 * np.pi * 0.2 * tm[inner]), atol=2e-4)
+    np.testing.assert_allclose(data.torque[inner], 40 * data.position[inner], atol=5e-3)  # the alias is gone
+    # trials of different file rates stay an error, even though both reach 100 Hz
+    other = tmp_path / "pt1k.csv", tmp_path / "ut1k.csv"
+    pt, ut, _ = make_trials(n=30000)
+    write_trial_csv(pt, other[0])
+    write_trial_csv(ut, other[1])
+    with pytest.raises(DataError, match="trials differ in sampling rate"):
+        load_identification_data(pt=[paths[0], other[0]], ut=[paths[1], other[1]])
 
 
 def test_pairing_gives_pt_minus_ut():
