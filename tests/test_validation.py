@@ -335,11 +335,11 @@ def test_model_record_rate_mismatch_exits_2(short, model_file, tmp_path):
     paths = {}
     for key in ("PT", "UT"):
         tr = short[key + "_raw"]
-        paths[key] = tmp_path / f"{key}_150Hz.csv"  # the same samples stamped at 150 Hz
-        write_trial_csv(Trial(np.arange(len(tr.time)) / 150.0, tr.position, tr.torque, dict(tr.channels)),
+        paths[key] = tmp_path / f"{key}_50Hz.csv"  # the same samples stamped at 50 Hz
+        write_trial_csv(Trial(np.arange(len(tr.time)) / 50.0, tr.position, tr.torque, dict(tr.channels)),
                         paths[key])
     rc, _, err = _run(["validate", model_file, "--pt", paths["PT"], "--ut", paths["UT"], "--report", tmp_path / "r"])
-    _one_line_error(rc, err, "150 Hz", "not an integer multiple", "100 Hz")
+    _one_line_error(rc, err, "50 Hz", "below the target rate", "100 Hz")
 
 
 def test_fmu_error_is_reported_with_the_fmus_log(full, short, model_file, tmp_path):
@@ -430,3 +430,19 @@ def test_record_without_command_and_100hz_record(full, short, model, tmp_path):
     assert c["calibration"]["done"] and c["calibration"]["servo_bandwidth"] == pytest.approx(25.0, rel=0.05)
     assert r.metrics["provenance"]["record_fs"] == pytest.approx(100.0)
     assert r.metrics["vaf_cosim"] > r.metrics["vaf_fmu"] - 1.5
+    # a 1024 Hz record (a rate that is not a multiple of the model's): read at 1000 Hz, as
+    # identification reads it, and validated like the 1 kHz record
+    import scipy.signal
+
+    at_1k = validate(model, short["PT"], short["UT"], tmp_path / "1k", **kw).metrics
+    paths = {}
+    for key in ("PT", "UT"):
+        tr = short[key + "_raw"]
+        res = {k: scipy.signal.resample_poly(v, 128, 125) for k, v in
+               {"position": tr.position, "torque": tr.torque, **tr.channels}.items()}
+        paths[key] = tmp_path / f"{key}_1024.csv"
+        write_trial_csv(Trial(np.arange(len(res["position"])) / 1024.0, res.pop("position"), res.pop("torque"), res),
+                        paths[key])
+    r = validate(model, paths["PT"], paths["UT"], tmp_path / "1024", **kw).metrics
+    assert r["provenance"]["record_fs"] == pytest.approx(1000.0) and r["provenance"]["record_fs_file"] == pytest.approx(1024.0)
+    assert r["vaf_cosim"] == pytest.approx(at_1k["vaf_cosim"], abs=0.1)

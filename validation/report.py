@@ -660,7 +660,9 @@ def _html(m: dict, figs: dict, model) -> str:
             ["PT file (sha256)", f"{_e(prov['data_files']['pt']['path'])}<br><code>{_e(prov['data_files']['pt']['sha256'])}</code>"],
             ["UT file (sha256)", f"{_e(prov['data_files']['ut']['path'])}<br><code>{_e(prov['data_files']['ut']['sha256'])}</code>"],
             ["held-out data hash (PT-UT at the model rate)", f"<code>{_e(prov['data_hash'])}</code>"],
-            ["record", f"{prov['record_samples']} samples at {prov['record_fs']:g} Hz; position unit "
+            ["record", f"{prov['record_samples']} samples at {prov['record_fs']:g} Hz"
+                       + (f" (resampled from the files' {prov['record_fs_file']:g} Hz)" if prov.get("record_fs_file") else "")
+                       + "; position unit "
                        f"{_e(prov['position_unit'])}, torque sign {_e(prov['torque_sign'])}"],
             ["model FMU (sha256)", f"{_e(prov['model_fmu']['path'])} (FMI {prov['model_fmu']['fmi_version']}.0"
                                    f"{', given' if prov['model_fmu']['given'] else ', exported for this report'})"
