@@ -329,6 +329,15 @@ def test_every_output_has_the_same_mode(model, subject, tmp_path):
     assert not list(tmp_path.glob(".*lpvpc-tmp"))
 
 
+def _default_sigint():
+    """In the child: SIGINT to its default, so that Python turns it into KeyboardInterrupt
+    as in a terminal, whatever the test runner's disposition (a shell's background job, as
+    `make test &`, ignores SIGINT, and a child would inherit that)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _held_compiler(folder):
     """(CC, marker): gcc behind a wrapper (the CC the FMU build honours) that, once gcc has
     written the library, touches ``marker`` and holds on, so that a signal sent after the
@@ -381,7 +390,8 @@ def test_interrupted_export_leaves_nothing(sig, base, tmp_path):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmpdir), CC=cc,
                PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "export", "model.json", "--fmu", "out/m.fmu"],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)
     try:
         assert _wait_for(tmp_path / "out", ".lpvpc_model-*", proc), "the build folder never appeared"
         assert _wait_for_marker(marker, proc), "the compiler never ran"
