@@ -68,6 +68,7 @@ SCENARIOS = {
     "activation_reflex_gain": (("activation_reflex_gain",), {}, "activation_reflex_gain"),
     "amplitude_dependent_stiffness": (("amplitude_dependent_stiffness",), {}, "amplitude_dependent_stiffness"),
     "position_dependent_reflex_delay": (("position_dependent_reflex_delay",), {}, "position_dependent_reflex_delay"),
+    "stress_relaxation": (("stress_relaxation",), {}, "stress_relaxation"),
     "position_dependent_reflex_dynamics, 3x range (not the simulator's)": (
         ("strong_reflex_dynamics",), {}, "position_dependent_reflex_dynamics"),
     "wrong reflex delay (model 80 ms, subject 40 ms)": ((), {"reflex_delay": 0.08}, "reflex_delay"),

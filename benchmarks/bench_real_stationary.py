@@ -25,9 +25,10 @@ its reflex memory shortened or lengthened, with a linear (not nonlinear) velocit
 with its reflex made a rank-1 Hammerstein (one static nonlinearity through one FIR, the
 package's structure with FIR dynamics): what each freedom is worth. Last, what the package
 leaves: the same variants fitted to the package's identification residual and added to its
-prediction. Last, what closes the gap: the effect catalog's intrinsic nonlinear terms
-(amplitude-dependent stiffness, friction-like viscosity) on top of the LTI cascade, the set
-chosen by BIC on the first 70 %, with the stiffness K they leave (why it is not the default).
+prediction. Last, what closes the gap: the effect catalog's intrinsic terms
+(amplitude-dependent stiffness, friction-like viscosity, stress relaxation) on top of the
+LTI cascade, the set chosen by BIC on the first 70 %, with the stiffness K they leave (why
+it is not the default).
 Then what the structure's own settings reach (a wider delay x IRF grid by BIC, forced reflex
 state orders), what its residual holds (one extra column family fitted to it: linear
 long-memory, odd and even velocity terms, a slow low-pass of |v|) and in which frequency
@@ -149,8 +150,9 @@ def rank1_flexible(p, y, k, fs, memory=0.31, iterations=60):
     return Z @ c
 
 
-AMPLITUDE, FRICTION = "amplitude_dependent_stiffness", "nonlinear_viscosity"
-TERM_SETS = {"none": (), "amp": (AMPLITUDE,), "amp+fric": (AMPLITUDE, FRICTION), "fric": (FRICTION,)}
+AMPLITUDE, FRICTION, RELAXATION = "amplitude_dependent_stiffness", "nonlinear_viscosity", "stress_relaxation"
+TERM_SETS = {"none": (), "amp": (AMPLITUDE,), "amp+fric": (AMPLITUDE, FRICTION), "fric": (FRICTION,),
+             "relax": (RELAXATION,)}
 
 
 def mean_slope_stiffness(model, position):
@@ -169,13 +171,14 @@ def terms_table(trials):
     cascade (identify(..., effects=...): the reflex delay still chosen by BIC), and the set
     of least BIC on the first 70 %."""
     lines = ["", "# what closes the gap: intrinsic nonlinear terms of the effect catalog (amp: amplitude_dependent_stiffness,",
-             "# p|p| and p^3; fric: nonlinear_viscosity, tanh of the undelayed velocity), delay by BIC; 'by BIC': the set",
+             "# p|p| and p^3; fric: nonlinear_viscosity, tanh of the undelayed velocity; relax: stress_relaxation, the",
+             "# position averaged over 0.3, 1 and 3 s), delay by BIC; 'by BIC': the set",
              "# of least BIC on the first 70 %. Held-out VAF minus the flexible fit's (points); K: the model's (slope at",
              "# zero displacement) and the mean slope over the trial's displacements, N m/rad",
              f"{'construction':22} {'trial':6} " + " ".join(f"{n:>9}" for n in TERM_SETS) + f" {'by BIC':>16} "
              f"{'K none':>7} {'K BIC':>7} {'K slope':>8} {'s':>5}"]
     for construction in CONSTRUCTIONS:
-        diffs = []
+        diffs, relax = [], []
         for name in NAMES:
             d, k = split(trials, construction, name)
             held = d.torque[k:]
@@ -189,12 +192,15 @@ def terms_table(trials):
             best = min(fits, key=lambda lab: fits[lab][0])
             m = fits[best][1]
             diffs.append(fits[best][2])
+            relax.append(fits["relax"][2])
             lines.append(f"{construction:22} {name:6} " + " ".join(f"{fits[lab][2]:+9.2f}" for lab in TERM_SETS)
                          + f" {best:>8} {fits[best][2]:+7.2f} {fits['none'][1].elastic_stiffness([d.scheduling[0]])[0]:7.1f} "
                          f"{m.elastic_stiffness([d.scheduling[0]])[0]:7.1f} {mean_slope_stiffness(m, d.position[:k]):8.1f} "
                          f"{time.perf_counter() - t0:5.1f}")
         lines.append(f"{construction:22} by BIC - flexible: median {np.median(diffs):+.2f}, worst {min(diffs):+.2f} points; "
                      f"at least as good on {sum(x >= 0 for x in diffs)} of {len(diffs)}")
+        lines.append(f"{construction:22} relax - flexible: median {np.median(relax):+.2f}, worst {min(relax):+.2f} points; "
+                     f"at least as good on {sum(x >= 0 for x in relax)} of {len(relax)}")
     return lines
 
 

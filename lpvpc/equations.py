@@ -406,6 +406,29 @@ def direction_memory(slow_velocity, v_min, v_width, alpha):
     return out
 
 
+def relaxation_step(lowpass, position, alpha):
+    """One sample of the stress-relaxation memory: the exponential average of the
+    perturbation position (rad), lowpass(k) = lowpass(k-1) + alpha (p(k) - lowpass(k-1)),
+    alpha = 1 - exp(-T / tau). Returns lowpass(k), which is both the feature at k and the
+    next state (state zero before the record, as the numpy record's).
+
+    >>> relaxation_step(0.0, 0.02, 0.5)  # a 20 mrad step, half-way in one sample
+    0.01
+    """
+    return lowpass + alpha * (position - lowpass)
+
+
+def relaxation_memory(position, alpha):
+    """:func:`relaxation_step` over a whole record (state zero before it): (N,) array.
+
+    >>> relaxation_memory(np.full(4, 0.02), 0.5)  # rad: the average catches up with a held step
+    array([0.01   , 0.015  , 0.0175 , 0.01875])
+    """
+    import scipy.signal  # (here: the CLI's start does not need scipy.signal)
+
+    return scipy.signal.lfilter([alpha], [1.0, alpha - 1.0], np.asarray(position, dtype=float))
+
+
 def state_trajectory(A, B, u):
     """States x(k) of x(k+1) = A x(k) + B u(k), x(0) = 0, for a whole record: (N, m).
 

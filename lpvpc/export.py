@@ -20,7 +20,7 @@ Outputs have direct feedthrough: they use the inputs of the same sample.
 Extended models (:mod:`lpvpc.effects`) take the extra signals their effects need as
 further inputs after these, in the order of :data:`lpvpc.effects.SIGNAL_ORDER`
 (``trial_time`` s, ``scheduling_velocity`` rad/s, ``emg``, ``emg_ut``), and keep the
-effects' own states (slow-movement direction memory, reflex cascade, the reflex re-run at
+effects' own states (slow-movement direction memory, stress-relaxation averages, reflex cascade, the reflex re-run at
 neighbouring delays) in the state; the
 effect terms are evaluated by :func:`lpvpc.effects.effect_term`, the same code as the
 numpy prediction, and added to the pathway they belong to.
@@ -163,7 +163,8 @@ def _effect_signals(model) -> tuple:
 
 
 def _effect_states(model) -> list:
-    """Names of the effect states of an extended model (direction memory, reflex cascade)."""
+    """Names of the effect states of an extended model (direction memory, stress-relaxation
+    averages, reflex cascade, the reflex re-run at neighbouring delays)."""
     if model is None or not getattr(model, "effects", None):
         return []
     from .effects import model_derived, model_reflex_delay_steps
@@ -172,6 +173,10 @@ def _effect_states(model) -> list:
     names = []
     if "direction" in derived:
         names += ["direction_latched", "direction_smoothed"]
+    if "relaxation" in derived:
+        from .effects import RELAXATION_TIMES
+
+        names += [f"relaxation_average[{tau:g} s]" for tau in RELAXATION_TIMES]
     if "reflex" in derived:
         names += [f"reflex_cascade[{i}]" for i in range(int(model.A.shape[0]))]
     for j in model_reflex_delay_steps(model):  # the reflex re-run at the delay d + j
@@ -465,6 +470,13 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
         ctx["direction"] = smoothed
         nxt += [latched, smoothed]
         k += 2
+    if any(s.startswith("relaxation_average") for s in states):
+        ctx["relaxation"] = []
+        for tau in fx.RELAXATION_TIMES:
+            average = fx.eq.relaxation_step(eff_state[k], p_j, fx.relaxation_alpha(tau, model.fs))
+            ctx["relaxation"].append(average)
+            nxt.append(average)
+            k += 1
     if any(s.startswith("reflex_cascade") for s in states):
         m = lay.m
         w = eff_state[k: k + m]
