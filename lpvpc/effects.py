@@ -133,9 +133,10 @@ class Effect:
     feature_constant: bool = True  # False: the features' rho basis without its constant function
     kind: str = "effect"
     subject: str | None = None  # name of the virtual-subject counterpart in lpvpc.simulate.EFFECTS (None: same name)
-    # An intrinsic term fitted only in the final joint solve, with the identified reflex held
-    # (as the reflex-pathway terms are): slow columns in the subspace step's intrinsic
-    # regressor would take the reflex's own slow response from it.
+    # An intrinsic term that may also be fitted only in the final joint solve, with the
+    # identified reflex held (as the reflex-pathway terms are): slow columns in the subspace
+    # step's intrinsic regressor can take the reflex's own slow response from it.
+    # Identification fits both ways and keeps the better in-sample fit.
     after_reflex: bool = False
 
     @property
@@ -271,7 +272,8 @@ CATALOG: dict[str, Effect] = {
             feature_order=1,
             feature_names=lambda opt: [f"position averaged over {t:g} s" for t in RELAXATION_TIMES],
             # Joined in the subspace step, the 3-s average took the slow part of the reflex
-            # response on a lab stationary trial (z_pf: fit VAF 86.5 -> 86.2 % with it).
+            # response on a lab stationary trial (z_pf: fit VAF 86.5 -> 86.2 % with it, 87.0
+            # with the reflex held); on the virtual subject joining it there predicts better.
             after_reflex=True,
         ),
         Effect(
@@ -819,11 +821,12 @@ class EffectDesign:
     ``lags`` and ``intrinsic_basis`` are the model's; ``signals`` the extra channels
     (:func:`signals_from_data`). Intrinsic-pathway columns are built at once
     (``columns``, ``blocks``); reflex-pathway ones need an identified model
-    (:meth:`reflex_columns`).
+    (:meth:`reflex_columns`). ``late``: effects marked ``after_reflex`` go to the final
+    joint solve (``late_columns``) instead of the intrinsic columns.
     """
 
     def __init__(self, effects, position, scheduling, fs, lags, intrinsic_basis: Basis, signals: dict,
-                 *, source="data"):
+                 *, source="data", late=True):
         self.names = check_effects(effects)
         self.position = np.asarray(position, dtype=float)
         self.scheduling = np.asarray(scheduling, dtype=float)
@@ -835,8 +838,8 @@ class EffectDesign:
         needed = sorted({s for e in self.effects for s in e.signals})
         check_signals(self.signals, needed, len(self.position), source)
         self.Gi_val = intrinsic_basis.evaluate(self.scheduling)
-        self.intrinsic_effects = [e for e in self.effects if not e.uses_reflex and not e.after_reflex]
-        self.late_effects = [e for e in self.effects if not e.uses_reflex and e.after_reflex]
+        self.intrinsic_effects = [e for e in self.effects if not e.uses_reflex and not (late and e.after_reflex)]
+        self.late_effects = [e for e in self.effects if not e.uses_reflex and late and e.after_reflex]
         self.reflex_effects = [e for e in self.effects if e.uses_reflex]
         derived = {d for e in self.intrinsic_effects + self.late_effects for d in e.derived}
         self._ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=derived)
