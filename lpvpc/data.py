@@ -119,6 +119,11 @@ def grid_deviation(t) -> float:
     return float(np.max(np.abs(t - (t[0] + step * np.arange(len(t))))) / step)
 
 
+def _uneven_steps(dt: np.ndarray, step: float) -> np.ndarray:
+    """Steps deviating from ``step`` by more than JITTER_TOLERANCE of it."""
+    return np.abs(dt - step) > JITTER_TOLERANCE * step
+
+
 def _time_problems(t: np.ndarray) -> list[str]:
     """Non-increasing and unevenly spaced time stamps (index = sample that breaks the rule);
     stamps that only jitter about a uniform grid (GRID_TOLERANCE) are not a problem."""
@@ -137,7 +142,7 @@ def _time_problems(t: np.ndarray) -> list[str]:
     if np.any(positive):
         step = float(np.median(dt[positive]))
         # Steps already reported as non-increasing are not counted again as uneven.
-        uneven = positive & (np.abs(dt - step) > JITTER_TOLERANCE * step)
+        uneven = positive & _uneven_steps(dt, step)
         count = int(np.count_nonzero(uneven))
         if count and not problems and grid_deviation(t) <= GRID_TOLERANCE:
             count = 0  # jitter about a uniform grid: check_trial warns
@@ -202,7 +207,7 @@ def check_trial(trial: Trial, source=None) -> Trial:
         raise DataError(problems, source=where)
     t = np.asarray(trial.time, dtype=float)
     steps = np.diff(t)
-    if np.any(np.abs(steps - np.median(steps)) > JITTER_TOLERANCE * np.median(steps)):
+    if np.any(_uneven_steps(steps, float(np.median(steps)))):  # accepted above: jitter about a uniform grid
         warnings.warn(f"{where + ': ' if where else ''}time stamps jitter by up to {100 * grid_deviation(t):.2g} % of "
                       f"a step about a uniform grid (a rounded or software-clock time column); read as sampled "
                       f"uniformly at {trial.fs:.6g} Hz", LpvpcWarning, stacklevel=2)
@@ -621,6 +626,20 @@ def resample_trial(trial: Trial, fs_new: float) -> Trial:
     )
 
 
+def to_multiple_rate(trial: Trial, target_fs) -> Trial:
+    """``trial`` itself when its rate is a multiple of ``target_fs`` (Hz), else resampled to
+    the largest multiple below (:func:`multiple_rate`, :func:`resample_trial`): what every
+    reader does before decimating (identification, validation, the whole-joint fit).
+
+    >>> t, u = np.arange(1024) / 1024.0, np.arange(1000) / 1000.0  # 1 s at 1024 and at 1000 Hz
+    >>> at_1024, at_1000 = Trial(t, np.sin(t), np.cos(t)), Trial(u, np.sin(u), np.cos(u))
+    >>> to_multiple_rate(at_1024, 100.0).fs, to_multiple_rate(at_1000, 100.0) is at_1000
+    (1000.0, True)
+    """
+    fs = multiple_rate(trial.fs, target_fs)
+    return trial if fs == trial.fs else resample_trial(trial, fs)
+
+
 def decimate_trial(trial: Trial, target_fs) -> Trial:
     """Decimate every channel of ``trial`` to ``target_fs`` (Hz) with the same anti-alias filter.
 
@@ -835,6 +854,11 @@ def _output_rate(fs: float, target_fs) -> float:
     return float(target_fs) if target_fs is not None else fs
 
 
+def _resampled(fs_file, fs_now, target_fs) -> dict:
+    """``{"resampled_to": the multiple of target_fs}`` when the file's rate was resampled."""
+    return {} if fs_now == fs_file else {"resampled_to": multiple_rate(fs_file, target_fs)}
+
+
 def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
 
@@ -873,9 +897,8 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
         channels=channels,
         name=source,
     )
-    fs_file, fs_multiple = float(pt.fs), multiple_rate(pt.fs, target_fs)
-    if fs_multiple != fs_file:  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
-        diff = resample_trial(diff, fs_multiple)
+    fs_file = float(pt.fs)
+    diff = to_multiple_rate(diff, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
     q = decimation_factor(diff.fs, target_fs, source=source)
     low = decimate_trial(diff, target_fs) if q > 1 else diff
     fs = _output_rate(diff.fs, target_fs)
@@ -884,10 +907,8 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     for k in ("emg", "emg_ut"):
         if k in low.channels:
             extra[k] = low.channels[k]
-    meta = {"fs_original": fs_file, "decimation": q}
-    if fs_multiple != fs_file:
-        meta["resampled_to"] = fs_multiple
-    high = HighRate(diff.position, diff.channels["scheduling"], fs_multiple) if q > 1 else None
+    meta = {"fs_original": fs_file, "decimation": q, **_resampled(fs_file, diff.fs, target_fs)}
+    high = HighRate(diff.position, diff.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta,
                             high_rate=high)
 
@@ -909,9 +930,8 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
                               channels=channels)
     trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
     trial = _to_si(trial, position_unit, torque_sign, str(path))
-    fs_file, fs_multiple = float(trial.fs), multiple_rate(trial.fs, target_fs)
-    if fs_multiple != fs_file:  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
-        trial = resample_trial(trial, fs_multiple)
+    fs_file = float(trial.fs)
+    trial = to_multiple_rate(trial, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
     q = decimation_factor(trial.fs, target_fs, source=str(path))
     low = decimate_trial(trial, target_fs) if q > 1 else trial
     fs = _output_rate(trial.fs, target_fs)
@@ -919,10 +939,8 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
     extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
     meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
-            "fs_original": fs_file, "decimation": q}
-    if fs_multiple != fs_file:
-        meta["resampled_to"] = fs_multiple
-    high = HighRate(trial.position, trial.channels["scheduling"], fs_multiple) if q > 1 else None
+            "fs_original": fs_file, "decimation": q, **_resampled(fs_file, trial.fs, target_fs)}
+    high = HighRate(trial.position, trial.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
                             high_rate=high)
 

@@ -274,7 +274,7 @@ class Surrogate:
             design = EffectDesign(names, self.p, self.rho, self.fs, model.lags, model.intrinsic_basis, self.signals,
                                   source=data.source or "data")
             X_r, _ = design.reflex_columns(model)
-            self.cv.add("effects", np.hstack([design.columns, design.late_columns, X_r]))
+            self.cv.add("effects", np.hstack([design.columns, X_r]))
             self.base.insert(1, "effects")
 
     def with_change(self, blocks, repl):
@@ -397,7 +397,7 @@ def _effect_candidate(sur: Surrogate, name):
     if missing:
         return None, f"needs channel(s) {', '.join(missing)}, not in the data"
     design = EffectDesign([name], sur.p, sur.rho, sur.fs, sur.model.lags, sur.model.intrinsic_basis, sur.signals)
-    X = np.hstack([design.columns, design.late_columns])
+    X = design.columns
     if e.uses_reflex:
         X, _ = design.reflex_columns(sur.model)
     return X, ""

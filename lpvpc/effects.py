@@ -683,11 +683,10 @@ def record_context(position, scheduling, fs, signals, *, velocity=None, derived=
     for k, v in signals.items():
         ctx[k] = col(v)
     if "direction" in derived:
-        alpha = 1.0 - math.exp(-1.0 / (DIRECTION_TAU * fs))
         ctx["direction"] = col(eq.direction_memory(signals["scheduling_velocity"], DIRECTION_V_MIN,
-                                                   DIRECTION_V_WIDTH, alpha))
+                                                   DIRECTION_V_WIDTH, direction_alpha(fs)))
     if "relaxation" in derived:
-        ctx["relaxation"] = [col(eq.relaxation_memory(position, relaxation_alpha(tau, fs))) for tau in RELAXATION_TIMES]
+        ctx["relaxation"] = [col(eq.relaxation_memory(position, smoothing_alpha(tau, fs))) for tau in RELAXATION_TIMES]
     if "reflex" in derived:
         A, B, C, z = reflex
         X = eq.state_trajectory(A, B, z)
@@ -700,18 +699,18 @@ def record_context(position, scheduling, fs, signals, *, velocity=None, derived=
     return Context(**ctx)
 
 
-def direction_alpha(fs) -> float:
-    return 1.0 - math.exp(-1.0 / (DIRECTION_TAU * fs))
+def smoothing_alpha(tau, fs) -> float:
+    """Factor of a first-order exponential average with time constant ``tau`` (s) at ``fs``
+    (Hz): the direction memory's and the stress-relaxation averages'.
 
-
-def relaxation_alpha(tau, fs) -> float:
-    """Factor of the stress-relaxation memory's exponential average with time constant
-    ``tau`` (s) at ``fs`` (Hz).
-
-    >>> round(relaxation_alpha(1.0, 100.0), 5)  # 1 s at 100 Hz: 1 % of the gap per sample
+    >>> round(smoothing_alpha(1.0, 100.0), 5)  # 1 s at 100 Hz: 1 % of the gap per sample
     0.00995
     """
     return 1.0 - math.exp(-1.0 / (tau * fs))
+
+
+def direction_alpha(fs) -> float:
+    return smoothing_alpha(DIRECTION_TAU, fs)
 
 
 def predict_effects(model, position, scheduling, signals=None, *, causal=False, velocity=None,
@@ -826,7 +825,7 @@ class EffectDesign:
     """
 
     def __init__(self, effects, position, scheduling, fs, lags, intrinsic_basis: Basis, signals: dict,
-                 *, source="data", late=True):
+                 *, source="data", late=False):
         self.names = check_effects(effects)
         self.position = np.asarray(position, dtype=float)
         self.scheduling = np.asarray(scheduling, dtype=float)

@@ -473,7 +473,7 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
     if any(s.startswith("relaxation_average") for s in states):
         ctx["relaxation"] = []
         for tau in fx.RELAXATION_TIMES:
-            average = fx.eq.relaxation_step(eff_state[k], p_j, fx.relaxation_alpha(tau, model.fs))
+            average = fx.eq.relaxation_step(eff_state[k], p_j, fx.smoothing_alpha(tau, model.fs))
             ctx["relaxation"].append(average)
             nxt.append(average)
             k += 1

@@ -214,11 +214,10 @@ def fit_whole_joint(model, ut, *, cutoff: float = DEFAULT_CUTOFF, order: int = D
     ``ut``: :class:`lpvpc.data.Trial` (any rate above ``model.fs``; it is resampled and
     decimated with the package's anti-alias filter, as the identification data) or a ``(angle, torque)`` pair at ``model.fs``.
     """
-    from .data import Trial, decimate_trial, multiple_rate, resample_trial
+    from .data import Trial, decimate_trial, to_multiple_rate
 
     if isinstance(ut, Trial):
-        if multiple_rate(ut.fs, model.fs) != ut.fs:  # as the identification data (lpvpc.data.pair_trials)
-            ut = resample_trial(ut, multiple_rate(ut.fs, model.fs))
+        ut = to_multiple_rate(ut, model.fs)  # as the identification data (lpvpc.data.pair_trials)
         q = ut.fs / model.fs
         low = ut if abs(q - 1.0) < 1e-9 else decimate_trial(ut, model.fs)
         angle, torque = low.position, low.torque

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from lpvpc import equations as eq
-from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, multiple_rate, pair_trials, resample_trial
+from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials, to_multiple_rate
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
@@ -94,7 +94,7 @@ class ValidationResult:
 def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given)
     and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
-    is first resampled to the largest multiple below it (lpvpc.data.resample_trial), as
+    is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
     identification does. DataError for unequal lengths, a rate below the model's, and any
     bad sample."""
     conv = model.conventions or {}
@@ -109,16 +109,15 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
         else:
             trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign))
             files[role] = {"path": str(src), "sha256": file_sha256(src)}
-    pt_t, ut_t = trials
-    fs_multiple = multiple_rate(pt_t.fs, model.fs)
-    if fs_multiple != pt_t.fs:  # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
-        pt_t, ut_t = resample_trial(pt_t, fs_multiple), resample_trial(ut_t, fs_multiple)
+    fs_file = trials[0].fs
+    # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
+    pt_t, ut_t = (to_multiple_rate(tr, model.fs) for tr in trials)
     measured = pair_trials(pt_t, ut_t, target_fs=model.fs)
     if abs(measured.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {measured.fs:g} Hz of the record differs from the model's {model.fs:g} Hz",
                         source=measured.source or None)
     measured.meta.update(position_unit=position_unit, torque_sign=torque_sign)
-    return Record(pt_t, ut_t, measured, files, fs_file=float(trials[0].fs) if pt_t is not trials[0] else None)
+    return Record(pt_t, ut_t, measured, files, fs_file=None if pt_t.fs == fs_file else float(fs_file))
 
 
 def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
