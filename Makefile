@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean chromium libtbb
+.PHONY: demo test docs bench clean chromium libtbb
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,11 +20,21 @@ demo: $(STAMP)
 test: $(STAMP) chromium libtbb
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) -m pytest -q
 
+# The documentation, built with warnings as errors (docs/conf.py; the results page is
+# generated from benchmarks/results/ at build time). Output: docs/_build/html/index.html.
+DOCS_STAMP := $(VENV)/.docs-installed
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test,docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(VENV)/bin/sphinx-build -W --keep-going -b html docs docs/_build/html
+
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) demo_out build
+	rm -rf $(VENV) demo_out build docs/_build docs/benchmarks.md
 
 # Headless Chromium (Debian's package) for the test that opens the validation report
 # (tests/test_validation.py); `make test` depends on it, so a fresh machine gets it. The

@@ -1,0 +1,98 @@
+"""Sphinx extension: write benchmarks.md from benchmarks/results/*.txt before the build.
+
+Each recorded table is shown as it was written (a text block, so its own layout stays),
+under the command that reproduces it. A results file that no command below knows and whose
+name matches no ``benchmarks/bench_<name>.py`` is a build warning (an error under -W), so a
+new benchmark cannot appear without saying how to reproduce it.
+"""
+
+from pathlib import Path
+
+from sphinx.util import logging
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+RESULTS = ROOT / "benchmarks" / "results"
+PAGE = HERE / "benchmarks.md"  # generated, git-ignored
+REAL = "LPVPC_REAL_DATA=/path/to/recordings "  # the lab's public recordings (skipped when absent)
+
+# results file -> (what it measures, command that reproduces it)
+TABLES = {
+    "montecarlo.txt": ("Accuracy on the virtual subject over 20 noise seeds",
+                       "python benchmarks/bench_montecarlo.py 20"),
+    "uncertainty.txt": ("Coverage of the 95 % confidence intervals, 1 kHz files",
+                        "nice python benchmarks/bench_uncertainty.py 20"),
+    "uncertainty_100hz_files.txt": ("Coverage of the 95 % confidence intervals, 100 Hz files",
+                                    "nice python benchmarks/bench_uncertainty.py 20 --files-fs 100"),
+    "reflex_observability.txt": ("What a 100 Hz record can show of the reflex rectifier",
+                                 "python benchmarks/bench_reflex_observability.py"),
+    "reflex_1k.txt": ("Reflex gain and threshold trends from 1 kHz and 100 Hz files",
+                      "python benchmarks/bench_reflex_1k.py"),
+    "reflex_1k_bias.txt": ("Where the 1 kHz reflex bias came from (noise-free records)",
+                           "python benchmarks/bench_reflex_1k_bias.py"),
+    "threshold_information.txt": ("How much a record holds about the reflex threshold's trend",
+                                  "python benchmarks/bench_threshold_information.py"),
+    "lab_perturbation.txt": ("The virtual subject under the lab's perturbation design",
+                             "python benchmarks/bench_lab_perturbation.py"),
+    "real_pilot.txt": ("The lab's pilot LPV trial, held-out last 30 %",
+                       REAL + "python benchmarks/bench_real_pilot.py"),
+    "real_stationary.txt": ("The lab's five stationary trials, held-out last 30 %",
+                            REAL + "python benchmarks/bench_real_stationary.py"),
+    "stationary_no_ut.txt": ("Stationary trials: PT alone against the PT/UT pair",
+                             "python benchmarks/bench_stationary_no_ut.py"),
+    "trials.txt": ("Several trials in one identification", "python benchmarks/bench_trials.py 3"),
+    "identify.txt": ("Identification speed and memory", "python benchmarks/bench_identify.py"),
+    "identify_floor.txt": ("Identification against a bare least-squares solve",
+                           "python benchmarks/bench_identify.py --floor"),
+    "export.txt": ("Export: code generation, FMU replay, CasADi", "python benchmarks/bench_export.py"),
+    "fmu_cycles.txt": ("FMU lifecycle: instantiate/reset/free cycles and memory",
+                       "python benchmarks/bench_fmu_cycles.py"),
+    "fmu_me.txt": ("Model Exchange FMUs", "python benchmarks/bench_fmu_me.py"),
+    "portable_ssp.txt": ("The portable SSP in libcosim and ECOS", "python benchmarks/bench_portable_ssp.py"),
+    "validation.txt": ("Validation: offline, FMU replay and co-simulation",
+                       "python benchmarks/bench_validation.py"),
+    "whole_joint.txt": ("Whole-joint model", "python benchmarks/bench_whole_joint.py"),
+    "diagnose.txt": ("Diagnosis of hidden effects on the virtual subject",
+                     "nice python benchmarks/bench_diagnose.py"),
+    "diagnose_lab_pulses.txt": ("Diagnosis under the lab's perturbation design",
+                                "nice python benchmarks/bench_diagnose.py --lab-pulses"),
+    "diagnose_speed.txt": ("Diagnosis speed", "python benchmarks/bench_diagnose.py --speed"),
+    "fuzz_model.txt": ("Fuzzing the model-file loader", "python benchmarks/bench_fuzz_model.py"),
+}
+
+
+def _entry(path: Path, logger):
+    if path.name in TABLES:
+        return TABLES[path.name]
+    script = ROOT / "benchmarks" / f"bench_{path.stem}.py"
+    if not script.exists():
+        logger.warning(f"benchmarks/results/{path.name}: no command known to reproduce it "
+                       f"(add it to TABLES in docs/results_page.py)")
+    return path.stem.replace("_", " ").capitalize(), f"python benchmarks/bench_{path.stem}.py"
+
+
+def write_page(app) -> None:
+    logger = logging.getLogger(__name__)
+    files = sorted(RESULTS.glob("*.txt"))
+    order = {name: i for i, name in enumerate(TABLES)}
+    files.sort(key=lambda p: (order.get(p.name, len(order)), p.name))
+    out = ["# Benchmark tables", "",
+           "Every table below is the file `benchmarks/results/NAME.txt` as the benchmark wrote it, "
+           "under the command that reproduces it (run from a checkout, in the project venv: "
+           "`make bench` runs them all). Timings come from a shared 2-core machine: compare the "
+           "ratios measured within one run, not the absolute times. What the figures mean is on "
+           "the [results](results.md) page.", ""]
+    for path in files:
+        title, command = _entry(path, logger)
+        text = path.read_text(encoding="utf-8").rstrip("\n")
+        fence = "`" * max(3, max((len(run) for run in text.split() if set(run) == {"`"}), default=0) + 1)
+        out += [f"## {title}", "", f"`{path.name}`, reproduced by:", "", "```sh", command, "```", "",
+                fence + "text", text, fence, ""]
+    content = "\n".join(out)
+    if not PAGE.exists() or PAGE.read_text(encoding="utf-8") != content:  # keep incremental builds quiet
+        PAGE.write_text(content, encoding="utf-8")
+
+
+def setup(app):
+    app.connect("builder-inited", write_page)
+    return {"parallel_read_safe": True}
