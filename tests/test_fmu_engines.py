@@ -1,7 +1,7 @@
-"""The exported FMUs in tools nobody here wrote: fmpy's ``simulate_fmu`` with the README's
-recipe (copied verbatim from README.md), libcosim (``libcosimpy``, FMI 2.0 only) and ECOS
+"""The exported FMUs in tools nobody here wrote: fmpy's ``simulate_fmu`` with the user guide's
+recipe (copied verbatim from docs/guide/fmu_casadi.md), libcosim (``libcosimpy``, FMI 2.0 only) and ECOS
 (``ecospy``, FMI 2.0 and 3.0; needs Debian's libtbb12), each on the virtual subject's novel
-trajectory at the FMU's declared step, read at the engine's own times with the README's
+trajectory at the FMU's declared step, read at the engine's own times with the guide's
 timing contract (the value at time t is the torque of sample ceil((t - L)/T) - 1), and
 compared with the offline prediction. Each test prints its VAF against the offline one.
 
@@ -21,6 +21,7 @@ from lpvpc import export as ex
 from lpvpc.model import vaf
 
 REPO = Path(__file__).resolve().parents[1]
+RECIPE_PAGE = REPO / "docs" / "guide" / "fmu_casadi.md"  # the user guide's FMU page
 SAMPLED_TOL = 0.5  # VAF points from the offline prediction (the issue's floor for simulate_fmu)
 ENGINE_TOL = 1.0  # VAF points from the offline prediction (the floor for libcosim and ECOS)
 
@@ -46,7 +47,7 @@ def _contract(md):
 
 
 def _sample_index(times, T, L):
-    """The README's timing contract: the output at time t is the torque of sample
+    """The guide's timing contract: the output at time t is the torque of sample
     ceil((t - L) / T) - 1 (times within 1e-6 T of a sample time count as on it)."""
     return np.ceil((np.asarray(times) - L) / T - 1e-6).astype(int) - 1
 
@@ -66,28 +67,28 @@ def _report(name, data, y, k, offline, two_sided, tol):
     return got, err
 
 
-def _readme_recipe() -> str:
-    text = (REPO / "README.md").read_text()
+def _guide_recipe() -> str:
+    text = RECIPE_PAGE.read_text()
     m = re.search(r"<!-- fmu-recipe -->\s*```python\n(.*?)```\s*<!-- /fmu-recipe -->", text, re.S)
-    assert m, "README.md has no fmu-recipe block"
+    assert m, f"{RECIPE_PAGE.relative_to(REPO)} has no fmu-recipe block"
     return m.group(1)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3)])
-def test_readme_recipe_with_simulate_fmu(model, subject, fmus, tmp_path, monkeypatch, variant, fmi):
-    """The README's fmpy recipe, verbatim: the torque it returns is the offline prediction
+def test_guide_recipe_with_simulate_fmu(model, subject, fmus, tmp_path, monkeypatch, variant, fmi):
+    """The user guide's fmpy recipe, verbatim: the torque it returns is the offline prediction
     (to rounding), so its VAF is within 0.5 point of the offline one."""
     data = subject["novel"]
     monkeypatch.chdir(tmp_path)
     (tmp_path / "model.fmu").write_bytes(Path(fmus[(variant, fmi)]).read_bytes())
     env = {"position": data.position, "scheduling": data.scheduling}
-    exec(compile(_readme_recipe(), "README.md:fmu-recipe", "exec"), env)
+    exec(compile(_guide_recipe(), "docs/guide/fmu_casadi.md:fmu-recipe", "exec"), env)
     torque = np.asarray(env["torque"])
     assert torque.shape == data.torque.shape
     offline, two_sided = _offline(model, data, variant)
     k = np.arange(len(torque))
-    _, err = _report(f"simulate_fmu (README recipe), {variant} FMI {fmi}", data, torque, k, offline, two_sided,
+    _, err = _report(f"simulate_fmu (guide recipe), {variant} FMI {fmi}", data, torque, k, offline, two_sided,
                      SAMPLED_TOL)
     assert err < 1e-9 * np.max(np.abs(offline))
 
