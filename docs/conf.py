@@ -19,12 +19,12 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "docstrings",  # reads the plain-text docstrings as rST (see docstrings.py)
-    "results_page",  # writes results.md from benchmarks/results/*.txt before reading
+    "results_page",  # writes benchmarks.md from benchmarks/results/*.txt before reading
 ]
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "README.md"]
+exclude_patterns = ["_build"]
 myst_enable_extensions = ["colon_fence", "dollarmath"]
 myst_heading_anchors = 3
 
@@ -38,7 +38,6 @@ napoleon_custom_sections = [("Parameters (defaults suit 100 Hz ankle data)", "pa
 
 html_theme = "furo"
 html_title = f"lpvpc {release}"
-
 
 
 def _not_empty_glob(record) -> bool:

@@ -32,37 +32,60 @@ def _indent(line: str) -> int:
     return len(line) - len(line.lstrip())
 
 
-def prepare(app, what, name, obj, options, lines):
-    out = [_escape_pipes(s) for s in lines]
-    for i in range(1, len(out)):  # "* fs)" continuing a formula is not a bullet
+def _escape_continued_products(lines):
+    """A line starting with "* " right after a line of text continues a formula."""
+    out = list(lines)
+    for i in range(1, len(out)):
         prev, s = out[i - 1].strip(), out[i].lstrip()
         if s.startswith("* ") and prev and not prev.startswith("* ") and prev[-1] not in ".:;":
             out[i] = out[i].replace("*", "\\*", 1)
-    for i, s in enumerate(out):
-        if not (s.rstrip().endswith(":") and not s.rstrip().endswith("::")):
-            continue
-        if i + 2 < len(out) and not out[i + 1].strip() and out[i + 2].strip() \
-                and _indent(out[i + 2]) > _indent(s):
-            out[i] = s.rstrip() + ":"
-    section, base = False, 0
-    described = []
-    for i, s in enumerate(out):
-        if i + 1 < len(out) and s.strip().lower() in PARAMETER_HEADINGS and re.fullmatch(r"-{3,}", out[i + 1].strip()):
+    return out
+
+
+def _literal_displays(lines):
+    """A line ending in a single ':', then a blank line, then a deeper indented block."""
+    out = list(lines)
+    for i, s in enumerate(out[:-2]):
+        text = s.rstrip()
+        if text.endswith(":") and not text.endswith("::") and not out[i + 1].strip() \
+                and out[i + 2].strip() and _indent(out[i + 2]) > _indent(s):
+            out[i] = text + ":"
+    return out
+
+
+def _is_underline(line) -> bool:
+    return re.fullmatch(r"-{3,}", line.strip()) is not None
+
+
+def _described_parameters(lines):
+    """'name : words words words words' in a parameter section -> name, indented words."""
+    out, section, base = [], False, 0
+    for i, s in enumerate(lines):
+        underlined = i + 1 < len(lines) and _is_underline(lines[i + 1])
+        if underlined and s.strip().lower() in PARAMETER_HEADINGS:
             section, base = True, _indent(s)
-        elif section and s.strip() and _indent(s) <= base and re.fullmatch(r"-{3,}", (out[i + 1] if i + 1 < len(out) else "").strip()):
+        elif underlined and section and s.strip() and _indent(s) <= base:
             section = False  # the next section's heading
         m = DESCRIBED.match(s) if section and _indent(s) == base else None
-        if m:
-            described += [m.group(1) + m.group(2), m.group(1) + "    " + m.group(3)]
-        else:
-            described.append(s)
-    out = described
+        out += [m.group(1) + m.group(2), m.group(1) + "    " + m.group(3)] if m else [s]
+    return out
+
+
+def _narrative_headings(lines):
+    out = list(lines)
+    for i in range(len(out) - 1):
+        key = out[i].strip().lower()
+        if key in NARRATIVE_HEADINGS and _is_underline(out[i + 1]):
+            out[i] = NARRATIVE_HEADINGS[key]
+            out[i + 1] = "-" * len(out[i])
+    return out
+
+
+def prepare(app, what, name, obj, options, lines):
+    out = [_escape_pipes(s) for s in lines]
+    out = _described_parameters(_literal_displays(_escape_continued_products(out)))
     if what == "module":
-        for i in range(len(out) - 1):
-            key = out[i].strip().lower()
-            if key in NARRATIVE_HEADINGS and re.fullmatch(r"-{3,}", out[i + 1].strip()):
-                out[i] = NARRATIVE_HEADINGS[key]
-                out[i + 1] = "-" * len(out[i])
+        out = _narrative_headings(out)
     lines[:] = out
 
 
