@@ -175,10 +175,16 @@ def input_file(value) -> Path:
     return split_variable(value)[0]
 
 
+# Paths that name an open descriptor: a file they reach (``/dev/stdout`` redirected to a log)
+# is written into, not replaced (a rename would replace the link in /dev).
+DESCRIPTOR_PATHS = ("/dev/stdin", "/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/")
+
+
 def is_special(path) -> bool:
     """True for an existing path that is not a regular file or folder (a FIFO, a device, a
-    socket), or lies under /dev or /proc (``/dev/stdout`` redirected to a file): such a path
-    is written into directly, never replaced by a rename.
+    socket), or names an open descriptor (``/dev/stdout``, ``/dev/fd/N``, ``/proc/...``,
+    also when it reaches a regular file): such a path is written into directly, never
+    replaced by a rename. A regular file elsewhere (``/dev/shm/x.json`` too) is not special.
 
     >>> is_special("/dev/null"), is_special("/nonexistent/x.json")
     (True, False)
@@ -190,7 +196,7 @@ def is_special(path) -> bool:
     if stat.S_ISDIR(mode):
         return False
     absolute = os.path.abspath(path)
-    return not stat.S_ISREG(mode) or absolute.startswith(("/dev/", "/proc/"))
+    return not stat.S_ISREG(mode) or absolute.startswith(DESCRIPTOR_PATHS)
 
 
 def check_writable_file(label, path, *, regular: bool = False, make_folders: bool = False) -> None:
@@ -336,7 +342,7 @@ def _copy_owner_and_mode(target: Path, tmp: Path) -> None:
             os.chown(tmp, st.st_uid, st.st_gid)
         except OSError:  # not permitted (another user's file): the mode still follows
             pass
-    os.chmod(tmp, stat.S_IMODE(st.st_mode))
+    os.chmod(tmp, st.st_mode & 0o777)  # permission bits only: no set-id bit carried to new content
 
 
 def _write_into(tmp: Path, target: Path) -> None:

@@ -388,6 +388,14 @@ def test_dev_stdout_and_a_device(work, tmp_path_factory):
     assert log.stat().st_ino == inode
     r = _cli("export", "model.json", "--fmu", "/dev/stdout", cwd=work)
     assert r.returncode == 2 and "not a regular file" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK):  # a regular file under /dev: replaced
+        shm = Path("/dev/shm") / f"lpvpc-test-{os.getpid()}.json"
+        try:
+            shm.write_text("old content " * 1000)
+            assert _cli(*PREDICT, "--json", shm, cwd=work).returncode == 0
+            assert json.loads(shm.read_text())["n_samples"] > 0
+        finally:
+            shm.unlink(missing_ok=True)
 
 
 def test_replaced_file_keeps_its_mode_and_owner(work, model, capsys):
