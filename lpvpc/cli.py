@@ -26,8 +26,9 @@ paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit s
 for bad input (1 for other failures); out-of-range and unit warnings as one line
 ``lpvpc: warning: <message>`` each. Command-line usage errors exit 2.
 
-Outputs (:mod:`lpvpc.outputs`): no output may be one of the command's inputs (exit 2);
-files are written to a temporary file and renamed, report folders built beside and swapped
+Outputs (:mod:`lpvpc.outputs`): every command's inputs and outputs are declared in
+:data:`COMMAND_IO` and checked before any work: no output may be, link to or contain one of
+the command's inputs, and its folder must exist and be writable (exit 2, one line); files are written to a temporary file and renamed, report folders built beside and swapped
 in; ``--force`` (validate, diagnose, improve) replaces a report folder that holds files but
 no previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
