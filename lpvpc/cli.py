@@ -129,7 +129,7 @@ COMMAND_IO = {
     "identify": CommandIO(inputs=_DATA, files={"-o": "output"}),
     "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
-                        sidecars={"--casadi": (".json",)}, regular=("--fmu",), make_folders=("--fmu",)),
+                        sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut"},
                              files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
                              make_folders=("--fmu",)),

@@ -111,7 +111,8 @@ class CommandIO:
     file ``file.mat``); ``files``: files it writes; ``folders``: folders it replaces as a
     whole; ``sidecars``: {file label: suffixes of files written beside it}
     (``--casadi F`` also writes ``F.json``); ``regular``: file outputs that must be regular
-    files (an FMU is built beside its target, so it cannot go to a FIFO or device);
+    files (an FMU is built beside its target, a CasADi function has a sidecar beside it: they
+    cannot go to a FIFO or device);
     ``make_folders``: file outputs whose missing folders the command creates (an FMU's).
 
     >>> io = CommandIO(inputs={"--pt": "pt"}, files={"-o": "output"})

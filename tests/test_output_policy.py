@@ -279,6 +279,7 @@ EARLY = {
                          "afile.txt", "is a file"),
     "simulate into a file": (["simulate", "--out", "afile.txt"], "afile.txt", "is a file"),
     "fmu to a device": (["export", "model.json", "--fmu", "/dev/null"], "/dev/null", "not a regular file"),
+    "casadi to a device": (["export", "model.json", "--casadi", "/dev/stdout"], "/dev/stdout", "not a regular file"),
 }
 
 
