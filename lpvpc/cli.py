@@ -28,9 +28,10 @@ for bad input (1 for other failures); out-of-range and unit warnings as one line
 
 Outputs (:mod:`lpvpc.outputs`): every command's inputs and outputs are declared in
 :data:`COMMAND_IO` and checked before any work: no output may be, link to or contain one of
-the command's inputs, and its folder must exist and be writable (exit 2, one line); files are written to a temporary file and renamed, report folders built beside and swapped
-in; ``--force`` (validate, diagnose, improve) replaces a report folder that holds files but
-no previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
+the command's inputs, and its folder must exist and be writable (exit 2, one line); files
+are written to a temporary file and renamed, report folders built beside and swapped in;
+``--force`` (validate, diagnose, improve) replaces a report folder that holds files but no
+previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
 """
 
@@ -121,8 +122,8 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
-# (lpvpc.outputs.CommandIO) checks these before the command runs; a command without an
-# entry does not run.
+# (lpvpc.outputs.CommandIO) checks these before the command runs. A new command or file
+# option needs its entry here (tests/test_output_policy.py fails without it).
 _DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
 COMMAND_IO = {
     "simulate": CommandIO(folders={"--out": "out"}),
