@@ -26,10 +26,12 @@ paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit s
 for bad input (1 for other failures); out-of-range and unit warnings as one line
 ``lpvpc: warning: <message>`` each. Command-line usage errors exit 2.
 
-Outputs (:mod:`lpvpc.outputs`): no output may be one of the command's inputs (exit 2);
-files are written to a temporary file and renamed, report folders built beside and swapped
-in; ``--force`` (validate, diagnose, improve) replaces a report folder that holds files but
-no previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
+Outputs (:mod:`lpvpc.outputs`): every command's inputs and outputs are declared in
+:data:`COMMAND_IO` and checked before any work: no output may be, link to or contain one of
+the command's inputs, and its folder must exist and be writable (exit 2, one line); files
+are written to a temporary file and renamed, report folders built beside and swapped in;
+``--force`` (validate, diagnose, improve) replaces a report folder that holds files but no
+previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
 """
 
@@ -48,7 +50,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import LpvpcError, LpvpcWarning
-from .outputs import atomic_path, check_outputs, staged_folder, write_text
+from .outputs import CommandIO, atomic_path, staged_folder, write_text
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -119,14 +121,28 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
     return load_identification_data(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
 
 
-def _data_inputs(args) -> dict:
-    from .data import split_variable  # "file.mat:VARIABLE" is the file file.mat
-
-    out = {}
-    for label, value in (("DATA", args.data), ("--pt", args.pt), ("--ut", args.ut)):
-        for i, v in enumerate(_listed(value)):  # several trials: every file
-            out[label if i == 0 else f"{label} #{i + 1}"] = str(split_variable(v)[0])
-    return out
+# What each command reads and writes ({option: argparse dest}): the one output policy
+# (lpvpc.outputs.CommandIO) checks these before the command runs. A new command or file
+# option needs its entry here (tests/test_output_policy.py fails without it).
+_DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
+COMMAND_IO = {
+    "simulate": CommandIO(folders={"--out": "out"}),
+    "identify": CommandIO(inputs=_DATA, files={"-o": "output"}),
+    "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
+    "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
+                        sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
+    "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut"},
+                             files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
+                             make_folders=("--fmu",)),
+    "validate": CommandIO(inputs={"MODEL": "model", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
+                                  "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
+                          folders={"--report": "report"}),
+    "diagnose": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json"},
+                          folders={"--report": "report"}),
+    "improve": CommandIO(inputs={"--pt": "pt", "--ut": "ut", "--heldout-pt": "heldout_pt",
+                                 "--heldout-ut": "heldout_ut"},
+                         files={"-o": "output", "--json": "json"}, folders={"--report": "report"}),
+}
 
 
 def check_report_folder(folder, markers, force) -> None:
@@ -198,7 +214,6 @@ def cmd_identify(args) -> int:
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
     target_fs = None if args.fs == 0 else args.fs
-    check_outputs(_data_inputs(args), {"-o": args.output})
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
     t0 = time.perf_counter()
@@ -270,7 +285,6 @@ def cmd_predict(args) -> int:
     from .errors import DataError
     from .model import LPVPCModel, vaf
 
-    check_outputs({"MODEL": args.model, **_data_inputs(args)}, {"--json": args.json, "--out": args.out})
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
@@ -322,8 +336,6 @@ def cmd_export(args) -> int:
 
     if not (args.casadi or args.fmu):
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
-    check_outputs({"MODEL": args.model}, {"--casadi": args.casadi, "--fmu": args.fmu,
-                                          "--casadi sidecar": args.casadi and str(args.casadi) + ".json"})
     model = LPVPCModel.load(args.model)
     try:
         from . import export
@@ -350,7 +362,6 @@ def cmd_whole_joint(args) -> int:
     from .data import load_trial
     from .model import LPVPCModel
 
-    check_outputs({"MODEL": args.model, "--ut": args.ut}, {"-o": args.out, "--fmu": args.fmu, "--casadi": args.casadi})
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
@@ -392,9 +403,6 @@ def cmd_validate(args) -> int:
             raise
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
-    check_outputs({"MODEL": args.model, "--pt": args.pt, "--ut": args.ut, "--fmu": args.fmu,
-                   "--actuator-fmu": args.actuator_fmu, "--whole-joint": getattr(args, "whole_joint", None)}, {},
-                  {"--report": args.report})
     check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
     settings = CosimSettings(coupling=args.coupling)
     result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,
@@ -454,9 +462,6 @@ def cmd_diagnose(args) -> int:
     from .diagnose import diagnose, format_table, write_report
     from .model import LPVPCModel
 
-    check_outputs({"MODEL": args.model, **_data_inputs(args)},
-                  {"--json": args.json, "--report diagnosis.json": args.report and Path(args.report) / "diagnosis.json"},
-                  {"--report": args.report})
     if args.report:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
     model = LPVPCModel.load(args.model)
@@ -493,8 +498,6 @@ def cmd_improve(args) -> int:
 
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
-    check_outputs({"--pt": args.pt, "--ut": args.ut, "--heldout-pt": args.heldout_pt, "--heldout-ut": args.heldout_ut},
-                  {"-o": args.output, "--json": args.json}, {"--report": args.report})
     check_report_folder(args.report, ("improve.md",), args.force)
     kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
     from .data import load_identification_data
@@ -894,6 +897,7 @@ def _run(args) -> int:
         warnings.simplefilter("always", LpvpcWarning)
         warnings.showwarning = _show_warning(warnings.showwarning)
         try:
+            COMMAND_IO[args.command].check(args)  # before any work: no output over an input
             return args.func(args)
         except LpvpcError as exc:
             _err(exc)

@@ -220,7 +220,15 @@ def check_trial(trial: Trial, source=None) -> Trial:
 def _read_csv(path: Path, channels=None) -> dict[str, np.ndarray]:
     """Columns of a CSV file with one header row (leading ``#`` comment lines are skipped).
     ``channels`` maps roles to the file's own column names (``{"position": "Pert (rad)"}``,
-    case-insensitive); a column already named after a mapped role is then not read."""
+    case-insensitive); a column already named after a mapped role is then not read.
+    A file larger than the per-variable limit (:func:`lpvpc.matfiles.max_variable_bytes`,
+    1 GiB unless set) is refused before it is read."""
+    from .matfiles import max_variable_bytes, over_limit
+
+    limit = max_variable_bytes()
+    size = os.path.getsize(path)
+    if size > limit:  # the text is held in memory below: bounded by the limit, not by the file
+        raise DataError([over_limit("the file", size, limit)], source=str(path))
     try:
         text = path.read_text(encoding="utf-8-sig")  # tolerate a BOM (spreadsheet exports)
     except (OSError, UnicodeDecodeError) as exc:
@@ -337,10 +345,16 @@ def _csv_rows(body: list[str], names: list[str], use: list[int], first_line: int
 def _read_mat(path: Path, required, optional, variable=None, channels=None) -> dict[str, np.ndarray]:
     """Channels of a MATLAB file by role (``time``, ``position``, ...): the lab's ``nldat``
     objects, structs, matrices or plain vectors, v4 to v7.3 (:mod:`lpvpc.matfiles`)."""
-    from lpvpc.matfiles import read_mat, select_channels
+    from lpvpc.matfiles import needed_variables, read_mat, select_channels
 
-    records = read_mat(path)
-    return select_channels(records, required, optional, channels=channels, variable=variable, source=str(path))
+    skipped: list = []  # variables over the size limit, not read
+    records = read_mat(path, needed_variables(variable, channels), skipped)
+    try:
+        return select_channels(records, required, optional, channels=channels, variable=variable, source=str(path))
+    except DataError as exc:
+        if skipped:
+            raise DataError(list(exc.problems) + skipped, source=str(path)) from None
+        raise
 
 
 def split_variable(path) -> tuple[Path, str | None]:

@@ -20,11 +20,22 @@ automatically when only one choice fits; an ambiguous or empty choice is one Dat
 lists the variables and channels found. MATLAB v4/v5/v7 and v7.3 (HDF5) files are read with
 ``mat-io`` (which reads class objects; ``scipy.io.loadmat`` cannot), plain v5 files with
 ``scipy.io`` as a fallback. Units are not converted here (see :mod:`lpvpc.data`).
+
+Bounded reading: before anything is read, the size each variable declares is taken from the
+file's headers alone (:func:`declared_sizes`: v5 element tags and array dimensions, also
+inside compressed elements; v7.3 HDF5 dataset shapes, following MATLAB's references).
+Only the variables a read needs are loaded (a named variable: that one); a needed variable
+declaring more than :func:`max_variable_bytes` is one DataError naming the limit, an
+unrelated one is skipped without being read.
 """
 
 from __future__ import annotations
 
+import os
+import re
+import struct
 import warnings
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -99,14 +110,254 @@ class Record:
         return None
 
 
+# --------------------------------------------------------------------------- declared sizes
+MAX_VARIABLE_BYTES = 1 << 30  # 1 GiB per variable (a 30-minute 1 kHz record of 6 channels is 86 MB)
+LIMIT_ENV = "LPVPC_MAX_VARIABLE_BYTES"  # environment variable that sets another limit (bytes)
+SUBSYSTEM = "(class object data)"  # where MATLAB keeps classdef objects' contents (v5 and v7.3)
+
+
+def max_variable_bytes() -> int:
+    """The limit (bytes) on what one variable of a .mat file (or a CSV file) may declare:
+    ``$LPVPC_MAX_VARIABLE_BYTES`` if set, else :data:`MAX_VARIABLE_BYTES` (1 GiB).
+
+    >>> os.environ[LIMIT_ENV] = "5e8"; max_variable_bytes()
+    500000000
+    >>> del os.environ[LIMIT_ENV]; max_variable_bytes() == MAX_VARIABLE_BYTES
+    True
+    """
+    text = os.environ.get(LIMIT_ENV, "").strip()
+    if not text:
+        return MAX_VARIABLE_BYTES
+    try:
+        value = int(float(text))
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise DataError([f"{LIMIT_ENV}={text!r} must be a positive number of bytes"])
+    return value
+
+
+def size_text(n: int) -> str:
+    """``1073741824`` -> ``'1 GiB'``; ``8e9`` -> ``'7.45 GiB'``.
+
+    >>> size_text(1 << 30), size_text(8 * 10**9), size_text(512)
+    ('1 GiB', '7.45 GiB', '512 bytes')
+    """
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{int(n)} bytes"
+
+
+def over_limit(what: str, n: int, limit: int) -> str:
+    """The one-line problem of a variable or file over the limit.
+
+    >>> over_limit("variable 'junk'", 8 * 10**9, 1 << 30)
+    "variable 'junk' declares 7.45 GiB of data, over the limit of 1 GiB (lpvpc.matfiles.MAX_VARIABLE_BYTES; set LPVPC_MAX_VARIABLE_BYTES=BYTES to read it)"
+    """
+    return (f"{what} declares {size_text(n)} of data, over the limit of {size_text(limit)} "
+            f"(lpvpc.matfiles.MAX_VARIABLE_BYTES; set {LIMIT_ENV}=BYTES to read it)")
+
+
+def declared_sizes(path) -> dict | None:
+    """{variable: bytes its data declare} from a .mat file's headers, without reading the
+    data (a compressed v5 element: its first few hundred bytes); the class objects' store is
+    listed as :data:`SUBSYSTEM`; v4 files from their 20-byte variable headers (None if those
+    do not parse: the file is then read unchecked). Raises DataError if an HDF5 file's
+    structure cannot be read.
+
+    >>> import tempfile, scipy.io
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     scipy.io.savemat(f"{tmp}/t.mat", {"torque": np.zeros(1000)}, do_compression=True)
+    ...     declared_sizes(f"{tmp}/t.mat")["torque"] >= 8000
+    True
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(128)
+        f.seek(512)
+        hdf = f.read(8) == b"\x89HDF\r\n\x1a\n"
+    if hdf:
+        return _hdf5_sizes(path)
+    if len(head) == 128 and head[124:128] in (b"\x00\x01IM", b"\x01\x00MI"):
+        return _v5_sizes(path, "<" if head[126:128] == b"IM" else ">")
+    return _v4_sizes(path)
+
+
+_V4_ITEM_BYTES = (8, 4, 4, 2, 2, 1)  # by the type's precision digit: double, single, int32, int16, uint16, uint8
+
+
+def _v4_sizes(path: Path) -> dict | None:
+    """A v4 file's variables: 20-byte headers (type, rows, columns, imaginary flag, name
+    length) each followed by the name and the data. None if the headers do not parse."""
+    sizes: dict = {}
+    end = path.stat().st_size
+    with open(path, "rb") as f:
+        pos = 0
+        while pos + 20 <= end:
+            f.seek(pos)
+            raw = f.read(20)
+            for endian in "<>":
+                mopt, rows, cols, imag, namlen = struct.unpack(endian + "iiiii", raw)
+                if 0 <= mopt < 5000 and rows >= 0 and cols >= 0 and 0 < namlen < 1 << 16:
+                    break
+            else:
+                return None
+            precision = mopt % 100 // 10
+            if precision >= len(_V4_ITEM_BYTES):
+                return None
+            name = f.read(namlen).split(b"\x00")[0].decode("ascii", "replace")
+            size = rows * cols * _V4_ITEM_BYTES[precision] * (2 if imag else 1)
+            sizes[name] = sizes.get(name, 0) + size
+            pos += 20 + namlen + size
+    return sizes
+
+
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+
+
+def _v5_sizes(path: Path, endian: str) -> dict:
+    sizes: dict = {}
+    end = path.stat().st_size
+    with open(path, "rb") as f:
+        pos = 128
+        while pos + 8 <= end:
+            f.seek(pos)
+            mtype, nbytes = struct.unpack(endian + "II", f.read(8))
+            if mtype == _MI_COMPRESSED:
+                head = zlib.decompressobj().decompress(f.read(min(nbytes, 1 << 16)), 4096)
+                if len(head) < 8:
+                    break
+                inner_type, inner_bytes = struct.unpack(endian + "II", head[:8])
+                name, values = _v5_matrix_header(head[8:], endian) if inner_type == _MI_MATRIX else ("", 0)
+                size = max(inner_bytes, values * 8)
+            elif mtype == _MI_MATRIX:
+                name, values = _v5_matrix_header(f.read(min(nbytes, 4096)), endian)
+                size = max(nbytes, values * 8)
+            else:
+                name, size = "", nbytes
+            key = name or SUBSYSTEM
+            sizes[key] = sizes.get(key, 0) + size
+            pos += 8 + nbytes
+            if mtype != _MI_COMPRESSED:
+                pos += -pos % 8
+    return sizes
+
+
+_MX_OPAQUE = 17  # a classdef object: flags, name, "MCOS", class name (no dimensions)
+
+
+def _v5_matrix_header(buf: bytes, endian: str) -> tuple[str, int]:
+    """(name, number of elements its dimensions declare) of a miMATRIX element's body."""
+    out = []
+    at = 0
+    for _ in range(3):  # array flags, dimensions, name (an opaque object: flags, name)
+        if at + 8 > len(buf):
+            return "", 0
+        word, nbytes = struct.unpack(endian + "II", buf[at:at + 8])
+        if word >> 16:  # small data element: type and size in the first 4 bytes
+            nbytes = word >> 16
+            out.append(buf[at + 4:at + 4 + nbytes])
+            at += 8
+        else:
+            out.append(buf[at + 8:at + 8 + nbytes])
+            at += 8 + nbytes + (-nbytes % 8)
+        if len(out) == 1 and len(out[0]) >= 4 and struct.unpack(endian + "I", out[0][:4])[0] & 0xFF == _MX_OPAQUE:
+            out.append(b"")  # no dimensions: its data live in the class objects' store
+    dims = struct.unpack(endian + "i" * (len(out[1]) // 4), out[1][: len(out[1]) // 4 * 4])
+    count = 1
+    for d in dims:
+        count *= max(int(d), 0)
+    return out[2].decode("ascii", "replace"), count
+
+
+def _hdf5_sizes(path: Path) -> dict:
+    import h5py
+
+    limit = max_variable_bytes()
+    sizes = {}
+    try:
+        with h5py.File(path, "r") as f:
+            for name in f:
+                if name == "#refs#":
+                    continue
+                key = SUBSYSTEM if name == "#subsystem#" else name
+                sizes[key] = _hdf5_bytes(f[name], f, set(), limit)
+    except (OSError, KeyError, ValueError) as exc:
+        raise DataError([f"cannot read MATLAB -v7.3 (HDF5) file: {exc}"], source=str(path)) from exc
+    return sizes
+
+
+def _hdf5_bytes(obj, f, seen: set, limit: int) -> int:
+    """Bytes an HDF5 object declares: a dataset's shape times its item size, plus what its
+    MATLAB references (cells, structs, objects) point to; references are not followed past
+    ``limit`` (the answer is then a lower bound, already too large)."""
+    import h5py
+
+    if isinstance(obj, h5py.Group):
+        return sum(_hdf5_bytes(item, f, seen, limit) for item in obj.values())
+    total = int(obj.size or 0) * obj.dtype.itemsize
+    if total <= limit and h5py.check_dtype(ref=obj.dtype) is not None and obj.size:
+        for ref in obj[()].ravel():
+            if not ref:
+                continue
+            target = f[ref]
+            if target.name in seen:
+                continue
+            seen.add(target.name)
+            total += _hdf5_bytes(target, f, seen, limit)
+            if total > limit:
+                break
+    return total
+
+
+def _top_variable(name: str) -> str:
+    """The file's variable a record or channel name lies in: ``data{2}`` -> ``data``,
+    ``s.inner`` -> ``s``, ``io.posPert1`` -> ``io``."""
+    return re.split(r"[.({]", name, maxsplit=1)[0]
+
+
+def needed_variables(variable=None, channels=None) -> set | None:
+    """The file's variables a read needs: a named variable (and the variables that channels
+    named as ``VARIABLE.CHANNEL`` lie in); None when every variable may hold a channel.
+
+    >>> sorted(needed_variables("z_df", {"scheduling": "sv.pos1"}))
+    ['sv', 'z_df']
+    >>> needed_variables() is None
+    True
+    """
+    if variable is None or variable == TOP_LEVEL:
+        return None
+    names = {_top_variable(variable)}
+    names |= {_top_variable(str(spec)) for spec in (channels or {}).values() if "." in str(spec)}
+    return names
+
+
 # --------------------------------------------------------------------------- reading
 
 
-def read_mat(path) -> list[Record]:
-    """Every record of a .mat file (see the module notes). Raises DataError if the file
-    cannot be read as a MATLAB file."""
+def read_mat(path, variables=None, skipped=None) -> list[Record]:
+    """The records of a .mat file (see the module notes): of ``variables`` (top-level names)
+    only, or of every variable. A variable over :func:`max_variable_bytes` is a DataError if
+    it is one of ``variables`` (or class-object data), else skipped unread and its problem
+    appended to ``skipped`` (a list). Raises DataError if the file cannot be read as a
+    MATLAB file."""
     path = Path(path)
-    raw = _load(path)
+    limit = max_variable_bytes()
+    sizes = declared_sizes(path)
+    names = None if variables is None else sorted(variables)
+    if sizes is not None:
+        if names is not None and not set(names) <= set(sizes):  # a name not in the file (or in other
+            names = None  # case): read what is there, so that the error lists it
+        big = {k: v for k, v in sizes.items() if v > limit}
+        for k, v in big.items():
+            if k == SUBSYSTEM or (names is not None and k in names):  # needed: refused before reading
+                raise DataError([over_limit(f"variable '{k}'", v, limit)], source=str(path))
+        if names is None and big:
+            names = [k for k in sizes if k not in big and k != SUBSYSTEM]
+            if skipped is not None:
+                skipped += [over_limit(f"variable '{k}' (not read)", v, limit) for k, v in big.items()]
+    raw = _load(path, names)
     records: list[Record] = []
     top = Record(TOP_LEVEL, "variables")
     for name, value in raw.items():
@@ -126,7 +377,9 @@ def read_mat(path) -> list[Record]:
     return records
 
 
-def _load(path: Path) -> dict:
+def _load(path: Path, names=None) -> dict:
+    if names is not None and not names:
+        return {}
     try:
         with warnings.catch_warnings():  # mat-io sets a pandas option pandas 3 warns about
             warnings.simplefilter("ignore")
@@ -135,13 +388,13 @@ def _load(path: Path) -> dict:
         first = f"MATLAB class objects and v7.3 files need the mat-io package (Python >= 3.11): {exc}"
     else:
         try:
-            return matio.load_from_mat(str(path))
+            return matio.load_from_mat(str(path), variable_names=None if names is None else list(names))
         except Exception as exc:  # mat-io raises many kinds; scipy may still read a plain v5 file
             first = f"{type(exc).__name__}: {exc}"
     try:
         import scipy.io
 
-        return scipy.io.loadmat(str(path))
+        return scipy.io.loadmat(str(path), variable_names=None if names is None else list(names))
     except Exception as exc:
         raise DataError([f"cannot read MATLAB file: {first}"], source=str(path)) from exc
 

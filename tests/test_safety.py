@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpvpc.errors import ModelFileError
+from lpvpc.errors import DataError, ModelFileError
 from lpvpc.model import LPVPCModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -544,3 +544,128 @@ def test_identify_rate_must_be_a_rate(fs, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["identify", "x.csv", "-o", "m.json", "--fs", fs])
     assert exc.value.code == 2 and "--fs" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- bounded loaders (issue 26)
+def _v73_with_junk(path, pair, n=20_000):
+    """A -v7.3 file (written by mat-io) with structs pt and ut (time, position, torque) and an
+    unrelated variable 'junk' that declares 10^9 doubles (7.45 GiB) but holds none: a file
+    well under 1 MB."""
+    import h5py
+    from matlab_files import write_mat
+
+    write_mat(path, {k: {"time": tr.time[:n], "position": tr.position[:n], "torque": tr.torque[:n]}
+                     for k, tr in (("pt", pair.pt), ("ut", pair.ut))}, version="v7.3")
+    with h5py.File(path, "a") as f:
+        ds = f.create_dataset("junk", shape=(1, 10**9), dtype="f8", chunks=(1, 10**6))
+        ds.attrs["MATLAB_class"] = np.bytes_("double")
+    assert path.stat().st_size < 1 << 20
+    return path
+
+
+def _v5_compressed_junk(n_values=400_000_000):
+    """A compressed v5 element whose double array 'junk' declares ``n_values`` values (3.2 GB)
+    and carries none: what a hostile 100-byte addition to a .mat file can claim."""
+    import struct
+    import zlib
+
+    data_bytes = 8 * n_values
+    body = (struct.pack("<II", 6, 8) + struct.pack("<II", 6, 0)  # array flags: mxDOUBLE_CLASS
+            + struct.pack("<II", 5, 8) + struct.pack("<ii", 1, n_values)  # dimensions 1 x n
+            + struct.pack("<I", (4 << 16) | 1) + b"junk"  # name, a small data element
+            + struct.pack("<II", 9, data_bytes))  # miDOUBLE, no data follows
+    inner = struct.pack("<II", 14, len(body) + data_bytes) + body
+    packed = zlib.compress(inner)
+    return struct.pack("<II", 15, len(packed)) + packed
+
+
+def _limited(*argv, cwd, address_space=2 << 30, env=None):
+    """The CLI as a process with a 2 GiB address-space limit (Python, numpy, CasADi and the
+    loaders need about 0.4 GiB): a 7.45 GiB allocation fails instead of swapping the machine."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (address_space, address_space))
+
+    e = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
+             PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
+    return subprocess.run([sys.executable, "-m", "lpvpc.cli", *map(str, argv)], capture_output=True, text=True,
+                          cwd=cwd, env=e, timeout=TIMEOUT, preexec_fn=limit)
+
+
+def test_v73_declared_size_is_never_allocated(subject, model_file, tmp_path):
+    """The issue's file: 'identify' tried to allocate 7.45 GiB for an unrelated variable.
+    Reading pt and ut (named, or found automatically) never touches it; naming it is one
+    line naming the limit; the limit is settable."""
+    import tracemalloc
+
+    from lpvpc.data import load_trial
+
+    path = _v73_with_junk(tmp_path / "s.mat", subject["novel_pair"])
+    tracemalloc.start()
+    try:
+        named = load_trial(f"{path}:pt")
+        found = load_trial(path, variable="ut")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert named.time.size == found.time.size == 20_000 and peak < 50e6, peak
+    with pytest.raises(DataError) as err:
+        load_trial(f"{path}:junk")
+    msg = str(err.value)
+    assert "'junk' declares 7.45 GiB" in msg and "LPVPC_MAX_VARIABLE_BYTES" in msg and "\n" not in msg
+
+    m = tmp_path / "model.json"
+    m.write_bytes(Path(model_file).read_bytes())
+    r = _limited("predict", m, "--pt", f"{path}:pt", "--ut", f"{path}:ut", cwd=tmp_path)
+    assert r.returncode == 0 and "VAF" in r.stdout, r.stderr[-2000:]
+    r = _limited("predict", m, "--pt", "s.mat:junk", "--ut", "s.mat:ut", cwd=tmp_path)
+    assert r.returncode == 2 and "MAX_VARIABLE_BYTES" in _one_line(r), r.stderr[-2000:]
+    # a lower limit, from the environment: now pt itself (480 kB) is over it
+    r = _limited("predict", m, "--pt", "s.mat:pt", "--ut", "s.mat:ut", cwd=tmp_path,
+                 env={"LPVPC_MAX_VARIABLE_BYTES": "100000"})
+    assert r.returncode == 2 and "'pt' declares 469 KiB" in _one_line(r) and "97.7 KiB" in _one_line(r)
+
+
+def test_v5_declared_size_checked_in_compressed_elements(subject, tmp_path):
+    """A compressed v5 variable declaring 3.2 GB (the element holds 60 bytes) is skipped when
+    another variable is read, and one line naming the limit when it is asked for."""
+    import tracemalloc
+
+    import scipy.io
+
+    from lpvpc.data import load_trial
+    from lpvpc.matfiles import declared_sizes
+
+    n = 20_000
+    path = tmp_path / "s5.mat"
+    scipy.io.savemat(path, {k: {"time": tr.time[:n], "position": tr.position[:n], "torque": tr.torque[:n]}
+                            for k, tr in (("pt", subject["novel_pair"].pt), ("ut", subject["novel_pair"].ut))},
+                     do_compression=True)
+    with open(path, "ab") as f:
+        f.write(_v5_compressed_junk())
+    sizes = declared_sizes(path)
+    assert sizes["junk"] >= 3_200_000_000 and sizes["pt"] < 1_000_000, sizes
+    tracemalloc.start()
+    try:
+        assert load_trial(f"{path}:pt").time.size == n
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 50e6, peak
+    with pytest.raises(DataError, match=r"'junk' declares 2.98 GiB of data, over the limit of 1 GiB"):
+        load_trial(f"{path}:junk")
+
+
+def test_csv_over_the_limit_refused_before_reading(tmp_path, monkeypatch):
+    from lpvpc.data import load_trial
+
+    path = tmp_path / "big.csv"
+    path.write_text("time,position,torque\n" + "".join(f"{k / 1000},0.01,0.5\n" for k in range(5000)))
+    assert load_trial(path).time.size == 5000
+    monkeypatch.setenv("LPVPC_MAX_VARIABLE_BYTES", "10000")
+    with pytest.raises(DataError, match=r"the file declares .* KiB of data, over the limit of 9.77 KiB"):
+        load_trial(path)
+    monkeypatch.setenv("LPVPC_MAX_VARIABLE_BYTES", "lots")
+    with pytest.raises(DataError, match="LPVPC_MAX_VARIABLE_BYTES='lots' must be a positive number"):
+        load_trial(path)
