@@ -1,0 +1,150 @@
+"""The closed-loop form of the whole-joint model (lpvpc.closed_loop) and the compliant loop
+(lpvpc.compliant_loop): identified against the virtual subject's known inertia, numpy = CasADi
+= FMU (FMI 2.0 / 3.0, co-simulation and Model Exchange) tick by tick, and in the exoskeleton
+loop with the torque fed back: stable where the replay FMU diverges, and close to the subject."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lpvpc import closed_loop as CL
+from lpvpc import compliant_loop as LOOP
+from lpvpc.data import decimate_trial
+from lpvpc.errors import DataError, ModelFileError
+from lpvpc.export import trajectory_function
+from lpvpc.model import vaf
+from lpvpc.simulate import SubjectParams
+from lpvpc.whole_joint import export_whole_joint_fmu, fit_whole_joint
+
+
+@pytest.fixture(scope="module")
+def wj(model, subject):
+    return fit_whole_joint(model, subject["ident_pair"].ut)
+
+
+@pytest.fixture(scope="module")
+def cl(wj, subject):
+    pair = subject["ident_pair"]
+    return CL.fit_closed_loop(wj, [pair.pt, pair.ut])
+
+
+@pytest.fixture(scope="module")
+def fmus(cl, wj, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("closed_loop_fmus")
+    out = {(v, t): CL.export_closed_loop_fmu(cl, folder / f"cl_{t}{v}.fmu", v, fmi_type=t)
+           for v in (2, 3) for t in ("cs", "me")}
+    out["replay"] = export_whole_joint_fmu(wj, folder / "replay.fmu", 2)
+    return out
+
+
+def test_inertia_is_the_subjects_and_the_torque_holds_none(cl):
+    """The acceleration's coefficient is the foot's inertia (0.015 kg m^2), declared apart."""
+    truth = SubjectParams().inertia
+    assert abs(cl.inertia - truth) < 0.1 * truth, cl.inertia
+    assert cl.W.shape == (3, cl.model.intrinsic_basis.size)
+    rho = np.linspace(-0.3, 0.1, 5)
+    assert np.all(cl.stiffness(rho) > 0) and np.all(cl.viscosity(rho) > 0)
+
+
+def test_causal_form_costs_little_on_a_novel_trajectory(cl, wj, subject):
+    """Total torque of the novel PT trial from its angle (and the record's velocity): the causal
+    form plus its declared inertia against the two-sided whole-joint model."""
+    pt = decimate_trial(subject["novel_pair"].pt, cl.fs)
+    causal = vaf(pt.torque, cl.predict(pt.position).measured)
+    two_sided = vaf(pt.torque, wj.predict(pt.position, warn=False).total)
+    print(f"novel trajectory: causal {causal:.2f} %, two-sided {two_sided:.2f} %")
+    assert causal > 99.0 and causal > two_sided - 1.0
+
+
+def _ticks(cl, angle):
+    """The angle record at the base tick (held between samples, as a master at 1 ms sees a
+    100 Hz record) and a velocity that changes every tick."""
+    N = CL.ticks(cl)
+    a = np.repeat(angle, N) + 1e-3 * np.sin(np.arange(N * len(angle)) * 0.37)
+    return a, np.gradient(a) / (1.0 / (cl.fs * N))
+
+
+def test_tick_function_equals_numpy_at_samples_and_fmus_every_tick(cl, fmus, subject):
+    import fmpy
+    from fmpy.validation import validate_fmu
+
+    angle = decimate_trial(subject["novel_pair"].pt, cl.fs).position[:300]
+    a, v = _ticks(cl, angle)
+    N = CL.ticks(cl)
+    step = CL.closed_loop_step(cl)
+    out = trajectory_function(step, len(a))(state=np.zeros(step.size1_in(0)), angle=a[None, :],
+                                            angular_velocity=v[None, :])
+    ref = {k: np.asarray(out[k]).ravel() for k in CL.OUTPUT_NAMES}
+    offline = cl.predict(a[::N], v[::N])
+    scale = np.std(ref["torque"])
+    assert np.max(np.abs(ref["torque"][::N] - offline.total)) < 1e-9 * scale
+    assert np.max(np.abs(ref["torque_reflex"][::N] - offline.reflex)) < 1e-9 * scale
+    h = 1.0 / (cl.fs * N)
+    for key, path in fmus.items():
+        if key == "replay":
+            continue
+        assert validate_fmu(str(path)) == [], key
+        if key[1] == "cs":  # the master's protocol: set inputs, read outputs, doStep
+            src = LOOP.FmuSource(path)
+            src.reset()
+            assert src.inertia == cl.inertia
+            y = np.empty(len(a))
+            for k in range(len(a)):
+                y[k] = src.output(a[k], v[k])
+                src.advance(k * h, h)
+            src.close()
+        else:  # fmpy's Model Exchange loop: outputs aligned with the inputs' time (DESIGN.md)
+            signals = np.array(list(zip(np.arange(len(a)) * h, a, v)),
+                               dtype=[("time", float), ("angle", float), ("angular_velocity", float)])
+            res = fmpy.simulate_fmu(str(path), stop_time=(len(a) - 1) * h, output_interval=h, input=signals,
+                                    output=["torque", "inertia"], fmi_type="ModelExchange")
+            assert np.all(res["inertia"] == cl.inertia)
+            last = np.r_[res["time"][1:] != res["time"][:-1], True]  # rows before and after each event: the last
+            y = res["torque"][last]
+            assert len(y) == len(a)
+        err = np.max(np.abs(y - ref["torque"])) / scale
+        assert err < 1e-9, (key, err)
+
+
+def test_errors_and_round_trip(cl, tmp_path):
+    path = tmp_path / "cl.json"
+    cl.save(path)
+    back = CL.ClosedLoopModel.load(path)
+    angle = np.linspace(-0.3, 0.1, 300)
+    assert np.array_equal(back.predict(angle).total, cl.predict(angle).total)
+    with pytest.raises(DataError, match="channel angle: 1 non-finite"):
+        cl.predict([0.0, math.nan, 0.1])
+    with pytest.raises(DataError, match="angle and velocity differ in length"):
+        cl.predict(angle, angle[:-1])
+    path.write_text('{"format": "lpvpc-whole-joint"}')
+    with pytest.raises(ModelFileError, match="not an lpvpc closed-loop model"):
+        CL.ClosedLoopModel.load(path)
+
+
+@pytest.mark.parametrize("kp", [40.0, 150.0])
+def test_compliant_loop_stays_stable_and_follows_the_subject(cl, fmus, kp):
+    """10 s of the exoskeleton loop (issue 24) with the torque fed back: the closed-loop FMU at
+    communication steps of 1 ms and of one model period (10 ms) stays stable and within 95 %
+    VAF of the virtual subject in the same loop (angle deviation and torque, also above
+    0.5 Hz); the replay FMU (two-sided IRF, inertia inside) diverges in the same loop."""
+    ref = LOOP.reference_trajectory(10.0, seed=3)
+    setup = LOOP.LoopSetup(kp=kp)
+    truth = LOOP.run_loop(LOOP.VirtualSubject(), ref, setup)
+    assert truth.stable
+    src = LOOP.FmuSource(fmus[(2, "cs")])
+    try:
+        for h in (1e-3, 1.0 / cl.fs):
+            run = LOOP.run_loop(src, ref, setup, h)
+            assert run.stable, (kp, h, run.diverged_at)
+            v = LOOP.loop_vaf(truth, run)
+            print(f"Kp {kp:g}, step {h * 1e3:g} ms: {v}")
+            assert min(v.values()) > 95.0, (kp, h, v)
+    finally:
+        src.close()
+    src = LOOP.FmuSource(fmus["replay"])
+    try:
+        replay = LOOP.run_loop(src, ref, setup, 1.0 / cl.fs)
+    finally:
+        src.close()
+    assert not replay.stable and replay.diverged_at < 2.0, replay.diverged_at
