@@ -202,7 +202,8 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
     pairs at the model rate), each predicted from rest. ``memory``: past perturbation samples
     in the impedance (0: none; module notes). With the reflex held, least squares of the
     torque minus quasi-static curve and reflex on the causal features times G_i(rho) and on
-    the acceleration (coefficient: the inertia).
+    the acceleration (coefficient: the inertia). Without the PT trial, pass
+    ``[distillation_trial(whole, ut)]``.
     """
     from .model import vaf
 
@@ -232,6 +233,28 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
     fit = {"vaf_with_inertia": vaf(torque_all, fitted + np.concatenate([k for _, k in parts])),
            "memory": int(memory), "stencil": STENCIL, "samples": int(len(y))}
     return ClosedLoopModel(whole=whole, W=W, inertia=inertia, memory=memory, fit=fit)
+
+
+def distillation_trial(whole, ut, *, amplitude: float = 0.04, seed: int = 0):
+    """(angle rad, torque N m) at the model rate for a fit without the PT trial: the UT trial's
+    angle plus a PRALDS perturbation (+-``amplitude`` rad, 250-350 ms holds, the paper's design)
+    as a stiff 25 Hz position servo applies it at 1 kHz, recorded through the anti-alias
+    decimation; the torque is the two-sided whole-joint model's (inertia included, as
+    recorded). The causal form is then fitted to what the identified model predicts. (A
+    perturbation stepped at the model rate instead put the differences' ringing into the
+    inertia: 0.004 kg m^2 against the subject's 0.015.)"""
+    from .data import decimate_signal
+    from .simulate import FS_SIM, pralds, servo
+
+    angle, _ = _at_model_rate(ut, whole.fs)
+    q = int(round(FS_SIM / whole.fs))
+    if abs(q * whole.fs - FS_SIM) > 1e-9 * FS_SIM:
+        raise ValueError(f"the model rate {whole.fs!r} Hz must divide {FS_SIM!r} Hz for the distillation perturbation")
+    pert = pralds(len(angle) / whole.fs, FS_SIM, np.random.default_rng(seed), amplitude=amplitude)
+    pert = servo(pert, FS_SIM)[0]
+    pert = (decimate_signal(pert, q) if q > 1 else pert)[: len(angle)]
+    angle = angle + np.pad(pert, (0, len(angle) - len(pert)), mode="edge")
+    return angle, whole.predict(angle, warn=False).total
 
 
 # ---------------------------------------------------------------------------------------

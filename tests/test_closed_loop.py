@@ -25,8 +25,8 @@ def wj(model, subject):
 
 @pytest.fixture(scope="module")
 def cl(wj, subject):
-    pair = subject["ident_pair"]
-    return CL.fit_closed_loop(wj, [pair.pt, pair.ut])
+    """Fitted to the two-sided model's torque (the CLI's default, without --pt)."""
+    return CL.fit_closed_loop(wj, [CL.distillation_trial(wj, subject["ident_pair"].ut)])
 
 
 @pytest.fixture(scope="module")
@@ -38,13 +38,20 @@ def fmus(cl, wj, tmp_path_factory):
     return out
 
 
-def test_inertia_is_the_subjects_and_the_torque_holds_none(cl):
-    """The acceleration's coefficient is the foot's inertia (0.015 kg m^2), declared apart."""
-    truth = SubjectParams().inertia
-    assert abs(cl.inertia - truth) < 0.1 * truth, cl.inertia
-    assert cl.W.shape == (3, cl.model.intrinsic_basis.size)
+def test_inertia_stiffness_and_viscosity_against_the_subject(cl, wj, subject):
+    """The acceleration's coefficient is the foot's inertia (0.015 kg m^2), declared apart, in
+    both fits; fitted to the two-sided model's torque, K(rho) and B(rho) are the subject's
+    within 15 % and 40 % (fitted to the PT/UT trials directly, K comes out ~20 % high: printed)."""
+    truth = SubjectParams()
+    pair = subject["ident_pair"]
+    direct = CL.fit_closed_loop(wj, [pair.pt, pair.ut])
     rho = np.linspace(-0.3, 0.1, 5)
-    assert np.all(cl.stiffness(rho) > 0) and np.all(cl.viscosity(rho) > 0)
+    for fit in (cl, direct):
+        assert abs(fit.inertia - truth.inertia) < 0.1 * truth.inertia, fit.inertia
+        print("K / truth", (fit.stiffness(rho) / truth.K(rho)).round(3), "B", fit.viscosity(rho).round(3))
+    assert cl.W.shape == (3, cl.model.intrinsic_basis.size)
+    assert np.max(np.abs(cl.stiffness(rho) / truth.K(rho) - 1)) < 0.15
+    assert np.max(np.abs(cl.viscosity(rho) / truth.viscosity - 1)) < 0.4
 
 
 def test_causal_form_costs_little_on_a_novel_trajectory(cl, wj, subject):
@@ -148,3 +155,38 @@ def test_compliant_loop_stays_stable_and_follows_the_subject(cl, fmus, kp):
     finally:
         src.close()
     assert not replay.stable and replay.diverged_at < 2.0, replay.diverged_at
+
+
+def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
+    """lpvpc whole-joint ... --closed-loop: from the UT trial alone (fitted to the two-sided
+    model's torque) and with --pt; FMI 3 Model Exchange; --pt without --closed-loop is a usage error."""
+    import contextlib
+    import io
+
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+
+    from lpvpc.cli import main
+
+    folder = subject["folder"]
+
+    def run(*extra):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
+        return rc, out.getvalue(), err.getvalue()
+
+    rc, out, err = run("-o", str(tmp_path / "cl.json"), "--fmu", str(tmp_path / "ankle.fmu"), "--closed-loop",
+                       "--fmi", "3", "--fmi-type", "me")
+    assert rc == 0, err
+    assert "two-sided model's torque" in out and "inertia" in out
+    distilled = CL.ClosedLoopModel.load(tmp_path / "cl.json")
+    assert abs(distilled.inertia - SubjectParams().inertia) < 0.1 * SubjectParams().inertia
+    md = read_model_description(str(tmp_path / "ankle.fmu"))
+    assert md.modelExchange is not None and [v.name for v in md.modelVariables if v.causality == "input"] == \
+        ["angle", "angular_velocity"]
+    assert validate_fmu(str(tmp_path / "ankle.fmu")) == []
+    rc, out, err = run("-o", str(tmp_path / "cl2.json"), "--closed-loop", "--pt", str(folder / "ident_PT.csv"))
+    assert rc == 0 and "PT and UT trials" in out, err
+    rc, out, err = run("-o", str(tmp_path / "wj.json"), "--pt", str(folder / "ident_PT.csv"))
+    assert rc == 2 and err.startswith("lpvpc: error: ") and "--closed-loop" in err
