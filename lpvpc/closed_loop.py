@@ -44,7 +44,8 @@ from . import equations as eq
 from .basis import CasadiOps
 from .errors import DataError, ExportError, ModelFileError, non_finite_problem
 
-__all__ = ["ClosedLoopModel", "ClosedLoopPrediction", "fit_closed_loop", "closed_loop_step",
+__all__ = ["ClosedLoopModel", "ClosedLoopPrediction", "fit_closed_loop", "distillation_trial", "closed_loop_step",
+           "fit_perturbation_impedance", "predict_perturbation_impedance",
            "export_closed_loop_fmu", "export_closed_loop_casadi", "OUTPUT_NAMES", "INPUT_NAMES"]
 
 FORMAT = "lpvpc-closed-loop"
@@ -208,9 +209,7 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
     from .model import vaf
 
     model = whole.model
-    if getattr(model, "effects", None):
-        raise ExportError("the closed-loop form covers the base LPV-PC model; this model has effect terms "
-                          f"({', '.join(fe.name for fe in model.effects)}): identify it without --effect")
+    _check_base_model(model)
     if memory < 0 or memory > 10:
         raise ValueError(f"memory {memory!r} must be 0..10 past samples")
     rows, targets, parts = [], [], []
@@ -218,21 +217,58 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
         angle, torque = _at_model_rate(trial, model.fs)
         vel, acc = eq.derivatives(angle, model.fs, STENCIL)
         rho, p = whole.split(angle)
-        Gi = model.intrinsic_basis.evaluate(rho)
-        F = _features(p, vel, memory)
         known = whole.quasi_static(rho) + model.predict(p, rho, warn=False).reflex
-        rows.append(np.column_stack([(F[:, :, None] * Gi[:, None, :]).reshape(len(angle), -1), acc]))
+        rows.append(_impedance_rows(model, p, rho, vel, acc, memory))
         targets.append(torque - known)
         parts.append((torque, known))
+    W, inertia, fitted = _solve(rows, targets, model, memory)
+    fit = {"vaf_with_inertia": vaf(np.concatenate([t for t, _ in parts]), fitted + np.concatenate([k for _, k in parts])),
+           "memory": int(memory), "stencil": STENCIL, "samples": int(len(fitted))}
+    return ClosedLoopModel(whole=whole, W=W, inertia=inertia, memory=memory, fit=fit)
+
+
+def _check_base_model(model):
+    if getattr(model, "effects", None):
+        raise ExportError("the closed-loop form covers the base LPV-PC model; this model has effect terms "
+                          f"({', '.join(fe.name for fe in model.effects)}): identify it without --effect")
+
+
+def _impedance_rows(model, p, rho, vel, acc, memory):
+    """Regressor rows: the causal features times G_i(rho) (row-major as W), then the acceleration."""
+    Gi = model.intrinsic_basis.evaluate(rho)
+    F = _features(p, vel, memory)
+    return np.column_stack([(F[:, :, None] * Gi[:, None, :]).reshape(len(p), -1), acc])
+
+
+def _solve(rows, targets, model, memory):
     X, y = np.vstack(rows), np.concatenate(targets)
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    n_i = model.intrinsic_basis.size
-    W, inertia = theta[:-1].reshape(3 + memory, n_i), float(theta[-1])
-    fitted = X @ theta
-    torque_all = np.concatenate([t for t, _ in parts])
-    fit = {"vaf_with_inertia": vaf(torque_all, fitted + np.concatenate([k for _, k in parts])),
-           "memory": int(memory), "stencil": STENCIL, "samples": int(len(y))}
-    return ClosedLoopModel(whole=whole, W=W, inertia=inertia, memory=memory, fit=fit)
+    W = theta[:-1].reshape(3 + memory, model.intrinsic_basis.size)
+    return W, float(theta[-1]), X @ theta
+
+
+def fit_perturbation_impedance(model, position, scheduling, torque, memory: int = 0):
+    """The closed-loop form's causal impedance at the level of the identification data (the
+    perturbation position p and the recorded scheduling rho, no quasi-static curve): least
+    squares of ``torque`` minus the model's reflex on p, p', p^2 (times G_i(rho)) and p''.
+    Returns (W, inertia). For data without a whole-joint record (the lab's pilot trial:
+    perturbation and scheduling only), to measure what the causal form costs there."""
+    _check_base_model(model)
+    p, rho = _checked(position, "position"), _checked(scheduling, "scheduling")
+    vel, acc = eq.derivatives(p, model.fs, STENCIL)
+    target = _checked(torque, "torque") - model.predict(p, rho, warn=False).reflex
+    W, inertia, _ = _solve([_impedance_rows(model, p, rho, vel, acc, memory)], [target], model, memory)
+    return W, inertia
+
+
+def predict_perturbation_impedance(model, W, inertia, position, scheduling):
+    """Torque (N m, as recorded: with the inertial term) of :func:`fit_perturbation_impedance`'s
+    form: the same equations (:func:`lpvpc.equations.impedance_torque`, a zero curve) plus the reflex."""
+    p, rho = _checked(position, "position"), _checked(scheduling, "scheduling")
+    vel, acc = eq.derivatives(p, model.fs, STENCIL)
+    Gi = model.intrinsic_basis.evaluate(rho)
+    tq = eq.impedance_torque(_features(p, vel, W.shape[0] - 3), Gi, W, np.zeros((len(p), 1)), np.zeros(1))
+    return tq + inertia * acc + model.predict(p, rho, warn=False).reflex
 
 
 def distillation_trial(whole, ut, *, amplitude: float = 0.04, seed: int = 0):
