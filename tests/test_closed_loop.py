@@ -58,7 +58,10 @@ def test_causal_form_costs_little_on_a_novel_trajectory(cl, wj, subject):
     """Total torque of the novel PT trial from its angle (and the record's velocity): the causal
     form plus its declared inertia against the two-sided whole-joint model."""
     pt = decimate_trial(subject["novel_pair"].pt, cl.fs)
-    causal = vaf(pt.torque, cl.predict(pt.position).measured)
+    prediction = cl.predict(pt.position)
+    assert isinstance(prediction, CL.ClosedLoopPrediction)
+    assert np.allclose(prediction.total, prediction.intrinsic + prediction.reflex)
+    causal = vaf(pt.torque, prediction.measured)
     two_sided = vaf(pt.torque, wj.predict(pt.position, warn=False).total)
     print(f"novel trajectory: causal {causal:.2f} %, two-sided {two_sided:.2f} %")
     assert causal > 99.0 and causal > two_sided - 1.0
@@ -114,6 +117,29 @@ def test_tick_function_equals_numpy_at_samples_and_fmus_every_tick(cl, fmus, sub
         assert err < 1e-9, (key, err)
 
 
+def test_perturbation_level_impedance_on_the_identification_data(model, subject):
+    """For data without a whole-joint record (perturbation p and scheduling rho only, as the
+    lab's pilot trial): the same causal impedance fitted at that level, judged on the novel data."""
+    d, novel = subject["ident"], subject["novel"]
+    W, inertia = CL.fit_perturbation_impedance(model, d.position, d.scheduling, d.torque)
+    assert abs(inertia - SubjectParams().inertia) < 0.15 * SubjectParams().inertia, inertia
+    y = CL.predict_perturbation_impedance(model, W, inertia, novel.position, novel.scheduling)
+    two_sided = vaf(novel.torque, model.predict(novel.position, novel.scheduling, warn=False).total)
+    assert vaf(novel.torque, y) > two_sided - 2.0, (vaf(novel.torque, y), two_sided)
+
+
+def test_casadi_tick_function_file(cl, tmp_path):
+    """export_closed_loop_casadi saves the tick function; loaded back it gives the same torque."""
+    import casadi as ca
+
+    f = ca.Function.load(str(CL.export_closed_loop_casadi(cl, tmp_path / "cl.casadi")))
+    assert f.name_in() == ["state", "angle", "angular_velocity"]
+    x = np.zeros(f.size1_in(0))
+    out = f(x, 0.02, 0.1)
+    ref = CL.closed_loop_step(cl)(x, 0.02, 0.1)
+    assert float(out[1]) == pytest.approx(float(ref[1]), abs=1e-12) and float(out[1]) != 0.0
+
+
 def test_errors_and_round_trip(cl, tmp_path):
     path = tmp_path / "cl.json"
     cl.save(path)
@@ -138,7 +164,8 @@ def test_compliant_loop_stays_stable_and_follows_the_subject(cl, fmus, kp):
     ref = LOOP.reference_trajectory(10.0, seed=3)
     setup = LOOP.LoopSetup(kp=kp)
     truth = LOOP.run_loop(LOOP.VirtualSubject(), ref, setup)
-    assert truth.stable
+    assert isinstance(truth, LOOP.LoopRun) and truth.stable
+    assert abs(np.mean(LOOP.highpass(truth.deviation))) < 1e-3  # the high-pass removes the offset
     src = LOOP.FmuSource(fmus[(2, "cs")])
     try:
         for h in (1e-3, 1.0 / cl.fs):
