@@ -180,12 +180,18 @@ class LoopRun:
         return self.angle - self.reference
 
 
-def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float = PLANT_STEP) -> LoopRun:
+def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float = PLANT_STEP,
+             assist=None) -> LoopRun:
     """Run the compliant loop (module notes) with ``source`` as the ankle, ``reference`` (rad) at
     1 kHz, communicating every ``comm_step`` s (a multiple of 1 ms). Starts at rest at the
     reference's first angle. Stops when the angle leaves the reference by :data:`DIVERGED` rad,
-    turns non-finite, or the source fails (the time is ``diverged_at``)."""
+    turns non-finite, or the source fails (the time is ``diverged_at``). ``assist``: a
+    feed-forward exoskeleton torque (N m, one value per 1 ms, positive toward dorsiflexion)
+    added to the PD controller's (with ``kp = kd = 0``: the profile alone)."""
     reference = np.asarray(reference, dtype=float)
+    assist = np.zeros(len(reference)) if assist is None else np.asarray(assist, dtype=float)
+    if assist.shape != reference.shape:
+        raise ValueError(f"assist has {assist.shape} samples, the reference {reference.shape}")
     sub = int(round(comm_step / PLANT_STEP))
     if sub < 1 or abs(sub * PLANT_STEP - comm_step) > 1e-12:
         raise ValueError(f"communication step {comm_step!r} s must be a positive multiple of {PLANT_STEP} s")
@@ -203,7 +209,7 @@ def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float
             diverged = k * PLANT_STEP
             break
         for j in range(k, min(k + sub, n)):
-            u = setup.kp * (reference[j] - theta) - setup.kd * omega
+            u = setup.kp * (reference[j] - theta) - setup.kd * omega + assist[j]
             angle[j], vel[j], tq[j], exo[j] = theta, omega, torque, u
             omega += PLANT_STEP * (u - torque) / inertia
             theta += PLANT_STEP * omega
