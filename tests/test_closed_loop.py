@@ -234,3 +234,19 @@ def test_example_assistance_profile_designed_with_opti_works_on_the_subject():
     assert r["model_rms_error"] < 0.01 * r["movement"]  # the optimiser met the target on the model
     assert r["subject_rms_error"] < 0.1 * r["movement"] and r["subject_vaf"] > 95.0
     assert r["naive_rms_error"] > 5 * r["subject_rms_error"]
+
+
+def test_validation_closed_loop_section(cl, tmp_path):
+    """validation.closed_loop: the closed-loop FMU beside the virtual subject and the replay FMU
+    in the same loop, its metrics, figure and HTML section."""
+    from lpvpc.validation.closed_loop import CLOSED_LOOP_FIGURE, evaluate_closed_loop, write_closed_loop_report
+
+    metrics, traces = evaluate_closed_loop(cl, tmp_path, duration=10.0, seed=1, kps=(40.0,))
+    g = metrics["gains"][0]
+    assert g["subject_stable"] and not g["replay"]["stable"] and g["replay"]["diverged_at"] < 2.0
+    for step, r in g["closed_loop"].items():
+        assert r["stable"] and min(r[k] for k in ("deviation", "torque", "deviation_hp", "torque_hp")) > 95.0, step
+    page = write_closed_loop_report(tmp_path / "report", metrics, traces)
+    text = page.read_text()
+    assert "<h2>Closed loop</h2>" in text and "replay FMU" in text and "diverged at" in text
+    assert (tmp_path / "report" / "figures" / CLOSED_LOOP_FIGURE).stat().st_size > 10_000
