@@ -239,7 +239,8 @@ def test_example_assistance_profile_designed_with_opti_works_on_the_subject():
 def test_validation_closed_loop_section(cl, tmp_path):
     """validation.closed_loop: the closed-loop FMU beside the virtual subject and the replay FMU
     in the same loop, its metrics, figure and HTML section."""
-    from lpvpc.validation.closed_loop import CLOSED_LOOP_FIGURE, evaluate_closed_loop, write_closed_loop_report
+    from lpvpc.validation.closed_loop import (CLOSED_LOOP_FIGURE, closed_loop_section, evaluate_closed_loop,
+                                              write_closed_loop_report)
 
     metrics, traces = evaluate_closed_loop(cl, tmp_path, duration=10.0, seed=1, kps=(40.0,))
     g = metrics["gains"][0]
@@ -249,4 +250,27 @@ def test_validation_closed_loop_section(cl, tmp_path):
     page = write_closed_loop_report(tmp_path / "report", metrics, traces)
     text = page.read_text()
     assert "<h2>Closed loop</h2>" in text and "replay FMU" in text and "diverged at" in text
-    assert (tmp_path / "report" / "figures" / CLOSED_LOOP_FIGURE).stat().st_size > 10_000
+    fig = tmp_path / "report" / "figures" / CLOSED_LOOP_FIGURE
+    assert fig.stat().st_size > 10_000
+    assert closed_loop_section(metrics, fig) in text  # the section the validation report can embed
+
+
+def test_loop_ssp_in_fmpy_and_libcosim(cl, tmp_path):
+    """The loop as an SSP 1.0 archive (record player -> series-elastic exoskeleton <-> ankle FMU):
+    libcosim runs it as fmpy's master does; the closed-loop FMU stays stable in both, the replay
+    FMU fails in both (its torque turns non-finite)."""
+    from lpvpc.validation.closed_loop import evaluate_loop_ssp, exoskeleton_parameters, run_loop_fmpy, \
+        run_loop_ssp_libcosim, write_loop_ssp
+    from lpvpc.validation.engines import available
+
+    if available("libcosim"):
+        pytest.skip(available("libcosim"))
+    r = evaluate_loop_ssp(cl, tmp_path, duration=5.0, seed=1)
+    print(r)
+    c, rep = r["closed_loop"], r["replay"]
+    assert c["fmpy_failed_at"] is None and c["libcosim_failed_at"] is None
+    assert c["vaf_angle"] > 99.0 and c["vaf_torque"] > 99.0
+    assert rep["fmpy_failed_at"] is not None and rep["fmpy_failed_at"] < 2.0
+    assert rep["libcosim_failed_at"] is not None and rep["libcosim_failed_at"] < 2.0
+    assert callable(write_loop_ssp) and callable(run_loop_ssp_libcosim) and callable(run_loop_fmpy)
+    assert exoskeleton_parameters(40.0, 0.5, 0.025, 0.0)["coupling_damping"] == pytest.approx(0.25)
