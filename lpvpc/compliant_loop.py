@@ -65,6 +65,8 @@ class VirtualSubject:
     element functions, run one tick at a time); ``inertia`` (the foot's) belongs to the plant.
     """
 
+    max_step = PLANT_STEP  # s: the subject's physics runs at the plant's step only
+
     def __init__(self, params=None):
         from .simulate import SubjectParams, reflex_lowpass_coefficients
 
@@ -98,8 +100,6 @@ class VirtualSubject:
         return p.viscosity * omega + float(p.elastic_torque(theta)) + y
 
     def advance(self, t: float, h: float) -> None:
-        if abs(h - PLANT_STEP) > 1e-12:
-            raise ValueError("the virtual subject runs at the plant step of 1 ms")
         self._zi = self._pending
 
 
@@ -192,9 +192,13 @@ def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float
     assist = np.zeros(len(reference)) if assist is None else np.asarray(assist, dtype=float)
     if assist.shape != reference.shape:
         raise ValueError(f"assist has {assist.shape} samples, the reference {reference.shape}")
+    from fmpy.fmi1 import FMICallException  # what an FMU's error status raises
+
     sub = int(round(comm_step / PLANT_STEP))
     if sub < 1 or abs(sub * PLANT_STEP - comm_step) > 1e-12:
         raise ValueError(f"communication step {comm_step!r} s must be a positive multiple of {PLANT_STEP} s")
+    if comm_step > getattr(source, "max_step", np.inf) + 1e-12:
+        raise ValueError(f"{type(source).__name__} takes communication steps up to {source.max_step} s")
     source.reset()
     inertia = setup.device_inertia + source.inertia
     n = len(reference)
@@ -205,7 +209,7 @@ def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float
     while k < n:
         try:
             torque = source.output(theta, omega)
-        except Exception:  # an FMU error status (fmpy raises): the loop has failed here
+        except FMICallException:  # an FMU error status (a non-finite value): the loop has failed here
             diverged = k * PLANT_STEP
             break
         for j in range(k, min(k + sub, n)):
@@ -218,7 +222,7 @@ def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float
             break
         try:
             source.advance(k * PLANT_STEP, sub * PLANT_STEP)
-        except Exception:
+        except FMICallException:
             diverged = (k + sub) * PLANT_STEP
             break
         k += sub

@@ -165,6 +165,8 @@ def test_compliant_loop_stays_stable_and_follows_the_subject(cl, fmus, kp):
     setup = LOOP.LoopSetup(kp=kp)
     truth = LOOP.run_loop(LOOP.VirtualSubject(), ref, setup)
     assert isinstance(truth, LOOP.LoopRun) and truth.stable
+    with pytest.raises(ValueError, match="communication steps up to 0.001 s"):
+        LOOP.run_loop(LOOP.VirtualSubject(), ref, setup, 0.01)
     assert abs(np.mean(LOOP.highpass(truth.deviation))) < 1e-3  # the high-pass removes the offset
     src = LOOP.FmuSource(fmus[(2, "cs")])
     try:
