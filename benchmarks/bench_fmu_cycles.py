@@ -1,7 +1,8 @@
 """FMU wrapper benchmark: memory over 2000 instantiate/reset/free cycles, build time, step rate.
 
 Uses the actuator FMU (FMI 2 and FMI 3; the wrapper's direct mode) and the exported model
-FMUs (sampled variant: the wrapper's sampled mode; exact: direct mode; FMI 2 and 3) through fmpy's
+FMUs (sampled variant: the wrapper's sampled mode; exact: direct mode; the closed-loop form of
+the whole-joint model, lpvpc.closed_loop: direct mode on a 1 ms tick; FMI 2 and 3) through fmpy's
 FMU2Slave / FMU3Slave:
 
 - instance cycles: library loaded once; instantiate, initialize, step, get/serialize/
@@ -53,8 +54,15 @@ def model_fmus(tmp: Path) -> dict:
     write_trial_csv(pair.pt, tmp / "PT.csv")
     write_trial_csv(pair.ut, tmp / "UT.csv")
     model = identify(load_identification_data(pt=tmp / "PT.csv", ut=tmp / "UT.csv"))
-    return {(v, f): ex.export_fmu(model, tmp / f"model_{v}_{f}.fmu", fmi_version=f, variant=v)
-            for v in ("sampled", "exact") for f in (2, 3)}
+    out = {(v, f): ex.export_fmu(model, tmp / f"model_{v}_{f}.fmu", fmi_version=f, variant=v)
+           for v in ("sampled", "exact") for f in (2, 3)}
+    from lpvpc.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
+    from lpvpc.whole_joint import fit_whole_joint
+
+    wj = fit_whole_joint(model, pair.ut)
+    cl = fit_closed_loop(wj, [distillation_trial(wj, pair.ut)])
+    out.update({("closed_loop", f): export_closed_loop_fmu(cl, tmp / f"closed_loop_{f}.fmu", f) for f in (2, 3)})
+    return out
 
 
 def rss_mb() -> float:
@@ -86,9 +94,9 @@ def init(s, version):
     s.exitInitializationMode()
 
 
-def cycle_body(s, version):
+def cycle_body(s, version, vr_in=CMD):
     init(s, version)
-    (s.setReal if version == 2 else s.setFloat64)([CMD], [0.1])
+    (s.setReal if version == 2 else s.setFloat64)([vr_in], [0.1])
     s.doStep(0.0, 0.01)
     st = s.getFMUState()
     blob = s.serializeFMUState(st)
@@ -101,13 +109,13 @@ def cycle_body(s, version):
     s.terminate()
 
 
-def instance_cycles(version, unzipdir, md, n):
+def instance_cycles(version, unzipdir, md, n, vr_in=CMD):
     keeper = make_slave(version, unzipdir, md, "keeper")
     free = "fmi2FreeInstance" if version == 2 else "fmi3FreeInstance"
 
     def one(k):
         s = make_slave(version, unzipdir, md, f"c{k}")
-        cycle_body(s, version)
+        cycle_body(s, version, vr_in)
         getattr(s, free)(s.component)
         s.freeLibrary()
 
@@ -204,15 +212,16 @@ def main(argv=None):
                     f" {marks[-1] - start:>+8.2f} {1000 * dt / args.cycles:>9.3f}")
         out()
 
-        out(f"## Memory, model FMUs (sampled: sampled mode; exact: direct): {args.cycles} instance cycles "
+        out(f"## Memory, model FMUs (sampled: sampled mode; exact, closed_loop: direct): {args.cycles} instance cycles "
             f"(after 50 warm-up); RSS in MB")
-        out(f"{'FMU':<12} {'start':>8} {'25%':>8} {'50%':>8} {'75%':>8} {'100%':>8} {'growth':>8} {'ms/cycle':>9}")
+        out(f"{'FMU':<14} {'start':>8} {'25%':>8} {'50%':>8} {'75%':>8} {'100%':>8} {'growth':>8} {'ms/cycle':>9}")
         for (variant, v), path in model_fmus(tmp).items():
             md = read_model_description(str(path))
-            assert {v.name: v.valueReference for v in md.modelVariables}["position"] == CMD
+            vr = {x.name: x.valueReference for x in md.modelVariables}
+            vr_in = vr["angle"] if variant == "closed_loop" else vr["position"]
             unzipdir = extract(str(path), unzipdir=str(tmp / f"m_{variant}_{v}"))
-            start, marks, dt = instance_cycles(v, unzipdir, md, args.cycles)
-            out(f"{variant + ' ' + str(v):<12} {start:>8.2f} " + " ".join(f"{m:>8.2f}" for m in marks) +
+            start, marks, dt = instance_cycles(v, unzipdir, md, args.cycles, vr_in)
+            out(f"{variant + ' ' + str(v):<14} {start:>8.2f} " + " ".join(f"{m:>8.2f}" for m in marks) +
                 f" {marks[-1] - start:>+8.2f} {1000 * dt / args.cycles:>9.3f}")
         out()
 

@@ -11,7 +11,7 @@
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
     lpvpc whole-joint model.json --ut UT.csv -o whole.json [--cutoff HZ] [--order N] [--fmu F.fmu]
-                      [--fmi 2|3] [--fmi-type cs|me] [--casadi F.casadi]
+                      [--fmi 2|3] [--fmi-type cs|me] [--casadi F.casadi] [--closed-loop [--pt PT.csv]]
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
@@ -131,7 +131,7 @@ COMMAND_IO = {
     "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
                         sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
-    "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut"},
+    "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
                              files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
                              make_folders=("--fmu",)),
     "validate": CommandIO(inputs={"MODEL": "model", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
@@ -362,6 +362,8 @@ def cmd_whole_joint(args) -> int:
     from .data import load_trial
     from .model import LPVPCModel
 
+    if args.pt and not args.closed_loop:
+        raise _UsageError("--pt is used by --closed-loop only (the whole-joint curve is fitted to the UT trial)")
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
@@ -370,6 +372,8 @@ def cmd_whole_joint(args) -> int:
         wj = W.fit_whole_joint(model, ut, cutoff=args.cutoff, order=args.order)
     except ValueError as exc:  # a cutoff outside (0, fs/2)
         raise _UsageError(str(exc)) from None
+    if args.closed_loop:
+        return _closed_loop(args, wj, ut, conv)
     wj.save(args.out)
     print(f"whole-joint model: {args.out} (quasi-static curve VAF {wj.fit['quasi_static_vaf']:.2f} % on the UT "
           f"trial; low-pass {wj.cutoff:g} Hz; step/FMU latency {W.latency_samples(wj)} samples)")
@@ -380,6 +384,32 @@ def cmd_whole_joint(args) -> int:
         path = W.export_whole_joint_fmu(wj, args.fmu, fmi_version=args.fmi, fmi_type=args.fmi_type)
         kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange"
         print(f"FMU (FMI {args.fmi}.0 {kind}, angle -> torque): {path}  [{time.perf_counter() - t0:.2f} s]")
+    return 0
+
+
+def _closed_loop(args, wj, ut, conv) -> int:
+    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.closed_loop)."""
+    from . import closed_loop as CL
+    from .data import load_trial
+
+    if args.pt:
+        pt = load_trial(args.pt, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+                        torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+        trials, source = [pt, ut], "the PT and UT trials"
+    else:
+        trials, source = [CL.distillation_trial(wj, ut)], "the two-sided model's torque (no --pt given)"
+    cl = CL.fit_closed_loop(wj, trials)
+    cl.save(args.out)
+    print(f"closed-loop model: {args.out} (fitted to {source}: VAF {cl.fit['vaf_with_inertia']:.2f} %; inertia "
+          f"{cl.inertia:.5g} kg m^2, for the plant; no latency)")
+    if args.casadi:
+        print(f"CasADi tick function (angle, angular_velocity -> torque): {CL.export_closed_loop_casadi(cl, args.casadi)}")
+    if args.fmu:
+        t0 = time.perf_counter()
+        path = CL.export_closed_loop_fmu(cl, args.fmu, fmi_version=args.fmi, fmi_type=args.fmi_type)
+        kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange"
+        print(f"FMU (FMI {args.fmi}.0 {kind}, angle and angular_velocity -> torque, constant output inertia): "
+              f"{path}  [{time.perf_counter() - t0:.2f} s]")
     return 0
 
 
@@ -781,6 +811,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
                    help="cs: co-simulation (default); me: Model Exchange, a time event per sample")
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the whole-joint CasADi step function")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="the closed-loop form instead (for a plant that the torque moves): inputs angle (rad) and "
+                        "angular_velocity (rad/s), no latency, inertia declared apart (docs/guide/closed_loop.md)")
+    p.add_argument("--pt", metavar="PT", help="with --closed-loop: fit it to the PT and UT trials (default: to the "
+                                              "two-sided model's torque)")
     _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_whole_joint)
 

@@ -509,3 +509,51 @@ def quasi_static_torque(angle_basis, coefficients, ops=NUMPY):
     array([-2.,  4.])
     """
     return ops.mtimes(angle_basis, coefficients)
+
+
+# ---------------------------------------------------------------------------------------
+# Closed-loop form of the whole-joint model (lpvpc.closed_loop): a causal impedance of the
+# current joint angle and angular velocity (no look-ahead, no inertia), plus the reflex
+# pathway with its delay line. Written for numpy arrays (one row per sample) and CasADi rows.
+
+
+def impedance_features(perturbation, velocity, past_perturbations=(), ops=NUMPY):
+    """Features of the causal impedance at one instant: p (rad), omega (rad/s), p^2 (rad^2),
+    then the perturbation's past samples p(k-1), ..., p(k-M) (rad; the short memory).
+
+    ``perturbation`` p = angle - operating angle; ``velocity`` the joint's angular velocity.
+
+    >>> impedance_features(np.array([0.01, 0.02]), np.array([0.5, 0.0]))
+    array([[1.e-02, 5.e-01, 1.e-04],
+           [2.e-02, 0.e+00, 4.e-04]])
+    """
+    return ops.hcat([perturbation, velocity, perturbation * perturbation, *past_perturbations])
+
+
+def impedance_torque(features, rho_basis, coefficients, curve_basis, curve, ops=NUMPY):
+    """Causal intrinsic torque (N m): the quasi-static torque-angle curve at the operating angle
+    plus the position-dependent impedance of the perturbation,
+
+        T_qs(rho) + sum_ij W[i, j] features_i G_i(rho)_j
+
+    (W row 0: stiffness K(rho) in N m/rad, row 1: viscosity B(rho) in N m s/rad, row 2: elastic
+    curvature in N m/rad^2, then the memory weights). No inertia: the plant carries it.
+
+    A 40 N m/rad spring with 1 N m s/rad viscosity on a flat curve:
+
+    >>> f = impedance_features(np.array([0.01]), np.array([0.2]))
+    >>> impedance_torque(f, np.ones((1, 1)), np.array([[40.0], [1.0], [0.0]]), np.ones((1, 1)), np.zeros(1))
+    array([0.6])
+    """
+    return quasi_static_torque(curve_basis, curve, ops) + scheduled_term(features, rho_basis, coefficients, ops)
+
+
+def between_samples(at_sample, at_next_sample, fraction):
+    """Linear interpolation from a sampled pathway's value at sample k to its value at k + 1
+    (``fraction`` of the sample period elapsed, 0..1): the reflex torque between samples,
+    without the half-sample lag of a held value.
+
+    >>> between_samples(1.0, 2.0, 0.25)
+    1.25
+    """
+    return at_sample + fraction * (at_next_sample - at_sample)

@@ -18,7 +18,9 @@ step of :mod:`lpvpc.export`; the numpy prediction, the CasADi function and the F
 Timing: the two-sided IRF needs L future angles, so the CasADi step and the FMU that
 receive theta(k) return the torque of sample k - L (``latency_samples``; L/fs s, 0 N m
 before that), exactly like the ``exact`` export variant. ``predict`` is the offline
-(non-delayed) prediction.
+(non-delayed) prediction. For a plant that the torque moves (a controller or prosthesis
+simulation) that latency and the inertia inside the torque destabilise the loop: use the
+closed-loop form of :mod:`lpvpc.closed_loop` (``lpvpc whole-joint --closed-loop``) there.
 
 The low-pass is a compromise: a slow cutoff lets the operating-angle estimate lag behind
 voluntary movement (the elastic torque of that lag then comes from the perturbation

@@ -25,17 +25,44 @@ from lpvpc.model import vaf
 
 TOL = 1e-9
 BUILDS = [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
+# the closed-loop form of the whole-joint model (lpvpc.closed_loop): inputs angle, angular_velocity
+CLOSED_LOOP = [("closed_loop", 2), ("closed_loop", 3)]
 
 
 @pytest.fixture(scope="module")
-def fmus(model, tmp_path_factory):
+def closed_loop(model, subject):
+    from lpvpc.closed_loop import distillation_trial, fit_closed_loop
+    from lpvpc.whole_joint import fit_whole_joint
+
+    wj = fit_whole_joint(model, subject["ident_pair"].ut)
+    return fit_closed_loop(wj, [distillation_trial(wj, subject["ident_pair"].ut)])
+
+
+def _closed_loop_reference(cl, inputs):
+    """The closed-loop tick function's (torque, torque_intrinsic, torque_reflex) over ``inputs``."""
+    from lpvpc.closed_loop import closed_loop_step
+
+    step = closed_loop_step(cl)
+    out = ex.trajectory_function(step, len(inputs["angle"]))(
+        state=np.zeros(step.size1_in(0)), angle=inputs["angle"][None, :],
+        angular_velocity=inputs["angular_velocity"][None, :])
+    return np.column_stack([np.asarray(out[k]).ravel() for k in ex.OUTPUT_NAMES[1:]])
+
+
+@pytest.fixture(scope="module")
+def fmus(model, closed_loop, tmp_path_factory):
     """Each FMU built once: {(variant, fmi_version): (path, extracted dir, timings)}."""
+    from lpvpc.closed_loop import export_closed_loop_fmu
+
     folder = tmp_path_factory.mktemp("model_fmus")
     out = {}
-    for variant, fmi in BUILDS:
+    for variant, fmi in BUILDS + CLOSED_LOOP:
         timings = {}
-        path = ex.export_fmu(model, folder / f"model_{variant}_fmi{fmi}.fmu", fmi_version=fmi, variant=variant,
-                             timings=timings)
+        if variant == "closed_loop":
+            path = export_closed_loop_fmu(closed_loop, folder / f"closed_loop_fmi{fmi}.fmu", fmi)
+        else:
+            path = ex.export_fmu(model, folder / f"model_{variant}_fmi{fmi}.fmu", fmi_version=fmi, variant=variant,
+                                 timings=timings)
         out[(variant, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_{variant}_{fmi}")), timings)
     return out
 
@@ -156,12 +183,12 @@ def test_model_description(model, fmus, variant, fmi):
     assert timings["total"] > 0
 
 
-@pytest.mark.parametrize("variant,fmi", BUILDS)
+@pytest.mark.parametrize("variant,fmi", BUILDS + CLOSED_LOOP)
 def test_fmpy_validation_reports_nothing(fmus, variant, fmi):
     assert validate_fmu(str(fmus[(variant, fmi)][0])) == []
 
 
-@pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3), ("causal", 2), ("exact", 2)])
+@pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3), ("causal", 2), ("exact", 2)] + CLOSED_LOOP)
 def test_fmutool_check_passes(fmus, variant, fmi):
     exe = Path(sys.executable).parent / "fmutool"
     if not exe.exists():
@@ -196,11 +223,11 @@ def test_fmpy_compile_rebuilds_from_sources(model, subject, fmus, tmp_path, vari
 
 
 @pytest.mark.parametrize("variant,fmi", [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3),
-                                         ("exact", 2)])
-def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fmi):
+                                         ("exact", 2)] + CLOSED_LOOP)
+def test_wrong_calls_return_an_error_status_and_log_why(model, closed_loop, fmus, variant, fmi):
     path, unzipdir, _ = fmus[(variant, fmi)]
     h = 1.0 / model.fs
-    tick = h / (ex.ticks_per_sample(model) if variant == "sampled" else 1)
+    tick = h / (ex.ticks_per_sample(model) if variant in ("sampled", "closed_loop") else 1)
     sim = Sim(path, unzipdir)
     errors = lambda: [m for s, m in sim.log if s >= 3]  # noqa: E731
 
@@ -214,7 +241,7 @@ def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fm
     # illegal call order: a step before initialization
     expect_error(sim.slave.doStep, 0.0, h, match="illegal call sequence")
     sim.initialize()
-    pos = sim.vr["position"]
+    pos = sim.vr["angle" if variant == "closed_loop" else "position"]
     expect_error(sim.slave.doStep, 0.5, h, match="does not match the FMU time")
     expect_error(sim.slave.doStep, 0.0, 0.0, match="must be > 0")
     expect_error(sim.slave.doStep, 0.0, -h, match="must be > 0")
@@ -224,6 +251,14 @@ def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fm
     expect_error(sim.set, [sim.vr["D"]], [1.0], match="fixed parameter")  # after initialization
     expect_error(sim.set, [sim.vr["latency"]], [0.0], match="cannot be set")  # a constant output
     # the wrong calls left the instance unchanged: it still reproduces the prediction
+    if variant == "closed_loop":  # its reference: the tick function, at 1 ms communication steps
+        u = {"angle": np.full(25, 0.02), "angular_velocity": np.linspace(0.0, 0.5, 25)}
+        Y = sim.replay(u, h=tick)
+        ref = _closed_loop_reference(closed_loop, u)
+        assert np.max(np.abs(Y - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
+        sim.slave.doStep(25 * tick, 3 * h)  # a step of several sample periods is fine (inputs held)
+        sim.free()
+        return
     data_pos, data_rho = np.full(5, 0.02), np.zeros(5)
     Y = sim.replay(_inputs(model, data_pos, data_rho, variant), h=h)
     ref = _ref(model, data_pos, data_rho, variant)

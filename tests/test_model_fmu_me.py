@@ -22,15 +22,26 @@ from lpvpc import export as ex
 
 TOL = 1e-9
 BUILDS = [("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
+# the closed-loop form of the whole-joint model (lpvpc.closed_loop): inputs angle, angular_velocity,
+# a time event per base tick (1 ms)
+CLOSED_LOOP = [("closed_loop", 2), ("closed_loop", 3)]
 
 
 @pytest.fixture(scope="module")
-def fmus(model, tmp_path_factory):
+def fmus(model, subject, tmp_path_factory):
+    from lpvpc.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
+    from lpvpc.whole_joint import fit_whole_joint
+
+    wj = fit_whole_joint(model, subject["ident_pair"].ut)
+    cl = fit_closed_loop(wj, [distillation_trial(wj, subject["ident_pair"].ut)])
     folder = tmp_path_factory.mktemp("model_me_fmus")
     out = {}
-    for variant, fmi in BUILDS:
-        path = ex.export_fmu(model, folder / f"me_{variant}_fmi{fmi}.fmu", fmi_version=fmi, variant=variant,
-                             fmi_type="me")
+    for variant, fmi in BUILDS + CLOSED_LOOP:
+        if variant == "closed_loop":
+            path = export_closed_loop_fmu(cl, folder / f"me_closed_loop_fmi{fmi}.fmu", fmi, fmi_type="me")
+        else:
+            path = ex.export_fmu(model, folder / f"me_{variant}_fmi{fmi}.fmu", fmi_version=fmi, variant=variant,
+                                 fmi_type="me")
         out[(variant, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_{variant}_{fmi}")))
     return out
 
@@ -72,7 +83,7 @@ class MeSim(FMUInstance):
         self.fmu.freeInstance()
 
 
-@pytest.mark.parametrize("variant,fmi", BUILDS)
+@pytest.mark.parametrize("variant,fmi", BUILDS + CLOSED_LOOP)
 def test_fmpy_validation_and_fmutool_check_pass(fmus, variant, fmi):
     path = fmus[(variant, fmi)][0]
     assert validate_fmu(str(path)) == []
@@ -130,9 +141,9 @@ def test_manual_event_loop_and_fmu_state_round_trip(model, subject, fmus, fmi):
     assert np.array_equal(y1, y2) and np.array_equal(y1, y3)
 
 
-@pytest.mark.parametrize("fmi", [2, 3])
-def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, fmi):
-    path, unzipdir = fmus[("causal", fmi)]
+@pytest.mark.parametrize("variant,fmi", [("causal", 2), ("causal", 3)] + CLOSED_LOOP)
+def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, variant, fmi):
+    path, unzipdir = fmus[(variant, fmi)]
     sim = MeSim(path, unzipdir)
     errors = lambda: [m for s, m in sim.log if s >= 3]  # noqa: E731
 
@@ -145,8 +156,8 @@ def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, fmi):
 
     expect_error(sim.fmu.enterEventMode, match="illegal call sequence")  # before initialization
     sim.initialize()
-    pos = sim.vr["position"]
-    h = 1.0 / model.fs
+    pos = sim.vr["angle" if variant == "closed_loop" else "position"]
+    h = 1.0 / model.fs / (ex.ticks_per_sample(model) if variant == "closed_loop" else 1)  # the event period
     expect_error(sim.fmu.enterEventMode, match="illegal call sequence")  # already in event mode
     expect_error(sim.set, [pos], [math.nan], match="not finite")
     expect_error(sim.get, [9999], match="unknown value reference")
@@ -160,7 +171,8 @@ def test_wrong_calls_return_an_error_status_and_log_why(model, fmus, fmi):
     get_x = sim.fmu.fmi2GetContinuousStates if fmi == 2 else sim.fmu.fmi3GetContinuousStates
     expect_error(get_x, sim.fmu.component, (ctypes.c_double * 1)(), 1, match="no continuous states")
     # the wrong calls left the instance unchanged: it runs as a fresh instance does
-    u = _inputs(model, np.full(6, 0.02), np.zeros(6), "causal")
+    u = (_inputs(model, np.full(6, 0.02), np.zeros(6), "causal") if variant != "closed_loop" else
+         {"angle": np.full(6, 0.02), "angular_velocity": np.linspace(0.0, 0.5, 6)})
     y = sim.run({k: v[1:] for k, v in u.items()}, h, 1)
     sim.free()
     fresh = MeSim(path, unzipdir, "fresh").initialize()
@@ -202,8 +214,8 @@ def test_a_sample_stepped_over_is_applied_with_the_held_input(model, fmus):
     assert late == on_time and late != 0.0
 
 
-@pytest.mark.parametrize("fmi", [2, 3])
-def test_instantiate_reset_free_cycles_have_bounded_memory(model, subject, fmus, fmi):
+@pytest.mark.parametrize("variant,fmi", [("causal", 2), ("causal", 3)] + CLOSED_LOOP)
+def test_instantiate_reset_free_cycles_have_bounded_memory(model, subject, fmus, variant, fmi):
     """200 cycles here; benchmarks/bench_fmu_me.py runs 2,000 and records the result."""
     import os
 
@@ -211,10 +223,12 @@ def test_instantiate_reset_free_cycles_have_bounded_memory(model, subject, fmus,
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
-    path, unzipdir = fmus[("causal", fmi)]
+    path, unzipdir = fmus[(variant, fmi)]
     data = subject["ident"].segment(0, 5)
-    u = _inputs(model, data.position, data.scheduling, "causal")
-    h = 1.0 / model.fs
+    if variant == "closed_loop":
+        u, h = {"angle": data.scheduling + data.position, "angular_velocity": np.full(5, 0.1)}, 1e-3
+    else:
+        u, h = _inputs(model, data.position, data.scheduling, "causal"), 1.0 / model.fs
 
     def cycle():
         sim = MeSim(path, unzipdir)
