@@ -77,6 +77,13 @@ class Trial:
         """Sampling rate in Hz, derived from the time vector."""
         return float((len(self.time) - 1) / (self.time[-1] - self.time[0]))
 
+    def __repr__(self):
+        n = len(self.time)
+        rate = f" at {self.fs:g} Hz ({float(self.time[-1] - self.time[0]):.1f} s)" if n > 1 and self.time[-1] != self.time[0] else ""
+        channels = f"; channels {', '.join(self.channels)}" if self.channels else ""
+        return (f"Trial({_short(self.name)!r}: {n} samples{rate}; position {_span(self.position)} rad, torque "
+                f"{_span(self.torque)} N m{channels})")
+
 
 def write_trial_csv(trial: Trial, path) -> None:
     """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``."""
@@ -89,6 +96,21 @@ def write_trial_csv(trial: Trial, path) -> None:
 
 
 # --------------------------------------------------------------------------- checks
+
+
+def _span(x) -> str:
+    """'lo..hi' of an array for a repr (an empty or non-finite one as such)."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        return "empty"
+    if not np.all(np.isfinite(x)):
+        return "with non-finite values"
+    return f"{float(x.min()):+.4g}..{float(x.max()):+.4g}"
+
+
+def _short(text, limit: int = 60) -> str:
+    text = str(text)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _plural(count: int, word: str) -> str:
@@ -703,6 +725,10 @@ class HighRate:
     def n(self) -> int:
         return len(self.position)
 
+    def __repr__(self):
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        return f"HighRate({self.n} samples{trials} at {self.fs:g} Hz)"
+
 
 @dataclass
 class PerturbationData:
@@ -786,6 +812,16 @@ class PerturbationData:
     def n(self) -> int:
         """Number of samples."""
         return len(self.position)
+
+    def __repr__(self):
+        # one line a user can read; the arrays are in the attributes
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        high = f", {self.high_rate.fs:g} Hz signals kept" if self.high_rate is not None else ""
+        extra = [k for k in self.extra if k != "time"]
+        return (f"PerturbationData({self.n} samples{trials} at {self.fs:g} Hz ({self.n / self.fs:.1f} s{high}); "
+                f"position {_span(self.position)} rad, torque {_span(self.torque)} N m, scheduling "
+                f"{_span(self.scheduling)} rad" + (f"; extra {', '.join(extra)}" if extra else "")
+                + (f"; source {_short(self.source)!r}" if self.source else "") + ")")
 
     @property
     def time(self) -> np.ndarray:

@@ -448,6 +448,9 @@ class FittedEffect:
     def effect(self) -> Effect:
         return CATALOG[self.name]
 
+    def __repr__(self):
+        return f"FittedEffect({self.name!r}, {self.effect.pathway} pathway, signals: {', '.join(self.signals) or 'none'})"
+
     @property
     def signals(self) -> tuple:
         e = self.effect

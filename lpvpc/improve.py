@@ -49,6 +49,10 @@ class Rung:
     diagnosis_time: float = 0.0
     kept: bool = True
 
+    def __repr__(self):
+        kept = "" if self.kept else ", not kept"
+        return f"Rung({self.index}: {self.label!r}, held-out VAF {self.heldout_vaf:.2f} %{kept})"
+
     def to_dict(self) -> dict:
         top = self.diagnosis.top if self.diagnosis is not None else None
         return {
@@ -70,6 +74,13 @@ class Ladder:
     @property
     def kept(self) -> list:
         return [r for r in self.rungs if r.kept]
+
+    def __repr__(self):
+        if not self.rungs:
+            return "Ladder(empty)"
+        first, last = self.rungs[0], self.final
+        return (f"Ladder({len(self.rungs)} steps, held-out VAF {first.heldout_vaf:.2f} -> {last.heldout_vaf:.2f} %; "
+                f"final: {last.label!r})")
 
     @property
     def final(self) -> Rung:

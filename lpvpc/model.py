@@ -92,6 +92,13 @@ class Prediction:
     out_of_range_fraction: float = 0.0
     effects: dict = field(default_factory=dict)
 
+    def __repr__(self):
+        rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0  # noqa: E731
+        effects = f", effects: {', '.join(self.effects)}" if self.effects else ""
+        return (f"Prediction({len(self.total)} samples; RMS total {rms(self.total):.3g}, intrinsic "
+                f"{rms(self.intrinsic):.3g}, reflex {rms(self.reflex):.3g} N m; "
+                f"{100 * self.out_of_range_fraction:.1f} % out of range{effects})")
+
 
 @dataclass
 class HighRateNonlinearity:
@@ -181,6 +188,19 @@ class LPVPCModel:
     uncertainty: dict = field(default_factory=dict)  # lpvpc.uncertainty.fit_uncertainty (empty: no intervals)
     high_rate: HighRateNonlinearity | None = None  # the nonlinearity identified at the file's rate (module notes)
     curvature: np.ndarray | None = None  # (n_i,) elastic curvature coefficients, N m/rad^2 (None: no such term)
+
+    def __repr__(self):
+        # what a user checks first, in one line (the arrays are in the attributes)
+        lo, hi = self.scheduling_range
+        parts = [f"{self.fs:g} Hz", f"IRF lags {self.lags[0]}..{self.lags[-1]}",
+                 f"reflex order {self.state_order}, delay {1000 * self.delay / self.fs:.0f} ms",
+                 f"scheduling {lo:+.3f}..{hi:+.3f} rad"]
+        if self.effects:
+            parts.append("effects: " + ", ".join(fe.name for fe in self.effects))
+        if "vaf" in self.fit:
+            parts.append(f"VAF {self.fit['vaf']:.2f} %")
+        parts.append(f"hash {self.model_hash[:12]}")
+        return f"LPVPCModel({'; '.join(parts)})"
 
     @property
     def nonlinearity_fs(self) -> float:
@@ -442,17 +462,17 @@ class LPVPCModel:
         return bool(self.uncertainty)
 
     def elastic_stiffness_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (N m/rad) of the ``level`` confidence interval of K(theta)
+        """Interval (unpacks as lower, upper arrays) (N m/rad) of the ``level`` confidence interval of K(theta)
         at positions ``theta`` (rad). HAC covariance of the final least squares (correlated
         residuals respected); see :mod:`lpvpc.uncertainty` for what it leaves out."""
         return _interval_pair(self, "stiffness", theta, level)
 
     def viscosity_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (N m s/rad) of the confidence interval of the viscosity."""
+        """Interval (unpacks as lower, upper arrays) (N m s/rad) of the confidence interval of the viscosity."""
         return _interval_pair(self, "viscosity", theta, level)
 
     def inertia_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (kg m^2) of the confidence interval of the inertia."""
+        """Interval (unpacks as lower, upper arrays) (kg m^2) of the confidence interval of the inertia."""
         return _interval_pair(self, "inertia", theta, level)
 
     def reflex_gain_interval(self, theta, level: float = 0.95):
@@ -631,10 +651,10 @@ class LPVPCModel:
 
 
 def _interval_pair(model, quantity, theta, level):
-    from .uncertainty import intrinsic_interval
+    from .uncertainty import Interval, intrinsic_interval
 
     _, lo, hi = intrinsic_interval(model, quantity, theta, level)
-    return lo, hi
+    return Interval(lo, hi)  # unpacks as (lower, upper), like every interval of the model
 
 
 def rectifier_fit(v, curves):

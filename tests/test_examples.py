@@ -143,7 +143,8 @@ def public_modules():
 
 def public_api() -> dict:
     """{qualified name: object} of every public function and class."""
-    api = {f"lpvpc.{n}": getattr(lpvpc, n) for n in lpvpc.__all__}
+    # (a top-level name re-exported from a module is checked under that module's name)
+    api = {f"lpvpc.{n}": v for n in lpvpc.__all__ if getattr(v := getattr(lpvpc, n), "__module__", "lpvpc") == "lpvpc"}
     for mod in public_modules():
         if hasattr(mod, "__all__"):
             names = list(mod.__all__)

@@ -87,6 +87,11 @@ class ValidationResult:
     def passed(self) -> bool:
         return bool(self.metrics["pass"])
 
+    def __repr__(self):
+        m = self.metrics
+        vafs = ", ".join(f"{k} {m[k]:.2f} %" for k in ("vaf", "vaf_fmu", "vaf_cosim") if k in m)
+        return f"ValidationResult({'pass' if m.get('pass') else 'FAIL'}; {vafs}; report {str(self.report_dir)!r})"
+
 
 # --------------------------------------------------------------------------- inputs
 
