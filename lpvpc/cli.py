@@ -65,8 +65,39 @@ def _one_line(text) -> str:
     return " ".join(str(text).split())
 
 
+#: The library names its fixes in Python (keywords); on the command line they read as the
+#: options that do the same. Pattern -> replacement, applied in order.
+CLI_SYNTAX = (
+    (r"channels=\{'(\w+)': COLUMN\}( \(--channel \w+=COLUMN\))?", r"--channel \1=COLUMN"),
+    (r"\btarget_fs=None\b", "--fs 0"),
+    (r"\btarget_fs=", "--fs "),
+    (r"\bstationary=True\b", "--stationary"),
+    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\bpt=PT\b", "--pt PT"),
+    (r"\but=UT\b", "--ut UT"),
+    (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
+    (r"\b(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
+     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter)\b(='?([\w.+-]+)'?)?",
+     lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
+)
+
+
+def cli_syntax(message) -> str:
+    """A library message with its Python keywords as command-line options.
+
+    >>> cli_syntax("pass position_unit='deg' if it is in degrees; or target_fs=None")
+    'pass --position-unit deg if it is in degrees; or --fs 0'
+    """
+    import re
+
+    text = str(message)
+    for pattern, replacement in CLI_SYNTAX:
+        text = re.sub(pattern, replacement, text)
+    return text
+
+
 def _err(message) -> None:
-    print(f"{PROG}: error: {_one_line(message)}", file=sys.stderr)
+    print(f"{PROG}: error: {_one_line(cli_syntax(message))}", file=sys.stderr)
 
 
 def _os_message(exc: OSError) -> str:
@@ -81,7 +112,7 @@ def _listed(value) -> list:
     return list(value) if isinstance(value, list) else [] if value is None else [value]
 
 
-def _load_data(args, *, target_fs, position_unit, torque_sign):
+def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None):
     """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
     loader); several files (identify) are joined as trials of one identification."""
     from .data import load_identification_data
@@ -100,8 +131,12 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
             raise _UsageError("missing --pt")
     elif not data:
         if not (pts and uts):
-            missing = "--ut" if pts else "--pt" if uts else "DATA or --pt and --ut"
-            raise _UsageError(f"missing {missing}")
+            if pts:
+                raise _UsageError("missing --ut: give the unperturbed trial with --ut UT, or --stationary if the PT "
+                                  "trial was recorded around one fixed position without a UT trial")
+            raise _UsageError("missing --pt: give the perturbed trial with --pt PT" if uts else
+                              "missing DATA or --pt and --ut: give the perturbed and the unperturbed trial as "
+                              "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
         if len(pts) != len(uts):
             raise _UsageError(f"{len(pts)} --pt but {len(uts)} --ut: give the trials in PT/UT pairs")
     try:
@@ -109,7 +144,8 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
     except ValueError as exc:
         raise _UsageError(f"--channel: {exc}") from None
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
-              variable=getattr(args, "variable", None), channels=channels or None)
+              variable=getattr(args, "variable", None), channels=channels or None,
+              time_unit=getattr(args, "time_unit", None) or time_unit or "s")
 
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
@@ -207,6 +243,8 @@ def cmd_identify(args) -> int:
     model = est.model_
     for key in ("position_unit", "torque_sign"):  # the file conventions, for predict to reuse
         model.conventions.setdefault(key, data.meta.get(key, getattr(args, key)))
+    if data.meta.get("time_unit", "s") != "s":
+        model.conventions.setdefault("time_unit", data.meta["time_unit"])
     model.save(args.output)
 
     fit = model.fit
@@ -275,7 +313,8 @@ def cmd_predict(args) -> int:
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
-    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
+                      time_unit=conv.get("time_unit"))
     if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
                         source=data.source or None)
@@ -446,7 +485,8 @@ def _load_for_model(args, model):
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
-    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
+                      time_unit=conv.get("time_unit"))
     return data
 
 
@@ -496,7 +536,7 @@ def cmd_improve(args) -> int:
     check_outputs({"--pt": args.pt, "--ut": args.ut, "--heldout-pt": args.heldout_pt, "--heldout-ut": args.heldout_ut},
                   {"-o": args.output, "--json": args.json}, {"--report": args.report})
     check_report_folder(args.report, ("improve.md",), args.force)
-    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
+    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit)
     from .data import load_identification_data
 
     ident = load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw)
@@ -527,6 +567,8 @@ def cmd_improve(args) -> int:
         model = last.model
         model.conventions.setdefault("position_unit", args.position_unit)
         model.conventions.setdefault("torque_sign", args.torque_sign)
+        if args.time_unit != "s":
+            model.conventions.setdefault("time_unit", args.time_unit)
         model.save(args.output)
         print(f"model:     {args.output} (hash {model.model_hash[:12]})")
     if args.json:
@@ -599,6 +641,12 @@ def _add_convention_args(p, from_model: bool):
                        help="multiplies the files' torque into the package's convention (default 1)")
 
 
+def _add_time_unit_arg(p, default):
+    p.add_argument("--time-unit", choices=("s", "ms"), default=default,
+                   help="unit of the files' time column (default s" + ("" if default else
+                                                                        "; a saved model's as at identification") + ")")
+
+
 def _add_data_args(p, what, several: bool = False):
     """DATA | --pt/--ut | --pt --stationary, and the .mat choices; ``several``: repeatable
     (trials of one identification)."""
@@ -615,6 +663,7 @@ def _add_data_args(p, what, several: bool = False):
                         "without UT; the operating point is its mean position (and torque)")
     p.add_argument("--variable", metavar="NAME",
                    help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
+    _add_time_unit_arg(p, default=None)
     p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
                    help="channel of a .mat file or column of a CSV file for a role (position, torque, scheduling, "
                         "time, emg, command), e.g. --channel torque=tq1, --channel 'scheduling=sv.Ankle Position "
@@ -814,6 +863,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
+    _add_time_unit_arg(p, default="s")
     p.set_defaults(func=cmd_improve)
     return parser
 
@@ -830,7 +880,7 @@ def _effect_names():
 def _show_warning(original):
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, LpvpcWarning):
-            print(f"{PROG}: warning: {_one_line(message)}", file=sys.stderr)
+            print(f"{PROG}: warning: {_one_line(cli_syntax(message))}", file=sys.stderr)
         else:
             original(message, category, filename, lineno, file, line)
 

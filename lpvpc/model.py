@@ -69,6 +69,9 @@ RECTIFIER_MIN_FS = 500.0
 FORMAT_VERSION = 1
 FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
 FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
+#: An extra input (EMG) whose RMS differs from its level at identification by more than this
+#: factor is in another unit (mV for V: 1000): predict warns (UnitWarning).
+SIGNAL_LEVEL_FACTOR = 30.0
 
 
 @dataclass
@@ -323,6 +326,8 @@ class LPVPCModel:
 
             parts = predict_effects(self, position, scheduling, extra_signals, causal=causal, velocity=velocity,
                                     acceleration=acceleration, z=z)
+            if warn:
+                self._warn_if_signal_levels(extra_signals)
             for pathway, tq in parts.values():
                 if pathway == "reflex":
                     tq_r = tq_r + tq
@@ -330,6 +335,26 @@ class LPVPCModel:
                     tq_i = tq_i + tq
         return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside,
                           effects={k: v[1] for k, v in parts.items()})
+
+    def _warn_if_signal_levels(self, signals) -> None:
+        """UnitWarning when an extra input (EMG) is far from its level at identification
+        (``provenance["signal_levels"]``, RMS in the files' unit): the effect terms scale with it."""
+        from .errors import UnitWarning
+
+        levels = self.provenance.get("signal_levels") or {}
+        off = []
+        for name, level in levels.items():
+            x = (signals or {}).get(name)
+            if x is None or not level > 0 or len(x) == 0:
+                continue
+            rms = float(np.sqrt(np.mean(np.square(np.asarray(x, dtype=float)))))
+            ratio = rms / level
+            if not (1 / SIGNAL_LEVEL_FACTOR <= ratio <= SIGNAL_LEVEL_FACTOR):
+                off.append(f"'{name}' {ratio:.3g} times as large (RMS {rms:.3g}, at identification {level:.3g})")
+        if off:
+            warnings.warn(f"extra inputs far from their level at identification: {', '.join(off)}: another unit "
+                          f"(EMG in mV for V is 1000 times)? The effect terms scale with them, the prediction is "
+                          f"meaningless: give them in the unit of the identification data", UnitWarning, stacklevel=3)
 
     def _unpack_data(self, data, signals):
         if not (hasattr(data, "position") and hasattr(data, "scheduling")):

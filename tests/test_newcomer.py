@@ -1,0 +1,144 @@
+"""The mistakes a newcomer makes in the first hour (issue 25), each caught with the likely
+cause and the fix in the interface's own syntax: command-line options on the command line,
+keywords in Python. Where the input is refused, no model file is written.
+
+The files are the virtual subject's trials written as CSV, changed the way a user's
+files go wrong (degrees, a time column in ms, PT and UT swapped, EMG in mV).
+"""
+
+import csv
+import warnings
+
+import numpy as np
+import pytest
+
+from lpvpc.cli import main
+from lpvpc.data import load_identification_data, write_trial_csv
+from lpvpc.errors import DataError, OutOfRangeWarning, UnitWarning
+from lpvpc.simulate import simulate_pair
+
+DURATION = 30.0  # s: enough to identify, quick
+
+
+def _cli(argv, capsys):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def _error_line(err) -> str:
+    lines = [ln for ln in err.strip().splitlines() if ln.startswith("lpvpc: error: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def _rewrite(src, dst, column, f):
+    """Copy a CSV with one column changed by ``f``."""
+    with open(src, newline="") as fh:
+        rows = list(csv.reader(fh))
+    i = rows[0].index(column)
+    for r in rows[1:]:
+        r[i] = repr(float(f(float(r[i]))))
+    with open(dst, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    return dst
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("newcomer")
+    sim = simulate_pair("multilevel", seed=3, duration=DURATION)
+    pt, ut = d / "PT.csv", d / "UT.csv"
+    write_trial_csv(sim.pt, pt)
+    write_trial_csv(sim.ut, ut)
+    out = {"dir": d, "pt": pt, "ut": ut}
+    for key, column, f in (("deg", "position", np.degrees), ("ms", "time", lambda t: 1000.0 * t)):
+        out[f"pt_{key}"] = _rewrite(pt, d / f"PT_{key}.csv", column, f)
+        out[f"ut_{key}"] = _rewrite(ut, d / f"UT_{key}.csv", column, f)
+    return out
+
+
+def test_swapped_pt_and_ut_are_refused_naming_the_swap(files, capsys):
+    model = files["dir"] / "swapped.json"
+    status, _, err = _cli(["identify", "--pt", files["ut"], "--ut", files["pt"], "-o", model], capsys)
+    line = _error_line(err)
+    assert status == 2 and "PT and UT look swapped" in line and "swap the --pt and --ut files" in line
+    assert not model.exists()
+    with pytest.raises(DataError, match="swap the pt and ut arguments"):
+        load_identification_data(pt=files["ut"], ut=files["pt"])
+    assert load_identification_data(pt=files["pt"], ut=files["ut"]).n == DURATION * 100  # the right way round
+
+
+def test_positions_in_degrees_are_refused_with_the_unit_option(files, capsys):
+    model = files["dir"] / "deg.json"
+    status, _, err = _cli(["identify", "--pt", files["pt_deg"], "--ut", files["ut_deg"], "-o", model], capsys)
+    line = _error_line(err)
+    assert status == 2 and "look like degrees" in line and "--position-unit deg" in line
+    assert "position_unit" not in line  # the CLI speaks in options
+    assert not model.exists()
+    with pytest.raises(DataError, match="position_unit='deg'"):
+        load_identification_data(pt=files["pt_deg"], ut=files["ut_deg"])
+    status, _, _ = _cli(["identify", "--pt", files["pt_deg"], "--ut", files["ut_deg"], "-o", model,
+                         "--position-unit", "deg"], capsys)
+    assert status == 0 and model.exists()
+
+
+def test_time_in_milliseconds_is_refused_with_the_time_unit_option(files, capsys):
+    model = files["dir"] / "ms.json"
+    for extra in ([], ["--fs", "0"]):  # decimated to 100 Hz, or kept at the file's rate
+        status, _, err = _cli(["identify", "--pt", files["pt_ms"], "--ut", files["ut_ms"], "-o", model, *extra],
+                              capsys)
+        line = _error_line(err)
+        assert status == 2 and "looks like milliseconds" in line and "--time-unit ms" in line, line
+        assert "target_fs" not in line
+        assert not model.exists()
+    with pytest.raises(DataError, match="time_unit='ms'"):
+        load_identification_data(pt=files["pt_ms"], ut=files["ut_ms"])
+    status, out, _ = _cli(["identify", "--pt", files["pt_ms"], "--ut", files["ut_ms"], "-o", model,
+                           "--time-unit", "ms"], capsys)
+    assert status == 0 and model.exists() and "decimated from 1000 Hz" in out
+    ms = load_identification_data(pt=files["pt_ms"], ut=files["ut_ms"], time_unit="ms")
+    assert ms.data_hash == load_identification_data(pt=files["pt"], ut=files["ut"]).data_hash
+
+
+def test_forgotten_ut_names_stationary_and_a_trial_as_data_names_what_is_missing(files, capsys):
+    model = files["dir"] / "missing.json"
+    status, _, err = _cli(["identify", "--pt", files["pt"], "-o", model], capsys)
+    line = _error_line(err)
+    assert status == 2 and "missing --ut" in line and "--stationary" in line
+    status, _, err = _cli(["identify", files["pt"], "-o", model], capsys)
+    line = _error_line(err)
+    assert status == 2 and "looks like one trial" in line
+    assert "--pt PT" in line and "--ut UT" in line and "--stationary" in line
+    assert not model.exists()
+
+
+def test_emg_in_millivolts_for_a_model_fitted_in_volts_warns(tmp_path, capsys):
+    """A model with an activation effect, fed EMG 1000 times the level it was fitted on."""
+    volts = simulate_pair("multilevel", seed=4, duration=40.0, effects=("background_activation",))
+    millivolts = simulate_pair("multilevel", seed=4, duration=40.0, effects=("background_activation",),
+                               emg_unit="mV")
+    paths = {}
+    for label, sim in (("V", volts), ("mV", millivolts)):
+        paths[label] = (tmp_path / f"PT_{label}.csv", tmp_path / f"UT_{label}.csv")
+        write_trial_csv(sim.pt, paths[label][0])
+        write_trial_csv(sim.ut, paths[label][1])
+    model = tmp_path / "activation.json"
+    assert _cli(["identify", "--pt", paths["V"][0], "--ut", paths["V"][1], "--effect", "background_activation",
+                 "-o", model], capsys)[0] == 0
+    status, _, err = _cli(["predict", model, "--pt", paths["V"][0], "--ut", paths["V"][1]], capsys)
+    assert status == 0 and "times as large" not in err  # the unit it was fitted on: no warning
+    status, _, err = _cli(["predict", model, "--pt", paths["mV"][0], "--ut", paths["mV"][1]], capsys)
+    warning = [ln for ln in err.splitlines() if "times as large" in ln]
+    assert status == 0 and len(warning) == 1 and warning[0].startswith("lpvpc: warning: ")
+    assert "EMG in mV for V" in warning[0] and "unit of the identification data" in warning[0]
+    assert "1e+03 times" in warning[0]  # the activation, 1000 times
+
+    from lpvpc.model import LPVPCModel
+
+    fitted = LPVPCModel.load(model)
+    data = load_identification_data(pt=paths["mV"][0], ut=paths["mV"][1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        with pytest.warns(UnitWarning, match="far from their level at identification"):
+            fitted.predict(data)
