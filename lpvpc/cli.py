@@ -49,6 +49,7 @@ from pathlib import Path
 from . import __version__
 from .errors import LpvpcError, LpvpcWarning
 from .outputs import atomic_path, check_outputs, staged_folder, write_text
+from .progress import report as progress
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -238,7 +239,12 @@ def cmd_identify(args) -> int:
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
     t0 = time.perf_counter()
-    est = LPVPCEstimator(**settings).fit(data)
+    est = LPVPCEstimator(**settings)
+    # most fits take a second or two: a line only when this one takes longer
+    with _progress_after(IDENTIFY_QUIET_S, f"identify: fitting {data.n} samples at {data.fs:g} Hz"
+                         + (f" (reflex state order chosen among {est.min_state_order}..{est.max_state_order})"
+                            if est.state_order is None else "") + " ..."):
+        est.fit(data)
     elapsed = time.perf_counter() - t0
     model = est.model_
     for key in ("position_unit", "torque_sign"):  # the file conventions, for predict to reuse
@@ -270,6 +276,27 @@ def cmd_identify(args) -> int:
     print(f"time:        {elapsed:.2f} s")
     print(f"model:       {args.output} (hash {model.model_hash[:12]})")
     return 0
+
+
+#: s: identify shows its progress line only when the fit has not finished by then
+IDENTIFY_QUIET_S = 3.0
+
+
+class _progress_after:
+    """Report ``message`` as progress if the block is still running after ``seconds``."""
+
+    def __init__(self, seconds, message):
+        import threading
+
+        self.timer = threading.Timer(seconds, progress, (message,))
+        self.timer.daemon = True
+
+    def __enter__(self):
+        self.timer.start()
+
+    def __exit__(self, *exc):
+        self.timer.cancel()
+        return False
 
 
 def _physical_summary(model) -> list:
@@ -501,6 +528,8 @@ def cmd_diagnose(args) -> int:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
     model = LPVPCModel.load(args.model)
     data = _load_for_model(args, model)
+    progress(f"diagnose: fitting and scoring every candidate of the catalog by cross-validation on {data.n} "
+             f"samples (about 10-30 s)")
     diag = diagnose(model, data)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
     print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
@@ -522,6 +551,7 @@ def cmd_diagnose(args) -> int:
             diag.save(tmp)
         print(f"diagnosis: {args.json}")
     if args.report:
+        progress("diagnose: writing the report")
         with staged_folder(args.report) as stage:
             page = write_report(diag, data, stage)
         print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
@@ -574,6 +604,7 @@ def cmd_improve(args) -> int:
     if args.json:
         write_text(args.json, json.dumps(ladder.to_dict(), indent=1) + "\n")
         print(f"ladder:    {args.json}")
+    progress("improve: writing the report")
     with staged_folder(args.report) as stage:
         page = write_report(ladder, held, stage)
     print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
@@ -641,6 +672,12 @@ def _add_convention_args(p, from_model: bool):
                        help="multiplies the files' torque into the package's convention (default 1)")
 
 
+def _add_quiet_arg(p):
+    # SUPPRESS: a subcommand's default must not override ``lpvpc -q COMMAND``
+    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="no progress lines on stderr")
+
+
 def _add_time_unit_arg(p, default):
     p.add_argument("--time-unit", choices=("s", "ms"), default=default,
                    help="unit of the files' time column (default s" + ("" if default else
@@ -677,6 +714,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "from a perturbed (PT) and an unperturbed (UT) trial; predict, and export them.",
         epilog="Units: time s, position rad, torque N m. Exit status 2 for bad input.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines on stderr (validate, improve, diagnose, identify)")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="print notes on stderr (e.g. CSV columns that were ignored)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -738,6 +777,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predict torque with a saved model and report the VAF",
@@ -808,6 +848,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--whole-joint", metavar="WHOLE.json",
                    help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
     _add_convention_args(p, from_model=True)
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("whole-joint", help="joint angle in, total torque out: fit the quasi-static curve, export",
@@ -842,6 +883,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")
     _add_convention_args(p, from_model=True)
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("improve", help="fit, diagnose, add the top significant effect, refit, until none is left",
@@ -864,6 +906,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
     _add_time_unit_arg(p, default="s")
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_improve)
     return parser
 
@@ -937,9 +980,43 @@ def _show_notes() -> None:
     logger.setLevel(logging.INFO)
 
 
+class _ProgressLines:
+    """The library's progress (:mod:`lpvpc.progress`) as lines ``lpvpc: [  3.1 s] ...`` on
+    stderr while a command runs (seconds since it started)."""
+
+    def __enter__(self):
+        import logging
+
+        start = time.perf_counter()
+
+        class Elapsed(logging.Formatter):
+            def format(self, record):
+                return f"{PROG}: [{time.perf_counter() - start:5.1f} s] {record.getMessage()}"
+
+        self.logger = logging.getLogger(f"{__package__}.progress")
+        self.level = self.logger.level
+        self.handler = logging.StreamHandler(sys.stderr)
+        self.handler.setFormatter(Elapsed())
+        self.logger.addHandler(self.handler)
+        self.logger.setLevel(logging.INFO)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self.level)
+        return False
+
+
 def _run(args) -> int:
     if getattr(args, "verbose", False):
         _show_notes()
+    if not getattr(args, "quiet", False):
+        with _ProgressLines():
+            return _run_command(args)
+    return _run_command(args)
+
+
+def _run_command(args) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("always", LpvpcWarning)
         warnings.showwarning = _show_warning(warnings.showwarning)

@@ -25,6 +25,7 @@ from .diagnose import Diagnosis, diagnose, format_table
 from .effects import CATALOG, signals_from_data
 from .identify import LPVPCEstimator
 from .model import vaf
+from .progress import report
 
 MAX_STEPS = 6
 NO_GAIN = 0.02  # pp: a refit that gains less than this on held-out data is not kept
@@ -125,6 +126,7 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
 
     def rung(index, label, change, st, eff):
         t0 = time.perf_counter()
+        report(f"improve: step {index} ({label}): fitting")
         model = LPVPCEstimator(**st, effects=eff).fit(ident).model_
         t_fit = time.perf_counter() - t0
         v, rmse, r = _evaluate(model, heldout)
@@ -132,6 +134,8 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
 
     def diagnose_rung(r):
         t0 = time.perf_counter()
+        report(f"improve: step {r.index} ({r.label}): diagnosing on the held-out record (every candidate, "
+               f"cross-validated)")
         r.diagnosis = diagnose(r.model, heldout, **diagnose_kw)
         r.diagnosis_time = time.perf_counter() - t0
 

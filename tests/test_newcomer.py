@@ -142,3 +142,52 @@ def test_emg_in_millivolts_for_a_model_fitted_in_volts_warns(tmp_path, capsys):
         warnings.simplefilter("ignore", OutOfRangeWarning)
         with pytest.warns(UnitWarning, match="far from their level at identification"):
             fitted.predict(data)
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def test_validate_prints_its_first_progress_line_within_5_s(files, capsys):
+    """``lpvpc validate`` (15-30 s) says what it does from the start: its stderr read line by
+    line as the process runs."""
+    import os
+    import queue
+    import subprocess
+    import sys
+    import threading
+    import time
+    from pathlib import Path
+
+    model = files["dir"] / "progress.json"
+    assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)[0] == 0
+    repo = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(repo) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "lpvpc.cli", "validate", str(model), "--pt", str(files["pt"]),
+                             "--ut", str(files["ut"]), "--report", str(files["dir"] / "report")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    lines = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put((time.monotonic() - t0, ln)) for ln in proc.stderr],
+                              daemon=True)
+    reader.start()
+    try:
+        at, first = lines.get(timeout=30)
+    finally:
+        proc.terminate()  # the rest of the run is not this test's concern
+        proc.wait(timeout=60)
+    reader.join(timeout=10)
+    assert first.startswith("lpvpc: [") and "validate:" in first, first
+    assert at < 5.0, f"first progress line after {at:.1f} s"
+
+
+def test_quiet_silences_the_progress_lines(files, capsys, monkeypatch):
+    import lpvpc.cli
+
+    monkeypatch.setattr(lpvpc.cli, "IDENTIFY_QUIET_S", 0.0)  # identify's line at once, as in a slow fit
+    model = files["dir"] / "quiet.json"
+    status, _, err = _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)
+    assert status == 0 and "] identify: fitting 3000 samples at 100 Hz" in err, err
+    for argv in (["-q", "identify"], ["identify", "-q"], ["--quiet", "identify"]):
+        status, out, err = _cli([*argv, "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)
+        assert status == 0 and "VAF:" in out and "lpvpc: [" not in err, err

@@ -36,6 +36,7 @@ from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
 from lpvpc.outputs import staged_folder
+from lpvpc.progress import report as progress
 
 from . import compare as cmp
 from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
@@ -347,6 +348,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_act is not None:
         check_actuator_fmu(given_act, model, actuator_parameters)
     timing["load_and_check"] = time.perf_counter() - t0
+    progress(f"validate: model and held-out record checked ({meas.n} samples at {meas.fs:g} Hz)")
 
     # -- FMUs ---------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -355,6 +357,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_fmu is None:
         from lpvpc.export import export_fmu
 
+        progress(f"validate: exporting the {fmu_variant} model FMU (FMI {fmi_version}, C compiler)")
         model_fmu = inspect_fmu(export_fmu(model, fmu_dir / f"model_{fmu_variant}_fmi{fmi_version}.fmu",
                                            fmi_version=fmi_version, variant=fmu_variant), "model FMU")
         check_model_fmu(model_fmu, model)
@@ -363,6 +366,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_act is None:
         from lpvpc.actuator import build_actuator_fmu
 
+        progress("validate: building the actuator FMU")
         act_fmu = inspect_fmu(build_actuator_fmu(fmu_dir / f"actuator_fmi{model_fmu.fmi_version}.fmu",
                                                  fmi_version=model_fmu.fmi_version), "actuator FMU")
     else:
@@ -372,6 +376,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     # -- offline routes -----------------------------------------------------------------
     t0 = time.perf_counter()
+    progress(f"validate: predicting {meas.n} samples offline, through CasADi and the model FMU")
     off = offline_routes(model, meas.position, meas.scheduling, signals)
     cas = casadi_routes(model, meas.position, meas.scheduling, signals)
     timing["offline_and_casadi"] = time.perf_counter() - t0
@@ -380,6 +385,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     # -- co-simulation ------------------------------------------------------------------
     t0 = time.perf_counter()
+    progress("validate: " + ("calibrating the actuator, " if calibrate else "") + "co-simulating the model FMU "
+             "with the actuator FMUs")
     drive, params, calibration = actuator_drive(record, act_fmu, ratio, meas.n, actuator_parameters, calibrate,
                                                 band_limit_to=model.fs if band_limit_command else None)
     timing["calibration"] = calibration.get("seconds", 0.0)
@@ -582,6 +589,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         from .whole_joint import evaluate_whole_joint
 
         t0 = time.perf_counter()
+        progress("validate: the whole-joint model")
         wj = whole_joint if isinstance(whole_joint, WholeJointModel) else WholeJointModel.load(whole_joint)
         metrics["whole_joint"], wj_traces = evaluate_whole_joint(wj, record, fmu_dir, model_fmu.fmi_version)
         timing["whole_joint"] = time.perf_counter() - t0
@@ -590,6 +598,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         # the same set-up for other co-simulation tools (SSP 1.0, FMUs included)
         from .ssp import instance_parameters, write_ssp
 
+        progress("validate: writing the co-simulation set-up (SSP)")
         ssp_path = write_ssp(report_dir / SSP_FILE, model_fmu, act_fmu, stop_time=meas.n * cos.step_model,
                              communication_step=cos.step_model, settings=settings,
                              parameters=instance_parameters(params, drive.command_ut[0], drive.command_pt[0]),
@@ -609,6 +618,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         from .report import write_report as _write
 
         t0 = time.perf_counter()
+        progress("validate: writing the report and its figures")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
             result.files = _write(result, model=model, record=record, predictions={
