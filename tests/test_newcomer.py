@@ -191,3 +191,57 @@ def test_quiet_silences_the_progress_lines(files, capsys, monkeypatch):
     for argv in (["-q", "identify"], ["identify", "-q"], ["--quiet", "identify"]):
         status, out, err = _cli([*argv, "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)
         assert status == 0 and "VAF:" in out and "lpvpc: [" not in err, err
+
+
+# --------------------------------------------------------------------------- reports
+
+
+def _report_text(html: str) -> str:
+    """The report's words (tags and embedded images removed)."""
+    import re
+
+    return re.sub(r"<[^>]+>", " ", re.sub(r'src="data:[^"]*"', "", html))
+
+
+def test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths(tmp_path):
+    from lpvpc.data import pair_trials
+    from lpvpc.improve import improve, physiology, write_report
+
+    ident, novel = (pair_trials(p.pt, p.ut) for p in (
+        simulate_pair(kind, seed=s, duration=60.0, effects=("nonlinear_viscosity",))
+        for kind, s in (("multilevel", 5), ("novel", 6))))
+    ladder = improve(ident, novel, max_steps=1)
+    assert len(ladder.rungs) >= 2, ladder
+    page = write_report(ladder, novel, tmp_path / "imp").read_text()
+    text = _report_text(page)
+    for r in ladder.rungs:  # each model's K and reflex gain, as the model computes them
+        rho = np.round(np.linspace(*ladder.rungs[0].model.scheduling_range, 11)[[1, 3, 5, 7, 9]], 2)
+        k = physiology(r.model, rho)["K"]
+        assert f"{k[2]:.1f}" in text
+    assert "Elastic stiffness K (N m/rad) by position" in text and "Reflex gain (N m s/rad) by position" in text
+    assert "Step 0 -&gt; step 1: K" in page  # before and after the step
+    md = (tmp_path / "imp" / "improve.md").read_text()
+    assert "Step 0 -> step 1: K" in md and "| step | model |" in md
+    for where in (page, md):
+        assert "benchmarks/" not in where and "README" not in where and "/work/" not in where
+
+
+def test_validation_report_of_a_model_with_effects_says_why_it_has_no_intervals(files, tmp_path, capsys):
+    from lpvpc.model import LPVPCModel
+    from lpvpc.validation import validate
+
+    model = tmp_path / "effect.json"
+    assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "--effect", "nonlinear_viscosity",
+                 "-o", model], capsys)[0] == 0
+    assert not LPVPCModel.load(model).has_intervals
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        result = validate(model, files["pt"], files["ut"], tmp_path / "report")
+    page = (tmp_path / "report" / "report.html").read_text()
+    text = _report_text(page)
+    assert "older lpvpc" not in text and "re-identify to get them" not in text
+    assert "No confidence intervals: lpvpc computes them for models without effects only" in text
+    assert "nonlinear_viscosity" in text
+    assert "its confidence band" not in text and "with confidence bands" not in text  # Fig. 4 and 5A draw none
+    assert "benchmarks/" not in page and "README" not in page
+    assert result.metrics["vaf"] > 80
