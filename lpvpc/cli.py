@@ -402,13 +402,47 @@ def cmd_export(args) -> int:
         t0 = time.perf_counter()
         path = export.export_casadi(model, args.casadi, variant=variant)
         print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
+        import casadi
+
+        from .effects import SIGNALS
+
+        units = {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
+                 "state": "the previous step's next_state", **{k: u for k, (u, _) in SIGNALS.items()}}
+        step = casadi.Function.load(str(path or args.casadi))
+        print(f"  inputs:  {', '.join(f'{n} ({units.get(n, chr(45))})' for n in step.name_in())}")
+        print(f"  outputs: {', '.join(f'{n} (N m)' if n.startswith('torque') else n for n in step.name_out())}")
     if args.fmu:
         t0 = time.perf_counter()
         path = export.export_fmu(model, args.fmu, fmi_version=args.fmi, variant=variant, fmi_type=args.fmi_type)
         kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange, a time event per sample"
         print(f"FMU (FMI {args.fmi}.0 {kind}, {variant}): {path or args.fmu}  "
               f"[{time.perf_counter() - t0:.2f} s]")
+        for line in _fmu_interface(path or args.fmu, model):
+            print(line)
+    if args.casadi or args.fmu:
+        lat = export.latency_samples(model, variant)
+        lo, hi = model.scheduling_range
+        print(f"latency:     {lat} sample{'s' if lat != 1 else ''} ({lat / model.fs:g} s at {model.fs:g} Hz) for the "
+              f"{variant} variant; scheduling outside [{lo:+.3f}, {hi:+.3f}] rad is clamped to that range")
     return 0
+
+
+def _fmu_interface(path, model) -> list:
+    """Lines naming the FMU's inputs and outputs with their units, as its modelDescription
+    declares them; an extra input (EMG) with its level at identification (the same unit)."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path))
+    levels = model.provenance.get("signal_levels") or {}
+
+    def one(v):
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
+        level = (f"; RMS {levels[v.name]:.3g} at identification: give it in that unit" if v.name in levels else "")
+        return f"{v.name} ({unit}{level})"
+
+    by = {c: [one(v) for v in md.modelVariables if v.causality == c and v.name not in ("latency", "sample_period")]
+          for c in ("input", "output")}
+    return [f"  inputs:  {', '.join(by['input'])}", f"  outputs: {', '.join(by['output'])}"]
 
 
 def cmd_whole_joint(args) -> int:
@@ -730,7 +764,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_positive_float, default=1000.0, metavar="HZ",
                    help="output sampling rate, 1000 or 100 Hz (default 1000)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
-                   help="switch on a physical effect the LPV-PC model lacks (repeatable)")
+                   help="switch on a physical effect the LPV-PC model lacks (repeatable): " + _simulated_effects())
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
     p.add_argument("--perturbation", default="pralds", metavar="NAME",
@@ -802,11 +836,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
     p.add_argument("--variant", choices=("sampled", "causal", "exact"), default="sampled",
-                   help="sampled (default): inputs position and scheduling only, derivatives inside, latency 1 "
-                        "sample, the same timing in every co-simulation master (README: timing contract); "
+                   help="sampled (default): inputs position and scheduling only, velocity and acceleration by "
+                        "central differences inside, so a latency of half the difference stencil: 2 samples for "
+                        "models identified by this version (5 points), 1 for older files (3 points); the same timing "
+                        "in every co-simulation master (the FMU's description states its timing contract); "
                         "causal: also velocity and acceleration inputs, no latency when the master sets inputs "
                         "before reading outputs (closed loop with an actuator that supplies them); exact: the "
-                        "two-sided IRF, latency L samples")
+                        "two-sided IRF, latency L samples (its lags -L..L). export prints the model's latency")
     p.add_argument("--exact", action="store_true", help="same as --variant exact")
     p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
                    help="cs: co-simulation (default); me: Model Exchange, sampled with a time event every 1/fs "
@@ -901,7 +937,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
-                   help="effects the starting model already has (repeatable)")
+                   help="effects the starting model already has (repeatable): " + ", ".join(_effect_names()))
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
@@ -915,6 +951,16 @@ def _effect_names():
     from .effects import CATALOG
 
     return list(CATALOG)
+
+
+def _simulated_effects() -> str:
+    """The simulator's effects: those of the catalog (identify --effect), then the others."""
+    from .effects import CATALOG
+    from .simulate import EFFECTS
+
+    outside = [e for e in EFFECTS if e not in CATALOG]
+    return (", ".join(e for e in CATALOG if e in EFFECTS)
+            + (f"; outside the catalog (no model term names them): {', '.join(outside)}" if outside else ""))
 
 
 # --------------------------------------------------------------------------- main

@@ -245,3 +245,45 @@ def test_validation_report_of_a_model_with_effects_says_why_it_has_no_intervals(
     assert "its confidence band" not in text and "with confidence bands" not in text  # Fig. 4 and 5A draw none
     assert "benchmarks/" not in page and "README" not in page
     assert result.metrics["vaf"] > 80
+
+
+# --------------------------------------------------------------------------- export and help
+
+
+def test_export_prints_the_fmus_interface_and_the_models_latency(files, tmp_path, capsys):
+    from fmpy import read_model_description
+
+    from lpvpc.export import latency_samples
+    from lpvpc.model import LPVPCModel
+
+    model = tmp_path / "m.json"
+    assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)[0] == 0
+    fitted = LPVPCModel.load(model)
+    for variant in ("sampled", "exact"):
+        fmu = tmp_path / f"{variant}.fmu"
+        status, out, _ = _cli(["export", model, "--fmu", fmu, "--variant", variant], capsys)
+        assert status == 0
+        md = read_model_description(str(fmu))
+        inputs = [v for v in md.modelVariables if v.causality == "input"]
+        line = next(ln for ln in out.splitlines() if ln.strip().startswith("inputs:"))
+        assert all(f"{v.name} ({v.unit})" in line for v in inputs) and len(inputs) == 2  # position, scheduling
+        assert "torque (N.m)" in out
+        lat = latency_samples(fitted, variant)
+        assert f"latency:     {lat} sample" in out
+    assert latency_samples(fitted, "sampled") == 2  # this version's 5-point stencil, as export --help says
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    assert "2 samples for models identified by this version" in " ".join(capsys.readouterr().out.split())
+
+
+def test_simulate_and_identify_help_list_the_effect_catalog(capsys):
+    from lpvpc.effects import CATALOG
+    from lpvpc.simulate import EFFECTS
+
+    for command in ("simulate", "identify", "improve"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = "".join(capsys.readouterr().out.split())  # argparse wraps names at hyphens
+        assert all(name in text for name in CATALOG), command
+        if command == "simulate":  # and the simulator's other effects, said to be outside the catalog
+            assert all(name in text for name in EFFECTS) and "outsidethecatalog" in text
