@@ -56,8 +56,9 @@ MS_MAX_RATE = 50.0
 MS_MIN_RATE = 50.0
 # PT and UT given the wrong way round: the perturbation is then in the "UT" trial. The power
 # of each position about its SWAP_WINDOW-s moving average (what is faster than the slow
-# movement) tells: correct pairs of the virtual subject, UT/PT 0.001-0.07 (both designs, 1 kHz
-# and 100 Hz files); swapped, 15 or more. Refused above SWAP_RATIO.
+# movement) tells: correct pairs of the virtual subject, UT/PT 0.0005-0.14 (24 pairs: seeds 0-5,
+# both trajectories, both perturbation designs, 60 s at 1 kHz; 100 Hz files alike); swapped,
+# the inverse, 7 or more. Refused above SWAP_RATIO.
 SWAP_WINDOW = 0.1
 SWAP_RATIO = 2.0
 # Below this variance (rad^2) of the PT-UT position there is no perturbation to identify from.
