@@ -454,6 +454,7 @@ def cmd_whole_joint(args) -> int:
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+                    time_unit=args.time_unit or conv.get("time_unit", "s"),
                     torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
     try:
         wj = W.fit_whole_joint(model, ut, cutoff=args.cutoff, order=args.order)
@@ -502,7 +503,8 @@ def cmd_validate(args) -> int:
                       calibrate=not args.no_calibrate, settings=settings, min_vaf=args.min_vaf,
                       band_limit_command=args.band_limit_command, fmu_variant=args.fmu_variant,
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
-                      torque_sign=args.torque_sign, command_line=" ".join([PROG, *sys.argv[1:]]),
+                      torque_sign=args.torque_sign, time_unit=args.time_unit,
+                      command_line=" ".join([PROG, *sys.argv[1:]]),
                       whole_joint=args.whole_joint)
     m = result.metrics
     ag = m["route_agreement"]
@@ -755,6 +757,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("simulate", help="write a virtual-subject data set with its truth",
+                       formatter_class=_SimulateHelp,
                        description="Simulate the virtual subject: identification and novel PT/UT trials, "
                                    "truth.json and truth_*.npz.")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -764,7 +767,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_positive_float, default=1000.0, metavar="HZ",
                    help="output sampling rate, 1000 or 100 Hz (default 1000)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
-                   help="switch on a physical effect the LPV-PC model lacks (repeatable): " + _simulated_effects())
+                   help="switch on a physical effect the LPV-PC model lacks (repeatable): {simulated_effects}")
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
     p.add_argument("--perturbation", default="pralds", metavar="NAME",
@@ -884,6 +887,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--whole-joint", metavar="WHOLE.json",
                    help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
     _add_convention_args(p, from_model=True)
+    _add_time_unit_arg(p, default=None)
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_validate)
 
@@ -905,6 +909,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cs: co-simulation (default); me: Model Exchange, a time event per sample")
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the whole-joint CasADi step function")
     _add_convention_args(p, from_model=True)
+    _add_time_unit_arg(p, default=None)
     p.set_defaults(func=cmd_whole_joint)
 
     p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
@@ -951,6 +956,15 @@ def _effect_names():
     from .effects import CATALOG
 
     return list(CATALOG)
+
+
+class _SimulateHelp(argparse.HelpFormatter):
+    """simulate --help: the simulator's effects listed when the help is shown (the simulator
+    imports scipy.signal; building the parser must not)."""
+
+    def _get_help_string(self, action):
+        text = super()._get_help_string(action)
+        return text.replace("{simulated_effects}", _simulated_effects()) if text else text
 
 
 def _simulated_effects() -> str:

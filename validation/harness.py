@@ -97,7 +97,7 @@ class ValidationResult:
 # --------------------------------------------------------------------------- inputs
 
 
-def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None) -> Record:
+def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given)
     and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
     is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
@@ -106,6 +106,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     conv = model.conventions or {}
     position_unit = position_unit or conv.get("position_unit", "rad")
     torque_sign = float(torque_sign if torque_sign is not None else conv.get("torque_sign", 1.0))
+    time_unit = time_unit or conv.get("time_unit", "s")
     files = {}
     trials = []
     for role, src in (("pt", pt), ("ut", ut)):
@@ -113,7 +114,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
         else:
-            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign))
+            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit))
             files[role] = {"path": str(src), "sha256": file_sha256(src)}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
@@ -300,7 +301,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
-             torque_sign=None, command_line=None, write_report: bool = True,
+             torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
              whole_joint=None) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
@@ -337,7 +338,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if not isinstance(model, LPVPCModel):
         model_path = Path(model)
         model = LPVPCModel.load(model_path)
-    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign)
+    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit)
     meas = record.measured
     signals = record_signals(model, meas)  # extended model: the record's extra channels, for every route
     given_fmu = None
