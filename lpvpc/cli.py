@@ -77,9 +77,12 @@ CLI_SYNTAX = (
     (r"\bpt=PT\b", "--pt PT"),
     (r"\but=UT\b", "--ut UT"),
     (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
-    (r"\b(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
+    # a keyword, not a field of a file ("conventions.torque_sign")
+    (r"(?<![.\w])(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
      r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter)\b(='?([\w.+-]+)'?)?",
      lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
+    # a message that gave both syntaxes: once
+    (r"\((--[^,()]+), \1\)", r"(\1)"),
 )
 
 
@@ -88,6 +91,8 @@ def cli_syntax(message) -> str:
 
     >>> cli_syntax("pass position_unit='deg' if it is in degrees; or target_fs=None")
     'pass --position-unit deg if it is in degrees; or --fs 0'
+    >>> cli_syntax("read it as stationary (stationary=True, --stationary); conventions.torque_sign must be 1")
+    'read it as stationary (--stationary); conventions.torque_sign must be 1'
     """
     import re
 

@@ -111,7 +111,7 @@ def physiology(model, rho) -> dict:
     return {"K": model.elastic_stiffness(rho), "reflex_gain": model.reflex_gain_threshold(rho)[0]}
 
 
-def ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
+def _ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
     """``n`` positions (rad) over the central 80 % of the base model's identified range."""
     lo, hi = ladder.rungs[0].model.scheduling_range
     return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
@@ -214,7 +214,7 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
              f"Identification on the identification record; VAF and RMSE on the held-out record "
              f"`{getattr(heldout, 'source', '')}`.", "", "```", ladder.table(), "```", "",
              f"Stopped: {ladder.stopped}.", "", "![ladder](ladder.png)", ""]
-    rho = ladder_positions(ladder)
+    rho = _ladder_positions(ladder)
     phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
     for key, what in (("K", "Elastic stiffness K (N m/rad)"), ("reflex_gain", "Reflex gain (N m s/rad)")):
         lines += [f"{what} of each model at positions (rad):", "", "| step | model | "
@@ -283,7 +283,7 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
              '<div class="wide">' + _table(["step", "model", "held-out VAF (%)", "RMSE (N m)", "identification VAF (%)",
                                             "next (top significant candidate)"], rows, left=(1, 5)) + "</div>",
              _html_img(folder / "ladder.png", "Held-out VAF and RMSE of each model on the ladder")]
-    rho = ladder_positions(ladder)
+    rho = _ladder_positions(ladder)
     phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
     parts.append("<p>What each step changes in the physiology the models report: elastic stiffness K and reflex gain "
                  "at five positions (rad; + = dorsiflexion) over the central 80 % of the base model's range.</p>")
