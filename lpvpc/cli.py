@@ -51,6 +51,7 @@ from pathlib import Path
 from . import __version__
 from .errors import LpvpcError, LpvpcWarning
 from .outputs import CommandIO, atomic_path, staged_folder, write_text
+from .progress import report as progress
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -67,8 +68,44 @@ def _one_line(text) -> str:
     return " ".join(str(text).split())
 
 
+#: The library names its fixes in Python (keywords); on the command line they read as the
+#: options that do the same. Pattern -> replacement, applied in order.
+CLI_SYNTAX = (
+    (r"channels=\{'(\w+)': COLUMN\}( \(--channel \w+=COLUMN\))?", r"--channel \1=COLUMN"),
+    (r"\btarget_fs=None\b", "--fs 0"),
+    (r"\btarget_fs=", "--fs "),
+    (r"\bstationary=True\b", "--stationary"),
+    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\bpt=PT\b", "--pt PT"),
+    (r"\but=UT\b", "--ut UT"),
+    (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
+    # a keyword, not a field of a file ("conventions.torque_sign")
+    (r"(?<![.\w])(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
+     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter)\b(='?([\w.+-]+)'?)?",
+     lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
+    # a message that gave both syntaxes: once
+    (r"\((--[^,()]+), \1\)", r"(\1)"),
+)
+
+
+def cli_syntax(message) -> str:
+    """A library message with its Python keywords as command-line options.
+
+    >>> cli_syntax("pass position_unit='deg' if it is in degrees; or target_fs=None")
+    'pass --position-unit deg if it is in degrees; or --fs 0'
+    >>> cli_syntax("read it as stationary (stationary=True, --stationary); conventions.torque_sign must be 1")
+    'read it as stationary (--stationary); conventions.torque_sign must be 1'
+    """
+    import re
+
+    text = str(message)
+    for pattern, replacement in CLI_SYNTAX:
+        text = re.sub(pattern, replacement, text)
+    return text
+
+
 def _err(message) -> None:
-    print(f"{PROG}: error: {_one_line(message)}", file=sys.stderr)
+    print(f"{PROG}: error: {_one_line(cli_syntax(message))}", file=sys.stderr)
 
 
 def _os_message(exc: OSError) -> str:
@@ -83,7 +120,7 @@ def _listed(value) -> list:
     return list(value) if isinstance(value, list) else [] if value is None else [value]
 
 
-def _load_data(args, *, target_fs, position_unit, torque_sign):
+def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None):
     """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
     loader); several files (identify) are joined as trials of one identification."""
     from .data import load_identification_data
@@ -102,8 +139,12 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
             raise _UsageError("missing --pt")
     elif not data:
         if not (pts and uts):
-            missing = "--ut" if pts else "--pt" if uts else "DATA or --pt and --ut"
-            raise _UsageError(f"missing {missing}")
+            if pts:
+                raise _UsageError("missing --ut: give the unperturbed trial with --ut UT, or --stationary if the PT "
+                                  "trial was recorded around one fixed position without a UT trial")
+            raise _UsageError("missing --pt: give the perturbed trial with --pt PT" if uts else
+                              "missing DATA or --pt and --ut: give the perturbed and the unperturbed trial as "
+                              "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
         if len(pts) != len(uts):
             raise _UsageError(f"{len(pts)} --pt but {len(uts)} --ut: give the trials in PT/UT pairs")
     try:
@@ -111,7 +152,8 @@ def _load_data(args, *, target_fs, position_unit, torque_sign):
     except ValueError as exc:
         raise _UsageError(f"--channel: {exc}") from None
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
-              variable=getattr(args, "variable", None), channels=channels or None)
+              variable=getattr(args, "variable", None), channels=channels or None,
+              time_unit=getattr(args, "time_unit", None) or time_unit or "s")
 
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
@@ -217,11 +259,18 @@ def cmd_identify(args) -> int:
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
     t0 = time.perf_counter()
-    est = LPVPCEstimator(**settings).fit(data)
+    est = LPVPCEstimator(**settings)
+    # most fits take a second or two: a line only when this one takes longer
+    with _progress_after(IDENTIFY_QUIET_S, f"identify: fitting {data.n} samples at {data.fs:g} Hz"
+                         + (f" (reflex state order chosen among {est.min_state_order}..{est.max_state_order})"
+                            if est.state_order is None else "") + " ..."):
+        est.fit(data)
     elapsed = time.perf_counter() - t0
     model = est.model_
     for key in ("position_unit", "torque_sign"):  # the file conventions, for predict to reuse
         model.conventions.setdefault(key, data.meta.get(key, getattr(args, key)))
+    if data.meta.get("time_unit", "s") != "s":
+        model.conventions.setdefault("time_unit", data.meta["time_unit"])
     model.save(args.output)
 
     fit = model.fit
@@ -247,6 +296,27 @@ def cmd_identify(args) -> int:
     print(f"time:        {elapsed:.2f} s")
     print(f"model:       {args.output} (hash {model.model_hash[:12]})")
     return 0
+
+
+#: s: identify shows its progress line only when the fit has not finished by then
+IDENTIFY_QUIET_S = 3.0
+
+
+class _progress_after:
+    """Report ``message`` as progress if the block is still running after ``seconds``."""
+
+    def __init__(self, seconds, message):
+        import threading
+
+        self.timer = threading.Timer(seconds, progress, (message,))
+        self.timer.daemon = True
+
+    def __enter__(self):
+        self.timer.start()
+
+    def __exit__(self, *exc):
+        self.timer.cancel()
+        return False
 
 
 def _physical_summary(model) -> list:
@@ -289,7 +359,8 @@ def cmd_predict(args) -> int:
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
-    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
+                      time_unit=conv.get("time_unit"))
     if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
                         source=data.source or None)
@@ -348,13 +419,47 @@ def cmd_export(args) -> int:
         t0 = time.perf_counter()
         path = export.export_casadi(model, args.casadi, variant=variant)
         print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
+        import casadi
+
+        from .effects import SIGNALS
+
+        units = {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
+                 "state": "the previous step's next_state", **{k: u for k, (u, _) in SIGNALS.items()}}
+        step = casadi.Function.load(str(path or args.casadi))
+        print(f"  inputs:  {', '.join(f'{n} ({units.get(n, chr(45))})' for n in step.name_in())}")
+        print(f"  outputs: {', '.join(f'{n} (N m)' if n.startswith('torque') else n for n in step.name_out())}")
     if args.fmu:
         t0 = time.perf_counter()
         path = export.export_fmu(model, args.fmu, fmi_version=args.fmi, variant=variant, fmi_type=args.fmi_type)
         kind = "co-simulation" if args.fmi_type == "cs" else "Model Exchange, a time event per sample"
         print(f"FMU (FMI {args.fmi}.0 {kind}, {variant}): {path or args.fmu}  "
               f"[{time.perf_counter() - t0:.2f} s]")
+        for line in _fmu_interface(path or args.fmu, model):
+            print(line)
+    if args.casadi or args.fmu:
+        lat = export.latency_samples(model, variant)
+        lo, hi = model.scheduling_range
+        print(f"latency:     {lat} sample{'s' if lat != 1 else ''} ({lat / model.fs:g} s at {model.fs:g} Hz) for the "
+              f"{variant} variant; scheduling outside [{lo:+.3f}, {hi:+.3f}] rad is clamped to that range")
     return 0
+
+
+def _fmu_interface(path, model) -> list:
+    """Lines naming the FMU's inputs and outputs with their units, as its modelDescription
+    declares them; an extra input (EMG) with its level at identification (the same unit)."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path))
+    levels = model.provenance.get("signal_levels") or {}
+
+    def one(v):
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
+        level = (f"; RMS {levels[v.name]:.3g} at identification: give it in that unit" if v.name in levels else "")
+        return f"{v.name} ({unit}{level})"
+
+    by = {c: [one(v) for v in md.modelVariables if v.causality == c and v.name not in ("latency", "sample_period")]
+          for c in ("input", "output")}
+    return [f"  inputs:  {', '.join(by['input'])}", f"  outputs: {', '.join(by['output'])}"]
 
 
 def cmd_whole_joint(args) -> int:
@@ -367,6 +472,7 @@ def cmd_whole_joint(args) -> int:
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+                    time_unit=args.time_unit or conv.get("time_unit", "s"),
                     torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
     try:
         wj = W.fit_whole_joint(model, ut, cutoff=args.cutoff, order=args.order)
@@ -440,7 +546,8 @@ def cmd_validate(args) -> int:
                       calibrate=not args.no_calibrate, settings=settings, min_vaf=args.min_vaf,
                       band_limit_command=args.band_limit_command, fmu_variant=args.fmu_variant,
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
-                      torque_sign=args.torque_sign, command_line=" ".join([PROG, *sys.argv[1:]]),
+                      torque_sign=args.torque_sign, time_unit=args.time_unit,
+                      command_line=" ".join([PROG, *sys.argv[1:]]),
                       whole_joint=args.whole_joint)
     m = result.metrics
     ag = m["route_agreement"]
@@ -484,7 +591,8 @@ def _load_for_model(args, model):
     conv = model.conventions or {}
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
-    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign)
+    data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
+                      time_unit=conv.get("time_unit"))
     return data
 
 
@@ -496,6 +604,8 @@ def cmd_diagnose(args) -> int:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
     model = LPVPCModel.load(args.model)
     data = _load_for_model(args, model)
+    progress(f"diagnose: fitting and scoring every candidate of the catalog by cross-validation on {data.n} "
+             f"samples (about 10-30 s)")
     diag = diagnose(model, data)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
     print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
@@ -517,6 +627,7 @@ def cmd_diagnose(args) -> int:
             diag.save(tmp)
         print(f"diagnosis: {args.json}")
     if args.report:
+        progress("diagnose: writing the report")
         with staged_folder(args.report) as stage:
             page = write_report(diag, data, stage)
         print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
@@ -529,7 +640,7 @@ def cmd_improve(args) -> int:
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
     check_report_folder(args.report, ("improve.md",), args.force)
-    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign)
+    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit)
     from .data import load_identification_data
 
     ident = load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw)
@@ -560,11 +671,14 @@ def cmd_improve(args) -> int:
         model = last.model
         model.conventions.setdefault("position_unit", args.position_unit)
         model.conventions.setdefault("torque_sign", args.torque_sign)
+        if args.time_unit != "s":
+            model.conventions.setdefault("time_unit", args.time_unit)
         model.save(args.output)
         print(f"model:     {args.output} (hash {model.model_hash[:12]})")
     if args.json:
         write_text(args.json, json.dumps(ladder.to_dict(), indent=1) + "\n")
         print(f"ladder:    {args.json}")
+    progress("improve: writing the report")
     with staged_folder(args.report) as stage:
         page = write_report(ladder, held, stage)
     print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
@@ -632,6 +746,18 @@ def _add_convention_args(p, from_model: bool):
                        help="multiplies the files' torque into the package's convention (default 1)")
 
 
+def _add_quiet_arg(p):
+    # SUPPRESS: a subcommand's default must not override ``lpvpc -q COMMAND``
+    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="no progress lines on stderr")
+
+
+def _add_time_unit_arg(p, default):
+    p.add_argument("--time-unit", choices=("s", "ms"), default=default,
+                   help="unit of the files' time column (default s" + ("" if default else
+                                                                        "; a saved model's as at identification") + ")")
+
+
 def _add_data_args(p, what, several: bool = False):
     """DATA | --pt/--ut | --pt --stationary, and the .mat choices; ``several``: repeatable
     (trials of one identification)."""
@@ -648,6 +774,7 @@ def _add_data_args(p, what, several: bool = False):
                         "without UT; the operating point is its mean position (and torque)")
     p.add_argument("--variable", metavar="NAME",
                    help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
+    _add_time_unit_arg(p, default=None)
     p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
                    help="channel of a .mat file or column of a CSV file for a role (position, torque, scheduling, "
                         "time, emg, command), e.g. --channel torque=tq1, --channel 'scheduling=sv.Ankle Position "
@@ -661,11 +788,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "from a perturbed (PT) and an unperturbed (UT) trial; predict, and export them.",
         epilog="Units: time s, position rad, torque N m. Exit status 2 for bad input.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines on stderr (validate, improve, diagnose, identify)")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="print notes on stderr (e.g. CSV columns that were ignored)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("simulate", help="write a virtual-subject data set with its truth",
+                       formatter_class=_SimulateHelp,
                        description="Simulate the virtual subject: identification and novel PT/UT trials, "
                                    "truth.json and truth_*.npz.")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -675,7 +805,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_positive_float, default=1000.0, metavar="HZ",
                    help="output sampling rate, 1000 or 100 Hz (default 1000)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
-                   help="switch on a physical effect the LPV-PC model lacks (repeatable)")
+                   help="switch on a physical effect the LPV-PC model lacks (repeatable): {simulated_effects}")
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
     p.add_argument("--perturbation", default="pralds", metavar="NAME",
@@ -722,6 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predict torque with a saved model and report the VAF",
@@ -746,11 +877,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
     p.add_argument("--variant", choices=("sampled", "causal", "exact"), default="sampled",
-                   help="sampled (default): inputs position and scheduling only, derivatives inside, latency 1 "
-                        "sample, the same timing in every co-simulation master (README: timing contract); "
+                   help="sampled (default): inputs position and scheduling only, velocity and acceleration by "
+                        "central differences inside, so a latency of half the difference stencil: 2 samples for "
+                        "models identified by this version (5 points), 1 for older files (3 points); the same timing "
+                        "in every co-simulation master (the FMU's description states its timing contract); "
                         "causal: also velocity and acceleration inputs, no latency when the master sets inputs "
                         "before reading outputs (closed loop with an actuator that supplies them); exact: the "
-                        "two-sided IRF, latency L samples")
+                        "two-sided IRF, latency L samples (its lags -L..L). export prints the model's latency")
     p.add_argument("--exact", action="store_true", help="same as --variant exact")
     p.add_argument("--fmi-type", choices=("cs", "me"), default="cs",
                    help="cs: co-simulation (default); me: Model Exchange, sampled with a time event every 1/fs "
@@ -792,6 +925,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--whole-joint", metavar="WHOLE.json",
                    help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
     _add_convention_args(p, from_model=True)
+    _add_time_unit_arg(p, default=None)
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("whole-joint", help="joint angle in, total torque out: fit the quasi-static curve, export",
@@ -817,6 +952,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pt", metavar="PT", help="with --closed-loop: fit it to the PT and UT trials (default: to the "
                                               "two-sided model's torque)")
     _add_convention_args(p, from_model=True)
+    _add_time_unit_arg(p, default=None)
     p.set_defaults(func=cmd_whole_joint)
 
     p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
@@ -831,6 +967,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")
     _add_convention_args(p, from_model=True)
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("improve", help="fit, diagnose, add the top significant effect, refit, until none is left",
@@ -848,10 +985,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
-                   help="effects the starting model already has (repeatable)")
+                   help="effects the starting model already has (repeatable): " + ", ".join(_effect_names()))
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
+    _add_time_unit_arg(p, default="s")
+    _add_quiet_arg(p)
     p.set_defaults(func=cmd_improve)
     return parser
 
@@ -862,13 +1001,32 @@ def _effect_names():
     return list(CATALOG)
 
 
+class _SimulateHelp(argparse.HelpFormatter):
+    """simulate --help: the simulator's effects listed when the help is shown (the simulator
+    imports scipy.signal; building the parser must not)."""
+
+    def _get_help_string(self, action):
+        text = super()._get_help_string(action)
+        return text.replace("{simulated_effects}", _simulated_effects()) if text else text
+
+
+def _simulated_effects() -> str:
+    """The simulator's effects: those of the catalog (identify --effect), then the others."""
+    from .effects import CATALOG
+    from .simulate import EFFECTS
+
+    outside = [e for e in EFFECTS if e not in CATALOG]
+    return (", ".join(e for e in CATALOG if e in EFFECTS)
+            + (f"; outside the catalog (no model term names them): {', '.join(outside)}" if outside else ""))
+
+
 # --------------------------------------------------------------------------- main
 
 
 def _show_warning(original):
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, LpvpcWarning):
-            print(f"{PROG}: warning: {_one_line(message)}", file=sys.stderr)
+            print(f"{PROG}: warning: {_one_line(cli_syntax(message))}", file=sys.stderr)
         else:
             original(message, category, filename, lineno, file, line)
 
@@ -925,9 +1083,43 @@ def _show_notes() -> None:
     logger.setLevel(logging.INFO)
 
 
+class _ProgressLines:
+    """The library's progress (:mod:`lpvpc.progress`) as lines ``lpvpc: [  3.1 s] ...`` on
+    stderr while a command runs (seconds since it started)."""
+
+    def __enter__(self):
+        import logging
+
+        start = time.perf_counter()
+
+        class Elapsed(logging.Formatter):
+            def format(self, record):
+                return f"{PROG}: [{time.perf_counter() - start:5.1f} s] {record.getMessage()}"
+
+        self.logger = logging.getLogger(f"{__package__}.progress")
+        self.level = self.logger.level
+        self.handler = logging.StreamHandler(sys.stderr)
+        self.handler.setFormatter(Elapsed())
+        self.logger.addHandler(self.handler)
+        self.logger.setLevel(logging.INFO)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self.level)
+        return False
+
+
 def _run(args) -> int:
     if getattr(args, "verbose", False):
         _show_notes()
+    if not getattr(args, "quiet", False):
+        with _ProgressLines():
+            return _run_command(args)
+    return _run_command(args)
+
+
+def _run_command(args) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("always", LpvpcWarning)
         warnings.showwarning = _show_warning(warnings.showwarning)

@@ -50,6 +50,17 @@ RATE_TOLERANCE = 1e-4
 # trajectory: about 0.6 rad).
 STATIONARY_WINDOW = 2.0
 STATIONARY_MAX_SPAN = 0.1
+# A time column read in s whose rate is below MS_MAX_RATE Hz, but at least MS_MIN_RATE Hz
+# once read in ms, was written in milliseconds (1 kHz in ms reads as 1 Hz): refused with the fix.
+MS_MAX_RATE = 50.0
+MS_MIN_RATE = 50.0
+# PT and UT given the wrong way round: the perturbation is then in the "UT" trial. The power
+# of each position about its SWAP_WINDOW-s moving average (what is faster than the slow
+# movement) tells: correct pairs of the virtual subject, UT/PT 0.0005-0.14 (24 pairs: seeds 0-5,
+# both trajectories, both perturbation designs, 60 s at 1 kHz; 100 Hz files alike); swapped,
+# the inverse, 7 or more. Refused above SWAP_RATIO.
+SWAP_WINDOW = 0.1
+SWAP_RATIO = 2.0
 # Below this variance (rad^2) of the PT-UT position there is no perturbation to identify from.
 MIN_PERTURBATION_VARIANCE = 1e-12
 # scipy recommends decimating in stages when the factor exceeds 13.
@@ -77,6 +88,13 @@ class Trial:
         """Sampling rate in Hz, derived from the time vector."""
         return float((len(self.time) - 1) / (self.time[-1] - self.time[0]))
 
+    def __repr__(self):
+        n = len(self.time)
+        rate = f" at {self.fs:g} Hz ({float(self.time[-1] - self.time[0]):.1f} s)" if n > 1 and self.time[-1] != self.time[0] else ""
+        channels = f"; channels {', '.join(self.channels)}" if self.channels else ""
+        return (f"Trial({_short(self.name)!r}: {n} samples{rate}; position {_span(self.position)} rad, torque "
+                f"{_span(self.torque)} N m{channels})")
+
 
 def write_trial_csv(trial: Trial, path) -> None:
     """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``."""
@@ -89,6 +107,21 @@ def write_trial_csv(trial: Trial, path) -> None:
 
 
 # --------------------------------------------------------------------------- checks
+
+
+def _span(x) -> str:
+    """'lo..hi' of an array for a repr (an empty or non-finite one as such)."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        return "empty"
+    if not np.all(np.isfinite(x)):
+        return "with non-finite values"
+    return f"{float(x.min()):+.4g}..{float(x.max()):+.4g}"
+
+
+def _short(text, limit: int = 60) -> str:
+    text = str(text)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _plural(count: int, word: str) -> str:
@@ -419,8 +452,9 @@ def _check_settings(position_unit: str, torque_sign: float) -> float:
     return torque_sign
 
 
-def _warn_if_degrees(trial: Trial, source: str, channels=ANGLE_CHANNELS) -> None:
-    """Warn (UnitWarning) for each angle channel whose values look like degrees."""
+def _degree_channels(trial: Trial, channels=ANGLE_CHANNELS) -> list[tuple]:
+    """(channel, max |value|, range) of the angle channels (read as rad) that look like degrees."""
+    found = []
     for name in channels:
         x = trial.position if name == "position" else trial.channels.get(name)
         if x is None or len(x) == 0 or not np.all(np.isfinite(x)):
@@ -429,17 +463,75 @@ def _warn_if_degrees(trial: Trial, source: str, channels=ANGLE_CHANNELS) -> None
         span = float(np.ptp(x))
         # An ankle moves within about +-0.9 rad; 2*pi or a 3 rad range is not radians.
         if peak > 2 * np.pi or span > 3.0:
-            warnings.warn(
-                f"{source}: channel '{name}' looks like degrees (max |value| {peak:.4g}, range {span:.4g}) "
-                f"but position_unit='rad'; pass position_unit='deg' if it is in degrees",
-                UnitWarning,
-                stacklevel=4,
-            )
+            found.append((name, peak, span))
+    return found
 
 
-def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str) -> Trial:
-    """Convert angle channels to rad and apply the torque sign; warn about likely degrees."""
+def _warn_if_degrees(trial: Trial, source: str, channels=ANGLE_CHANNELS) -> None:
+    """Warn (UnitWarning) for each angle channel whose values look like degrees."""
+    for name, peak, span in _degree_channels(trial, channels):
+        warnings.warn(f"{source}: channel '{name}' looks like degrees (max |value| {peak:.4g}, range {span:.4g}) "
+                      f"but position_unit='rad'; pass position_unit='deg' if it is in degrees", UnitWarning,
+                      stacklevel=4)
+
+
+def _refuse_degrees(trials, position_unit: str) -> None:
+    """Identification data in degrees read as rad would give a model 57 times too soft:
+    refuse (DataError naming the fix) rather than warn."""
+    if position_unit != "rad":
+        return
+    found = []
+    for t in trials:
+        channels = _degree_channels(t)
+        if channels:
+            name, peak, span = channels[0]
+            more = "".join(f", '{c[0]}'" for c in channels[1:])
+            found.append(f"{t.name or 'data'}: '{name}' (max |value| {peak:.4g}, range {span:.4g}){more}")
+    if found:
+        raise DataError([f"angles look like degrees but are read as rad: {'; '.join(found)}; pass "
+                         f"position_unit='deg' if the files are in degrees"])
+
+
+def _milliseconds_hint(fs: float) -> str:
+    """The fix when a rate read from a time column in s looks like a time column in ms."""
+    if fs < MS_MAX_RATE and fs * 1000.0 >= MS_MIN_RATE:
+        return (f"the time column looks like milliseconds (steps of {1 / fs:.4g}: {1000 * fs:.6g} Hz if in ms): "
+                f"pass time_unit='ms'")
+    return ""
+
+
+def _check_time_unit(time_unit: str) -> float:
+    """Seconds per unit of the time column."""
+    if time_unit not in ("s", "ms"):
+        raise ValueError(f"time_unit must be 's' or 'ms', got {time_unit!r}")
+    return 1.0 if time_unit == "s" else 1e-3
+
+
+def _refuse_swap(pt: Trial, ut: Trial, source: str) -> None:
+    """The perturbation belongs to PT: refuse a pair whose UT position holds more power
+    faster than the slow movement than its PT position (the trials were given swapped)."""
+    import scipy.ndimage
+
+    w = max(3, int(round(SWAP_WINDOW * pt.fs)))
+
+    def fast_power(x):
+        x = np.asarray(x, dtype=float)
+        if len(x) <= 2 * w:
+            return 0.0
+        return float(np.var((x - scipy.ndimage.uniform_filter1d(x, w, mode="nearest"))[w:-w]))
+
+    p_pt, p_ut = fast_power(pt.position), fast_power(ut.position)
+    if p_ut > SWAP_RATIO * p_pt:
+        ratio = f"{p_ut / p_pt:.3g} times" if p_pt > 0 else "more than"
+        raise DataError([f"PT and UT look swapped: the trial given as UT ({ut.name or '?'}) carries the perturbation "
+                         f"(power of its position faster than the slow movement is {ratio} the PT trial's); "
+                         f"swap the pt and ut arguments"], source=source)
+
+
+def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str, time_unit: str = "s") -> Trial:
+    """Convert angle channels to rad, time to s and apply the torque sign; warn about likely degrees."""
     torque_sign = _check_settings(position_unit, torque_sign)
+    seconds = _check_time_unit(time_unit)
     if position_unit == "rad":
         _warn_if_degrees(trial, source)
     scale = np.pi / 180.0 if position_unit == "deg" else 1.0
@@ -448,7 +540,7 @@ def _to_si(trial: Trial, position_unit: str, torque_sign: float, source: str) ->
         for k, v in trial.channels.items()
     }
     return Trial(
-        time=np.asarray(trial.time, dtype=float),
+        time=np.asarray(trial.time, dtype=float) * seconds,
         position=np.asarray(trial.position, dtype=float) * scale,
         torque=np.asarray(trial.torque, dtype=float) * torque_sign,
         channels=channels,
@@ -469,7 +561,7 @@ def _trial_from_table(table, path, name, required, extra_channels=()) -> Trial:
 
 
 def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, name=None, variable=None,
-               channels=None) -> Trial:
+               channels=None, time_unit: str = "s") -> Trial:
     """Load one trial from CSV or MATLAB ``.mat`` (v4 to v7.3, the lab's ``nldat`` objects too).
 
     Required columns/variables: ``time`` (s), ``position``, ``torque``; optional ``emg``,
@@ -480,14 +572,16 @@ def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, n
     ``"file.mat:NAME"``) and ``channels`` maps roles to channel names
     (``{"position": "pos1", "torque": "tq1"}``); what they leave open is chosen
     automatically when only one choice fits (:func:`lpvpc.matfiles.select_channels`), and
-    time comes from a ``time`` channel or the variable's sample period.
+    time comes from a ``time`` channel or the variable's sample period; ``time_unit`` ("s" or
+    "ms") is the unit of a time column.
     Raises DataError listing every problem; warns (UnitWarning) when radians look like degrees.
     """
     _check_settings(position_unit, torque_sign)
+    _check_time_unit(time_unit)
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, variable=variable, channels=channels)
     trial = _trial_from_table(table, path, name or _name(path, variable), REQUIRED_CHANNELS)
-    return _to_si(trial, position_unit, torque_sign, str(path))
+    return _to_si(trial, position_unit, torque_sign, str(path), time_unit)
 
 
 # --------------------------------------------------------------------------- decimation
@@ -535,11 +629,9 @@ def decimation_factor(fs: float, target_fs, source=None) -> int:
     if not target_fs > 0:
         raise ValueError(f"target_fs must be positive or None, got {target_fs!r}")
     if fs < target_fs * (1 - RATE_TOLERANCE):
-        raise DataError(
-            [f"sampling rate {fs:.6g} Hz is below the target rate {target_fs:.6g} Hz "
-             f"(pass target_fs=None to keep the rate)"],
-            source=source,
-        )
+        fix = _milliseconds_hint(fs) or "pass target_fs=None to keep the rate"
+        raise DataError([f"sampling rate {fs:.6g} Hz is below the target rate {target_fs:.6g} Hz: {fix}"],
+                        source=source)
     q = round(fs / target_fs)
     if abs(fs - q * target_fs) > RATE_TOLERANCE * fs:
         raise DataError(
@@ -717,6 +809,10 @@ class HighRate:
     def n(self) -> int:
         return len(self.position)
 
+    def __repr__(self):
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        return f"HighRate({self.n} samples{trials} at {self.fs:g} Hz)"
+
 
 @dataclass
 class PerturbationData:
@@ -800,6 +896,16 @@ class PerturbationData:
     def n(self) -> int:
         """Number of samples."""
         return len(self.position)
+
+    def __repr__(self):
+        # one line a user can read; the arrays are in the attributes
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        high = f", {self.high_rate.fs:g} Hz signals kept" if self.high_rate is not None else ""
+        extra = [k for k in self.extra if k != "time"]
+        return (f"PerturbationData({self.n} samples{trials} at {self.fs:g} Hz ({self.n / self.fs:.1f} s{high}); "
+                f"position {_span(self.position)} rad, torque {_span(self.torque)} N m, scheduling "
+                f"{_span(self.scheduling)} rad" + (f"; extra {', '.join(extra)}" if extra else "")
+                + (f"; source {_short(self.source)!r}" if self.source else "") + ")")
 
     @property
     def time(self) -> np.ndarray:
@@ -895,6 +1001,7 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
         problems.append(f"PT and UT differ in sampling rate: PT {pt.fs:.6g} Hz, UT {ut.fs:.6g} Hz")
     if problems:
         raise DataError(problems, source=source)
+    _refuse_swap(pt, ut, source)
 
     ut_position = np.asarray(ut.position, dtype=float)
     channels = {"scheduling": ut_position}
@@ -928,7 +1035,7 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
 
 
 def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
-                           target_fs=100.0, variable=None, channels=None) -> PerturbationData:
+                           target_fs=100.0, variable=None, channels=None, time_unit: str = "s") -> PerturbationData:
     """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
@@ -942,8 +1049,9 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
                               channels=channels)
+    _refuse_single_trial(table, path)
     trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
-    trial = _to_si(trial, position_unit, torque_sign, str(path))
+    trial = _to_si(trial, position_unit, torque_sign, str(path), time_unit)
     fs_file = float(trial.fs)
     trial = to_multiple_rate(trial, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
     q = decimation_factor(trial.fs, target_fs, source=str(path))
@@ -957,6 +1065,17 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     high = HighRate(trial.position, trial.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
                             high_rate=high)
+
+
+def _refuse_single_trial(table, path) -> None:
+    """A PT (or UT) trial given where perturbation data (PT - UT with its scheduling) are
+    expected: name what is missing and the fix, not only the missing column."""
+    if "scheduling" not in table and all(c in table for c in REQUIRED_CHANNELS):
+        raise DataError(["no 'scheduling' column: this looks like one trial (time, position, torque), not "
+                         "perturbation data (PT - UT with the unperturbed position as 'scheduling'); pass it as "
+                         "pt=PT with its unperturbed trial as ut=UT, or with stationary=True if it was recorded "
+                         "around one fixed position without a UT trial (a scheduling column named otherwise: "
+                         "channels={'scheduling': COLUMN})"], source=str(path))
 
 
 def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
@@ -1065,7 +1184,7 @@ def _joined_high_rate(trials) -> HighRate | None:
 
 def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
                              torque_sign: float = 1.0, target_fs=100.0, variable=None, channels=None,
-                             stationary: bool = False) -> PerturbationData:
+                             stationary: bool = False, time_unit: str = "s") -> PerturbationData:
     """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
     a perturbation file, or a PerturbationData returned as is).
 
@@ -1076,6 +1195,11 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     :func:`join_trials` for one joint identification. ``stationary=True``: ``pt`` alone, a
     perturbed trial (or a list) around a fixed operating position recorded without UT
     (:func:`stationary_perturbation`). Wrong combinations raise DataError.
+
+    ``time_unit`` ("s" or "ms") is the unit of the time columns. The mistakes that would
+    give a wrong model are refused (DataError naming the fix): angles that look like
+    degrees read as rad, a time column that looks like milliseconds read as s, PT and UT
+    swapped (the perturbation in the UT trial).
     """
     given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
     allowed = (["pt"],) if stationary else (["pt", "ut"], ["data"])
@@ -1083,8 +1207,9 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
         want = "pt alone (a stationary trial has no UT)" if stationary else "either both pt and ut, or data alone"
         raise DataError([f"give {want}; got {', '.join(given) or 'nothing'}"])
     torque_sign = _check_settings(position_unit, torque_sign)
+    _check_time_unit(time_unit)
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs, variable=variable,
-              channels=channels, stationary=stationary)
+              channels=channels, stationary=stationary, time_unit=time_unit)
     if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
         if data is not None:
             return join_trials([load_identification_data(data=d, **kw) for d in data])
@@ -1097,23 +1222,47 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     if data is not None:
         if isinstance(data, PerturbationData):
             return data
-        return load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
-                                      target_fs=target_fs, variable=variable, channels=channels)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnitWarning)  # degrees: refused below instead
+            out = load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
+                                         target_fs=target_fs, variable=variable, channels=channels,
+                                         time_unit=time_unit)
+        _refuse_degrees([Trial(out.time, out.position, out.torque, {"scheduling": out.scheduling}, out.source)],
+                        position_unit)
+        _refuse_milliseconds(out, time_unit)
+        if time_unit != "s":
+            out.meta["time_unit"] = time_unit
+        return out
     trials = []
-    for label, item in (("PT", pt), ("UT", ut)):
-        if item is None:
-            continue
-        if isinstance(item, Trial):
-            trials.append(_to_si(item, position_unit, torque_sign, item.name or label))
-        else:
-            trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign,
-                                     variable=variable, channels=channels))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnitWarning)  # degrees: refused below instead
+        for label, item in (("PT", pt), ("UT", ut)):
+            if item is None:
+                continue
+            if isinstance(item, Trial):
+                trials.append(_to_si(item, position_unit, torque_sign, item.name or label, time_unit))
+            else:
+                trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign,
+                                         variable=variable, channels=channels, time_unit=time_unit))
+    _refuse_degrees(trials, position_unit)
     if stationary:
         out = stationary_perturbation(trials[0], target_fs=target_fs)
     else:
         out = pair_trials(trials[0], trials[1], target_fs=target_fs)
+    _refuse_milliseconds(out, time_unit)
     out.meta.update(position_unit=position_unit, torque_sign=torque_sign)
+    if time_unit != "s":
+        out.meta["time_unit"] = time_unit
     return out
+
+
+def _refuse_milliseconds(data: PerturbationData, time_unit: str) -> None:
+    """A time column in ms read as s at target_fs=None (which keeps the rate) gives a model
+    at 1 Hz: refuse it as the decimation does."""
+    hint = _milliseconds_hint(data.meta.get("fs_original", data.fs)) if time_unit == "s" else ""
+    if hint:
+        raise DataError([f"sampling rate {data.meta.get('fs_original', data.fs):.6g} Hz: {hint}"],
+                        source=data.source or None)
 
 
 def write_perturbation_csv(data: PerturbationData, path) -> None:

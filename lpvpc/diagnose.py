@@ -359,6 +359,12 @@ class CandidateResult:
     blocks: dict | None = None  # surrogate blocks: {"add": name} or {"replace": {base: block}}
     residual: np.ndarray | None = None  # held-out residual of its (marginal) fit
 
+    def __repr__(self):
+        if not self.available:
+            return f"CandidateResult({self.effect!r}: not available, {self.reason})"
+        sig = "significant" if self.significant else "not significant"
+        return f"CandidateResult({self.effect!r}: held-out VAF {self.vaf_gain:+.2f} pp, p = {self.p_value:.2g}, {sig})"
+
     def to_dict(self) -> dict:
         d = {"effect": self.effect, "kind": self.kind, "pathway": self.pathway,
              "vaf_gain": _r(self.vaf_gain), "conditional_gain": _r(self.conditional_gain),
@@ -949,6 +955,12 @@ class Diagnosis:
     coverage: dict = field(default_factory=dict)
     leaks: dict = field(default_factory=dict)
     base_residual: np.ndarray | None = None  # held-out (cross-validated) residual of the surrogate base
+
+    def __repr__(self):
+        top = self.top
+        found = "no significant candidate" if top is None else f"top {top.effect} (+{top.vaf_gain:.2f} pp)"
+        return (f"Diagnosis({self.n_samples} samples at {self.fs:g} Hz; model VAF {self.vaf:.2f} %; "
+                f"{len(self.candidates)} candidates, {len(self.significant)} significant, {found})")
 
     @property
     def significant(self) -> list:

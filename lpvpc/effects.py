@@ -448,6 +448,9 @@ class FittedEffect:
     def effect(self) -> Effect:
         return CATALOG[self.name]
 
+    def __repr__(self):
+        return f"FittedEffect({self.name!r}, {self.effect.pathway} pathway, signals: {', '.join(self.signals) or 'none'})"
+
     @property
     def signals(self) -> tuple:
         e = self.effect
@@ -949,6 +952,10 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
                                 design.blocks + blocks_r, model.causal_lags, model.causal_derivatives)
     model.effects = effects
+    # RMS of the extra inputs in the files' own unit (EMG): predict warns when a record's is
+    # far off (EMG in mV for a model identified in V; LPVPCModel.predict)
+    model.provenance["signal_levels"] = {s: float(np.sqrt(np.mean(np.square(design.signals[s]))))
+                                         for s in model_signals(model) if SIGNALS[s][0] == "1" and s in design.signals}
     if "effects" in model.settings:  # JSON form (a list), so that save/load round-trips exactly
         model.settings["effects"] = list(model.settings["effects"])
     return model

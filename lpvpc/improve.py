@@ -25,6 +25,7 @@ from .diagnose import Diagnosis, diagnose, format_table
 from .effects import CATALOG, signals_from_data
 from .identify import LPVPCEstimator
 from .model import vaf
+from .progress import report
 
 MAX_STEPS = 6
 NO_GAIN = 0.02  # pp: a refit that gains less than this on held-out data is not kept
@@ -49,6 +50,10 @@ class Rung:
     diagnosis_time: float = 0.0
     kept: bool = True
 
+    def __repr__(self):
+        kept = "" if self.kept else ", not kept"
+        return f"Rung({self.index}: {self.label!r}, held-out VAF {self.heldout_vaf:.2f} %{kept})"
+
     def to_dict(self) -> dict:
         top = self.diagnosis.top if self.diagnosis is not None else None
         return {
@@ -71,6 +76,13 @@ class Ladder:
     def kept(self) -> list:
         return [r for r in self.rungs if r.kept]
 
+    def __repr__(self):
+        if not self.rungs:
+            return "Ladder(empty)"
+        first, last = self.rungs[0], self.final
+        return (f"Ladder({len(self.rungs)} steps, held-out VAF {first.heldout_vaf:.2f} -> {last.heldout_vaf:.2f} %; "
+                f"final: {last.label!r})")
+
     @property
     def final(self) -> Rung:
         return self.kept[-1]
@@ -90,6 +102,19 @@ class Ladder:
                 "final": {"effects": list(self.final.effects), "settings": self.final.settings,
                           "heldout_vaf": round(self.final.heldout_vaf, 3)},
                 "units": {"heldout_vaf": "%", "heldout_rmse": "N m"}}
+
+
+def physiology(model, rho) -> dict:
+    """Elastic stiffness K (N m/rad) and reflex gain (N m s/rad) of a model at positions
+    ``rho`` (rad): what a step of the ladder changes in the physiology it reports."""
+    rho = np.asarray(rho, dtype=float)
+    return {"K": model.elastic_stiffness(rho), "reflex_gain": model.reflex_gain_threshold(rho)[0]}
+
+
+def _ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
+    """``n`` positions (rad) over the central 80 % of the base model's identified range."""
+    lo, hi = ladder.rungs[0].model.scheduling_range
+    return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
 
 
 def _variant_text(v) -> str:
@@ -114,6 +139,7 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
 
     def rung(index, label, change, st, eff):
         t0 = time.perf_counter()
+        report(f"improve: step {index} ({label}): fitting")
         model = LPVPCEstimator(**st, effects=eff).fit(ident).model_
         t_fit = time.perf_counter() - t0
         v, rmse, r = _evaluate(model, heldout)
@@ -121,6 +147,8 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
 
     def diagnose_rung(r):
         t0 = time.perf_counter()
+        report(f"improve: step {r.index} ({r.label}): diagnosing on the held-out record (every candidate, "
+               f"cross-validated)")
         r.diagnosis = diagnose(r.model, heldout, **diagnose_kw)
         r.diagnosis_time = time.perf_counter() - t0
 
@@ -186,6 +214,14 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
              f"Identification on the identification record; VAF and RMSE on the held-out record "
              f"`{getattr(heldout, 'source', '')}`.", "", "```", ladder.table(), "```", "",
              f"Stopped: {ladder.stopped}.", "", "![ladder](ladder.png)", ""]
+    rho = _ladder_positions(ladder)
+    phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
+    for key, what in (("K", "Elastic stiffness K (N m/rad)"), ("reflex_gain", "Reflex gain (N m s/rad)")):
+        lines += [f"{what} of each model at positions (rad):", "", "| step | model | "
+                  + " | ".join(f"{x:+.2f}" for x in rho) + " |", "|---|---|" + "---|" * len(rho)]
+        lines += [f"| {r.index} | {r.label} | " + " | ".join(f"{v:.2f}" for v in phys[r.index][key]) + " |"
+                  for r in ladder.rungs]
+        lines.append("")
     prev = None
     for r in ladder.rungs:
         lines += [f"## Step {r.index}: {r.label}" + ("" if r.kept else " (not kept)"), "",
@@ -195,6 +231,7 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
         if r.change.get("effect"):
             lines += [f"Effect: {CATALOG[r.change['effect']].explanation}", ""]
         if prev is not None:
+            lines += [_change_text(phys[prev.index], phys[r.index], rho, prev.index, r.index), ""]
             fig, axes = plt.subplots(1, 2, figsize=(11, 3.5))
             plotting.plot_residual_change(heldout.time, heldout.torque, prev.residual, r.residual,
                                           labels=(f"step {prev.index}", f"step {r.index}"), fs=heldout.fs, axes=axes)
@@ -214,6 +251,14 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
     path = folder / "report.html"
     path.write_text(_html(ladder, heldout, folder))
     return path
+
+
+def _change_text(before: dict, after: dict, rho, i: int, j: int) -> str:
+    """K and reflex gain before and after a step, position by position."""
+    def pairs(key, fmt):
+        return ", ".join(f"{fmt.format(a)} -> {fmt.format(b)} at {x:+.2f}" for a, b, x in zip(before[key], after[key], rho))
+    return (f"Step {i} -> step {j}: K {pairs('K', '{:.1f}')} N m/rad; reflex gain {pairs('reflex_gain', '{:.2f}')} "
+            f"N m s/rad.")
 
 
 def _html(ladder: Ladder, heldout, folder: Path) -> str:
@@ -238,6 +283,18 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
              '<div class="wide">' + _table(["step", "model", "held-out VAF (%)", "RMSE (N m)", "identification VAF (%)",
                                             "next (top significant candidate)"], rows, left=(1, 5)) + "</div>",
              _html_img(folder / "ladder.png", "Held-out VAF and RMSE of each model on the ladder")]
+    rho = _ladder_positions(ladder)
+    phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
+    parts.append("<p>What each step changes in the physiology the models report: elastic stiffness K and reflex gain "
+                 "at five positions (rad; + = dorsiflexion) over the central 80 % of the base model's range.</p>")
+    for key, what, fmt in (("K", "Elastic stiffness K (N m/rad) by position", "{:.1f}"),
+                           ("reflex_gain", "Reflex gain (N m s/rad) by position", "{:.2f}")):
+        parts.append(f"<h3>{what}</h3>")
+        parts.append('<div class="wide">' + _table(
+            ["step", "model"] + [f"{x:+.2f} rad" for x in rho],
+            [[str(r.index), _e(r.label)] + [fmt.format(v) for v in phys[r.index][key]] for r in ladder.rungs],
+            left=(1,)) + "</div>")
+    prev = None
     for r in ladder.rungs:
         parts.append(f"<h2>Step {r.index}: {_e(r.label)}{'' if r.kept else ' (not kept)'}</h2>")
         parts.append(f"<p>held-out VAF {r.heldout_vaf:.2f} %, RMSE {r.heldout_rmse:.4f} N m; identification VAF "
@@ -245,6 +302,10 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
                      + (f", diagnosis {r.diagnosis_time:.1f} s" if r.diagnosis is not None else "") + ".</p>")
         if r.change.get("effect"):
             parts.append(f"<p class=\"what\">{_e(CATALOG[r.change['effect']].explanation)}</p>")
+        if prev is not None:
+            parts.append(f"<p>{_e(_change_text(phys[prev.index], phys[r.index], rho, prev.index, r.index))}</p>")
+        if r.kept:
+            prev = r
         png = folder / f"residual_step{r.index}.png"
         if png.is_file():
             parts.append(_html_img(png, f"Held-out residual before and after step {r.index}"))

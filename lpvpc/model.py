@@ -69,6 +69,9 @@ RECTIFIER_MIN_FS = 500.0
 FORMAT_VERSION = 1
 FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
 FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
+#: An extra input (EMG) whose RMS differs from its level at identification by more than this
+#: factor is in another unit (mV for V: 1000): predict warns (UnitWarning).
+SIGNAL_LEVEL_FACTOR = 30.0
 
 
 @dataclass
@@ -91,6 +94,13 @@ class Prediction:
     reflex: np.ndarray
     out_of_range_fraction: float = 0.0
     effects: dict = field(default_factory=dict)
+
+    def __repr__(self):
+        rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0  # noqa: E731
+        effects = f", effects: {', '.join(self.effects)}" if self.effects else ""
+        return (f"Prediction({len(self.total)} samples; RMS total {rms(self.total):.3g}, intrinsic "
+                f"{rms(self.intrinsic):.3g}, reflex {rms(self.reflex):.3g} N m; "
+                f"{100 * self.out_of_range_fraction:.1f} % out of range{effects})")
 
 
 @dataclass
@@ -181,6 +191,19 @@ class LPVPCModel:
     uncertainty: dict = field(default_factory=dict)  # lpvpc.uncertainty.fit_uncertainty (empty: no intervals)
     high_rate: HighRateNonlinearity | None = None  # the nonlinearity identified at the file's rate (module notes)
     curvature: np.ndarray | None = None  # (n_i,) elastic curvature coefficients, N m/rad^2 (None: no such term)
+
+    def __repr__(self):
+        # what a user checks first, in one line (the arrays are in the attributes)
+        lo, hi = self.scheduling_range
+        parts = [f"{self.fs:g} Hz", f"IRF lags {self.lags[0]}..{self.lags[-1]}",
+                 f"reflex order {self.state_order}, delay {1000 * self.delay / self.fs:.0f} ms",
+                 f"scheduling {lo:+.3f}..{hi:+.3f} rad"]
+        if self.effects:
+            parts.append("effects: " + ", ".join(fe.name for fe in self.effects))
+        if "vaf" in self.fit:
+            parts.append(f"VAF {self.fit['vaf']:.2f} %")
+        parts.append(f"hash {self.model_hash[:12]}")
+        return f"LPVPCModel({'; '.join(parts)})"
 
     @property
     def nonlinearity_fs(self) -> float:
@@ -303,6 +326,8 @@ class LPVPCModel:
 
             parts = predict_effects(self, position, scheduling, extra_signals, causal=causal, velocity=velocity,
                                     acceleration=acceleration, z=z)
+            if warn:
+                self._warn_if_signal_levels(extra_signals)
             for pathway, tq in parts.values():
                 if pathway == "reflex":
                     tq_r = tq_r + tq
@@ -310,6 +335,26 @@ class LPVPCModel:
                     tq_i = tq_i + tq
         return Prediction(total=tq_i + tq_r, intrinsic=tq_i, reflex=tq_r, out_of_range_fraction=outside,
                           effects={k: v[1] for k, v in parts.items()})
+
+    def _warn_if_signal_levels(self, signals) -> None:
+        """UnitWarning when an extra input (EMG) is far from its level at identification
+        (``provenance["signal_levels"]``, RMS in the files' unit): the effect terms scale with it."""
+        from .errors import UnitWarning
+
+        levels = self.provenance.get("signal_levels") or {}
+        off = []
+        for name, level in levels.items():
+            x = (signals or {}).get(name)
+            if x is None or not level > 0 or len(x) == 0:
+                continue
+            rms = float(np.sqrt(np.mean(np.square(np.asarray(x, dtype=float)))))
+            ratio = rms / level
+            if not (1 / SIGNAL_LEVEL_FACTOR <= ratio <= SIGNAL_LEVEL_FACTOR):
+                off.append(f"'{name}' {ratio:.3g} times as large (RMS {rms:.3g}, at identification {level:.3g})")
+        if off:
+            warnings.warn(f"extra inputs far from their level at identification: {', '.join(off)}: another unit "
+                          f"(EMG in mV for V is 1000 times)? The effect terms scale with them, the prediction is "
+                          f"meaningless: give them in the unit of the identification data", UnitWarning, stacklevel=3)
 
     def _unpack_data(self, data, signals):
         if not (hasattr(data, "position") and hasattr(data, "scheduling")):
@@ -442,17 +487,17 @@ class LPVPCModel:
         return bool(self.uncertainty)
 
     def elastic_stiffness_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (N m/rad) of the ``level`` confidence interval of K(theta)
+        """Interval (unpacks as lower, upper arrays) (N m/rad) of the ``level`` confidence interval of K(theta)
         at positions ``theta`` (rad). HAC covariance of the final least squares (correlated
         residuals respected); see :mod:`lpvpc.uncertainty` for what it leaves out."""
         return _interval_pair(self, "stiffness", theta, level)
 
     def viscosity_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (N m s/rad) of the confidence interval of the viscosity."""
+        """Interval (unpacks as lower, upper arrays) (N m s/rad) of the confidence interval of the viscosity."""
         return _interval_pair(self, "viscosity", theta, level)
 
     def inertia_interval(self, theta, level: float = 0.95):
-        """(lower, upper) arrays (kg m^2) of the confidence interval of the inertia."""
+        """Interval (unpacks as lower, upper arrays) (kg m^2) of the confidence interval of the inertia."""
         return _interval_pair(self, "inertia", theta, level)
 
     def reflex_gain_interval(self, theta, level: float = 0.95):
@@ -631,10 +676,10 @@ class LPVPCModel:
 
 
 def _interval_pair(model, quantity, theta, level):
-    from .uncertainty import intrinsic_interval
+    from .uncertainty import Interval, intrinsic_interval
 
     _, lo, hi = intrinsic_interval(model, quantity, theta, level)
-    return lo, hi
+    return Interval(lo, hi)  # unpacks as (lower, upper), like every interval of the model
 
 
 def rectifier_fit(v, curves):

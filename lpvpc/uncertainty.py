@@ -408,7 +408,12 @@ class Interval(tuple):
         return (self[0], self[1], self.biased, self.note)
 
     def __repr__(self):
-        return f"Interval(lower={self[0]!r}, upper={self[1]!r}{', biased=True' if self.biased else ''})"
+        flag = ", biased=True" if self.biased else ""
+        lo, hi = np.asarray(self[0]), np.asarray(self[1])
+        if lo.size <= 4:  # a few values: show them
+            return f"Interval(lower={self[0]!r}, upper={self[1]!r}{flag})"
+        span = lambda x: f"{float(np.min(x)):.4g}..{float(np.max(x)):.4g}"  # noqa: E731
+        return f"Interval({lo.size} values: lower {span(lo)}, upper {span(hi)}{flag})"
 
     @property
     def lower(self):

@@ -79,3 +79,80 @@ def test_predict_on_joined_trials_predicts_each_trial_from_rest(subject, model):
         across = model.predict(joined.position, joined.scheduling).total
     assert np.array_equal(got, each)
     assert not np.array_equal(got, across)  # the seam matters
+
+
+# --------------------------------------------------------------------------- the top-level API
+
+
+def test_top_level_names_import_lazily_and_once():
+    """``import lpvpc`` loads no numerical library; every name of ``__all__`` imports from
+    ``lpvpc``; ``identify``, ``diagnose`` and ``improve`` are their modules, callable as
+    their function, whatever was imported first."""
+    import subprocess
+    import sys
+
+    code = ("import sys, lpvpc; heavy = [m for m in ('numpy', 'scipy', 'casadi', 'fmpy', 'matplotlib') "
+            "if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+    import lpvpc
+
+    for name in lpvpc.__all__:
+        assert getattr(lpvpc, name) is not None, name
+    assert set(lpvpc.__all__) <= set(dir(lpvpc))
+    from lpvpc import LPVPCEstimator as E, LPVPCModel, identify, load_identification_data, simulate_pair  # noqa: F401
+    import lpvpc.identify as module
+
+    assert identify is module and identify.LPVPCEstimator is E and callable(identify)
+    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
+        lpvpc.nonsense  # noqa: B018
+
+
+def test_top_level_identify_fits_like_the_estimator(subject):
+    import lpvpc
+
+    short = subject["ident"].segment(0, 3000)
+    assert lpvpc.identify(short).model_hash == lpvpc.LPVPCEstimator().fit(short).model_.model_hash
+
+
+def test_reprs_are_short(subject, model):
+    from lpvpc.data import load_trial
+
+    data = subject["ident"]
+    trial = load_trial(subject["folder"] / "ident_PT.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        pred = model.predict(subject["novel"])
+    theta = np.linspace(*model.scheduling_range, 50)
+    for obj, must in ((model, "LPVPCModel(100 Hz"), (data, "PerturbationData(12000 samples at 100 Hz"),
+                      (trial, "Trial('ident_PT': 120000 samples at 1000 Hz"), (pred, "Prediction(12000 samples"),
+                      (model.elastic_stiffness_interval(theta), "Interval(50 values"),
+                      (model.reflex_gain_interval(theta), "Interval(50 values")):
+        text = repr(obj)
+        assert len(text) < 300 and "\n" not in text and must in text, text
+        assert "array(" not in text
+
+
+def test_one_interval_type_unpacks_like_a_pair(model):
+    from lpvpc.uncertainty import Interval
+
+    theta = np.array([-0.2, 0.0])
+    for name in ("elastic_stiffness_interval", "viscosity_interval", "reflex_gain_interval"):
+        iv = getattr(model, name)(theta)
+        assert isinstance(iv, Interval), name
+        lo, hi = iv
+        assert np.array_equal(lo, iv.lower) and np.array_equal(hi, iv.upper) and np.all(lo < hi)
+
+
+def test_data_time_is_the_time_vector_plotting_needs(subject, model):
+    from lpvpc.plotting import plot_torque_fit
+
+    data = subject["novel"]
+    assert data.time.shape == (data.n,)
+    assert np.allclose(np.diff(data.time), 1 / data.fs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        fig = plot_torque_fit(data.time, data.torque, model.predict(data))
+    lo, hi = fig.axes[0].get_xlim()  # the time axis in s spans the record (with matplotlib's margins)
+    assert lo <= data.time[0] and data.time[-1] <= hi < 1.1 * data.time[-1]

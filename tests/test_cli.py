@@ -39,7 +39,7 @@ def _run(argv, capsys):
 
 
 def _one_error_line(err):
-    lines = err.strip().splitlines()
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("lpvpc: [")]  # progress lines aside
     assert len(lines) == 1, f"expected one stderr line, got {lines!r}"
     assert lines[0].startswith("lpvpc: error: "), lines[0]
     return lines[0]
@@ -61,7 +61,8 @@ def run_dir(tmp_path_factory):
     r = _subprocess("identify", "--pt", d / "data" / "ident_PT.csv", "--ut", d / "data" / "ident_UT.csv",
                     "-o", d / "model.json")
     assert r.returncode == 0, r.stderr
-    assert "VAF" in r.stdout and r.stderr == ""
+    # nothing on stderr but progress lines (a fit slower than 3 s says it is running)
+    assert "VAF" in r.stdout and all(ln.startswith("lpvpc: [") for ln in r.stderr.splitlines()), r.stderr
     return d
 
 

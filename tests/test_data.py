@@ -151,8 +151,10 @@ def test_perturbation_file_requires_scheduling(tmp_path):
     with pytest.raises(DataError) as err:
         load_perturbation_file(path)
     msg = str(err.value)
-    assert "missing required column 'scheduling'" in msg and "--channel scheduling=COLUMN" in msg
-    assert "time, position, torque" in msg  # lists the columns found
+    # a single trial where PT - UT data are expected: what is missing and the fixes
+    assert "no 'scheduling' column" in msg and "looks like one trial (time, position, torque)" in msg
+    assert "pt=PT" in msg and "ut=UT" in msg and "stationary=True" in msg
+    assert "channels={'scheduling': COLUMN}" in msg
 
 
 # --------------------------------------------------------------------------- bad input

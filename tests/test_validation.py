@@ -43,7 +43,8 @@ def _run(argv):
 
 def _one_line_error(rc, err, *needles):
     assert rc == 2, err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    # one error line; progress lines ("lpvpc: [  3.1 s] ...") may come before it
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("lpvpc: [")]
     assert len(lines) == 1, lines
     assert lines[0].startswith("lpvpc: error: "), lines
     for n in needles:

@@ -36,6 +36,7 @@ from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
 from lpvpc.outputs import staged_folder
+from lpvpc.progress import report as progress
 
 from . import compare as cmp
 from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
@@ -87,11 +88,16 @@ class ValidationResult:
     def passed(self) -> bool:
         return bool(self.metrics["pass"])
 
+    def __repr__(self):
+        m = self.metrics
+        vafs = ", ".join(f"{k} {m[k]:.2f} %" for k in ("vaf", "vaf_fmu", "vaf_cosim") if k in m)
+        return f"ValidationResult({'pass' if m.get('pass') else 'FAIL'}; {vafs}; report {str(self.report_dir)!r})"
+
 
 # --------------------------------------------------------------------------- inputs
 
 
-def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None) -> Record:
+def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given)
     and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
     is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
@@ -100,6 +106,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     conv = model.conventions or {}
     position_unit = position_unit or conv.get("position_unit", "rad")
     torque_sign = float(torque_sign if torque_sign is not None else conv.get("torque_sign", 1.0))
+    time_unit = time_unit or conv.get("time_unit", "s")
     files = {}
     trials = []
     for role, src in (("pt", pt), ("ut", ut)):
@@ -107,7 +114,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
         else:
-            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign))
+            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit))
             files[role] = {"path": str(src), "sha256": file_sha256(src)}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
@@ -294,7 +301,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              min_vaf: float | None = None, route_tolerance: float = DEFAULT_ROUTE_TOLERANCE,
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
-             torque_sign=None, command_line=None, write_report: bool = True,
+             torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
              whole_joint=None) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
@@ -331,7 +338,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if not isinstance(model, LPVPCModel):
         model_path = Path(model)
         model = LPVPCModel.load(model_path)
-    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign)
+    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit)
     meas = record.measured
     signals = record_signals(model, meas)  # extended model: the record's extra channels, for every route
     given_fmu = None
@@ -342,6 +349,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_act is not None:
         check_actuator_fmu(given_act, model, actuator_parameters)
     timing["load_and_check"] = time.perf_counter() - t0
+    progress(f"validate: model and held-out record checked ({meas.n} samples at {meas.fs:g} Hz)")
 
     # -- FMUs ---------------------------------------------------------------------------
     t0 = time.perf_counter()
@@ -350,6 +358,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_fmu is None:
         from lpvpc.export import export_fmu
 
+        progress(f"validate: exporting the {fmu_variant} model FMU (FMI {fmi_version}, C compiler)")
         model_fmu = inspect_fmu(export_fmu(model, fmu_dir / f"model_{fmu_variant}_fmi{fmi_version}.fmu",
                                            fmi_version=fmi_version, variant=fmu_variant), "model FMU")
         check_model_fmu(model_fmu, model)
@@ -358,6 +367,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if given_act is None:
         from lpvpc.actuator import build_actuator_fmu
 
+        progress("validate: building the actuator FMU")
         act_fmu = inspect_fmu(build_actuator_fmu(fmu_dir / f"actuator_fmi{model_fmu.fmi_version}.fmu",
                                                  fmi_version=model_fmu.fmi_version), "actuator FMU")
     else:
@@ -367,6 +377,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     # -- offline routes -----------------------------------------------------------------
     t0 = time.perf_counter()
+    progress(f"validate: predicting {meas.n} samples offline, through CasADi and the model FMU")
     off = offline_routes(model, meas.position, meas.scheduling, signals)
     cas = casadi_routes(model, meas.position, meas.scheduling, signals)
     timing["offline_and_casadi"] = time.perf_counter() - t0
@@ -375,6 +386,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     # -- co-simulation ------------------------------------------------------------------
     t0 = time.perf_counter()
+    progress("validate: " + ("calibrating the actuator, " if calibrate else "") + "co-simulating the model FMU "
+             "with the actuator FMUs")
     drive, params, calibration = actuator_drive(record, act_fmu, ratio, meas.n, actuator_parameters, calibrate,
                                                 band_limit_to=model.fs if band_limit_command else None)
     timing["calibration"] = calibration.get("seconds", 0.0)
@@ -577,6 +590,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         from .whole_joint import evaluate_whole_joint
 
         t0 = time.perf_counter()
+        progress("validate: the whole-joint model")
         wj = whole_joint if isinstance(whole_joint, WholeJointModel) else WholeJointModel.load(whole_joint)
         metrics["whole_joint"], wj_traces = evaluate_whole_joint(wj, record, fmu_dir, model_fmu.fmi_version)
         timing["whole_joint"] = time.perf_counter() - t0
@@ -585,6 +599,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         # the same set-up for other co-simulation tools (SSP 1.0, FMUs included)
         from .ssp import instance_parameters, write_ssp
 
+        progress("validate: writing the co-simulation set-up (SSP)")
         ssp_path = write_ssp(report_dir / SSP_FILE, model_fmu, act_fmu, stop_time=meas.n * cos.step_model,
                              communication_step=cos.step_model, settings=settings,
                              parameters=instance_parameters(params, drive.command_ut[0], drive.command_pt[0]),
@@ -604,6 +619,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         from .report import write_report as _write
 
         t0 = time.perf_counter()
+        progress("validate: writing the report and its figures")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
             result.files = _write(result, model=model, record=record, predictions={

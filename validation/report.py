@@ -412,11 +412,30 @@ def _physiology_table(model, level=0.95) -> str:
                 f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). The intervals of K and "
                 f"viscosity include a bound on the estimator's structural bias; K is the stiffness over the "
                 f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). "
-                f"{_reflex_bias_note(model)} Coverage measured on the virtual subject: "
-                f"<code>benchmarks/results/uncertainty.txt</code>.")
+                f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject (20 "
+                f"seeds, 9 positions each): K 94 %, viscosity 100 %, reflex gain 91 %, reflex threshold 77 %.")
     else:
-        note = "This model file carries no confidence intervals (identified by an older lpvpc): re-identify to get them."
+        note = _no_intervals_note(model)
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
+
+
+def _no_intervals_note(model) -> str:
+    """Why a model has no confidence intervals: what is true of it, and what would give them."""
+    if model.effects:
+        return ("No confidence intervals: lpvpc computes them for models without effects only, and this model has "
+                f"{', '.join(fe.name for fe in model.effects)}. The estimates are shown; their spread can be judged "
+                "by identifying the same model from other trials.")
+    return ("No confidence intervals in this model file: their covariance could not be computed from the "
+            "identification data (identification warned why), or the file predates intervals in lpvpc (re-identifying "
+            "gives them then). The estimates are shown.")
+
+
+def _caption(name, model) -> str:
+    """A figure's caption, without the confidence bands the figure does not draw."""
+    text = FIGURES[name]
+    if not model.has_intervals:
+        text = text.replace(", its confidence band", "").replace(" with confidence bands", "")
+    return text
 
 
 def _reflex_bias_note(model) -> str:
@@ -425,11 +444,13 @@ def _reflex_bias_note(model) -> str:
     if model.reflex_threshold_biased:
         return (f"Reflex gain and threshold were seen on {fs_v:g} Hz velocity: they carry the bias of a rectifier of "
                 f"~20 ms velocity pulses smoothed at that rate (the threshold most), which the intervals do not include "
-                f"(from 1 kHz files, <code>high_rate_reflex=True</code> identifies it on the 1 kHz velocity: "
-                f"<code>benchmarks/results/reflex_1k.txt</code>).")
+                f"(from 1 kHz files, <code>high_rate_reflex=True</code> identifies it on the 1 kHz velocity: on the "
+                f"virtual subject the threshold's trend over position then came within 20 % of the truth on 2 of 10 "
+                f"seeds, against 0 of 10 from 100 Hz velocity).")
     return (f"The reflex nonlinearity was identified on the {fs_v:g} Hz delayed velocity (its output decimated to the "
-            f"model rate); gain and threshold trends still scatter from seed to seed on the virtual subject "
-            f"(<code>benchmarks/results/reflex_1k.txt</code>), which the intervals do not include.")
+            f"model rate); gain and threshold trends still scatter from seed to seed on the virtual subject (the "
+            f"threshold's trend over position within 20 % of the truth on 2 of 10 seeds, the gain's on 10 of 10), "
+            f"which the intervals do not include.")
 
 
 def _worst_bin(rows, key="rmse_numpy"):
@@ -571,12 +592,13 @@ def _html(m: dict, figs: dict, model) -> str:
     physiology.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; the "
                  f"elastic stiffness K(rho) goes from {K[0]:.0f} N m/rad at {model.scheduling_range[0]:+.2f} rad to "
                  f"{K[1]:.0f} N m/rad at {model.scheduling_range[1]:+.2f} rad.</p>")
-    physiology.append(_img(figs["fig4_intrinsic_gain.png"], FIGURES["fig4_intrinsic_gain.png"]))
+    physiology.append(_img(figs["fig4_intrinsic_gain.png"], _caption("fig4_intrinsic_gain.png", model)))
     physiology.append("<h3>Reflex pathway (Fig. 5)</h3>")
     physiology.append(f"<p class=\"what\">The reflex static nonlinearity (steady torque for a constant delayed stretch "
-                 f"velocity) at five positions, with confidence bands where the model carries intervals, and the impulse response of the reflex dynamics (order "
+                 f"velocity) at five positions{', with confidence bands' if model.has_intervals else ''}, and the "
+                 f"impulse response of the reflex dynamics (order "
                  f"{model.state_order}, delay {1e3 * model.delay / model.fs:.0f} ms).</p>")
-    physiology.append(_img(figs["fig5a_reflex_nonlinearity.png"], FIGURES["fig5a_reflex_nonlinearity.png"]))
+    physiology.append(_img(figs["fig5a_reflex_nonlinearity.png"], _caption("fig5a_reflex_nonlinearity.png", model)))
     physiology.append(_img(figs["fig5b_reflex_irf.png"], FIGURES["fig5b_reflex_irf.png"]))
 
     # scheduling range
