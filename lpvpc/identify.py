@@ -384,6 +384,7 @@ class LPVPCEstimator:
                if m in stable or not stable}
         m_best = min(bic, key=bic.get)
         best = fits[m_best]
+        del refinement  # its N-row factors (a third of a 30-minute record's peak memory)
         timings["projection_and_reflex"] = time.perf_counter() - t
 
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
@@ -393,6 +394,7 @@ class LPVPCEstimator:
         Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
         # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
         H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
+        del Psi_c, S_c
 
         hf = best["hammerstein"]
         Omega = hf.omega.reshape(-1, G_r.size)
@@ -532,7 +534,7 @@ class LPVPCEstimator:
         # solved on their triangular factor, at ~100 rows instead of N, with the same
         # solutions and residual norms.
         k_r = sum(blk.shape[1] for blk in blocks)
-        R = triangular_factor(np.hstack(blocks + [Psi_i, y[:, None]]))
+        R = triangular_factor(blocks + [Psi_i, y])  # (stacked a block of rows at a time)
         blocks_c, Psi_i_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
         theta_i = project_out_and_solve(R[:, :k_r], Psi_i_c, y_c)
         tq_r = y_c - Psi_i_c @ theta_i
