@@ -118,6 +118,16 @@ class LPVPCEstimator:
         +14 % high on the virtual subject (+1 % with it; K unchanged). Lab pilot trial:
         held-out VAF 94.06 % with it, 94.10 % without; free coefficients instead of tied
         ones lost 0.13 points there (and 6 points on the 1 kHz path).
+    structure : "fixed" (default: the settings as given) or "cv": the IRF half-width, basis
+        orders, reflex delay, curvature term and scheduling extrapolation are chosen by
+        leave-one-level-out cross-validation with the one-standard-error rule
+        (:mod:`lpvpc.selection`), starting from the settings given; the choice and a CV
+        table are recorded in ``model.fit["structure_selection"]``.
+    structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
+        given (the command line puts there every option the user wrote).
+    scheduling_extrapolation : beyond the identified range of the scheduling variable the
+        position bases are held at the boundary ("clip", default) or continued along their
+        tangent ("linear"; :class:`lpvpc.basis.Basis`).
     effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
         model; default none). Intrinsic-pathway effects are estimated jointly with the
         intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
@@ -176,7 +186,13 @@ class LPVPCEstimator:
         high_rate_reflex: bool = False,
         elastic_curvature: bool = True,
         max_reflex_time_constant: float | None = DEFAULT_MAX_REFLEX_TIME_CONSTANT,
+        structure: str = "fixed",
+        structure_fixed: tuple = (),
+        scheduling_extrapolation: str = "clip",
     ):
+        self.structure = structure
+        self.structure_fixed = structure_fixed
+        self.scheduling_extrapolation = scheduling_extrapolation
         self.elastic_curvature = elastic_curvature
         self.max_reflex_time_constant = max_reflex_time_constant
         self.high_rate_reflex = high_rate_reflex
@@ -211,7 +227,7 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant")}
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")}
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -262,6 +278,10 @@ class LPVPCEstimator:
                 from .data import join_trials
 
                 data = join_trials(data)
+            if self.structure not in ("fixed", "cv"):
+                raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+            if self.structure == "cv":
+                return self._fit_selected(data)
             try:
                 return self._fit(data)
             except InsufficientExcitationError as exc:
@@ -275,6 +295,73 @@ class LPVPCEstimator:
                               f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
                               LpvpcWarning, stacklevel=2)
                 return self._fit(replace(data, high_rate=None))
+
+    def _selection_unavailable(self, data) -> str | None:
+        """Why the structure cannot be selected on these data (None: it can)."""
+        rho = np.asarray(data.scheduling, dtype=float)
+        if rho.size == 0 or not np.all(np.isfinite(rho)) or float(np.ptp(rho)) < self.stationary_range:
+            return "stationary trial (its delay is chosen by BIC: stationary_delays)"
+        if self.effects:
+            return "extended model (effects)"
+        if len(Segments.of(data, rho.size)) > 1:
+            return "several trials joined"
+        if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
+            return "non-polynomial basis (the candidates' columns do not nest)"
+        if self.high_rate_reflex and getattr(data, "high_rate", None) is not None:
+            return "reflex nonlinearity on the high-rate velocity"
+        return None
+
+    def _fit_selected(self, data) -> "LPVPCEstimator":
+        """structure="cv": a fit at the given settings gives the reflex dynamics; the
+        structure is chosen by cross-validation with them held (lpvpc.selection); the
+        chosen structure is fitted (its state order the first fit's)."""
+        from .selection import SEARCH, StructureSearch
+
+        t0 = time.perf_counter()
+        base = {**self.get_params(), "structure": "fixed"}
+        reason = self._selection_unavailable(data)
+        if reason is not None:
+            est = LPVPCEstimator(**base).fit(data)
+            est.model_.settings["structure"] = "cv"
+            est.model_.fit["structure_selection"] = {"skipped": reason}
+            self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
+            return self
+        first = LPVPCEstimator(**base)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            first._fit(data)
+        m = first.model_
+        fs = m.fs
+        start = {"irf_length": m.settings["irf_lags"] / fs, "intrinsic_order": self.intrinsic_order,
+                 "reflex_order": self.reflex_order, "velocity_order": self.velocity_order,
+                 "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
+                 "scheduling_extrapolation": self.scheduling_extrapolation}
+        fixed = {"irf_length" if k == "irf_lags" else k for k in self.structure_fixed}
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        search = {**SEARCH, **{k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH if k not in fixed}}
+        search.update({k: (start[k],) for k in fixed if k in SEARCH})
+        t = time.perf_counter()
+        sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                              self.velocity_basis, search).run(start, fixed)
+        t_select = time.perf_counter() - t
+        same = all(np.isclose(sel.chosen[k], start[k]) if isinstance(start[k], float) else sel.chosen[k] == start[k]
+                   for k in start)
+        if same:
+            est = first
+            for w in caught:  # the kept fit's warnings, once
+                warnings.warn(w.message, w.category, stacklevel=3)
+        else:
+            chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
+            est = LPVPCEstimator(**{**base, **chosen})._fit(data)
+            est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        model = est.model_
+        model.settings.update({"structure": "cv", "structure_fixed": sorted(fixed)})
+        model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
+                                            "state_order_from": "BIC at the starting structure"}
+        model.fit["timings_s"]["selection"] = t_select
+        model.fit["timings_s"]["total"] = time.perf_counter() - t0
+        self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
+        return self
 
     def _fit_both_ways(self, data) -> "LPVPCEstimator":
         """Effects that may be fitted ``after_reflex`` (lpvpc.effects.Effect): the fit with
@@ -316,8 +403,8 @@ class LPVPCEstimator:
         dvel = seg.map(eq.delayed_velocity, p, fs=fs, delay=delay)
 
         rho_orders = self._scheduling_orders(rho)
-        G_i = basis_from_data(rho, self.basis, rho_orders["intrinsic_order"])
-        G_r = basis_from_data(rho, self.basis, rho_orders["reflex_order"])
+        G_i = basis_from_data(rho, self.basis, rho_orders["intrinsic_order"], self.scheduling_extrapolation)
+        G_r = basis_from_data(rho, self.basis, rho_orders["reflex_order"], self.scheduling_extrapolation)
         V_b = basis_from_data(dvel, self.velocity_basis, self.velocity_order, extrapolation="linear")
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
         Psi_irf = seg.map(intrinsic_regressor, p, Gi_val, lags=lags)

@@ -94,12 +94,16 @@ def long_run_covariance(U, block: int) -> np.ndarray:
     """
     n = U.shape[0]
     block = int(min(max(block, 1), n))
-    c = np.zeros((n + 1, U.shape[1]))
-    np.cumsum(U, axis=0, out=c[1:])
     S = np.zeros((U.shape[1], U.shape[1]))
+    c_a = np.zeros(U.shape[1])  # sum of the rows before a
     for a in range(0, n - block + 1, 8192):  # the (n - block + 1) moving sums, a block of rows at a time
-        W = c[a + block : min(a + 8192, n - block + 1) + block] - c[a : min(a + 8192, n - block + 1)]
+        b = min(a + 8192, n - block + 1)
+        c = np.zeros((b - a + block, U.shape[1]))
+        c[0] = c_a
+        c[1:] = c_a + np.cumsum(U[a : b + block - 1], axis=0)  # c[i] = sum of rows < a + i
+        W = c[block:] - c[: b - a]
         S += W.T @ W
+        c_a = c[b - a]
     return S * (n / ((n - block + 1) * block))
 
 
