@@ -303,8 +303,6 @@ class LPVPCEstimator:
             return "stationary trial (its delay is chosen by BIC: stationary_delays)"
         if self.effects:
             return "extended model (effects)"
-        if len(Segments.of(data, rho.size)) > 1:
-            return "several trials joined"
         if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
             return "non-polynomial basis (the candidates' columns do not nest)"
         if self.high_rate_reflex and getattr(data, "high_rate", None) is not None:
@@ -342,7 +340,7 @@ class LPVPCEstimator:
         search.update({k: (start[k],) for k in fixed if k in SEARCH})
         t = time.perf_counter()
         sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                              self.velocity_basis, search).run(start, fixed)
+                              self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
         t_select = time.perf_counter() - t
         same = all(np.isclose(sel.chosen[k], start[k]) if isinstance(start[k], float) else sel.chosen[k] == start[k]
                    for k in start)

@@ -40,6 +40,7 @@ from . import equations as eq
 from .basis import Basis, basis_from_data
 from .intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
 from .reflex import reflex_input_regressor, reflex_regressor
+from .segments import Segments
 
 #: Candidate values of each selected setting (IRF half-widths in s, delays in s).
 SEARCH = {
@@ -156,15 +157,16 @@ class _Design:
     (the scheduling basis on the whole range), and for an end fold, whose training range is
     narrower, its rows' Gram matrices under each extrapolation rule (``end[rule][f]``)."""
 
-    def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules):
+    def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments):
         self.p, self.rho, self.fs, (self.A, self.C, self.bd) = p, rho, fs, dynamics
+        self.seg = segments
         self.L_max, self.ni_max, self.nr_max, self.nv_max, self.delays = top
         self.delays = list(self.delays)
         lo, hi = float(np.min(rho)), float(np.max(rho))
         self.G_i = Basis(family, self.ni_max, lo, hi)
         self.G_r = Basis(family, self.nr_max, lo, hi)
         self.V = [basis_from_data(dv, velocity_family, self.nv_max, extrapolation="linear").evaluate(dv)
-                  for dv in (eq.delayed_velocity(p, fs, d) for d in self.delays)]
+                  for dv in (segments.map(eq.delayed_velocity, p, fs=fs, delay=d) for d in self.delays)]
         X = self._regressor(self.G_i.evaluate(rho), self.G_r.evaluate(rho))
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
         self.G = np.stack([X[r].T @ X[r] for r in rows])
@@ -181,10 +183,10 @@ class _Design:
                 self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
 
     def _regressor(self, Gi, Gr, basis=None):
-        cols = [intrinsic_regressor(self.p, Gi, two_sided_lags(self.L_max)),
+        cols = [self.seg.map(intrinsic_regressor, self.p, Gi, lags=two_sided_lags(self.L_max)),
                 curvature_regressor(self.p, Gi, basis or self.G_i)]
         for V in self.V:
-            blocks = reflex_regressor(reflex_input_regressor(V, Gr), self.A, self.C)
+            blocks = reflex_regressor(reflex_input_regressor(V, Gr), self.A, self.C, self.seg)
             cols.append(sum(c * blk for c, blk in zip(self.bd, blocks)))
         return np.hstack(cols + [np.zeros((len(self.p), 1))])  # the last column: zero (no curvature share)
 
@@ -218,9 +220,12 @@ class StructureSearch:
 
     p, y, rho: perturbation position (rad), torque (N m), scheduling (rad) at fs (Hz);
     dynamics: (A, C (1, m), [B; D]) of a fit at the starting settings; family: the
-    scheduling basis family (polynomial: orders nest); velocity_family likewise."""
+    scheduling basis family (polynomial: orders nest); velocity_family likewise; segments:
+    trials joined end to end (:class:`lpvpc.segments.Segments`), whose regressors are built
+    trial by trial."""
 
-    def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None):
+    def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None,
+                 segments=None):
         self.fs = float(fs)
         self.search = dict(SEARCH if search is None else search)
         self.y = np.asarray(y, dtype=float)
@@ -232,7 +237,8 @@ class StructureSearch:
                max(self.search["velocity_order"]), self.delays)
         self.design = _Design(np.asarray(p, dtype=float), self.y, np.asarray(rho, dtype=float), fs, self.labels,
                               self.n_folds, family, velocity_family, dynamics, top,
-                              self.search["scheduling_extrapolation"])
+                              self.search["scheduling_extrapolation"],
+                              segments if segments is not None else Segments((), len(self.y)))
         self.yy = np.array([self.y[self.labels == f] @ self.y[self.labels == f] for f in range(self.n_folds)])
         self.sst = float(np.sum((self.y - self.y.mean()) ** 2))
         self._cache = {}
