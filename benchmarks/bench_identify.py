@@ -281,9 +281,9 @@ def long_records(minutes=(2, 30)) -> list:
     lpvpc_cli = str(Path(sys.executable).parent / "lpvpc")
     lines = ["# Long records (issue 22): whole `lpvpc identify` process against the bare-LS floor "
              "(python benchmarks/bench_identify.py --long)", "",
-             "| record | samples | identify process (s) | its peak RSS (MB) | floor process: load + lstsq of the "
-             "seed-sized regressor (s) | its lstsq alone (s) | regressor | ratio (floor 3x) | VAF (%) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| record | structure | samples | identify process (s) | its peak RSS (MB) | floor process: load + lstsq "
+             "of the seed-sized regressor (s) | its lstsq alone (s) | regressor | ratio (floor 3x) | VAF (%) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for m in minutes:
         with tempfile.TemporaryDirectory() as tmp:
             pair = simulate_pair("multilevel", seed=0, duration=60 * m, fs_out=100.0)
@@ -292,13 +292,15 @@ def long_records(minutes=(2, 30)) -> list:
                 write_trial_csv(trial, path)
             del pair
             model = str(Path(tmp) / "model.json")
-            ident = _timed_process([lpvpc_cli, "identify", "--pt", files[0], "--ut", files[1], "-o", model])
             floor = _timed_process([sys.executable, __file__, "--bare-ls", *files])
-            fit = json.loads(Path(model).read_text())["fit"]
-        f = json.loads(floor["stdout"].strip().splitlines()[-1])
-        lines.append(f"| {m} min | {fit['n_samples']} | {ident['wall_s']:.2f} | {ident['peak_mb']:.0f} | "
-                     f"{floor['wall_s']:.2f} | {f['solve_s']:.2f} | {f['shape'][0]} x {f['shape'][1] - 1} | "
-                     f"{ident['wall_s'] / floor['wall_s']:.2f}x | {fit['vaf']:.2f} |")
+            f = json.loads(floor["stdout"].strip().splitlines()[-1])
+            for structure in ("fixed", "cv"):  # the floor between them: load changes hit both alike
+                ident = _timed_process([lpvpc_cli, "identify", "--pt", files[0], "--ut", files[1], "-o", model,
+                                        "--structure", structure])
+                fit = json.loads(Path(model).read_text())["fit"]
+                lines.append(f"| {m} min | {structure} | {fit['n_samples']} | {ident['wall_s']:.2f} | "
+                             f"{ident['peak_mb']:.0f} | {floor['wall_s']:.2f} | {f['solve_s']:.2f} | {f['shape'][0]} x "
+                             f"{f['shape'][1] - 1} | {ident['wall_s'] / floor['wall_s']:.2f}x | {fit['vaf']:.2f} |")
     return lines
 
 
