@@ -325,6 +325,7 @@ class LPVPCEstimator:
             self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
             return self
         first = LPVPCEstimator(**base)
+        first._reuse = {"no_intervals": True}  # computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             first._fit(data)
@@ -342,16 +343,16 @@ class LPVPCEstimator:
         sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
                               self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
         t_select = time.perf_counter() - t
-        same = all(np.isclose(sel.chosen[k], start[k]) if isinstance(start[k], float) else sel.chosen[k] == start[k]
-                   for k in start)
-        if same:
-            est = first
-            for w in caught:  # the kept fit's warnings, once
-                warnings.warn(w.message, w.category, stacklevel=3)
-        else:
-            chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
-            est = LPVPCEstimator(**{**base, **chosen})._fit(data)
-            est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        # The chosen structure is fitted at the first fit's state order, its poles refined from
+        # the first fit's subspace step (the poles do not depend on the structure's columns;
+        # MOESP is a quarter of a fit). The starting structure chosen: the same fit, with intervals.
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
+        est = LPVPCEstimator(**{**base, **chosen})
+        est._reuse = {"subspace": first.subspace_}
+        est._fit(data)
+        est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        est.model_.fit["singular_values"] = m.fit["singular_values"]
+        est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
         model = est.model_
         model.settings.update({"structure": "cv", "structure_fixed": sorted(fixed)})
         model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
@@ -434,7 +435,8 @@ class LPVPCEstimator:
         timings["regressors"] = time.perf_counter() - t0
 
         t = time.perf_counter()
-        sub = po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
+        reuse = getattr(self, "_reuse", {})  # structure selection's refit: the first fit's subspace step
+        sub = reuse["subspace"] if "subspace" in reuse else po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
         timings["moesp"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -510,7 +512,7 @@ class LPVPCEstimator:
                 return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
-        if design is None:  # intervals (lpvpc.uncertainty); extended models carry none
+        if design is None and not reuse.get("no_intervals"):  # intervals (lpvpc.uncertainty); extended models carry none
             from .reflex import reflex_regressor
             from .uncertainty import fit_uncertainty
 

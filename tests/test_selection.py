@@ -141,3 +141,18 @@ def test_cli_structure_cv_prints_the_choice_and_keeps_written_options(record, tm
     model = json.loads(out.read_text())
     assert model["settings"]["intrinsic_order"] == 3
     assert model["fit"]["structure_selection"]["chosen"]["intrinsic_order"] == 3
+
+
+def test_everything_fixed_gives_the_fixed_structures_model(record):
+    """With every selected setting fixed, structure="cv" refits the starting structure from the
+    first fit's subspace step and state order: the model of structure="fixed", intervals included."""
+    from lpvpc.selection import SEARCH
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fixed = LPVPCEstimator().fit(record).model_
+        cv = LPVPCEstimator(structure="cv", structure_fixed=tuple(SEARCH)).fit(record).model_
+    np.testing.assert_allclose(cv.H, fixed.H, rtol=1e-10, atol=1e-12 * np.abs(fixed.H).max())
+    np.testing.assert_allclose(cv.Omega, fixed.Omega, rtol=1e-10, atol=1e-12)
+    assert cv.state_order == fixed.state_order
+    np.testing.assert_allclose(cv.uncertainty["covariance"], fixed.uncertainty["covariance"], rtol=1e-8, atol=1e-14)
