@@ -316,6 +316,10 @@ class LPVPCEstimator:
         from .selection import SEARCH, StructureSearch
 
         t0 = time.perf_counter()
+        unknown = sorted(set(self.structure_fixed) - set(SEARCH) - {"irf_lags"})
+        if unknown:
+            raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
+                             f"{sorted(SEARCH)} (and irf_lags)")
         base = {**self.get_params(), "structure": "fixed"}
         reason = self._selection_unavailable(data)
         if reason is not None:

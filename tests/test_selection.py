@@ -124,6 +124,8 @@ def test_selection_is_skipped_where_it_cannot_apply_and_bad_values_are_refused(r
     assert "non-polynomial" in est.model_.fit["structure_selection"]["skipped"]
     with pytest.raises(ValueError, match="structure must be 'fixed' or 'cv'"):
         LPVPCEstimator(structure="best").fit(record)
+    with pytest.raises(ValueError, match=r"structure_fixed names settings that are not selected: \['horizon'\]"):
+        LPVPCEstimator(structure="cv", structure_fixed=("horizon",)).fit(record)
 
 
 def test_cli_structure_cv_prints_the_choice_and_keeps_written_options(record, tmp_path, capsys):
