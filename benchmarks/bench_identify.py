@@ -186,6 +186,10 @@ def speed_floor() -> list:
                  f"{t_ls:.3f} s: ratio {t_ident / t_ls:.1f}x (floor 3x)")
     lines.append(f"- against a bare least-squares solve of the subspace step's own data matrix (the {H.shape[0]} x "
                  f"{H.shape[1]} block-Hankel matrix, numpy lstsq) {t_ls_h:.3f} s: ratio {t_ident / t_ls_h:.2f}x")
+    t_cv, model_cv = _median_time(lambda: identify(data, structure="cv"))
+    lines.append(f"- structure='cv' (issue 22: selection included) {t_cv:.2f} s: {t_cv / t_ls_h:.2f}x that block-Hankel "
+                 f"solve (floor 3x), {t_cv / t_ident:.2f}x the fixed structure (selection "
+                 f"{model_cv.fit['timings_s']['selection']:.3f} s of the last run)")
     lines.append(f"- the subspace step's factor of that matrix: {hankel['seconds']:.3f} s by the {hankel['how']} route "
                  f"(= {hankel['seconds'] / t_ls:.1f}x the final regressor's solve; its QR, the route before, "
                  f"{t_qr_h:.3f} s = {t_qr_h / t_ls:.1f}x)")

@@ -501,7 +501,8 @@ class LPVPCEstimator:
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
             curvature=curvature,
             settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
-                      "stationary_delays": [float(c) for c in self.stationary_delays]},  # JSON: a list
+                      "stationary_delays": [float(c) for c in self.stationary_delays],  # JSON: lists
+                      "structure_fixed": list(self.structure_fixed)},
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
