@@ -180,11 +180,11 @@ class _Design:
         self.G_r = Basis(family, self.nr_max, lo, hi)
         self.V = [basis_from_data(dv, velocity_family, self.nv_max, extrapolation="linear").evaluate(dv)
                   for dv in (segments.map(eq.delayed_velocity, p, fs=fs, delay=d) for d in self.delays)]
-        X = self._regressor(self.G_i.evaluate(rho), self.G_r.evaluate(rho))
+        Gi, Gr = self.G_i.evaluate(rho), self.G_r.evaluate(rho)
+        X = self._regressor(Gi, Gr)
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
         self.G = np.stack([X[r].T @ X[r] for r in rows])
         self.b = np.stack([X[r].T @ y[r] for r in rows])
-        del X
         self.end = {rule: {} for rule in rules}
         for f, r in enumerate(rows):
             train = rho[labels != f]
@@ -192,16 +192,45 @@ class _Design:
             if t_lo <= lo and t_hi >= hi:
                 continue
             for rule in rules:  # an end level: its model's basis spans only the other levels
-                Xe = self._regressor(_held_basis(self.G_i, rho, t_lo, t_hi, rule),
-                                     _held_basis(self.G_r, rho, t_lo, t_hi, rule), self.G_i)[r]
+                Xe = X[r] + self._change(Gi, Gr, _held_basis(self.G_i, rho, t_lo, t_hi, rule),
+                                         _held_basis(self.G_r, rho, t_lo, t_hi, rule), r)
                 self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
+        del X
+
+    def _change(self, Gi, Gr, Gi_held, Gr_held, r):
+        """Rows ``r`` of the regressor's change when the basis values change from (Gi, Gr) to
+        the held ones (the regressor is linear in them; they differ only beyond the training
+        range, so the reflex filters start from rest at the first such row: a window, not the record)."""
+        dGi, dGr = Gi_held - Gi, Gr_held - Gr
+        changed = np.flatnonzero(np.any(dGi != 0, axis=1) | np.any(dGr != 0, axis=1))
+        out = np.zeros((len(r), self.n_cols))
+        if changed.size == 0:
+            return out
+        w0 = min(int(changed[0]), int(r.min())) if len(self.seg) == 1 else 0  # input zero before changed[0]
+        w1 = int(max(r.max(), changed[-1])) + 1 if len(self.seg) == 1 else len(self.p)
+        seg = self.seg if len(self.seg) > 1 else None
+        window = slice(w0, w1)
+        n_lag = (2 * self.L_max + 1) * Gi.shape[1]
+        lags = two_sided_lags(self.L_max)
+        intr = self.seg.map(intrinsic_regressor, self.p, dGi, lags=lags) if seg is not None else \
+            intrinsic_regressor(self.p, dGi, lags)
+        out[:, :n_lag] = intr[r]
+        out[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p[r], dGi[r], self.G_i)
+        col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
+        k = r - w0  # the rows within the window
+        for V in self.V:
+            blocks = reflex_regressor(reflex_input_regressor(V[window], dGr[window]), self.A, self.C, seg)
+            out[:, col : col + n_ref] = sum(c * blk[k] for c, blk in zip(self.bd, blocks))
+            col += n_ref
+        return out
 
     def _regressor(self, Gi, Gr, basis=None):
         """The largest regressor, filled block by block into one array (a 30-minute record's is
         260 MB: no second copy): IRF columns, curvature shares, each delay's reflex columns, a zero column."""
         n_lag = (2 * self.L_max + 1) * Gi.shape[1]
         n_ref = V_cols = (self.nv_max + 1) * Gr.shape[1]
-        X = np.zeros((len(self.p), n_lag + Gi.shape[1] + len(self.V) * n_ref + 1))
+        self.n_cols = n_lag + Gi.shape[1] + len(self.V) * n_ref + 1
+        X = np.zeros((len(self.p), self.n_cols))
         X[:, :n_lag] = self.seg.map(intrinsic_regressor, self.p, Gi, lags=two_sided_lags(self.L_max))
         X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
         col = n_lag + Gi.shape[1]

@@ -16,6 +16,7 @@ from lpvpc.data import pair_trials
 from lpvpc.identify import LPVPCEstimator
 from lpvpc.intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
 from lpvpc.reflex import reflex_input_regressor, reflex_regressor
+from lpvpc.segments import Segments
 from lpvpc.selection import StructureSearch, level_folds
 from lpvpc.simulate import simulate_pair
 from lpvpc.subspace import companion_form
@@ -158,3 +159,28 @@ def test_everything_fixed_gives_the_fixed_structures_model(record):
     np.testing.assert_allclose(cv.Omega, fixed.Omega, rtol=1e-10, atol=1e-12)
     assert cv.state_order == fixed.state_order
     np.testing.assert_allclose(cv.uncertainty["covariance"], fixed.uncertainty["covariance"], rtol=1e-8, atol=1e-14)
+
+
+@pytest.mark.parametrize("joined", [False, True])
+def test_end_fold_rows_from_the_change_in_a_window_equal_a_rebuilt_regressor(record, joined):
+    """An end fold's rows under a rule are the whole-range regressor's plus the change of the
+    held basis values, its reflex filters run over a window only: equal to rebuilding it."""
+    from lpvpc.data import join_trials
+    from lpvpc.selection import _held_basis
+
+    d = join_trials([record.segment(0, 2500), record.segment(2500, None)]) if joined else record
+    A, C = companion_form(np.poly([0.9, 0.8])[1:])
+    search = StructureSearch(d.position, d.torque, d.scheduling, d.fs, (A, C, np.array([1.0, 0.4, 0.05])),
+                             segments=Segments.of(d, d.n))
+    D, rho, labels = search.design, d.scheduling, search.labels
+    Gi, Gr = D.G_i.evaluate(rho), D.G_r.evaluate(rho)
+    X = D._regressor(Gi, Gr)
+    for rule in ("clip", "linear"):
+        assert len(D.end[rule]) == 2
+        for f, (Ge, be) in D.end[rule].items():
+            r = np.flatnonzero(labels == f)
+            t_lo, t_hi = rho[labels != f].min(), rho[labels != f].max()
+            Xe = D._regressor(_held_basis(D.G_i, rho, t_lo, t_hi, rule), _held_basis(D.G_r, rho, t_lo, t_hi, rule))[r]
+            np.testing.assert_allclose(Ge, Xe.T @ Xe, rtol=1e-9, atol=1e-9 * np.abs(Ge).max())
+            np.testing.assert_allclose(be, Xe.T @ d.torque[r], rtol=1e-9, atol=1e-9 * np.abs(be).max())
+    assert X.shape[1] == D.n_cols
