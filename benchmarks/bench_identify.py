@@ -17,7 +17,15 @@
 - a library session's identification on one BLAS thread (lpvpc.linalg.one_blas_thread)
   against OpenBLAS threads on every CPU.
 
+- issue 22's long-record floor (``--long``, into benchmarks/results/identify_long.txt):
+  for a 2- and a 30-minute record written as 100 Hz CSV files, the whole ``lpvpc identify``
+  process (load, identify, write the model file) against a process that loads the same
+  files, builds the seed-sized regressor (the subspace step's block-Hankel matrix at the
+  default settings) and solves it by numpy lstsq; each in a fresh process, wall time and
+  peak resident memory by /usr/bin/time -v.
+
 Run: python benchmarks/bench_identify.py   (writes benchmarks/results/identify.txt)
+     python benchmarks/bench_identify.py --long   (writes benchmarks/results/identify_long.txt)
 """
 
 from __future__ import annotations
@@ -178,6 +186,10 @@ def speed_floor() -> list:
                  f"{t_ls:.3f} s: ratio {t_ident / t_ls:.1f}x (floor 3x)")
     lines.append(f"- against a bare least-squares solve of the subspace step's own data matrix (the {H.shape[0]} x "
                  f"{H.shape[1]} block-Hankel matrix, numpy lstsq) {t_ls_h:.3f} s: ratio {t_ident / t_ls_h:.2f}x")
+    t_cv, model_cv = _median_time(lambda: identify(data, structure="cv"))
+    lines.append(f"- structure='cv' (issue 22: selection included) {t_cv:.2f} s: {t_cv / t_ls_h:.2f}x that block-Hankel "
+                 f"solve (floor 3x), {t_cv / t_ident:.2f}x the fixed structure (selection "
+                 f"{model_cv.fit['timings_s']['selection']:.3f} s of the last run)")
     lines.append(f"- the subspace step's factor of that matrix: {hankel['seconds']:.3f} s by the {hankel['how']} route "
                  f"(= {hankel['seconds'] / t_ls:.1f}x the final regressor's solve; its QR, the route before, "
                  f"{t_qr_h:.3f} s = {t_qr_h / t_ls:.1f}x)")
@@ -219,7 +231,95 @@ def blas_threads() -> list:
             f"{b} {tb:.2f} s ({tb / ta:.2f}x)"]
 
 
+def bare_ls(pt, ut):
+    """Child of long_records: load the files, build the seed-sized regressor (the subspace
+    step's block-Hankel matrix [U_f; U_p; Y_p; Y_f]^T at the default settings) and solve it
+    by numpy lstsq (the last future output on the other columns); print JSON timings."""
+    t0 = time.perf_counter()
+    from lpvpc import equations as eq
+    from lpvpc.basis import basis_from_data
+    from lpvpc.data import load_identification_data
+    from lpvpc.identify import LPVPCEstimator
+    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.reflex import reflex_input_regressor
+    from lpvpc.subspace import hankel_rows
+
+    data = load_identification_data(pt=pt, ut=ut)
+    t_load = time.perf_counter() - t0
+    est = LPVPCEstimator()
+    p, y, rho, fs = data.position, data.torque, data.scheduling, data.fs
+    dvel = eq.delayed_velocity(p, fs, int(round(est.reflex_delay * fs)))
+    Psi_i = intrinsic_regressor(p, basis_from_data(rho, est.basis, est.intrinsic_order).evaluate(rho),
+                                two_sided_lags(est.resolved_lags(fs)))
+    U_r = reflex_input_regressor(basis_from_data(dvel, est.velocity_basis, est.velocity_order, "linear").evaluate(dvel),
+                                 basis_from_data(rho, est.basis, est.reflex_order).evaluate(rho))
+    s = est.horizon
+    H = hankel_rows(np.hstack([U_r, Psi_i]), U_r, y, 0, len(y) - 2 * s + 1, s)
+    t = time.perf_counter()
+    np.linalg.lstsq(H[:, :-1], H[:, -1], rcond=None)
+    t_solve = time.perf_counter() - t
+    print(json.dumps({"shape": list(H.shape), "load_s": t_load, "solve_s": t_solve,
+                      "total_s": time.perf_counter() - t0}))
+
+
+def _timed_process(args) -> dict:
+    """Wall time (s), peak resident memory (MB) and stdout of a fresh process under /usr/bin/time -v."""
+    t = time.perf_counter()
+    out = subprocess.run(["/usr/bin/time", "-v", *args], capture_output=True, text=True,
+                         env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    wall = time.perf_counter() - t
+    if out.returncode != 0:
+        raise RuntimeError(f"{args[:3]} failed: {out.stderr.strip().splitlines()[-3:]}")
+    rss = next(float(line.split()[-1]) for line in out.stderr.splitlines() if "Maximum resident" in line)
+    return {"wall_s": wall, "peak_mb": rss / 1024, "stdout": out.stdout}
+
+
+def long_records(minutes=(2, 30)) -> list:
+    """Issue 22's floor: the whole identify process against load + bare lstsq of the
+    seed-sized regressor from the same files, and its peak memory (< 1 GB at 30 minutes)."""
+    import tempfile
+
+    from lpvpc.data import write_trial_csv
+    from lpvpc.simulate import simulate_pair
+
+    lpvpc_cli = str(Path(sys.executable).parent / "lpvpc")
+    lines = ["# Long records (issue 22): whole `lpvpc identify` process against the bare-LS floor "
+             "(python benchmarks/bench_identify.py --long)", "",
+             "| record | structure | samples | identify process (s) | its peak RSS (MB) | floor process: load + lstsq "
+             "of the seed-sized regressor (s) | its lstsq alone (s) | regressor | ratio (floor 3x) | VAF (%) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for m in minutes:
+        with tempfile.TemporaryDirectory() as tmp:
+            pair = simulate_pair("multilevel", seed=0, duration=60 * m, fs_out=100.0)
+            files = [str(Path(tmp) / f"{k}.csv") for k in ("PT", "UT")]
+            for trial, path in zip((pair.pt, pair.ut), files):
+                write_trial_csv(trial, path)
+            del pair
+            model = str(Path(tmp) / "model.json")
+            floor = _timed_process([sys.executable, __file__, "--bare-ls", *files])
+            f = json.loads(floor["stdout"].strip().splitlines()[-1])
+            for structure in ("fixed", "cv"):  # the floor between them: load changes hit both alike
+                ident = _timed_process([lpvpc_cli, "identify", "--pt", files[0], "--ut", files[1], "-o", model,
+                                        "--structure", structure])
+                fit = json.loads(Path(model).read_text())["fit"]
+                lines.append(f"| {m} min | {structure} | {fit['n_samples']} | {ident['wall_s']:.2f} | "
+                             f"{ident['peak_mb']:.0f} | {floor['wall_s']:.2f} | {f['solve_s']:.2f} | {f['shape'][0]} x "
+                             f"{f['shape'][1] - 1} | {ident['wall_s'] / floor['wall_s']:.2f}x | {fit['vaf']:.2f} |")
+    return lines
+
+
 def main():
+    if len(sys.argv) > 3 and sys.argv[1] == "--bare-ls":
+        bare_ls(sys.argv[2], sys.argv[3])
+        return
+    if len(sys.argv) > 1 and sys.argv[1] == "--long":
+        load_before = os.getloadavg()
+        lines = long_records()
+        lines += ["", f"Conditions: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS="
+                      f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, 1-minute load average {load_before[0]:.1f} "
+                      f"at the start and {os.getloadavg()[0]:.1f} at the end (ratios are from one run)"]
+        write_results("identify_long.txt", lines, echo=True)
+        return
     if len(sys.argv) > 3 and sys.argv[1] == "--one":
         one_length(sys.argv[2], sys.argv[3])
         return

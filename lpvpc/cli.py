@@ -255,6 +255,10 @@ def cmd_identify(args) -> int:
         settings.pop("state_order")
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
+    if settings.get("structure") == "cv":  # what the user wrote is not selected
+        from .selection import SEARCH
+
+        settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags")
     target_fs = None if args.fs == 0 else args.fs
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign)
@@ -290,6 +294,8 @@ def cmd_identify(args) -> int:
     print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
     for line in _physical_summary(model):
         print(line)
+    for line in _selection_summary(fit.get("structure_selection")):
+        print(line)
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
@@ -317,6 +323,27 @@ class _progress_after:
     def __exit__(self, *exc):
         self.timer.cancel()
         return False
+
+
+def _selection_summary(sel) -> list:
+    """Lines of the structure selection (--structure cv): the chosen structure and a short CV table."""
+    if not sel:
+        return []
+    if "skipped" in sel:
+        return [f"structure:   as given (not selected: {sel['skipped']})"]
+    short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
+             "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
+
+    def text(s):
+        return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
+                         f"{short.get(k, k)} {v}" for k, v in s.items())
+
+    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
+             f"             {'CV VAF %':>9} {'params':>6}  structure"]
+    for row in sel["table"]:
+        mark = "*" if row["settings"] == sel["chosen"] else " "
+        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
+    return lines
 
 
 def _physical_summary(model) -> list:
@@ -850,6 +877,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
+    p.add_argument("--structure", choices=("fixed", "cv"),
+                   help="cv: choose IRF half-width, basis orders, reflex delay, curvature term and extrapolation "
+                        "rule by leave-one-level-out cross-validation (options given here stay fixed; default fixed)")
+    p.add_argument("--extrapolation", dest="scheduling_extrapolation", choices=("clip", "linear"),
+                   help="beyond the identified position range the bases are held (clip, default) or continued "
+                        "linearly")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
     _add_quiet_arg(p)

@@ -118,6 +118,16 @@ class LPVPCEstimator:
         +14 % high on the virtual subject (+1 % with it; K unchanged). Lab pilot trial:
         held-out VAF 94.06 % with it, 94.10 % without; free coefficients instead of tied
         ones lost 0.13 points there (and 6 points on the 1 kHz path).
+    structure : "fixed" (default: the settings as given) or "cv": the IRF half-width, basis
+        orders, reflex delay, curvature term and scheduling extrapolation are chosen by
+        leave-one-level-out cross-validation with the one-standard-error rule
+        (:mod:`lpvpc.selection`), starting from the settings given; the choice and a CV
+        table are recorded in ``model.fit["structure_selection"]``.
+    structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
+        given (the command line puts there every option the user wrote).
+    scheduling_extrapolation : beyond the identified range of the scheduling variable the
+        position bases are held at the boundary ("clip", default) or continued along their
+        tangent ("linear"; :class:`lpvpc.basis.Basis`).
     effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
         model; default none). Intrinsic-pathway effects are estimated jointly with the
         intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
@@ -176,7 +186,13 @@ class LPVPCEstimator:
         high_rate_reflex: bool = False,
         elastic_curvature: bool = True,
         max_reflex_time_constant: float | None = DEFAULT_MAX_REFLEX_TIME_CONSTANT,
+        structure: str = "fixed",
+        structure_fixed: tuple = (),
+        scheduling_extrapolation: str = "clip",
     ):
+        self.structure = structure
+        self.structure_fixed = structure_fixed
+        self.scheduling_extrapolation = scheduling_extrapolation
         self.elastic_curvature = elastic_curvature
         self.max_reflex_time_constant = max_reflex_time_constant
         self.high_rate_reflex = high_rate_reflex
@@ -211,7 +227,7 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant")}
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")}
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -262,6 +278,10 @@ class LPVPCEstimator:
                 from .data import join_trials
 
                 data = join_trials(data)
+            if self.structure not in ("fixed", "cv"):
+                raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+            if self.structure == "cv":
+                return self._fit_selected(data)
             try:
                 return self._fit(data)
             except InsufficientExcitationError as exc:
@@ -275,6 +295,76 @@ class LPVPCEstimator:
                               f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
                               LpvpcWarning, stacklevel=2)
                 return self._fit(replace(data, high_rate=None))
+
+    def _selection_unavailable(self, data) -> str | None:
+        """Why the structure cannot be selected on these data (None: it can)."""
+        rho = np.asarray(data.scheduling, dtype=float)
+        if rho.size == 0 or not np.all(np.isfinite(rho)) or float(np.ptp(rho)) < self.stationary_range:
+            return "stationary trial (its delay is chosen by BIC: stationary_delays)"
+        if self.effects:
+            return "extended model (effects)"
+        if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
+            return "non-polynomial basis (the candidates' columns do not nest)"
+        if self.high_rate_reflex and getattr(data, "high_rate", None) is not None:
+            return "reflex nonlinearity on the high-rate velocity"
+        return None
+
+    def _fit_selected(self, data) -> "LPVPCEstimator":
+        """structure="cv": a fit at the given settings gives the reflex dynamics; the
+        structure is chosen by cross-validation with them held (lpvpc.selection); the
+        chosen structure is fitted (its state order the first fit's)."""
+        from .selection import SEARCH, StructureSearch
+
+        t0 = time.perf_counter()
+        unknown = sorted(set(self.structure_fixed) - set(SEARCH) - {"irf_lags"})
+        if unknown:
+            raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
+                             f"{sorted(SEARCH)} (and irf_lags)")
+        base = {**self.get_params(), "structure": "fixed"}
+        reason = self._selection_unavailable(data)
+        if reason is not None:
+            est = LPVPCEstimator(**base).fit(data)
+            est.model_.settings["structure"] = "cv"
+            est.model_.fit["structure_selection"] = {"skipped": reason}
+            self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
+            return self
+        first = LPVPCEstimator(**base)
+        first._reuse = {"no_intervals": True}  # computed once, for the model kept
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            first._fit(data)
+        m = first.model_
+        fs = m.fs
+        start = {"irf_length": m.settings["irf_lags"] / fs, "intrinsic_order": self.intrinsic_order,
+                 "reflex_order": self.reflex_order, "velocity_order": self.velocity_order,
+                 "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
+                 "scheduling_extrapolation": self.scheduling_extrapolation}
+        fixed = {"irf_length" if k == "irf_lags" else k for k in self.structure_fixed}
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        search = {**SEARCH, **{k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH if k not in fixed}}
+        search.update({k: (start[k],) for k in fixed if k in SEARCH})
+        t = time.perf_counter()
+        sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                              self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
+        t_select = time.perf_counter() - t
+        # The chosen structure is fitted at the first fit's state order, its poles refined from
+        # the first fit's subspace step (the poles do not depend on the structure's columns;
+        # MOESP is a quarter of a fit). The starting structure chosen: the same fit, with intervals.
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
+        est = LPVPCEstimator(**{**base, **chosen})
+        est._reuse = {"subspace": first.subspace_}
+        est._fit(data)
+        est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        est.model_.fit["singular_values"] = m.fit["singular_values"]
+        est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
+        model = est.model_
+        model.settings.update({"structure": "cv", "structure_fixed": sorted(fixed)})
+        model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
+                                            "state_order_from": "BIC at the starting structure"}
+        model.fit["timings_s"]["selection"] = t_select
+        model.fit["timings_s"]["total"] = time.perf_counter() - t0
+        self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
+        return self
 
     def _fit_both_ways(self, data) -> "LPVPCEstimator":
         """Effects that may be fitted ``after_reflex`` (lpvpc.effects.Effect): the fit with
@@ -316,8 +406,8 @@ class LPVPCEstimator:
         dvel = seg.map(eq.delayed_velocity, p, fs=fs, delay=delay)
 
         rho_orders = self._scheduling_orders(rho)
-        G_i = basis_from_data(rho, self.basis, rho_orders["intrinsic_order"])
-        G_r = basis_from_data(rho, self.basis, rho_orders["reflex_order"])
+        G_i = basis_from_data(rho, self.basis, rho_orders["intrinsic_order"], self.scheduling_extrapolation)
+        G_r = basis_from_data(rho, self.basis, rho_orders["reflex_order"], self.scheduling_extrapolation)
         V_b = basis_from_data(dvel, self.velocity_basis, self.velocity_order, extrapolation="linear")
         Gi_val, Gr_val = G_i.evaluate(rho), G_r.evaluate(rho)
         Psi_irf = seg.map(intrinsic_regressor, p, Gi_val, lags=lags)
@@ -349,7 +439,8 @@ class LPVPCEstimator:
         timings["regressors"] = time.perf_counter() - t0
 
         t = time.perf_counter()
-        sub = po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
+        reuse = getattr(self, "_reuse", {})  # structure selection's refit: the first fit's subspace step
+        sub = reuse["subspace"] if "subspace" in reuse else po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
         timings["moesp"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -384,6 +475,7 @@ class LPVPCEstimator:
                if m in stable or not stable}
         m_best = min(bic, key=bic.get)
         best = fits[m_best]
+        del refinement  # its N-row factors (a third of a 30-minute record's peak memory)
         timings["projection_and_reflex"] = time.perf_counter() - t
 
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
@@ -393,6 +485,7 @@ class LPVPCEstimator:
         Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
         # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
         H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
+        del Psi_c, S_c
 
         hf = best["hammerstein"]
         Omega = hf.omega.reshape(-1, G_r.size)
@@ -408,7 +501,8 @@ class LPVPCEstimator:
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
             curvature=curvature,
             settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
-                      "stationary_delays": [float(c) for c in self.stationary_delays]},  # JSON: a list
+                      "stationary_delays": [float(c) for c in self.stationary_delays],  # JSON: lists
+                      "structure_fixed": list(self.structure_fixed)},
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
@@ -423,7 +517,7 @@ class LPVPCEstimator:
                 return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
-        if design is None:  # intervals (lpvpc.uncertainty); extended models carry none
+        if design is None and not reuse.get("no_intervals"):  # intervals (lpvpc.uncertainty); extended models carry none
             from .reflex import reflex_regressor
             from .uncertainty import fit_uncertainty
 
@@ -532,7 +626,7 @@ class LPVPCEstimator:
         # solved on their triangular factor, at ~100 rows instead of N, with the same
         # solutions and residual norms.
         k_r = sum(blk.shape[1] for blk in blocks)
-        R = triangular_factor(np.hstack(blocks + [Psi_i, y[:, None]]))
+        R = triangular_factor(blocks + [Psi_i, y])  # (stacked a block of rows at a time)
         blocks_c, Psi_i_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
         theta_i = project_out_and_solve(R[:, :k_r], Psi_i_c, y_c)
         tq_r = y_c - Psi_i_c @ theta_i

@@ -108,12 +108,46 @@ def triangular_factor(M):
     >>> R = triangular_factor(np.column_stack([M, y]))  # least squares on 4 rows instead of 1000
     >>> np.linalg.solve(R[:3, :3], R[:3, 3]).round(12)
     array([ 1. , -2. ,  0.5])
+
+    M may be a list of arrays (N rows each; 1-D ones are columns): the factor of their
+    columns side by side, stacked a block of rows at a time instead of copied whole (a
+    30-minute record's final regressor is 144 MB):
+
+    >>> bool(np.allclose(np.abs(triangular_factor([M, y])), np.abs(R)))
+    True
     """
-    chunk = max(CHUNK_ROWS, M.shape[1])
+    if isinstance(M, (list, tuple)):
+        parts = [np.asarray(m, dtype=float).reshape(len(m), -1) for m in M]
+        n, n_cols = len(parts[0]), sum(m.shape[1] for m in parts)
+
+        def block(a, b):
+            b = min(b, n)
+            out = np.empty((b - a, n_cols), order="F")
+            col = 0
+            for m in parts:
+                out[:, col : col + m.shape[1]] = m[a:b]
+                col += m.shape[1]
+            return out
+    else:
+        n, n_cols = M.shape
+        block = lambda a, b: M[a:b]  # noqa: E731
+    chunk = max(CHUNK_ROWS, n_cols)
     R = None
-    for start in range(0, len(M), chunk):
-        R = fold_rows(R, M[start : start + chunk])
+    for start in range(0, n, chunk):
+        R = fold_rows(R, block(start, start + chunk))
     return R
+
+
+def tall_lstsq(M, y):
+    """Least-squares solution of M x ~ y for a tall M (N x n), computed on the triangular
+    factor of [M, y] (same solution; no N x n copy, which numpy's lstsq makes).
+
+    >>> M = np.random.default_rng(0).standard_normal((1000, 3))
+    >>> tall_lstsq(M, M @ np.array([1.0, -2.0, 0.5])).round(12)
+    array([ 1. , -2. ,  0.5])
+    """
+    R = triangular_factor([M, y])
+    return np.linalg.lstsq(R[:, :-1], R[:, -1], rcond=None)[0]
 
 
 # Pivots of a Gram matrix's Cholesky factor, relative to the column's own squared norm.

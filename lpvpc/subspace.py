@@ -18,7 +18,10 @@ every shift, a lagged position seen at two shifts) are dependent: they get zero 
 (``lpvpc.linalg.deflated_cholesky``). Where that factor does not reproduce the Gram
 matrix (squared conditioning: short records, whose scheduling takes few levels), the
 transpose of H is streamed through a QR factorisation chunk by chunk instead
-(``streamed_r``). Memory is O((s n_u)^2), time is linear in N.
+(``streamed_r``). Memory is O((s n_u)^2) plus a block of rows: the base signals are
+scaled and stacked block by block (:class:`StackedColumns`), never as one N x n matrix
+(a 30-minute record's subspace step took 595 MB above its inputs before, 6 MB now);
+time is linear in N.
 """
 
 from __future__ import annotations
@@ -61,11 +64,54 @@ class SubspaceResult:
         return A, C
 
 
+# Rows of base signals computed at a time by the Gram route (a block of ~12 MB at the
+# default settings' 181 base columns).
+GRAM_CHUNK_ROWS = 8192
+
+
+class StackedColumns:
+    """The columns of several (N, k) arrays side by side, each divided by its scale, formed
+    only for the rows asked for: ``S[a:b]`` is again lazy, ``np.asarray(S[a:b])`` the
+    (b - a) x n block. The subspace step's inputs ([U_r, Psi_i] at unit RMS) are thereby
+    never copied whole.
+
+    >>> a, b = np.arange(6.0).reshape(3, 2), np.ones((3, 1))
+    >>> S = StackedColumns([a, b], np.array([1.0, 2.0, 0.5]))
+    >>> S.shape, np.asarray(S[1:3]).tolist()
+    ((3, 3), [[2.0, 1.5, 2.0], [4.0, 2.5, 2.0]])
+    """
+
+    def __init__(self, parts, scale=None, rows=None):
+        self.parts = [np.asarray(p, dtype=float).reshape(len(p), -1) for p in parts]
+        n_cols = sum(p.shape[1] for p in self.parts)
+        self.scale = np.ones(n_cols) if scale is None else np.asarray(scale, dtype=float)
+        self.rows = slice(0, len(self.parts[0])) if rows is None else rows
+        self.shape = (len(range(len(self.parts[0]))[self.rows]), n_cols)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, idx):
+        if not isinstance(idx, slice) or idx.step not in (None, 1):
+            raise TypeError("StackedColumns takes contiguous row slices only")
+        r = range(len(self.parts[0]))[self.rows][idx]
+        return StackedColumns(self.parts, self.scale, slice(r.start, r.stop))
+
+    def __array__(self, dtype=None, copy=None):
+        out = np.empty(self.shape, order="F")
+        col = 0
+        for p in self.parts:
+            out[:, col : col + p.shape[1]] = p[self.rows]
+            col += p.shape[1]
+        out /= self.scale
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
 def hankel_rows(u_future, u_past, y, start: int, stop: int, s: int):
     """Rows ``start..stop-1`` of the transposed block Hankel matrix [U_f; U_p; Y_p; Y_f]^T
     (column-major, as LAPACK takes it)."""
-    blocks = [u_future[start + t : stop + t] for t in range(s, 2 * s)]
-    blocks += [u_past[start + t : stop + t] for t in range(s)]
+    blocks = [np.asarray(u_future[start + t : stop + t]) for t in range(s, 2 * s)]
+    blocks += [np.asarray(u_past[start + t : stop + t]) for t in range(s)]
     blocks += [y[start + t : stop + t, None] for t in range(2 * s)]
     out = np.empty((stop - start, sum(blk.shape[1] for blk in blocks)), order="F")
     col = 0
@@ -96,17 +142,19 @@ def streamed_r(u_future, u_past, y, s: int, chunk: int | None = None, segments=N
     return R
 
 
-def hankel_gram(X, blocks, segments=None):
+def hankel_gram(X, blocks, segments=None, chunk: int = GRAM_CHUNK_ROWS):
     """Gram matrix H^T H of a transposed block Hankel matrix H, from lagged cross-products.
 
-    X: (N, n_b) base signals; blocks: ``[(columns of X, shift), ...]`` in H's column
+    X: (N, n_b) base signals, or a function ``rows(a, b)`` returning rows a..b-1 of them
+    with attributes ``n`` (N) and ``n_cols`` (n_b), so that only ``chunk`` rows exist at a
+    time; blocks: ``[(columns of X, shift), ...]`` in H's column
     order; H's row t, column (a, i) is X[t + i, a] for t = 0..N - S, S = 1 + the largest
     shift. With ``segments`` (:class:`lpvpc.segments.Segments`) each trial adds its own
     rows (none spans a seam): the Gram matrix is the sum of the trials'.
 
     Entry ((a, i), (b, j)), j >= i, is sum_u X[u, a] X[u + j - i, b] over the N - S + 1
     rows u = i.. of that window: a full lag product (one matrix product per lag and pair
-    of column sets) minus the few rows at both ends.
+    of column sets, summed over blocks of rows) minus the few rows at both ends.
 
     It equals H^T H of the rows :func:`hankel_rows` builds:
 
@@ -114,13 +162,17 @@ def hankel_gram(X, blocks, segments=None):
     >>> u, y = rng.standard_normal((200, 3)), rng.standard_normal(200)
     >>> H = hankel_rows(u, u[:, :1], y, 0, 200 - 2 * 2 + 1, 2)  # horizon s = 2
     >>> blocks = [([0, 1, 2], 2), ([0, 1, 2], 3), ([0], 0), ([0], 1)] + [([3], i) for i in range(4)]
-    >>> bool(np.allclose(hankel_gram(np.column_stack([u, y]), blocks), H.T @ H))
+    >>> bool(np.allclose(hankel_gram(np.column_stack([u, y]), blocks, chunk=30), H.T @ H))
     True
     """
-    X = np.asarray(X, dtype=float)
+    if callable(X):
+        rows, n_total, n_b = X, int(X.n), int(X.n_cols)
+    else:
+        X = np.asarray(X, dtype=float)
+        rows, (n_total, n_b) = (lambda a, b: X[a:b]), X.shape
     blocks = [(_as_slice(c), int(i)) for c, i in blocks]
     S = 1 + max(i for _, i in blocks)
-    sizes = [len(range(X.shape[1])[c]) for c, _ in blocks]
+    sizes = [len(range(n_b)[c]) for c, _ in blocks]
     starts = np.concatenate([[0], np.cumsum(sizes)])
     G = np.zeros((starts[-1], starts[-1]))
     # Blocks that share a column set share the lag products: key = (set of a, set of b, lag).
@@ -129,21 +181,33 @@ def hankel_gram(X, blocks, segments=None):
         for q, (cb, j) in enumerate(blocks):
             if j >= i and (j > i or q >= p):
                 keys.setdefault((_key(ca), _key(cb), j - i), []).append((p, q))
-    for a0, b0 in (segments if segments is not None else [(0, len(X))]):
-        x = X[a0:b0]
-        n = len(x)
+    d_max = max(d for _, _, d in keys)
+    chunk = max(int(chunk), 1)
+    for a0, b0 in (segments if segments is not None else [(0, n_total)]):
+        n = b0 - a0
         n_rows = n - S + 1
         if n_rows <= 0:
             continue
-        head, tail = x[: 2 * S], x[max(n - 2 * S, 0) :]
+        head, tail = rows(a0, a0 + min(2 * S, n)), rows(a0 + max(n - 2 * S, 0), b0)
         t_off = n - len(tail)
-        for (_, _, d), pqs in keys.items():
+        F = {}  # sum over all u of x_a[u] x_b[u + d], block of rows by block
+        for c0 in range(0, n, chunk):
+            c1 = min(c0 + chunk, n)
+            x = rows(a0 + c0, a0 + min(c1 + d_max, n))
+            for key, pqs in keys.items():
+                d = key[2]
+                m = min(c1, n - d) - c0
+                if m > 0:
+                    ca, cb = blocks[pqs[0][0]][0], blocks[pqs[0][1]][0]
+                    prod = x[:m, ca].T @ x[d : d + m, cb]
+                    F[key] = F[key] + prod if key in F else prod
+        for (ka, kb, d), pqs in keys.items():
             ca, cb = blocks[pqs[0][0]][0], blocks[pqs[0][1]][0]
-            F = x[: n - d, ca].T @ x[d:, cb]  # sum over all u of x_a[u] x_b[u + d]
+            Fk = F.get((ka, kb, d), 0.0)
             for p, q in pqs:
                 i = blocks[p][1]
                 u0 = i + n_rows - t_off  # the window is u = i .. i + n_rows - 1
-                blk = F - head[:i, ca].T @ head[d : d + i, cb] - tail[u0 : len(tail) - d, ca].T @ tail[u0 + d :, cb]
+                blk = Fk - head[:i, ca].T @ head[d : d + i, cb] - tail[u0 : len(tail) - d, ca].T @ tail[u0 + d :, cb]
                 G[starts[p] : starts[p + 1], starts[q] : starts[q + 1]] += blk
                 if q != p:
                     G[starts[q] : starts[q + 1], starts[p] : starts[p + 1]] += blk.T
@@ -205,22 +269,41 @@ def moesp_factor(u_future, u_past, y, s: int, segments=None, chunk: int | None =
         return streamed_r(u_future, u_past, y, s, chunk, segments), "qr"
     groups = []  # future inputs at shifts s..2s-1, past inputs at 0..s-1
     for U, shifts in ((u_future, range(s, 2 * s)), (u_past, range(s))):
-        # partners: ||x_a(u) - x_b(u - 1)||^2 from the lag-1 products (per trial: no seams)
+        # partners: ||x_a(u) - x_b(u - 1)||^2 from the lag-1 products (per trial: no seams),
+        # a block of rows at a time
         sq, F1 = np.zeros(U.shape[1]), np.zeros((U.shape[1], U.shape[1]))
         for a0, b0 in bounds:
-            x = U[a0:b0]
-            sq += np.einsum("ij,ij->j", x[1:], x[1:])
-            F1 += x[:-1].T @ x[1:]  # F1[b, a] = sum_u x_b(u - 1) x_a(u)
+            for c0 in range(a0, b0 - 1, GRAM_CHUNK_ROWS):
+                x = np.asarray(U[c0 : min(c0 + GRAM_CHUNK_ROWS + 1, b0)])
+                sq += np.einsum("ij,ij->j", x[1:], x[1:])
+                F1 += x[:-1].T @ x[1:]  # F1[b, a] = sum_u x_b(u - 1) x_a(u)
         dist = sq[None, :] + sq[:, None] - 2.0 * F1  # edges aside
         partner = np.argmin(dist, axis=0)
         ok = (sq > 0) & (dist[partner, np.arange(len(sq))] <= PARTNER_TOL * sq)
-        M = np.array(U, dtype=float, order="F")  # the base signals at later shifts
-        for a in np.flatnonzero(ok):
-            M[1:, a] = U[1:, a] - U[:-1, partner[a]]
-        groups.append((U, M, np.where(ok, partner, -1), shifts))
-    Xd = np.column_stack([m for U, M, _, _ in groups for m in (U, M)] + [y])
+        groups.append((U, np.where(ok, partner, -1), shifts))
+    n_b = 2 * sum(U.shape[1] for U, _, _ in groups) + 1
+
+    def rows(a, b):
+        """Rows a..b-1 of the base signals [U_f, M_f, U_p, M_p, y], M the differenced
+        copies (row 0 of the record undifferenced, as at every record start before)."""
+        out = np.empty((b - a, n_b), order="F")
+        col, lo = 0, max(a - 1, 0)
+        for U, partner, _ in groups:
+            x = np.asarray(U[lo:b])
+            n_u = x.shape[1]
+            cur = x[a - lo :]
+            out[:, col : col + n_u] = cur
+            out[:, col + n_u : col + 2 * n_u] = cur
+            k = np.flatnonzero(partner >= 0)
+            if k.size:  # (the record's first row has no earlier one: kept as it is)
+                out[int(a == 0):, col + n_u + k] = x[1:, k] - x[:-1, partner[k]]
+            col += 2 * n_u
+        out[:, -1] = y[a:b]
+        return out
+
+    rows.n, rows.n_cols = len(y), n_b
     blocks, back, col0 = [], [], 0  # back: for each H column, the column added back (or -1)
-    for U, M, partner, shifts in groups:
+    for U, partner, shifts in groups:
         n_u = U.shape[1]
         for i in shifts:
             first = i == shifts[0]
@@ -228,8 +311,7 @@ def moesp_factor(u_future, u_past, y, s: int, segments=None, chunk: int | None =
             start = len(back)
             back += [-1] * n_u if first else [start - n_u + b if b >= 0 else -1 for b in partner]
         col0 += 2 * n_u
-    n_b = Xd.shape[1]
-    G = hankel_gram(Xd, blocks + [([n_b - 1], i) for i in range(2 * s)], segments)
+    G = hankel_gram(rows, blocks + [([n_b - 1], i) for i in range(2 * s)], segments)
     back += [-1] * (2 * s)
     if np.all(np.isfinite(G)):
         Rt, pivots = deflated_cholesky(G, DEFLATE_TOL)
@@ -257,22 +339,24 @@ def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None, 
     """
     y = np.asarray(y, dtype=float)
     s = int(horizon)
-    u_future = np.hstack([u_state, u_feedthrough])
-    n_cols = s * (u_future.shape[1] + u_state.shape[1] + 2)
+    u_state = np.asarray(u_state, dtype=float).reshape(len(y), -1)
+    u_feedthrough = np.asarray(u_feedthrough, dtype=float).reshape(len(y), -1)
+    n_inputs = u_state.shape[1] + u_feedthrough.shape[1]
+    n_cols = s * (n_inputs + u_state.shape[1] + 2)
     lengths = [b - a for a, b in segments] if segments is not None else [len(y)]
     if sum(max(n - 2 * s + 1, 0) for n in lengths) < n_cols:
         raise InsufficientExcitationError(
             f"too few samples for subspace identification: {len(y)} samples"
             + (f" in {len(lengths)} trials" if len(lengths) > 1 else "")
-            + f", need at least {n_cols + 2 * s - 1} for horizon {s} with {u_future.shape[1]} inputs"
+            + f", need at least {n_cols + 2 * s - 1} for horizon {s} with {n_inputs} inputs"
         )
     # Scale every column to unit RMS: the QR is then well balanced between positions
-    # (~0.02 rad), basis values (~1) and torques (~N m).
-    scale_f = _rms(u_future)
+    # (~0.02 rad), basis values (~1) and torques (~N m). Scaled block by block, never whole.
     scale_p = _rms(u_state)
+    scale_f = np.concatenate([scale_p, _rms(u_feedthrough)])
     scale_y = _rms(y[:, None])[0]
-    R, how = moesp_factor(np.asfortranarray(u_future / scale_f), np.asfortranarray(u_state / scale_p), y / scale_y, s,
-                          segments, chunk)
+    u_future = StackedColumns([u_state, u_feedthrough], scale_f)
+    R, how = moesp_factor(u_future, StackedColumns([u_state], scale_p), y / scale_y, s, segments, chunk)
     L = R.T
     n_f = s * u_future.shape[1]
     n_w = s * (u_state.shape[1] + 1)
@@ -284,7 +368,7 @@ def po_moesp(u_state, u_feedthrough, y, horizon: int, chunk: int | None = None, 
 
 
 def _rms(a):
-    r = np.sqrt(np.mean(np.square(a), axis=0))
+    r = np.sqrt(np.einsum("ij,ij->j", a, a) / max(len(a), 1))  # (no N x n temporary)
     return np.where(r > 0, r, 1.0)
 
 

@@ -94,9 +94,17 @@ def long_run_covariance(U, block: int) -> np.ndarray:
     """
     n = U.shape[0]
     block = int(min(max(block, 1), n))
-    c = np.vstack([np.zeros((1, U.shape[1])), np.cumsum(U, axis=0)])
-    W = c[block:] - c[:-block]  # (n - block + 1) moving sums
-    return (W.T @ W) * (n / ((n - block + 1) * block))
+    S = np.zeros((U.shape[1], U.shape[1]))
+    c_a = np.zeros(U.shape[1])  # sum of the rows before a
+    for a in range(0, n - block + 1, 8192):  # the (n - block + 1) moving sums, a block of rows at a time
+        b = min(a + 8192, n - block + 1)
+        c = np.zeros((b - a + block, U.shape[1]))
+        c[0] = c_a
+        c[1:] = c_a + np.cumsum(U[a : b + block - 1], axis=0)  # c[i] = sum of rows < a + i
+        W = c[block:] - c[: b - a]
+        S += W.T @ W
+        c_a = c[b - a]
+    return S * (n / ((n - block + 1) * block))
 
 
 def _reflex_output(z, bd, den, segments=None):
@@ -163,7 +171,9 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     J = np.hstack(cols)
     p = J.shape[1]
     block = max(1, int(round(BLOCK_LENGTH * model.fs)))
-    R = np.linalg.qr(J, mode="r")
+    from .linalg import tall_lstsq, triangular_factor
+
+    R = triangular_factor(J)  # (row signs aside, np.linalg.qr's R without its N x p copy)
     diag = np.abs(np.diag(R))
     if not diag.size or diag.min() <= 1e-10 * diag.max():
         # e.g. a reflex pathway that came out zero (B = D = 0): its nonlinearity's direction
@@ -172,7 +182,9 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
             f"the final fit's parameters are not all identified ({int(np.sum(diag > 1e-10 * diag.max()))} of "
             f"{p} directions; a reflex pathway that came out zero leaves its nonlinearity undetermined)")
     Rinv = np.linalg.inv(R)
-    S = long_run_covariance(J * e[:, None], block)
+    J *= e[:, None]  # in place: J is not needed after R (an N x p copy less)
+    S = long_run_covariance(J, block)
+    del J
     cov_z = Rinv @ (Rinv.T @ S @ Rinv) @ Rinv.T * (N / max(N - p, 1))  # small-sample dof correction
     n_i, n_w, n_bd, n_den = Psi_i.shape[1], len(omega), len(bd), 0 if den is None else len(den)
     G = np.zeros((n_i + n_w + n_bd + n_den, p))
@@ -195,17 +207,17 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         y_i = y_i - curvature_torque
     if truncated is not None:
         lags_t, Psi_t = truncated
-        theta_t = np.linalg.lstsq(Psi_t, y_i, rcond=None)[0]
+        theta_t = tall_lstsq(Psi_t, y_i)
         out["truncation"] = {"lags": [int(x) for x in lags_t], "H": theta_t.reshape(len(lags_t), -1).tolist()}
     if richer is not None:
         basis_b, Psi_b = richer
-        theta_b = np.linalg.lstsq(Psi_b, y_i, rcond=None)[0]
+        theta_b = tall_lstsq(Psi_b, y_i)
         out["richer_basis"] = {"basis": basis_b.to_dict(), "H": theta_b.reshape(len(model.lags), -1).tolist()}
     if free_curvature is not None:
         from .errors import InsufficientExcitationError
 
         try:
-            out["curvature_reflex"] = _reflex_refit(blocks, np.hstack([Psi_i, free_curvature]), y, omega)
+            out["curvature_reflex"] = _reflex_refit(blocks, [Psi_i, free_curvature], y, omega)
         except InsufficientExcitationError:  # the columns are already in Psi_i, or p^2 is unexcited
             pass
     return out
@@ -214,14 +226,15 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
 def _reflex_refit(blocks, Psi, y, omega) -> dict:
     """The final separable least squares of the identification (reflex dynamics A, C
     fixed; intrinsic part after projecting out the reflex regressors, then the Hammerstein
-    fit) with intrinsic columns ``Psi``: {"Omega": ..., "bd": [B; D]} (the nonlinearity's
+    fit) with intrinsic columns ``Psi`` (an array, or a list of arrays side by side):
+    {"Omega": ..., "bd": [B; D]} (the nonlinearity's
     sign as ``omega``'s)."""
     from .identify import project_out_and_solve
     from .linalg import triangular_factor
     from .reflex import fit_hammerstein
 
     k_r = sum(blk.shape[1] for blk in blocks)
-    R = triangular_factor(np.hstack(list(blocks) + [Psi, y[:, None]]))
+    R = triangular_factor(list(blocks) + (list(Psi) if isinstance(Psi, list) else [Psi]) + [y])  # no N-row copy
     blocks_c, Psi_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
     theta = project_out_and_solve(R[:, :k_r], Psi_c, y_c)
     hf = fit_hammerstein(blocks_c, y_c - Psi_c @ theta, omega)

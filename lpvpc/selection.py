@@ -1,0 +1,372 @@
+"""Structure selection by cross-validation that imitates predicting unseen data (issue 22).
+
+Folds are contiguous stretches of the record, never random samples. On a staircase
+trial (the scheduling variable held at a few levels, as in the paper's multilevel
+trajectory) each fold is one level, every visit to it and the movements nearest it
+(leave-one-level-out), end plateaus included: a fold at an end of the range is predicted
+by a model whose scheduling basis spans only the other levels, so extrapolation to the
+edges of the range is part of the score, under each candidate extrapolation rule of the
+basis ("clip": held at the boundary; "linear": continued along the tangent). A record
+that is not a staircase gets ``BLOCK_FOLDS`` contiguous blocks.
+
+What is selected (estimator settings): the IRF half-width, the basis orders in the
+scheduling variable (intrinsic, reflex) and in delayed velocity, the reflex delay, the
+elastic curvature term and the scheduling extrapolation rule. Settings the caller fixes
+stay as given. The reflex dynamics (A, C, B, D) come from a fit at the starting settings
+and are held for the candidates (its state order is chosen there by BIC); with them the
+model is linear in the IRF weights and the nonlinearity's coefficients, so every
+candidate is a set of columns of one largest regressor (the tied curvature term adds a
+column to each IRF column: a linear map of it). Per fold the Gram matrices of the
+held-out rows are computed once; each candidate and fold is then a small solve on the
+other folds' normal equations. An end fold's model has its bases on the other levels'
+range; for polynomial bases that is the same fit on the training rows, and only the
+fold's own rows take the extrapolation rule (``_held_basis``; the reflex filters run over
+the whole record, so training rows just after a visit to the end level keep its unheld
+values in their filter memory: within 0.2 % of refitting with the narrower bases,
+tests/test_selection.py). The search moves one setting at a time from the starting
+settings until no change lowers the cross-validated error, then picks, among every
+structure it scored, the one with the fewest parameters whose error is within one
+standard error of the best (the paired standard error over folds of its difference
+from the best: the one-standard-error rule toward the simpler structure).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import equations as eq
+from .basis import Basis, basis_from_data
+from .intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
+from .reflex import reflex_input_regressor, reflex_regressor
+from .segments import Segments
+
+#: Candidate values of each selected setting (IRF half-widths in s, delays in s).
+SEARCH = {
+    "irf_length": (0.02, 0.03, 0.04, 0.05),
+    "intrinsic_order": (2, 3, 4, 5, 6, 7),
+    "reflex_order": (0, 1, 2, 3),
+    "velocity_order": (2, 3, 4, 5, 6),
+    "reflex_delay": (0.03, 0.04, 0.05),
+    "elastic_curvature": (False, True),
+    "scheduling_extrapolation": ("clip", "linear"),
+}
+#: Folds of a record that is not a staircase.
+BLOCK_FOLDS = 5
+#: A level is a run of at least HOLD_S s where the scheduling variable moves slower than
+#: HOLD_SPEED rad/s (smoothed over 0.2 s); levels within LEVEL_TOL rad of each other are one.
+HOLD_S, HOLD_SPEED, LEVEL_TOL = 1.0, 0.05, 0.015
+MIN_LEVELS = 4
+RIDGE = 1e-10  # relative to the scaled Gram matrix's unit diagonal
+
+
+def level_folds(rho, fs):
+    """Fold label of each sample (N,) and the fold kind ("level" or "block").
+
+    Leave-one-level-out on a staircase: levels are held stretches of ``rho`` (rad), each
+    sample joins the level nearest its value; fewer than MIN_LEVELS levels: BLOCK_FOLDS
+    contiguous blocks.
+
+    >>> rho = np.repeat([0.0, -0.2, 0.1, -0.2, 0.2], 300)  # five holds of 3 s at 100 Hz, four levels
+    >>> labels, kind = level_folds(rho, 100.0)
+    >>> kind, sorted(set(labels.tolist())), int(labels[0]), int(labels[-1])
+    ('level', [0, 1, 2, 3], 1, 3)
+    """
+    rho = np.asarray(rho, dtype=float)
+    n = len(rho)
+    w = max(1, int(round(0.2 * fs)))
+    smooth = np.convolve(rho, np.ones(w) / w, mode="same")
+    hold = np.abs(np.gradient(smooth) * fs) < HOLD_SPEED
+    edges = np.flatnonzero(np.diff(np.r_[0, hold.astype(int), 0]))
+    plateaus = [float(np.median(rho[a:b])) for a, b in zip(edges[::2], edges[1::2]) if b - a >= HOLD_S * fs]
+    centres = []
+    for v in sorted(plateaus):
+        if centres and v - centres[-1][-1] <= LEVEL_TOL:
+            centres[-1].append(v)
+        else:
+            centres.append([v])
+    centres = np.array([np.mean(c) for c in centres])
+    if len(centres) < MIN_LEVELS:
+        return (np.arange(n) * BLOCK_FOLDS // max(n, 1)).astype(int), "block"
+    return np.argmin(np.abs(rho[:, None] - centres[None, :]), axis=1), "level"
+
+
+@dataclass
+class Scored:
+    """One structure's cross-validated score: its settings, parameter count, held-out
+    squared error per fold and pooled CV VAF.
+
+    >>> s = Scored({"intrinsic_order": 3}, 40, np.array([1.0, 2.0]), 97.5)
+    >>> s.to_dict()
+    {'settings': {'intrinsic_order': 3}, 'n_params': 40, 'cv_vaf': 97.5}
+    """
+
+    settings: dict
+    n_params: int
+    fold_sse: np.ndarray  # N m^2 per fold
+    cv_vaf: float = float("nan")  # %
+
+    def to_dict(self) -> dict:
+        return {"settings": dict(self.settings), "n_params": int(self.n_params), "cv_vaf": float(self.cv_vaf)}
+
+
+@dataclass
+class Selection:
+    """The chosen settings and the table of scored structures (:meth:`StructureSearch.run`).
+
+    >>> a, b = Scored({"order": 3}, 40, np.ones(2), 97.5), Scored({"order": 5}, 60, np.ones(2), 97.6)
+    >>> sel = Selection(chosen={"order": 3}, start={"order": 5}, fold_kind="level", n_folds=2, scored=[b, a],
+    ...                 best={"order": 5})
+    >>> [row.settings for row in sel.table()]  # the chosen first, then the best of the rest
+    [{'order': 3}, {'order': 5}]
+    """
+
+    chosen: dict
+    start: dict
+    fold_kind: str
+    n_folds: int
+    scored: list = field(default_factory=list)  # Scored, best CV first
+    best: dict = field(default_factory=dict)
+
+    def table(self, top: int = 6) -> list:
+        """Rows (settings, n_params, CV VAF %) of the chosen, the best and the next best."""
+        rows = sorted(self.scored, key=lambda s: -s.cv_vaf)
+        pick = [s for s in rows if s.settings == self.chosen][:1]
+        return pick + [s for s in rows if s.settings != self.chosen][: top - len(pick)]
+
+    def to_dict(self) -> dict:
+        chosen = next(s for s in self.scored if s.settings == self.chosen)
+        return {"method": f"leave-one-{self.fold_kind}-out cross-validation ({self.n_folds} folds), one-standard-error "
+                          f"rule toward fewer parameters", "chosen": _jsonable(self.chosen),
+                "start": _jsonable(self.start), "chosen_cv_vaf": float(chosen.cv_vaf),
+                "best": _jsonable(self.best), "fold_kind": self.fold_kind, "n_folds": int(self.n_folds),
+                "table": [{**s.to_dict(), "settings": _jsonable(s.settings)} for s in self.table()],
+                "n_scored": len(self.scored)}
+
+
+def _jsonable(d):
+    return {k: (float(v) if isinstance(v, float) else v) for k, v in d.items()}
+
+
+def _held_basis(basis, rho, lo, hi, rule):
+    """Values (N, n) of ``basis``'s functions beyond a narrower range [lo, hi] as a model
+    identified on that range would take them: held at its boundary ("clip") or continued
+    along the tangent there ("linear"). Exact for polynomial bases: a polynomial basis on
+    [lo, hi] spans the same functions as ``basis``, and the rule acts on the fitted function."""
+    rho = np.asarray(rho, dtype=float)
+    G = basis.evaluate(np.clip(rho, lo, hi))
+    if rule == "linear":
+        h = 1e-6 * (basis.hi - basis.lo)
+        for edge, beyond in ((lo, rho < lo), (hi, rho > hi)):
+            if beyond.any():
+                slope = (basis.evaluate([edge + h]) - basis.evaluate([edge - h])) / (2 * h)
+                G[beyond] += (rho[beyond] - edge)[:, None] * slope
+    return G
+
+
+class _Design:
+    """The largest regressor's per-fold Gram matrices: ``G[f]``, ``b[f]`` of fold f's rows
+    (the scheduling basis on the whole range), and for an end fold, whose training range is
+    narrower, its rows' Gram matrices under each extrapolation rule (``end[rule][f]``)."""
+
+    def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments):
+        self.p, self.rho, self.fs, (self.A, self.C, self.bd) = p, rho, fs, dynamics
+        self.seg = segments
+        self.L_max, self.ni_max, self.nr_max, self.nv_max, self.delays = top
+        self.delays = list(self.delays)
+        lo, hi = float(np.min(rho)), float(np.max(rho))
+        self.G_i = Basis(family, self.ni_max, lo, hi)
+        self.G_r = Basis(family, self.nr_max, lo, hi)
+        self.V = [basis_from_data(dv, velocity_family, self.nv_max, extrapolation="linear").evaluate(dv)
+                  for dv in (segments.map(eq.delayed_velocity, p, fs=fs, delay=d) for d in self.delays)]
+        Gi, Gr = self.G_i.evaluate(rho), self.G_r.evaluate(rho)
+        X = self._regressor(Gi, Gr)
+        rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
+        self.G = np.stack([X[r].T @ X[r] for r in rows])
+        self.b = np.stack([X[r].T @ y[r] for r in rows])
+        self.end = {rule: {} for rule in rules}
+        for f, r in enumerate(rows):
+            train = rho[labels != f]
+            t_lo, t_hi = float(np.min(train)), float(np.max(train))
+            if t_lo <= lo and t_hi >= hi:
+                continue
+            for rule in rules:  # an end level: its model's basis spans only the other levels
+                Xe = X[r] + self._change(Gi, Gr, _held_basis(self.G_i, rho, t_lo, t_hi, rule),
+                                         _held_basis(self.G_r, rho, t_lo, t_hi, rule), r)
+                self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
+        del X
+
+    def _change(self, Gi, Gr, Gi_held, Gr_held, r):
+        """Rows ``r`` of the regressor's change when the basis values change from (Gi, Gr) to
+        the held ones (the regressor is linear in them; they differ only beyond the training
+        range, so the reflex filters start from rest at the first such row: a window, not the record)."""
+        dGi, dGr = Gi_held - Gi, Gr_held - Gr
+        changed = np.flatnonzero(np.any(dGi != 0, axis=1) | np.any(dGr != 0, axis=1))
+        out = np.zeros((len(r), self.n_cols))
+        if changed.size == 0:
+            return out
+        w0 = min(int(changed[0]), int(r.min())) if len(self.seg) == 1 else 0  # input zero before changed[0]
+        w1 = int(max(r.max(), changed[-1])) + 1 if len(self.seg) == 1 else len(self.p)
+        seg = self.seg if len(self.seg) > 1 else None
+        window = slice(w0, w1)
+        n_lag = (2 * self.L_max + 1) * Gi.shape[1]
+        lags = two_sided_lags(self.L_max)
+        intr = self.seg.map(intrinsic_regressor, self.p, dGi, lags=lags) if seg is not None else \
+            intrinsic_regressor(self.p, dGi, lags)
+        out[:, :n_lag] = intr[r]
+        out[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p[r], dGi[r], self.G_i)
+        col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
+        k = r - w0  # the rows within the window
+        for V in self.V:
+            blocks = reflex_regressor(reflex_input_regressor(V[window], dGr[window]), self.A, self.C, seg)
+            out[:, col : col + n_ref] = sum(c * blk[k] for c, blk in zip(self.bd, blocks))
+            col += n_ref
+        return out
+
+    def _regressor(self, Gi, Gr, basis=None):
+        """The largest regressor, filled block by block into one array (a 30-minute record's is
+        260 MB: no second copy): IRF columns, curvature shares, each delay's reflex columns, a zero column."""
+        n_lag = (2 * self.L_max + 1) * Gi.shape[1]
+        n_ref = V_cols = (self.nv_max + 1) * Gr.shape[1]
+        self.n_cols = n_lag + Gi.shape[1] + len(self.V) * n_ref + 1
+        X = np.zeros((len(self.p), self.n_cols))
+        X[:, :n_lag] = self.seg.map(intrinsic_regressor, self.p, Gi, lags=two_sided_lags(self.L_max))
+        X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
+        col = n_lag + Gi.shape[1]
+        for V in self.V:
+            blocks = reflex_regressor(reflex_input_regressor(V, Gr), self.A, self.C, self.seg)
+            X[:, col : col + V_cols] = sum(c * blk for c, blk in zip(self.bd, blocks))
+            col += V_cols
+        return X
+
+    def columns(self, L, ni, nr, nv, d, curvature):
+        """(columns, their curvature share's columns) of a candidate in the largest regressor."""
+        n_i = self.ni_max + 1
+        n_lags = 2 * self.L_max + 1
+        zero = n_lags * n_i + n_i + len(self.delays) * (self.nv_max + 1) * (self.nr_max + 1)
+        idx, cur = [], []
+        for lag in range(-L, L + 1):
+            for j in range(ni + 1):
+                idx.append((lag + self.L_max) * n_i + j)
+                cur.append(n_lags * n_i + j if curvature else zero)
+        off = n_lags * n_i + n_i + self.delays.index(d) * (self.nv_max + 1) * (self.nr_max + 1)
+        for v in range(nv + 1):
+            for r in range(nr + 1):
+                idx.append(off + v * (self.nr_max + 1) + r)
+                cur.append(zero)
+        return np.array(idx), np.array(cur)
+
+
+def _mapped(G, b, idx, cur):
+    """(G, b) of the columns X[:, idx[k]] + X[:, cur[k]] from those of X (leading axes kept)."""
+    Gc = (G[..., idx, :][..., :, idx] + G[..., idx, :][..., :, cur] + G[..., cur, :][..., :, idx]
+          + G[..., cur, :][..., :, cur])
+    return Gc, b[..., idx] + b[..., cur]
+
+
+class StructureSearch:
+    """Cross-validated scores of structures on one record, given the reflex dynamics.
+
+    p, y, rho: perturbation position (rad), torque (N m), scheduling (rad) at fs (Hz);
+    dynamics: (A, C (1, m), [B; D]) of a fit at the starting settings; family: the
+    scheduling basis family (polynomial: orders nest); velocity_family likewise; segments:
+    trials joined end to end (:class:`lpvpc.segments.Segments`), whose regressors are built
+    trial by trial.
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     m = identify(d)
+    >>> search = StructureSearch(d.position, d.torque, d.scheduling, d.fs, (m.A, m.C[None, :], np.append(m.B, m.D)))
+    >>> search.kind, search.n_folds >= 4
+    ('level', True)
+    >>> start = {"irf_length": 0.04, "intrinsic_order": 5, "reflex_order": 2, "velocity_order": 4,
+    ...          "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": "clip"}
+    >>> bool(search.score(start).cv_vaf > 90.0)  # % of the torque predicted on left-out levels
+    True
+    >>> sel = search.run(start)
+    >>> sel.chosen["reflex_delay"] in SEARCH["reflex_delay"], len(sel.table()) > 1
+    (True, True)
+    """
+
+    def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None,
+                 segments=None):
+        self.fs = float(fs)
+        self.search = dict(SEARCH if search is None else search)
+        self.y = np.asarray(y, dtype=float)
+        self.labels, self.kind = level_folds(rho, fs)
+        self.n_folds = int(self.labels.max()) + 1
+        self.lags = sorted({max(1, int(round(x * fs))) for x in self.search["irf_length"]})
+        self.delays = sorted({max(1, int(round(x * fs))) for x in self.search["reflex_delay"]})
+        top = (max(self.lags), max(self.search["intrinsic_order"]), max(self.search["reflex_order"]),
+               max(self.search["velocity_order"]), self.delays)
+        self.design = _Design(np.asarray(p, dtype=float), self.y, np.asarray(rho, dtype=float), fs, self.labels,
+                              self.n_folds, family, velocity_family, dynamics, top,
+                              self.search["scheduling_extrapolation"],
+                              segments if segments is not None else Segments((), len(self.y)))
+        self.yy = np.array([self.y[self.labels == f] @ self.y[self.labels == f] for f in range(self.n_folds)])
+        self.sst = float(np.sum((self.y - self.y.mean()) ** 2))
+        self._cache = {}
+
+    def score(self, settings: dict) -> Scored | None:
+        """Scored for estimator settings (None: not a valid structure, e.g. IRF longer than the delay)."""
+        L = max(1, int(round(settings["irf_length"] * self.fs)))
+        d = max(1, int(round(settings["reflex_delay"] * self.fs)))
+        if L > d or L not in self.lags or d not in self.delays:
+            return None
+        key = tuple(sorted((k, settings[k]) for k in SEARCH))
+        if key in self._cache:
+            return self._cache[key]
+        D = self.design
+        idx, cur = D.columns(L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], d,
+                             bool(settings["elastic_curvature"]))
+        Gc, bc = _mapped(D.G, D.b, idx, cur)  # (K, n, n), (K, n): each fold's rows
+        Gt, bt = Gc.sum(axis=0) - Gc, bc.sum(axis=0) - bc  # each fold's training rows
+        s = np.sqrt(np.maximum(np.einsum("kii->ki", Gt), 1e-300))
+        A = Gt / (s[:, :, None] * s[:, None, :]) + RIDGE * np.eye(len(idx))
+        theta = np.linalg.solve(A, (bt / s)[:, :, None])[:, :, 0] / s
+        for f, (Ge, be) in D.end[settings["scheduling_extrapolation"]].items():  # end folds: their own rule
+            Gc[f], bc[f] = _mapped(Ge, be, idx, cur)
+        sse = self.yy - 2.0 * np.einsum("ki,ki->k", theta, bc) + np.einsum("ki,kij,kj->k", theta, Gc, theta)
+        out = Scored(dict(settings), len(idx), sse, 100.0 * (1.0 - float(sse.sum()) / self.sst))
+        self._cache[key] = out
+        return out
+
+    def run(self, start: dict, fixed=(), max_sweeps: int = 3) -> Selection:
+        """Coordinate search from ``start`` over the settings not in ``fixed``, then the
+        one-standard-error rule over every structure scored."""
+        current = {k: start[k] for k in SEARCH}
+        free = [k for k in SEARCH if k not in fixed]
+        first = self.score(current)
+        if first is None:
+            raise ValueError(f"the starting structure is not valid for selection: {current}")
+        for _ in range(max_sweeps):
+            changed = False
+            for name in free:
+                options = [self.score({**current, name: v}) for v in self.search[name]]
+                options = [o for o in options if o is not None]
+                best = max(options, key=lambda o: o.cv_vaf)
+                if best.settings[name] != current[name] and best.cv_vaf > self.score(current).cv_vaf:
+                    current[name] = best.settings[name]
+                    changed = True
+            if not changed:
+                break
+        scored = sorted(self._cache.values(), key=lambda s: -s.cv_vaf)
+        best = scored[0]
+        K = self.n_folds
+
+        def within(s):
+            diff = K * (s.fold_sse - best.fold_sse)
+            se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
+            return np.mean(diff) <= se
+
+        simplest = min((s for s in scored if within(s)),
+                       key=lambda s: (s.n_params, s.settings["scheduling_extrapolation"] != "clip", -s.cv_vaf))
+        return Selection(chosen=dict(simplest.settings), start=dict(first.settings), fold_kind=self.kind, n_folds=K,
+                         scored=scored, best=dict(best.settings))

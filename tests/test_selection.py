@@ -1,0 +1,186 @@
+"""Structure selection by cross-validation (lpvpc.selection, issue 22): folds, the exactness
+of scoring candidates on one largest regressor's fold Gram matrices, and structure="cv"
+in the estimator, the model file and the command line."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from lpvpc import equations as eq
+from lpvpc.basis import Basis, basis_from_data
+from lpvpc.data import pair_trials
+from lpvpc.identify import LPVPCEstimator
+from lpvpc.intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
+from lpvpc.reflex import reflex_input_regressor, reflex_regressor
+from lpvpc.segments import Segments
+from lpvpc.selection import StructureSearch, level_folds
+from lpvpc.simulate import simulate_pair
+from lpvpc.subspace import companion_form
+
+
+@pytest.fixture(scope="module")
+def record():
+    sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
+    return pair_trials(sim.pt, sim.ut)
+
+
+def test_level_folds_leave_out_whole_levels_and_fall_back_to_blocks(record):
+    labels, kind = level_folds(record.scheduling, record.fs)
+    assert kind == "level"
+    rho = record.scheduling
+    # every fold is a band of positions: folds ordered by their median position do not overlap much
+    med = [np.median(rho[labels == f]) for f in range(labels.max() + 1)]
+    assert len(med) >= 4 and len(set(np.round(med, 3))) == len(med)
+    lowest, highest = int(np.argmin(med)), int(np.argmax(med))
+    assert labels[np.argmin(rho)] == lowest and labels[np.argmax(rho)] == highest  # end plateaus are folds
+    ramp = np.linspace(-0.4, 0.2, 3000)  # no holds: contiguous blocks
+    labels, kind = level_folds(ramp, 100.0)
+    assert kind == "block" and np.all(np.diff(labels) >= 0) and labels.max() + 1 == 5
+
+
+@pytest.mark.parametrize("rule", ["clip", "linear"])
+def test_candidate_scores_equal_explicit_fits_on_each_folds_training_rows(record, rule):
+    """Scored on column subsets of one regressor, a candidate's held-out error equals that of
+    fitting it on the fold's training rows, with its bases on the training range under the
+    extrapolation rule, and predicting the fold: for every fold, end plateaus included."""
+    p, y, rho, fs = record.position, record.torque, record.scheduling, record.fs
+    A, C = companion_form(np.poly([0.9, 0.8])[1:])
+    bd = np.array([1.0, 0.4, 0.05])
+    search = StructureSearch(p, y, rho, fs, (A, C, bd))
+    settings = {"irf_length": 0.03, "intrinsic_order": 3, "reflex_order": 1, "velocity_order": 3,
+                "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": rule}
+    scored = search.score(settings)
+    dvel = eq.delayed_velocity(p, fs, 4)
+    V = basis_from_data(dvel, "chebyshev", 3, extrapolation="linear").evaluate(dvel)
+    labels = search.labels
+    ends = 0
+    for f in range(search.n_folds):
+        train, test = labels != f, labels == f
+        lo, hi = rho[train].min(), rho[train].max()
+        ends += bool(lo > rho.min() or hi < rho.max())
+        G_i, G_r = Basis("chebyshev", 3, lo, hi, rule), Basis("chebyshev", 1, lo, hi, rule)
+        Gi = G_i.evaluate(rho)
+        lags = two_sided_lags(3)
+        X_i = intrinsic_regressor(p, Gi, lags) + np.tile(curvature_regressor(p, Gi, G_i), len(lags))
+        blocks = reflex_regressor(reflex_input_regressor(V, G_r.evaluate(rho)), A, C)
+        X = np.hstack([X_i, sum(c * b for c, b in zip(bd, blocks))])
+        theta = np.linalg.lstsq(X[train], y[train], rcond=None)[0]
+        e = y[test] - X[test] @ theta
+        # interior folds exactly; end folds to the reflex filters' memory: the record is filtered
+        # whole, so training rows just after a visit to the end level carry its unheld values
+        end = lo > rho.min() or hi < rho.max()
+        assert scored.fold_sse[f] == pytest.approx(e @ e, rel=2e-3 if end else 1e-6)
+    assert ends == 2
+    assert scored.n_params == 7 * 4 + 4 * 2
+
+
+def test_structure_cv_chooses_records_and_round_trips(record, tmp_path):
+    from lpvpc.model import LPVPCModel
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = LPVPCEstimator(structure="cv", structure_fixed=("reflex_delay",)).fit(record)
+    model = est.model_
+    sel = model.fit["structure_selection"]
+    assert sel["fold_kind"] == "level" and sel["n_folds"] >= 4
+    assert sel["chosen"]["reflex_delay"] == pytest.approx(0.04)  # fixed by the caller
+    for k in ("intrinsic_order", "reflex_order", "velocity_order", "elastic_curvature", "scheduling_extrapolation"):
+        assert model.settings[k] == sel["chosen"][k]
+    assert model.lags[-1] == round(sel["chosen"]["irf_length"] * 100)
+    assert model.settings["structure"] == "cv"
+    # the chosen structure is within one standard error of the best and no larger than it
+    best = max(sel["table"], key=lambda r: r["cv_vaf"])
+    chosen = next(r for r in sel["table"] if r["settings"] == sel["chosen"])
+    assert chosen["n_params"] <= best["n_params"]
+    path = tmp_path / "m.json"
+    model.save(path)
+    again = LPVPCModel.load(path)
+    assert again.fit["structure_selection"]["chosen"] == json.loads(json.dumps(sel["chosen"]))
+    assert again.intrinsic_basis.extrapolation == sel["chosen"]["scheduling_extrapolation"]
+
+
+def test_linear_extrapolation_continues_the_stiffness_beyond_the_range(record):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        clip = LPVPCEstimator(scheduling_extrapolation="clip").fit(record).model_
+        lin = LPVPCEstimator(scheduling_extrapolation="linear").fit(record).model_
+    lo, hi = lin.scheduling_range
+    inside = np.linspace(lo, hi, 7)
+    np.testing.assert_allclose(lin.elastic_stiffness(inside), clip.elastic_stiffness(inside), rtol=1e-9)
+    beyond = np.array([hi + 0.01, hi + 0.02])
+    assert np.allclose(clip.elastic_stiffness(beyond), clip.elastic_stiffness([hi, hi]))  # held
+    K = lin.elastic_stiffness(np.array([hi - 1e-4, hi, hi + 0.01, hi + 0.02]))
+    slope = (K[1] - K[0]) / 1e-4
+    np.testing.assert_allclose(K[2:], K[1] + slope * np.array([0.01, 0.02]), rtol=1e-3)  # the tangent
+
+
+def test_selection_is_skipped_where_it_cannot_apply_and_bad_values_are_refused(record):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = LPVPCEstimator(structure="cv", basis="gaussian").fit(record)
+    assert "non-polynomial" in est.model_.fit["structure_selection"]["skipped"]
+    with pytest.raises(ValueError, match="structure must be 'fixed' or 'cv'"):
+        LPVPCEstimator(structure="best").fit(record)
+    with pytest.raises(ValueError, match=r"structure_fixed names settings that are not selected: \['horizon'\]"):
+        LPVPCEstimator(structure="cv", structure_fixed=("horizon",)).fit(record)
+
+
+def test_cli_structure_cv_prints_the_choice_and_keeps_written_options(record, tmp_path, capsys):
+    from lpvpc.cli import main
+    from lpvpc.data import write_trial_csv
+
+    sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
+    write_trial_csv(sim.pt, tmp_path / "PT.csv")
+    write_trial_csv(sim.ut, tmp_path / "UT.csv")
+    out = tmp_path / "m.json"
+    rc = main(["identify", "--pt", str(tmp_path / "PT.csv"), "--ut", str(tmp_path / "UT.csv"), "-o", str(out),
+               "--structure", "cv", "--intrinsic-order", "3"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "structure:   chosen by leave-one-level-out" in text and "CV VAF %" in text
+    model = json.loads(out.read_text())
+    assert model["settings"]["intrinsic_order"] == 3
+    assert model["fit"]["structure_selection"]["chosen"]["intrinsic_order"] == 3
+
+
+def test_everything_fixed_gives_the_fixed_structures_model(record):
+    """With every selected setting fixed, structure="cv" refits the starting structure from the
+    first fit's subspace step and state order: the model of structure="fixed", intervals included."""
+    from lpvpc.selection import SEARCH
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fixed = LPVPCEstimator().fit(record).model_
+        cv = LPVPCEstimator(structure="cv", structure_fixed=tuple(SEARCH)).fit(record).model_
+    np.testing.assert_allclose(cv.H, fixed.H, rtol=1e-10, atol=1e-12 * np.abs(fixed.H).max())
+    np.testing.assert_allclose(cv.Omega, fixed.Omega, rtol=1e-10, atol=1e-12)
+    assert cv.state_order == fixed.state_order
+    np.testing.assert_allclose(cv.uncertainty["covariance"], fixed.uncertainty["covariance"], rtol=1e-8, atol=1e-14)
+
+
+@pytest.mark.parametrize("joined", [False, True])
+def test_end_fold_rows_from_the_change_in_a_window_equal_a_rebuilt_regressor(record, joined):
+    """An end fold's rows under a rule are the whole-range regressor's plus the change of the
+    held basis values, its reflex filters run over a window only: equal to rebuilding it."""
+    from lpvpc.data import join_trials
+    from lpvpc.selection import _held_basis
+
+    d = join_trials([record.segment(0, 2500), record.segment(2500, None)]) if joined else record
+    A, C = companion_form(np.poly([0.9, 0.8])[1:])
+    search = StructureSearch(d.position, d.torque, d.scheduling, d.fs, (A, C, np.array([1.0, 0.4, 0.05])),
+                             segments=Segments.of(d, d.n))
+    D, rho, labels = search.design, d.scheduling, search.labels
+    Gi, Gr = D.G_i.evaluate(rho), D.G_r.evaluate(rho)
+    X = D._regressor(Gi, Gr)
+    for rule in ("clip", "linear"):
+        assert len(D.end[rule]) == 2
+        for f, (Ge, be) in D.end[rule].items():
+            r = np.flatnonzero(labels == f)
+            t_lo, t_hi = rho[labels != f].min(), rho[labels != f].max()
+            Xe = D._regressor(_held_basis(D.G_i, rho, t_lo, t_hi, rule), _held_basis(D.G_r, rho, t_lo, t_hi, rule))[r]
+            np.testing.assert_allclose(Ge, Xe.T @ Xe, rtol=1e-9, atol=1e-9 * np.abs(Ge).max())
+            np.testing.assert_allclose(be, Xe.T @ d.torque[r], rtol=1e-9, atol=1e-9 * np.abs(be).max())
+    assert X.shape[1] == D.n_cols
