@@ -16,7 +16,10 @@
 8. runs the improve loop on a data set with a hidden effect (direction-dependent
    stiffness, OUTDIR/data_hidden): fit, diagnose on the held-out record, add the effect
    the diagnosis names, refit, until nothing significant is left; prints the error
-   falling and writes OUTDIR/improve/report.html (and improve.md).
+   falling and writes OUTDIR/improve/report.html (and improve.md);
+9. fits the closed-loop form of the whole-joint model (angle and angular velocity in, torque
+   out, inertia declared) and runs its FMU in a compliant exoskeleton loop beside the virtual
+   subject and the replay FMU: OUTDIR/closed_loop/closed_loop.html.
 
 Units: rad, rad/s, N m, N m/rad, s.
 """
@@ -99,7 +102,7 @@ def _run_fmu(fmu_path, position, scheduling):
     return res["torque"][shift:shift + len(position)], rate, L
 
 def run(outdir) -> int:
-    """The eight steps above into the folder ``outdir``, printing as it goes; returns 0.
+    """The nine steps above into the folder ``outdir``, printing as it goes; returns 0.
     Takes about 40 s (tests/test_examples.py runs it: the held-out VAF within 1.5 points of
     the noise ceiling, K(theta) within 10 %, the improve loop finding the hidden effect)."""
     import matplotlib.pyplot as plt
@@ -179,10 +182,10 @@ def run(outdir) -> int:
          f"{trend(th)} (truth: {trend(th_true)})")
     if not model.reflex_threshold_biased:
         _say("  (nonlinearity identified on the files' 1 kHz delayed velocity; over 10 seeds the gain trend is\n"
-             "   within 20 % on 6, the threshold trend the least certain: benchmarks/results/reflex_1k.txt)")
+             "   within 20 % on 6, the threshold trend the least certain: the documentation's results page)")
     else:
         _say("  (nonlinearity identified on the 100 Hz delayed velocity, the default: the threshold trend is biased;\n"
-             "   identify(..., high_rate_reflex=True) uses the files' 1 kHz velocity: benchmarks/results/reflex_1k.txt)")
+             "   identify(..., high_rate_reflex=True) uses the files' 1 kHz velocity; see the documentation's results page)")
     _say(f"  reflex dynamics: order {model.state_order}, delay {1000 * model.delay / model.fs:.0f} ms "
          f"(truth: 2nd-order low-pass, wn {params.reflex_wn:g} rad/s, zeta {params.reflex_zeta:g}, "
          f"delay {1000 * params.reflex_delay:.0f} ms)")
@@ -236,12 +239,15 @@ def run(outdir) -> int:
 
     report = _validate(outdir, paths, fmu_path, v_ceiling)
     improve_report = _improve(outdir)
+    loop_report = _closed_loop(outdir, model, paths, params) if fmu_path is not None else None
 
     _say()
     _say(f"done in {time.perf_counter() - t_start:.1f} s; outputs in {outdir}")
     if report is not None:
         _say(f"validation report: {report.resolve()} (open it in a browser)")
     _say(f"improve report: {improve_report.resolve()}")
+    if loop_report is not None:
+        _say(f"closed-loop report: {loop_report.resolve()}")
     return 0
 
 
@@ -278,6 +284,35 @@ def _improve(outdir):
     _say(f"held-out error: VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE {first.heldout_rmse:.4f} -> "
          f"{last.heldout_rmse:.4f} N m ({100 * (1 - last.heldout_rmse / first.heldout_rmse):.0f} % lower) "
          f"[{time.perf_counter() - t0:.1f} s]")
+    return path
+
+
+def _closed_loop(outdir, model, paths, params):
+    """Step 9: the closed-loop form of the whole-joint model in a compliant exoskeleton loop, beside the
+    virtual subject and the replay FMU; returns the page's path."""
+    from lpvpc.validation.closed_loop import evaluate_closed_loop, write_closed_loop_report
+
+    from .closed_loop import distillation_trial, fit_closed_loop
+    from .data import load_trial
+    from .whole_joint import fit_whole_joint
+
+    _section("9. Closed loop: the ankle model's torque moves the foot")
+    t0 = time.perf_counter()
+    ut = load_trial(paths["ident_UT"])
+    whole = fit_whole_joint(model, ut)
+    cl = fit_closed_loop(whole, [distillation_trial(whole, ut)])
+    _say(f"closed-loop form (angle and angular velocity in, torque out, no latency beyond the reflex delay): "
+         f"declared inertia {cl.inertia:.4f} kg m^2 for the plant (truth {params.inertia:g})")
+    metrics, traces = evaluate_closed_loop(cl, outdir / "closed_loop", duration=20.0, params=params)
+    for g in metrics["gains"]:
+        r = g["closed_loop"]["1 ms"]
+        rep = g["replay"]
+        model_run = (f"angle deviation VAF {r['deviation']:.2f} %, torque {r['torque']:.2f} % vs the subject"
+                     if r["stable"] else f"diverged at {r['diverged_at']:.2f} s")
+        replay_run = "stable" if rep["stable"] else f"diverges at {rep['diverged_at']:.2f} s"
+        _say(f"  Kp {g['kp']:>5g} N m/rad: closed-loop FMU {model_run}; replay FMU (40 ms latency) {replay_run}")
+    path = write_closed_loop_report(outdir / "closed_loop", metrics, traces)
+    _say(f"page and figure in {outdir / 'closed_loop'} [{time.perf_counter() - t0:.1f} s]")
     return path
 
 

@@ -844,7 +844,8 @@ def test_example_the_demo(tmp_path, capsys):
     """``make demo`` (``python -m lpvpc.demo OUTDIR``, about 25 s of CPU: the one example
     that cannot be shorter, as its 2-minute trials are what a new user first sees):
     the held-out VAF near the noise ceiling, K(theta) near the truth, every file written,
-    the validation passing and the improve loop finding the hidden effect."""
+    the validation passing, the improve loop finding the hidden effect and the closed-loop
+    FMU following the subject in the compliant loop where the replay FMU diverges."""
     import json
     import re
 
@@ -870,3 +871,9 @@ def test_example_the_demo(tmp_path, capsys):
                                             "stiffness_vs_truth.png"))):
         assert (out / name).stat().st_size > 0, name
     assert json.loads((out / "validation" / "metrics.json").read_text())["pass"] is True
+    # step 9: in the compliant loop the closed-loop FMU follows the subject; the replay FMU does not
+    loops = re.findall(r"Kp\s+(\d+) N m/rad: closed-loop FMU angle deviation VAF ([\d.]+) %, torque ([\d.]+) %.*?"
+                       r"replay FMU \(40 ms latency\) (diverges|stable)", text)
+    assert [kp for kp, *_ in loops] == ["40", "150"], text
+    assert all(float(dev) >= 95 and float(tq) >= 95 and replay == "diverges" for _, dev, tq, replay in loops)
+    assert (out / "closed_loop" / "closed_loop.html").stat().st_size > 0

@@ -140,8 +140,10 @@ def write_closed_loop_report(folder, metrics: dict, traces: dict) -> Path:
     folder = Path(folder)
     (folder / "figures").mkdir(parents=True, exist_ok=True)
     fig = _draw(folder / "figures", traces)
+    from .report import _CSS  # the validation report's look
+
     page = ("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>lpvpc closed-loop validation</title>"
-            "</head><body>" + closed_loop_section(metrics, fig) + "</body></html>")
+            f"<style>{_CSS}</style></head><body>" + closed_loop_section(metrics, fig) + "</body></html>")
     path = folder / "closed_loop.html"
     write_text(path, page)
     return path
