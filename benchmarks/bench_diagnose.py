@@ -448,7 +448,51 @@ def activation_why():
             row.append(f"{ladder.final.heldout_vaf:.2f} ({' -> '.join(r.label for r in ladder.rungs[1:]) or 'none'})")
         say(f"| {seed} | " + " | ".join(row) + " |")
     say("")
+    estimate_errors(say)
     write_results("diagnose_activation.txt", lines)
+
+
+def _quiet_window_activation(emg, position, fs, cutoff=1.0):
+    """The estimate before issue 23: the EMG in the quiet windows before perturbation
+    steps, interpolated across the bursts, low-passed at 1 Hz (the whole EMG without them)."""
+    import scipy.signal
+
+    from lpvpc.effects import quiet_mask
+
+    n = len(emg)
+    q = quiet_mask(position, fs)
+    x = np.interp(np.arange(n), np.flatnonzero(q), emg[q]) if q.sum() >= max(0.05 * n, 3) else emg.copy()
+    b, a = scipy.signal.butter(2, cutoff, fs=fs)
+    return scipy.signal.filtfilt(b, a, x, padlen=min(n - 1, 3 * int(fs / cutoff)))
+
+
+def estimate_errors(say, seeds=range(3)):
+    """The background-activation estimate against the subject's true activation, per design:
+    RMS error / mean and the correlation with trial time, under reflex habituation (the
+    bursts fade; the activation does not change) and the issue-23 activation subject; 60-s
+    multilevel records at 100 Hz."""
+    from lpvpc.effects import signals_from_data
+
+    volts = SubjectParams().emg_volts
+    say(f"Background-activation estimate against the true activation (60-s records, seeds {list(seeds)}): "
+        "RMS error in % of the mean, correlation with trial time")
+    say("")
+    say("| design | hidden | seed | quiet windows + 1 Hz: error | its corr(t) | leak-free: error | its corr(t) |")
+    say("|---|---|---|---|---|---|---|")
+    for design in ("pralds", "lab_pulses", "prbs"):
+        for hidden, params in (("reflex_habituation", None), (ACTIVATION_SUBJECT, SCENARIO_PARAMS[ACTIVATION_SUBJECT])):
+            effect = "reflex_habituation" if params is None else "background_activation"
+            for seed in seeds:
+                pr = simulate_pair("multilevel", seed=seed, duration=60.0, fs_out=100.0, effects=(effect,),
+                                   perturbation=design, params=SubjectParams(**params) if params else None)
+                d = pair_trials(pr.pt, pr.ut)
+                true, t = pr.activation["PT"] * volts, np.arange(d.n)
+                row = []
+                for est in (_quiet_window_activation(d.extra["emg"], d.position, d.fs), signals_from_data(d)["activation"]):
+                    row += [f"{100 * np.sqrt(np.mean((est - true) ** 2)) / np.mean(true):.0f} %",
+                            f"{np.corrcoef(est, t)[0, 1]:+.2f}"]
+                say(f"| {design} | {hidden} | {seed} | " + " | ".join(row) + " |")
+    say("")
 
 
 def speed_only():
