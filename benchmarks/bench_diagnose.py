@@ -1,4 +1,4 @@
-"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --lab-pulses]).
+"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --perturbation NAME | --seeds H0,EFFECT]).
 
 1. False alarms: data without a hidden effect, 20 noise seeds: is any candidate significant?
 2. Detection: each catalog effect hidden in the subject (settings candidates: the model is
@@ -14,9 +14,12 @@
 printed; their rows (per seed and summary) replace the same scenarios' rows in
 results/diagnose.txt (a section-3 scenario not recorded yet is appended to its table),
 the other rows and sections are kept.
-``--lab-pulses``: sections 1 and 2 (6 and 3 seeds) on the lab's perturbation design
-(``simulate_pair(perturbation="lab_pulses")``: holds alternating between 0 and 20-40 mrad,
-every step large) instead of PRALDS; writes results/diagnose_lab_pulses.txt.
+``--perturbation NAME`` (a design of ``lpvpc.simulate.PERTURBATIONS``; ``--lab-pulses`` is
+``--perturbation lab_pulses``): sections 1 and 2 (6 and 3 seeds) on that design instead of
+PRALDS: "lab_pulses" (holds alternating between 0 and 20-40 mrad, every step large) or
+"prbs" (+-40 mrad switching every 50-150 ms, no quiet windows); writes
+results/diagnose_NAME.txt. ``--seeds H0,EFFECT``: how many clean and effect seeds (the
+machine is shared: start small). With ``--only NAME`` the rows go to that file too.
 
 The virtual subject is the realistic one (lpvpc.simulate): EMG envelopes in volts with
 reflex-evoked bursts in the perturbed trial, tonic activation in both, measurement noise.
@@ -45,16 +48,27 @@ from lpvpc.diagnose import diagnose  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.improve import improve  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import EFFECTS, simulate_pair  # noqa: E402
+from lpvpc.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 warnings.simplefilter("ignore")
 
 QUICK = "--quick" in sys.argv
 ONLY = sys.argv[sys.argv.index("--only") + 1] if "--only" in sys.argv else None
-PERTURBATION = "lab_pulses" if "--lab-pulses" in sys.argv else "pralds"
-H0_SEEDS = range(3) if QUICK else range(6) if PERTURBATION == "lab_pulses" else range(20)
-EFFECT_SEEDS = range(2) if QUICK else range(3) if PERTURBATION == "lab_pulses" else range(5)
+PERTURBATION = ("lab_pulses" if "--lab-pulses" in sys.argv else
+                sys.argv[sys.argv.index("--perturbation") + 1] if "--perturbation" in sys.argv else "pralds")
+H0_SEEDS = range(3) if QUICK else range(6) if PERTURBATION != "pralds" else range(20)
+EFFECT_SEEDS = range(2) if QUICK else range(3) if PERTURBATION != "pralds" else range(5)
+if "--seeds" in sys.argv:
+    _h0, _eff = (int(x) for x in sys.argv[sys.argv.index("--seeds") + 1].split(","))
+    H0_SEEDS, EFFECT_SEEDS = range(_h0), range(_eff)
+RESULTS_FILE = "diagnose.txt" if PERTURBATION == "pralds" else f"diagnose_{PERTURBATION}.txt"
+
+# The issue-23 subject: activation that changes within seconds (0.5 Hz), scaling the
+# elastic torque of perturbations up to 2.5x and the reflex gain up to 2x, in both trials' EMG.
+ACTIVATION_SUBJECT = "activation 0.5 Hz, K up to 2.5x, reflex gain up to 2x"
+SCENARIO_PARAMS = {ACTIVATION_SUBJECT: dict(activation_cutoff=0.5, activation_stiffness_gain=1.5,
+                                            activation_reflex_gain=1.0)}
 
 # hidden truth -> (simulator effects, estimator settings of the user's model, expected candidate)
 SCENARIOS = {
@@ -69,6 +83,7 @@ SCENARIOS = {
     "amplitude_dependent_stiffness": (("amplitude_dependent_stiffness",), {}, "amplitude_dependent_stiffness"),
     "position_dependent_reflex_delay": (("position_dependent_reflex_delay",), {}, "position_dependent_reflex_delay"),
     "stress_relaxation": (("stress_relaxation",), {}, "stress_relaxation"),
+    ACTIVATION_SUBJECT: (("background_activation",), {}, "background_activation"),
     "position_dependent_reflex_dynamics, 3x range (not the simulator's)": (
         ("strong_reflex_dynamics",), {}, "position_dependent_reflex_dynamics"),
     "wrong reflex delay (model 80 ms, subject 40 ms)": ((), {"reflex_delay": 0.08}, "reflex_delay"),
@@ -78,10 +93,11 @@ SCENARIOS = {
 }
 
 
-def pairs(seed, effects=(), modify=None):
+def pairs(seed, effects=(), modify=None, params=None):
     out = []
     for kind, s in (("multilevel", seed), ("novel", seed + 1)):
-        pair = simulate_pair(kind, seed=s, effects=effects, perturbation=PERTURBATION)
+        pair = simulate_pair(kind, seed=s, effects=effects, perturbation=PERTURBATION,
+                             params=SubjectParams(**params) if params else None)
         pt, ut = (modify(pair) if modify else (pair.pt, pair.ut))
         data = pair_trials(pt, ut)  # with the UT trial's EMG as extra['emg_ut']
         out.append(data)
@@ -226,7 +242,7 @@ def detection(say, scenarios, clean_vaf):
     for name, (effects, settings, expected) in scenarios.items():
         ok_rank = ok_sig = ok_vaf = 0
         for seed in EFFECT_SEEDS:
-            ident, novel = pairs(seed, effects)
+            ident, novel = pairs(seed, effects, params=SCENARIO_PARAMS.get(name))
             ladder = improve(ident, novel, settings=settings)
             d = ladder.rungs[0].diagnosis
             names = [c.effect for c in d.candidates]
@@ -352,20 +368,21 @@ def main():
         chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
         if chosen:
             detection(say, chosen, clean_vaf)
-            update_rows(chosen, lines)
+            update_rows(chosen, lines, target=RESULTS_FILE, section="## 2. Hidden effect: rank, significance, and the improve loop")
         chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k}
         if chosen:
             outside(say, chosen)
-            update_rows(chosen, lines, section=SECTION3)
+            update_rows(chosen, lines, target=RESULTS_FILE, section=SECTION3)
         return
     if PERTURBATION != "pralds":
-        say(f"Perturbation: {PERTURBATION} (lpvpc.simulate.lab_pulses), not PRALDS; sections 1 and 2 only.")
+        say(f"Perturbation: {PERTURBATION} (lpvpc.simulate.{PERTURBATION}), not PRALDS; sections 1 and 2 only; "
+            f"{len(H0_SEEDS)} clean seeds, {len(EFFECT_SEEDS)} seeds per hidden effect.")
         say("")
     false_alarms(say, clean_vaf)
     detection(say, SCENARIOS, clean_vaf)
     if PERTURBATION != "pralds":
         say(f"total benchmark time {time.perf_counter() - t_all:.0f} s")
-        write_results(f"diagnose_{PERTURBATION}.txt", lines)
+        write_results(RESULTS_FILE, lines)
         return
 
     outside(say, OUT_OF_CATALOG)
@@ -376,6 +393,106 @@ def main():
     say("")
     say(f"total benchmark time {time.perf_counter() - t_all:.0f} s{' (--quick)' if QUICK else ''}")
     write_results("diagnose_quick.txt" if QUICK else "diagnose.txt", lines)
+
+
+def activation_why():
+    """``--activation-why [--seeds H0,N]``: where the activation ladder loses against the clean
+    model, on the issue-23 subject (ACTIVATION_SUBJECT) and N seeds: the improve ladder
+    with the activation estimated from the EMG as recorded; with the true activation given
+    as the EMG (the effect's form alone: what is left is the model, not the estimate); with
+    an EMG made of the activation alone (no reflex bursts: the EMG's own noise). Writes
+    results/diagnose_activation.txt."""
+    from lpvpc import effects as fx
+    from lpvpc.data import decimate_signal
+    from lpvpc.simulate import emg_envelope
+
+    lines = [f"Activation ladder against the clean model ({ACTIVATION_SUBJECT}), perturbation {PERTURBATION}; "
+             f"python benchmarks/bench_diagnose.py --activation-why --seeds 0,{len(EFFECT_SEEDS)}", ""]
+
+    def say(text=""):
+        print(text, flush=True)
+        lines.append(text)
+
+    sp = SubjectParams(**SCENARIO_PARAMS[ACTIVATION_SUBJECT])
+    real = fx.background_emg
+
+    def given(seed, mode):
+        out = []
+        for kind, s in (("multilevel", seed), ("novel", seed + 1)):
+            pr = simulate_pair(kind, seed=s, effects=("background_activation",), perturbation=PERTURBATION, params=sp)
+            tr = {}
+            for key, t in (("PT", pr.pt), ("UT", pr.ut)):
+                a = pr.activation[key]
+                if mode == "EMG of the activation alone":
+                    a1k = np.repeat(a, 10)  # to the 1 kHz of the simulation
+                    a = decimate_signal(emg_envelope(a1k, np.zeros_like(a1k), 1000.0,
+                                                     np.random.default_rng([s, key == "PT"]), sp), 10) / sp.emg_volts
+                tr[key] = Trial(t.time, t.position, t.torque, {**t.channels, "emg": a * sp.emg_volts}, t.name)
+            out.append(pair_trials(tr["PT"], tr["UT"]))
+        return out
+
+    say("| seed | clean model | EMG as recorded | true activation given | EMG of the activation alone |")
+    say("|---|---|---|---|---|")
+    for seed in EFFECT_SEEDS:
+        ci, cn = pairs(seed)
+        row = [f"{heldout_vaf(identify(ci), cn):.2f}"]
+        for mode in ("recorded", "true activation", "EMG of the activation alone"):
+            ident, novel = pairs(seed, ("background_activation",), params=SCENARIO_PARAMS[ACTIVATION_SUBJECT]) \
+                if mode == "recorded" else given(seed, mode)
+            if mode == "true activation":  # the activation itself: no estimate
+                fx.background_emg = lambda emg, position, fs, **kw: np.asarray(emg, dtype=float)
+            try:
+                ladder = improve(ident, novel)
+            finally:
+                fx.background_emg = real
+            row.append(f"{ladder.final.heldout_vaf:.2f} ({' -> '.join(r.label for r in ladder.rungs[1:]) or 'none'})")
+        say(f"| {seed} | " + " | ".join(row) + " |")
+    say("")
+    estimate_errors(say)
+    write_results("diagnose_activation.txt", lines)
+
+
+def _quiet_window_activation(emg, position, fs, cutoff=1.0):
+    """The estimate before issue 23: the EMG in the quiet windows before perturbation
+    steps, interpolated across the bursts, low-passed at 1 Hz (the whole EMG without them)."""
+    import scipy.signal
+
+    from lpvpc.effects import quiet_mask
+
+    n = len(emg)
+    q = quiet_mask(position, fs)
+    x = np.interp(np.arange(n), np.flatnonzero(q), emg[q]) if q.sum() >= max(0.05 * n, 3) else emg.copy()
+    b, a = scipy.signal.butter(2, cutoff, fs=fs)
+    return scipy.signal.filtfilt(b, a, x, padlen=min(n - 1, 3 * int(fs / cutoff)))
+
+
+def estimate_errors(say, seeds=range(3)):
+    """The background-activation estimate against the subject's true activation, per design:
+    RMS error / mean and the correlation with trial time, under reflex habituation (the
+    bursts fade; the activation does not change) and the issue-23 activation subject; 60-s
+    multilevel records at 100 Hz."""
+    from lpvpc.effects import signals_from_data
+
+    volts = SubjectParams().emg_volts
+    say(f"Background-activation estimate against the true activation (60-s records, seeds {list(seeds)}): "
+        "RMS error in % of the mean, correlation with trial time")
+    say("")
+    say("| design | hidden | seed | quiet windows + 1 Hz: error | its corr(t) | leak-free: error | its corr(t) |")
+    say("|---|---|---|---|---|---|---|")
+    for design in ("pralds", "lab_pulses", "prbs"):
+        for hidden, params in (("reflex_habituation", None), (ACTIVATION_SUBJECT, SCENARIO_PARAMS[ACTIVATION_SUBJECT])):
+            effect = "reflex_habituation" if params is None else "background_activation"
+            for seed in seeds:
+                pr = simulate_pair("multilevel", seed=seed, duration=60.0, fs_out=100.0, effects=(effect,),
+                                   perturbation=design, params=SubjectParams(**params) if params else None)
+                d = pair_trials(pr.pt, pr.ut)
+                true, t = pr.activation["PT"] * volts, np.arange(d.n)
+                row = []
+                for est in (_quiet_window_activation(d.extra["emg"], d.position, d.fs), signals_from_data(d)["activation"]):
+                    row += [f"{100 * np.sqrt(np.mean((est - true) ** 2)) / np.mean(true):.0f} %",
+                            f"{np.corrcoef(est, t)[0, 1]:+.2f}"]
+                say(f"| {design} | {hidden} | {seed} | " + " | ".join(row) + " |")
+    say("")
 
 
 def speed_only():
@@ -391,4 +508,4 @@ def speed_only():
 
 
 if __name__ == "__main__":
-    speed_only() if "--speed" in sys.argv else main()
+    speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv else main()

@@ -837,7 +837,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="length of each trial in s (default 120)")
     p.add_argument("--perturbation", default="pralds", metavar="NAME",
                    help="pralds: levels uniform in +-0.04 rad (default); lab_pulses: the lab pilot trial's "
-                        "design, holds alternating between 0 and +-0.02..0.04 rad")
+                        "design, holds alternating between 0 and +-0.02..0.04 rad; prbs: +-0.04 rad switching "
+                        "every 50-150 ms (no quiet windows)")
     p.set_defaults(func=cmd_simulate)
 
     d = _estimator_defaults()

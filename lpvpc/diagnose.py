@@ -96,7 +96,14 @@ TRANSFER_GAP = SANE_DROP
 TIES = {
     frozenset(("position_dependent_reflex_delay", "position_dependent_reflex_dynamics")):
         "reflex timing varies with position: delay or dynamics (not separable at this sampling rate)",
+    frozenset(("reflex_habituation", "activation_reflex_gain")):
+        "the reflex gain changes over the trial: with trial time or with the EMG-derived activation "
+        "(the data explain it about equally well)",
 }
+# When such a tie is between a signal derived from the EMG (which carries the reflex's own
+# output, however well its bursts are taken off) and one that is not, the underived one is
+# preferred: EMG-derived -> its underived rival.
+PREFER_UNDERIVED = {"activation_reflex_gain": "reflex_habituation"}
 TIE_P = 0.05  # two-sided: the top candidate's held-out residual not smaller than its rival's at this level
 # The EMG breaks that tie: it is recorded before the muscle's activation and contraction, so
 # its reflex latency moves with the reflex delay and not with the reflex dynamics. A latency
@@ -611,6 +618,21 @@ def _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s):
     return best, r1
 
 
+def _prefer_underived(sur, best, r1, scored, min_gain, level, block_s):
+    """(candidate, residual) to join the base: ``best``, or its :data:`PREFER_UNDERIVED`
+    rival when the two tie on torque (two-sided p above TIE_P) and the rival passes the
+    same test as ``best``: a reflex-gain change explained equally by trial time and by an
+    EMG-derived signal is named by trial time (the tie is reported either way)."""
+    rival_name = PREFER_UNDERIVED.get(best.effect)
+    hit = next(((r, res) for r, res in scored if r.effect == rival_name), None)
+    if hit is None or _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:
+        return best, r1
+    r = hit[0]
+    if not (r.conditional_gain >= min_gain and r.p_value <= level):
+        return best, r1
+    return hit
+
+
 def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> list:
     """Forward selection among the significant candidates: returns them in the order they
     join the base; the ones that lose significance given those above are marked."""
@@ -643,6 +665,7 @@ def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> lis
             break
         best, r1 = max(scored, key=lambda t: t[0].conditional_gain)
         best, r1 = _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s)
+        best, r1 = _prefer_underived(sur, best, r1, scored, min_gain, level, block_s)
         if not (best.conditional_gain >= min_gain and best.p_value <= level):
             for r in pool:
                 r.significant = False

@@ -31,7 +31,7 @@ catalog" (they test what the diagnosis says of effects it has no entry for).
 
 Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
 :func:`write_dataset`, :data:`EFFECTS`, and the element functions
-:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`lab_pulses`, :func:`servo`,
+:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`lab_pulses`, :func:`prbs`, :func:`servo`,
 :func:`intrinsic_torque`, :func:`reflex_torque`, :func:`coloured_noise`.
 """
 
@@ -117,6 +117,12 @@ class SubjectParams:
     emg_volts: float = 300e-6  # V of envelope at full activation (1.0)
     emg_noise: float = 0.015  # 1, RMS of the envelope's measurement noise (activation units)
     emg_cutoff: float = 30.0  # Hz, envelope low-pass (rectify, then 2nd-order Butterworth)
+    emg_band: tuple = (20.0, 450.0)  # Hz, band of the raw surface EMG (the noise carrier the drive modulates)
+    # background activation a(t) of the activation effects (its own slow dynamics, not the reflex's)
+    activation_cutoff: float = 0.05  # Hz, how fast a(t) varies (2nd-order low-pass of the noise behind it)
+    activation_shared: bool = False  # True: the same a(t) in PT and UT (a real pair is recorded at two times)
+    activation_stiffness_gain: float = 1.0  # background_activation: perturbation K, B scaled by 1 + this * a
+    activation_reflex_gain: float = 1.0  # background_activation: reflex gain scaled by 1 + this * a
     # torque sensor / background noise
     noise_cutoff: float = 20.0  # Hz, cut-off of the 2nd-order Butterworth that colours the noise
     noise_order: int = 2  # order of that filter
@@ -409,7 +415,26 @@ def lab_pulses(duration: float, fs: float, rng: np.random.Generator, *, amplitud
                         rng.choice((-1.0, 1.0)) * rng.uniform(smallest, 1.0) * amplitude)
 
 
-PERTURBATIONS = {"pralds": pralds, "lab_pulses": lab_pulses}
+def prbs(duration: float, fs: float, rng: np.random.Generator, *, amplitude: float = 0.04,
+         hold=(0.05, 0.15)) -> np.ndarray:
+    """Pseudo-random binary sequence (rad) at ``fs`` (Hz): the level switches between
+    +amplitude and -amplitude after holds uniform in ``hold`` s (50-150 ms). No quiet
+    windows: a reflex burst (~40 ms after a stretch, lasting as long as the servo's step)
+    often runs into the next switch, so the EMG between bursts is rarely free of them.
+
+    >>> p = prbs(10.0, 1000.0, np.random.default_rng(0))
+    >>> sorted(set(np.round(p, 6).tolist()))  # rad
+    [-0.04, 0.04]
+    >>> holds = np.diff(np.flatnonzero(np.diff(p))) / 1000.0  # s between switches
+    >>> bool(holds.min() >= 0.05 - 1e-9 and holds.max() <= 0.15 + 1e-9)
+    True
+    """
+    first = rng.choice((-1.0, 1.0))
+    return _held_levels(duration, fs, rng, hold, lambda k: amplitude * first * (-1.0) ** k)
+
+
+#: Perturbation designs of :func:`simulate_pair` (``perturbation=``): name -> generator.
+PERTURBATIONS = {"pralds": pralds, "lab_pulses": lab_pulses, "prbs": prbs}
 
 
 # ---------------------------------------------------------------------------------------
@@ -672,6 +697,7 @@ class TrialState:
     reflex_delay: np.ndarray | None = None
     activation: np.ndarray = None
     channels: dict = field(default_factory=dict)
+    ut_activation: np.ndarray | None = None  # the UT's slow activation draws (PT only; activation_shared)
 
     def __post_init__(self):
         n = len(self.t)
@@ -728,12 +754,17 @@ def _effect_direction_dependent_stiffness(s: TrialState) -> dict:
     return {"increase_after_moving_toward_df": gain, "velocity_threshold": v_min, "time_constant": tau}
 
 
-def _slow_activation(s: TrialState, cutoff=0.05) -> np.ndarray:
+def _slow_activation(s: TrialState, cutoff=None) -> np.ndarray:
     """A slowly varying background activation a(t) in [0, 1], mostly low (~0.1) with bursts
-    toward 0.9: unit-variance noise low-passed at ``cutoff`` Hz, a = (1 + tanh(x - 1)) / 2.
-    Each trial has its own (activation is not reproducible between trials)."""
+    toward 0.9: unit-variance noise low-passed at ``cutoff`` Hz (default
+    ``params.activation_cutoff``), a = (1 + tanh(x - 1)) / 2. Each trial has its own
+    (activation is not reproducible between trials) unless ``params.activation_shared``:
+    then the perturbed trial reuses the unperturbed trial's a(t)."""
+    if s.params.activation_shared and s.ut_activation is not None:
+        return s.ut_activation.copy()
+    cutoff = s.params.activation_cutoff if cutoff is None else cutoff
     b, a = signal.butter(2, cutoff, fs=s.fs)
-    lead = int(20 * s.fs)  # discard the filter's start-up so a(t) is stationary from t = 0
+    lead = int(max(20.0, 1.0 / cutoff) * s.fs)  # discard the filter's start-up so a(t) is stationary from t = 0
     x = signal.lfilter(b, a, s.rng.standard_normal(len(s.t) + lead))[lead:]
     x /= max(np.std(x), 1e-12)
     return 0.5 * (1.0 + np.tanh(x - 1.0))
@@ -752,17 +783,18 @@ def _effect_background_activation(s: TrialState) -> dict:
     ``tonic * a`` is added, and the motoneuron pool's excitability raises the reflex gain
     by (1 + a) as well (activation raises intrinsic stiffness and reflex gain alike).
     PT - UT keeps a slow residual ``tonic * (a_PT - a_UT)``."""
-    cutoff, tonic = 0.05, 2.0  # Hz (slow), N m at full activation
-    act = _slow_activation(s, cutoff)
+    tonic = 2.0  # N m at full activation
     pr = s.params
-    s.extra_torque += act * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta)) + tonic * act
-    s.viscosity_scale *= 1.0 + act
-    s.reflex_gain_scale *= 1.0 + act
+    cutoff, ks, kr = pr.activation_cutoff, pr.activation_stiffness_gain, pr.activation_reflex_gain
+    act = _slow_activation(s)
+    s.extra_torque += ks * act * (pr.elastic_torque(s.theta) - pr.elastic_torque(s.slow_theta)) + tonic * act
+    s.viscosity_scale *= 1.0 + ks * act
+    s.reflex_gain_scale *= 1.0 + kr * act
     s.activation += act
     return {"cutoff_hz": cutoff, "tonic_torque": tonic,
             "mapping": "a = 0.5*(1+tanh(x-1)), x unit-variance noise low-passed at cutoff_hz",
-            "perturbation_stiffness_scale": "1 + a", "viscosity_scale": "1 + a", "reflex_gain_scale": "1 + a",
-            "independent_per_trial": True}
+            "perturbation_stiffness_scale": f"1 + {ks:g} a", "viscosity_scale": f"1 + {ks:g} a",
+            "reflex_gain_scale": f"1 + {kr:g} a", "independent_per_trial": not pr.activation_shared}
 
 
 def _effect_activation_reflex_gain(s: TrialState) -> dict:
@@ -774,7 +806,7 @@ def _effect_activation_reflex_gain(s: TrialState) -> dict:
     act = _slow_activation(s)
     s.reflex_gain_scale *= 1.0 + gain * act
     s.activation += act
-    return {"reflex_gain_scale": f"1 + {gain} a", "independent_per_trial": True}
+    return {"reflex_gain_scale": f"1 + {gain} a", "independent_per_trial": not s.params.activation_shared}
 
 
 def _effect_amplitude_dependent_stiffness(s: TrialState) -> dict:
@@ -918,7 +950,9 @@ class SimulatedPair:
     in ``emg_unit``); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
     ``truth``: JSON-serialisable parameters, curves and measured quantities;
     ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
-    'ut_intrinsic', 'ut_reflex'.
+    'ut_intrinsic', 'ut_reflex'; ``activation``: each trial's true background activation
+    (1; tonic level plus any slow activation, the EMG's drive without the reflex bursts),
+    {'PT': ..., 'UT': ...} at the output rate.
 
     >>> pair = simulate_pair("multilevel", seed=0, duration=10.0, fs_out=100.0)
     >>> pair.pt.fs, len(pair.pt.time), sorted(pair.pt.channels)  # Hz, samples, recorded channels
@@ -933,6 +967,7 @@ class SimulatedPair:
     ut_clean: Trial
     truth: dict
     components: dict
+    activation: dict = field(default_factory=dict)
 
 
 def stationary_trajectory(duration: float, fs: float, rng: np.random.Generator, *,
@@ -958,14 +993,16 @@ def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
     st = TrialState(t=t, theta=theta, vel=vel, acc=acc, command=command,
                     slow_velocity=vel if slow is None else slow["vel"],
                     slow_theta=theta if slow is None else slow["theta"],
-                    perturbed=perturbed, fs=fs, params=params, rng=rng)
+                    perturbed=perturbed, fs=fs, params=params, rng=rng,
+                    ut_activation=None if slow is None else slow["slow_activation"])
     info = {name: EFFECTS[name][1](st) for name in effects}
     tq_i = intrinsic_torque(theta, vel, acc, params, stiffness_scale=st.stiffness_scale,
                             viscosity_scale=st.viscosity_scale, extra=st.extra_torque)
     tq_r, z = reflex_torque(theta, vel, fs, params, gain_scale=st.reflex_gain_scale, wn=st.reflex_wn,
                             delay=st.reflex_delay)
     return {"theta": theta, "vel": vel, "intrinsic": tq_i, "reflex": tq_r, "reflex_drive": z,
-            "activation": params.emg_tonic + st.activation, "channels": st.channels, "effects": info}
+            "activation": params.emg_tonic + st.activation, "slow_activation": st.activation,
+            "channels": st.channels, "effects": info}
 
 
 #: EMG units of :func:`simulate_pair` and the factor from volts.
@@ -974,33 +1011,45 @@ EMG_UNITS = {"V": 1.0, "mV": 1e3, "uV": 1e6}
 
 def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
                  params: SubjectParams | None = None) -> np.ndarray:
-    """The recorded EMG envelope (V) of one trial.
+    """The recorded EMG envelope (V) of one trial, made as a muscle's surface EMG is.
 
-    Muscle activity = background activation (tonic level plus any slow activation, the
-    same in both trials' kind) + reflex-evoked activation: the reflex drive z (N m; the
-    delayed, rectified, position-gained velocity, so the bursts come ~40 ms after each
-    velocity pulse with the reflex's own gain and threshold) divided by
-    ``emg_reflex_torque``. Rectified-EMG envelope: a 2nd-order Butterworth low-pass at
-    ``emg_cutoff`` Hz, plus measurement noise (the rectified amplifier noise: |low-passed
-    white noise|, ``emg_noise`` RMS), times ``emg_volts``. A perturbed trial's EMG therefore
-    correlates with the reflex torque; an unperturbed trial's shows the tonic part (and
-    small bursts when the slow movement is fast enough to fire the reflex).
+    Neural drive = background activation (tonic level plus any slow activation, each trial
+    its own) + reflex-evoked drive: the reflex drive z (N m; the delayed, rectified,
+    position-gained velocity BEFORE the muscle's activation dynamics, so the bursts come
+    ~40 ms after each velocity pulse, as short as the pulse) divided by
+    ``emg_reflex_torque``. Raw EMG: band-limited noise (``emg_band`` Hz, unit RMS) whose
+    amplitude follows the drive, plus electrode / amplifier noise (same band,
+    ``emg_noise`` RMS). The lab's envelope: full-wave rectified, 2nd-order Butterworth
+    low-pass at ``emg_cutoff`` Hz, scaled by sqrt(pi / 2) so a drive of 1 reads 1, times
+    ``emg_volts``. A perturbed trial's EMG therefore correlates with the reflex torque; an
+    unperturbed trial's shows the tonic part (and small bursts when the slow movement is
+    fast enough to fire the reflex). The band must lie below fs / 2 (fs >= 1 kHz).
 
     Reflex drive (N m) raises the envelope (V) above its tonic level:
 
     >>> rng = np.random.default_rng(0)
     >>> drive = np.r_[np.zeros(500), np.full(500, 15.0)]
-    >>> e = emg_envelope(np.zeros(1000), drive, 1000.0, rng)
+    >>> e = emg_envelope(np.full(1000, 0.08), drive, 1000.0, rng)
     >>> bool(e[600:].mean() > 5 * e[100:500].mean())
     True
     """
     p = params or SubjectParams()
-    act = np.asarray(activation, dtype=float) + np.asarray(reflex_drive, dtype=float) / p.emg_reflex_torque
+    drive = np.asarray(activation, dtype=float) + np.asarray(reflex_drive, dtype=float) / p.emg_reflex_torque
+    n = len(drive)
+    lo, hi = p.emg_band
+    hi = min(hi, 0.45 * fs)
+    bb, ab = signal.butter(2, (lo, hi), btype="bandpass", fs=fs)
+
+    def band_noise():  # unit-RMS band-limited noise, its filter's start-up discarded
+        lead = int(fs)  # 1 s
+        x = signal.lfilter(bb, ab, rng.standard_normal(n + lead))[lead:]
+        return x / max(_rms(x), 1e-300)
+
+    raw = np.maximum(drive, 0.0) * band_noise() + p.emg_noise * band_noise()
     b, a = signal.butter(2, p.emg_cutoff, fs=fs)
-    env = act[0] + signal.lfilter(b, a, act - act[0])
-    noise = np.abs(signal.lfilter(b, a, rng.standard_normal(len(act))))
-    noise *= p.emg_noise / max(_rms(noise), 1e-300)
-    return p.emg_volts * (env + noise)
+    rect = math.sqrt(math.pi / 2.0) * np.abs(raw)
+    env = rect[:200].mean() + signal.lfilter(b, a, rect - rect[:200].mean())
+    return p.emg_volts * np.maximum(env, 0.0)
 
 
 def _rms(x):
@@ -1021,8 +1070,9 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     ``snr_db``: SNR of the PERTURBATION torque, 10 log10(var(PT-UT clean) / var(PT-UT
     noise)), exact at the output rate (``inf`` or ``None``: no noise).
     ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``perturbation``:
-    "pralds" (:func:`pralds`) or "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
-    design: every step large). ``effects``:
+    "pralds" (:func:`pralds`), "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
+    design: every step large) or "prbs" (:func:`prbs`: +-amplitude switching every
+    50-150 ms, no quiet windows). ``effects``:
     names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
     quantisation is negligible next to the torque noise). Both trials carry channel
     'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
@@ -1084,6 +1134,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     def trial(key, torque, sim):
         ch = {"command": out(cmd[key])}
         ch.update({k: out(v) for k, v in sim["channels"].items()})
+        ch["emg"] = np.maximum(ch["emg"], 0.0)  # an envelope: the decimation filter's ringing clipped
         return Trial(time=t_out.copy(), position=pos[key].copy(), torque=torque, channels=ch,
                      name=f"{trajectory}_{key}")
 
@@ -1135,7 +1186,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     pair = SimulatedPair(
         pt=trial("PT", noisy["PT"], pt), ut=trial("UT", noisy["UT"], ut),
         pt_clean=trial("PT", clean["PT"], pt), ut_clean=trial("UT", clean["UT"], ut),
-        truth=truth, components=comp)
+        truth=truth, components=comp, activation={"PT": out(pt["activation"]), "UT": out(ut["activation"])})
     return pair
 
 

@@ -301,8 +301,8 @@ def test_usage_errors(model_file, capsys, tmp_path):
     assert status == 2 and "not both" in _one_error_line(err)
     status, _, err = _run(["simulate", "--out", tmp_path / "s", "--effect", "no_such_effect"], capsys)
     assert status == 2 and "no_such_effect" in _one_error_line(err)
-    status, _, err = _run(["simulate", "--out", tmp_path / "s", "--perturbation", "prbs"], capsys)
-    assert status == 2 and "unknown perturbation 'prbs' (known: lab_pulses, pralds)" in _one_error_line(err)
+    status, _, err = _run(["simulate", "--out", tmp_path / "s", "--perturbation", "chirp"], capsys)
+    assert status == 2 and "unknown perturbation 'chirp' (known: lab_pulses, pralds, prbs)" in _one_error_line(err)
     assert not (tmp_path / "s").exists()  # refused before anything is written
     status, _, err = _run(["export", model_file], capsys)
     assert status == 2 and "nothing to export" in _one_error_line(err)

@@ -359,6 +359,41 @@ def test_tied_reflex_timing_candidates_are_reported_as_a_tie():
     assert better.tied_with == ""
 
 
+def test_a_reflex_gain_change_tied_between_trial_time_and_activation_is_named_by_trial_time():
+    """activation_reflex_gain reads an EMG-derived signal (which carries the reflex's own
+    output); when reflex_habituation (trial time) explains the torque about as well, the
+    ranking takes habituation, and the two are reported as a tie. A clear win stays."""
+    from types import SimpleNamespace
+
+    from lpvpc.diagnose import TIES, CandidateResult, _mark_ties, _prefer_underived
+
+    rng = np.random.default_rng(1)
+    fs, n = 100.0, 6000
+    common = rng.standard_normal(n)
+    sur = SimpleNamespace(fs=fs)
+
+    def cand(name, resid, gain=0.5):
+        c = CandidateResult(name, "effect", "reflex", "x.", vaf_gain=gain, residual=resid)
+        c.conditional_gain, c.p_value = gain, 1e-6
+        return c
+
+    act = cand("activation_reflex_gain", common + 0.01 * rng.standard_normal(n), 0.52)
+    hab = cand("reflex_habituation", common + 0.01 * rng.standard_normal(n), 0.50)
+    scored = [(act, act.residual), (hab, hab.residual)]
+    best, _ = _prefer_underived(sur, act, act.residual, scored, 0.15, 0.01, 2.0)
+    assert best is hab
+    assert frozenset((act.effect, hab.effect)) in TIES
+    _mark_ties([hab], [act, hab], fs, 2.0)
+    assert hab.tied_with == "activation_reflex_gain"
+    clear = cand("activation_reflex_gain", 0.8 * common, 1.5)
+    best, _ = _prefer_underived(sur, clear, clear.residual, [(clear, clear.residual), (hab, hab.residual)],
+                                0.15, 0.01, 2.0)
+    assert best is clear
+    weak = cand("reflex_habituation", hab.residual, 0.05)  # tied but below the minimum gain: not taken
+    best, _ = _prefer_underived(sur, act, act.residual, [(act, act.residual), (weak, weak.residual)], 0.15, 0.01, 2.0)
+    assert best is act
+
+
 def test_position_dependent_reflex_delay_is_found_and_named_honestly():
     """The virtual subject's reflex delay grows from 30 to 80 ms toward dorsiflexion: the
     delay entry is significant; on torque it ties with position-dependent reflex dynamics,

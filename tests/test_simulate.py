@@ -150,8 +150,25 @@ def test_the_pair_takes_the_lab_pulse_perturbation_and_records_it():
     starts = np.r_[0, np.flatnonzero(np.abs(np.diff(d)) > 1e-12) + 1]
     assert np.all(np.abs(d[starts[::2]]) < 1e-12) and np.all(np.abs(d[starts[1::2]]) >= 0.02)
     assert pr.truth["perturbation"] == "lab_pulses"
-    with pytest.raises(ValueError, match="unknown perturbation 'prbs'"):
-        simulate_pair("multilevel", seed=0, duration=20.0, perturbation="prbs")
+    with pytest.raises(ValueError, match="unknown perturbation 'chirp'"):
+        simulate_pair("multilevel", seed=0, duration=20.0, perturbation="chirp")
+
+
+def test_the_pair_takes_a_prbs_without_quiet_windows():
+    """PRBS: +-amplitude switching every 50-150 ms; unlike PRALDS it leaves almost no
+    quiet window (no movement in the last 150 ms) for a background-EMG estimate."""
+    from lpvpc.effects import quiet_mask
+
+    pr = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=1000.0, perturbation="prbs")
+    d = pr.pt.channels["command"] - pr.ut.channels["command"]
+    np.testing.assert_allclose(np.abs(d), 0.04)
+    holds = np.diff(np.flatnonzero(np.abs(np.diff(d)) > 1e-12)) / 1000.0
+    assert holds.min() >= 0.05 - 1e-9 and holds.max() <= 0.15 + 1e-9
+    assert pr.truth["perturbation"] == "prbs"
+    p = pr.pt.position - pr.ut.position
+    ref = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=1000.0)
+    quiet = [quiet_mask(x, 1000.0).mean() for x in (p, ref.pt.position - ref.ut.position)]
+    assert quiet[0] < 0.05 < 0.2 < quiet[1]
 
 
 # ---- the pair ---------------------------------------------------------------------------
@@ -221,7 +238,9 @@ def test_each_effect_changes_the_torque(name, base100):
     floor = 0.07 if name == "position_dependent_reflex_delay" else 0.05
     assert change > floor, f"{name} changes the perturbation torque by only {100 * change:.1f} %"
     for tr in (pr.pt, pr.ut):
-        assert "emg" in tr.channels and 0 < tr.channels["emg"].min() and tr.channels["emg"].max() < 2e-3  # volts
+        # volts; an envelope is never negative (the smoother's undershoot after big bursts is clipped)
+        assert "emg" in tr.channels and 0 <= tr.channels["emg"].min() and tr.channels["emg"].max() < 2e-3
+        assert np.median(tr.channels["emg"]) > 0
 
 
 @pytest.mark.parametrize("name, pathway", [("oscillating_reflex_gain", "reflex"),
@@ -335,3 +354,36 @@ def test_pair_trials_reproduces_the_simulated_perturbation(base100):
     ref = base100.pt_clean.torque - base100.ut_clean.torque
     assert np.corrcoef(d.torque, ref)[0, 1] > 0.999
     np.testing.assert_allclose(d.scheduling, base100.ut.position, atol=1e-3)
+
+
+def test_emg_is_a_rectified_band_limited_noise_whose_amplitude_follows_the_drive():
+    """The raw EMG is band-limited noise: its rectified, smoothed envelope scatters about
+    the drive (tonic 0.08 here) by tens of percent at 1 kHz, yet its mean reads the drive."""
+    pr = simulate_pair("stationary", seed=2, duration=20.0, fs_out=1000.0)
+    p = SubjectParams()
+    e = pr.ut.channels["emg"] / p.emg_volts  # activation units; UT: no reflex at a held position
+    assert np.mean(e) == pytest.approx(np.hypot(p.emg_tonic, p.emg_noise), rel=0.05)
+    assert 0.1 < np.std(e) / np.mean(e) < 0.5  # a noise carrier, not a smooth envelope
+    from lpvpc.simulate import emg_envelope
+    rng = np.random.default_rng(0)
+    twice = emg_envelope(np.full(20000, 0.3), np.zeros(20000), 1000.0, rng, p)
+    assert np.mean(twice) / p.emg_volts == pytest.approx(np.hypot(0.3, p.emg_noise), rel=0.05)
+
+
+def test_background_activation_is_own_per_trial_unless_shared_and_its_speed_and_gains_are_settable():
+    from scipy import signal as sps
+
+    b, a = sps.butter(2, 0.1, fs=100.0)
+    corr = {}
+    for shared in (False, True):
+        pr = simulate_pair("multilevel", seed=1, fs_out=100.0, duration=60.0, effects=("background_activation",),
+                           params=SubjectParams(activation_shared=shared))
+        slow = [sps.filtfilt(b, a, t.channels["emg"]) for t in (pr.pt, pr.ut)]
+        corr[shared] = np.corrcoef(*slow)[0, 1]
+        assert pr.truth["effects"][0]["parameters"]["independent_per_trial"] is not shared
+    assert corr[True] > 0.95 and abs(corr[False]) < 0.5
+    # a faster activation (0.5 Hz) with the issue's gains: recorded in the truth
+    pr = simulate_pair("multilevel", seed=1, fs_out=100.0, duration=30.0, effects=("background_activation",),
+                       params=SubjectParams(activation_cutoff=0.5, activation_stiffness_gain=1.5))
+    eff = pr.truth["effects"][0]["parameters"]
+    assert eff["cutoff_hz"] == 0.5 and eff["perturbation_stiffness_scale"] == "1 + 1.5 a"
