@@ -64,6 +64,10 @@ TABLES = {
                      "nice python benchmarks/bench_diagnose.py"),
     "diagnose_lab_pulses.txt": ("Diagnosis under the lab's perturbation design",
                                 "nice python benchmarks/bench_diagnose.py --lab-pulses"),
+    "diagnose_prbs.txt": ("Diagnosis under a PRBS perturbation without quiet windows",
+                          "nice python benchmarks/bench_diagnose.py --perturbation prbs --seeds 20,3"),
+    "diagnose_activation.txt": ("Why an activation effect falls short: the activation estimate",
+                                "python benchmarks/bench_diagnose.py --activation-why --seeds 0,2"),
     "diagnose_speed.txt": ("Diagnosis speed", "python benchmarks/bench_diagnose.py --speed"),
     "fuzz_model.txt": ("Fuzzing the model-file loader", "python benchmarks/bench_fuzz_model.py"),
 }
