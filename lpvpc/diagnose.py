@@ -52,7 +52,6 @@ Two questions (see :func:`diagnose`):
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import time
@@ -70,6 +69,11 @@ from .effects import CATALOG, SETTINGS, EffectDesign, reflex_latency, signals_fr
 from .intrinsic import two_sided_lags
 from .model import vaf
 from .reflex import reflex_input_regressor
+from .report_html import breakable as _breakable
+from .report_html import escape as _e
+from .report_html import inline_figure as _html_img
+from .report_html import page as _html_page
+from .report_html import table as _table
 
 FOLDS = 10
 BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
@@ -1252,33 +1256,10 @@ def format_table(diag: Diagnosis, n=None) -> str:
     return "\n".join(lines)
 
 
-def _breakable(text) -> str:
-    """Escaped text that may wrap inside its long words (candidate names in notes), so that a
-    table keeps to the page's width instead of scrolling sideways."""
-    return f'<span class="brk">{html.escape(str(text))}</span>'
-
-
-def _html_page(title, body) -> str:
-    """A self-contained HTML page in the validate report's style (images inline)."""
-    from .validation.report import _CSS
-
-    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><meta name="viewport" '
-            f'content="width=device-width, initial-scale=1"><title>{html.escape(title)}</title>'
-            f'<style>{_CSS}.wide{{overflow-x:auto}}.brk{{overflow-wrap:anywhere}}</style></head><body>{body}</body></html>\n')
-
-
-def _html_img(path: Path, caption: str) -> str:
-    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(caption)}">'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
-
-
 def candidates_html(diag: Diagnosis, n=None) -> str:
     """The ranked candidates as an HTML table (significant ones first, in conditional order).
     A candidate's note (why it is not available, or what its refit found) takes a full-width
     row under it: as a ninth column it was squeezed to a word per line."""
-    from .validation.report import _e, _table
-
     rows, notes = [], []
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
@@ -1358,8 +1339,6 @@ def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
 def diagnosis_html(diag: Diagnosis, figs=None, change=None, first=None, *, level=2) -> str:
     """The body of a diagnosis (used by the diagnose report and by each step of the improve
     report)."""
-    from .validation.report import _e, _table
-
     h = f"h{level}"
     c = diag.coverage
     parts = [f"<p>Model <code>{_e(diag.model_hash[:12])}</code> on <code>{_e(diag.data_source)}</code>: "
