@@ -264,8 +264,11 @@ def _change_text(before: dict, after: dict, rho, i: int, j: int) -> str:
 def _html(ladder: Ladder, heldout, folder: Path) -> str:
     """Self-contained HTML: the ladder (table and plot), and per step the change, the
     residual before and after it, and the diagnosis that chose the next step."""
-    from .diagnose import _html_img, _html_page, diagnosis_html
-    from .validation.report import _e, _table
+    from .diagnose import diagnosis_html
+    from .report_html import escape as _e
+    from .report_html import inline_figure as _html_img
+    from .report_html import page as _html_page
+    from .report_html import table as _table
 
     first, last = ladder.rungs[0], ladder.final
     rows = []

@@ -333,7 +333,7 @@ def test_diagnose_and_improve_reports_render_in_chromium(tmp_path):
 def test_tied_reflex_timing_candidates_are_reported_as_a_tie():
     """Two rival candidates of TIES whose held-out residuals differ only by noise are a tie;
     a clear difference is not."""
-    from lpvpc.diagnose import CandidateResult, _mark_ties
+    from lpvpc.diagnose_candidates import CandidateResult, _mark_ties
 
     rng = np.random.default_rng(0)
     fs = 100.0
@@ -365,7 +365,7 @@ def test_a_reflex_gain_change_tied_between_trial_time_and_activation_is_named_by
     ranking takes habituation, and the two are reported as a tie. A clear win stays."""
     from types import SimpleNamespace
 
-    from lpvpc.diagnose import TIES, CandidateResult, _mark_ties, _prefer_underived
+    from lpvpc.diagnose_candidates import TIES, CandidateResult, _mark_ties, _prefer_underived
 
     rng = np.random.default_rng(1)
     fs, n = 100.0, 6000

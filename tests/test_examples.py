@@ -47,13 +47,13 @@ REGISTRY = {
     "lpvpc.data.join_trials": "test_trials.py::test_join_trials_checks_rate_and_conventions",
     "lpvpc.data.load_identification_data": "test_data.py::test_identification_entry_point_with_trials_and_data",
     "lpvpc.data.write_perturbation_csv": "test_data.py::test_perturbation_csv_round_trip_is_exact",
-    "lpvpc.diagnose.BlockCV": "test_diagnose.py::test_block_cv_equals_explicit_least_squares",
-    "lpvpc.diagnose.paired_test": "test_diagnose.py::test_paired_test",
+    "lpvpc.diagnose_cv.BlockCV": "test_diagnose.py::test_block_cv_equals_explicit_least_squares",
+    "lpvpc.diagnose_cv.paired_test": "test_diagnose.py::test_paired_test",
     "lpvpc.effects.shifted_reflex_torques": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
-    "lpvpc.diagnose.Surrogate": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
-    "lpvpc.diagnose.signal_leaks": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
+    "lpvpc.diagnose_surrogate.Surrogate": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
+    "lpvpc.diagnose_candidates.signal_leaks": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
     "lpvpc.diagnose.diagnose": "test_diagnose.py::test_position_dependent_reflex_dynamics_strong",
-    "lpvpc.diagnose.write_report": "test_diagnose.py::test_diagnose_and_improve_reports_render_in_chromium",
+    "lpvpc.diagnose_report.write_report": "test_diagnose.py::test_diagnose_and_improve_reports_render_in_chromium",
     "lpvpc.effects.describe": "test_effects.py::test_catalog_entries_are_documented",
     "lpvpc.effects.check_effects": "test_effects.py::test_unknown_effects_are_refused",
     "lpvpc.effects.signals_from_data": "test_effects.py::test_extended_casadi_step_matches_numpy",
@@ -502,11 +502,12 @@ def test_example_an_extended_model_and_its_effect_terms():
                                                                                                  data.fs)).max())
 
 
-@example_of("lpvpc.diagnose.Diagnosis", "lpvpc.diagnose.CandidateResult", "lpvpc.diagnose.score_candidates",
-            "lpvpc.diagnose.candidate_signals", "lpvpc.diagnose.signal_dependence", "lpvpc.diagnose.reflex_leak",
-            "lpvpc.diagnose.where_it_fails", "lpvpc.diagnose.record_coverage", "lpvpc.diagnose.check_record",
-            "lpvpc.diagnose.format_table", "lpvpc.diagnose.candidates_html", "lpvpc.diagnose.diagnosis_html",
-            "lpvpc.plotting.plot_residual_diagnosis")
+@example_of("lpvpc.diagnose.Diagnosis", "lpvpc.diagnose.record_coverage", "lpvpc.diagnose.check_record",
+            "lpvpc.diagnose_candidates.CandidateResult", "lpvpc.diagnose_candidates.score_candidates",
+            "lpvpc.diagnose_candidates.reflex_leak", "lpvpc.diagnose_signals.candidate_signals",
+            "lpvpc.diagnose_signals.signal_dependence", "lpvpc.diagnose_where.where_it_fails",
+            "lpvpc.diagnose_report.format_table", "lpvpc.diagnose_report.candidates_html",
+            "lpvpc.diagnose_report.diagnosis_html", "lpvpc.plotting.plot_residual_diagnosis")
 def test_example_diagnosing_a_missing_effect():
     """A subject whose stiffness depends on the direction of the slow movement, modelled
     without that effect: the diagnosis of a held-out record names it, and each piece of the

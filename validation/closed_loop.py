@@ -75,7 +75,8 @@ def evaluate_closed_loop(cl, fmu_dir, *, duration: float = 20.0, seed: int = 0, 
 
 
 def _draw(folder: Path, tr: dict) -> Path:
-    from .report import _fig, _save
+    from lpvpc.report_html import new_figure as _fig
+    from lpvpc.report_html import save_figure as _save
 
     t = tr["time"]
     end = tr["replay"].diverged_at
@@ -107,7 +108,10 @@ def _draw(folder: Path, tr: dict) -> Path:
 
 def closed_loop_section(m: dict, fig: Path) -> str:
     """The report's HTML section for ``evaluate_closed_loop``'s metrics and figure."""
-    from .report import _e, _img, _num, _table
+    from lpvpc.report_html import escape as _e
+    from lpvpc.report_html import figure_with_file as _img
+    from lpvpc.report_html import num as _num
+    from lpvpc.report_html import table as _table
 
     rows = []
     for g in m["gains"]:
@@ -140,7 +144,7 @@ def write_closed_loop_report(folder, metrics: dict, traces: dict) -> Path:
     folder = Path(folder)
     (folder / "figures").mkdir(parents=True, exist_ok=True)
     fig = _draw(folder / "figures", traces)
-    from .report import _CSS  # the validation report's look
+    from lpvpc.report_html import CSS as _CSS  # the reports' look
 
     page = ("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>lpvpc closed-loop validation</title>"
             f"<style>{_CSS}</style></head><body>" + closed_loop_section(metrics, fig) + "</body></html>")

@@ -12,8 +12,6 @@ can check that every figure rendered.
 
 from __future__ import annotations
 
-import base64
-import html
 import json
 import math
 from pathlib import Path
@@ -21,6 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from lpvpc.outputs import write_text
+from lpvpc.report_html import CSS as _CSS
+from lpvpc.report_html import escape as _e
+from lpvpc.report_html import figure_with_file as _img
+from lpvpc.report_html import new_figure as _fig
+from lpvpc.report_html import num as _num
+from lpvpc.report_html import save_figure as _save
+from lpvpc.report_html import table as _table
 
 __all__ = ["write_report", "write_metrics", "FIGURES"]
 
@@ -77,18 +82,6 @@ def write_metrics(result) -> Path:
 
 
 # --------------------------------------------------------------------------- figures
-
-
-def _fig(*size):
-    """A figure outside pyplot (no global state, no GUI backend: renders with Agg)."""
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=size)
-
-
-def _save(fig, path):
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
 
 
 def _legend_above(ax, handles=None, ncol=4):
@@ -311,18 +304,6 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
 
 # --------------------------------------------------------------------------- HTML
 
-_CSS = """
-body{font-family:system-ui,-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;margin:2em auto;max-width:980px;
-color:#222;line-height:1.45;padding:0 1em}
-h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.25em;margin-top:1.8em;border-bottom:1px solid #ddd}
-p.what{color:#333;font-style:italic} table{border-collapse:collapse;margin:.6em 0;font-size:.92em}
-td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right} th{background:#f3f3f3}
-td.l,th.l{text-align:left} td:not(.l){white-space:nowrap} h3{font-size:1.08em;margin-top:1.4em} .pass{color:#176b1a;font-weight:bold} .fail{color:#b00020;font-weight:bold}
-.flag{background:#fff3f3;border-left:4px solid #d33;padding:.5em 1em} figure{margin:1em 0}
-figure img{max-width:100%;height:auto;border:1px solid #eee} figcaption{font-size:.9em;color:#555}
-code{background:#f6f6f6;padding:0 .2em} details{margin:1em 0} summary{cursor:pointer;font-weight:bold} .small{font-size:.85em;color:#555}
-"""
-
 _SCRIPT = """
 window.addEventListener('load', function () {
   var imgs = document.images, ok = 0;
@@ -337,35 +318,6 @@ window.addEventListener('load', function () {
   el.textContent = ok + ' of ' + imgs.length + ' figures rendered in this browser.';
 });
 """
-
-
-def _e(x) -> str:
-    return html.escape(str(x))
-
-
-def _num(x, fmt="{:.2f}") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "–"
-    return fmt.format(x)
-
-
-def _table(header, rows, left=(0,), notes=None) -> str:
-    """HTML table; ``left``: indices of left-aligned (text) columns, the others are numbers.
-    ``notes``: per row, HTML for a full-width row under it (empty: none), for text too long
-    for a column."""
-    h = "".join(f'<th class="{"l" if i in left else ""}">{_e(c)}</th>' for i, c in enumerate(header))
-    body = ""
-    for k, r in enumerate(rows):
-        body += "<tr>" + "".join(f'<td class="{"l" if i in left else ""}">{c}</td>' for i, c in enumerate(r)) + "</tr>"
-        if notes and notes[k]:
-            body += f'<tr class="note"><td></td><td class="l small" colspan="{len(header) - 1}">{notes[k]}</td></tr>'
-    return f"<table><tr>{h}</tr>{body}</table>"
-
-
-def _img(path: Path, caption: str) -> str:
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{_e(caption)}" data-file="{_e(path.name)}">'
-            f"<figcaption>{_e(caption)} (<code>figures/{_e(path.name)}</code>)</figcaption></figure>")
 
 
 def _table_positions(model, n=5):
