@@ -24,6 +24,7 @@ import numpy as np
 import scipy.signal
 
 from lpvpc.errors import DataError, InsufficientExcitationError, LpvpcWarning, UnitWarning
+from lpvpc.matfiles import split_variable  # noqa: F401 (re-exported)
 from lpvpc.segments import Segments
 
 _log = logging.getLogger(__name__)  # notes (e.g. ignored CSV columns); the CLI shows them with --verbose
@@ -388,23 +389,6 @@ def _read_mat(path: Path, required, optional, variable=None, channels=None) -> d
         if skipped:
             raise DataError(list(exc.problems) + skipped, source=str(path)) from None
         raise
-
-
-def split_variable(path) -> tuple[Path, str | None]:
-    """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
-    (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None).
-
-    >>> split_variable("experimental_data.mat:z_df")
-    (PosixPath('experimental_data.mat'), 'z_df')
-    >>> split_variable("PT.csv")
-    (PosixPath('PT.csv'), None)
-    """
-    text = str(path)
-    head, sep, name = text.rpartition(":")
-    if sep and head.lower().endswith(".mat") and name and "/" not in name and "\\" not in name \
-            and not Path(text).exists():
-        return Path(head), name
-    return Path(path), None
 
 
 def _path_and_variable(path, variable):

@@ -30,6 +30,7 @@ from .basis import basis_from_data
 from .errors import (DataError, IdentificationError, InsufficientExcitationError, LpvpcError, PhysiologyWarning,
                      StationaryWarning)
 from .intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor, two_sided_lags
+from .linalg import check_full_rank, project_out_and_solve  # noqa: F401 (re-exported)
 from .segments import Segments
 
 # scipy-based modules are imported where they are used, so that `lpvpc identify --help`
@@ -776,47 +777,6 @@ def richer_basis_irf(position, rho, rho_basis, lags, segments=None):
     if segments is None:
         return richer, intrinsic_regressor(position, G, lags)
     return richer, segments.map(intrinsic_regressor, position, G, lags=lags)
-
-
-def project_out_and_solve(Psi_r, Psi_i, y):
-    """theta_i of eqs. (27)-(28) by least squares after projecting out range(Psi_r).
-
-    Equivalent to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y when Psi_i has full column rank
-    (Frisch-Waugh-Lovell) but costs O(N n^2) instead of O(N^2).
-    """
-    import scipy.linalg
-
-    from .linalg import orthonormal_range
-
-    Q_r = orthonormal_range(Psi_r)
-    Pi_perp = Psi_i - Q_r @ (Q_r.T @ Psi_i)
-    y_perp = y - Q_r @ (Q_r.T @ y)
-    Q, R, piv = check_full_rank(Pi_perp, "intrinsic", "after removing the reflex part ")
-    theta = np.empty(Psi_i.shape[1])
-    theta[piv] = scipy.linalg.solve_triangular(R, Q.T @ y_perp, check_finite=False)
-    return theta
-
-
-def check_full_rank(M, name, context=""):
-    """Pivoted QR (Q, R, piv) of M; raises InsufficientExcitationError naming the
-    dependent columns if M is rank-deficient.
-
-    >>> M = np.column_stack([np.arange(5.0), 2 * np.arange(5.0)])
-    >>> check_full_rank(M, "intrinsic")
-    Traceback (most recent call last):
-    ...
-    lpvpc.errors.InsufficientExcitationError: rank-deficient intrinsic regressor: rank 1 of 2 columns (columns [...] are dependent); ...
-    """
-    from .linalg import pivoted_qr
-
-    Q, R, piv, rank = pivoted_qr(M)
-    if rank < M.shape[1]:
-        raise InsufficientExcitationError(
-            f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns {context}(columns "
-            f"{sorted(piv[rank:].tolist())[:10]} are dependent); reduce the basis order, keep IRF lags "
-            f"below the reflex delay, or check that the scheduling variable varies"
-        )
-    return Q, R, piv
 
 
 def check_physiology(model, stacklevel: int = 3) -> None:

@@ -75,7 +75,7 @@ REGISTRY = {
     "lpvpc.fmu_build.build_fmu": "test_fmu_build.py::test_validation_of_a_system_without_parameters",
     "lpvpc.fmu_build.fmi_headers_dir": "test_fmu_build.py::test_fmi_headers_dir",
     "lpvpc.fmu_build.fmu_guid": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
-    "lpvpc.identify.project_out_and_solve": "test_identify.py::test_projection_equals_literal_pseudo_inverse_formula",
+    "lpvpc.linalg.project_out_and_solve": "test_identify.py::test_projection_equals_literal_pseudo_inverse_formula",
     "lpvpc.improve.improve": "test_diagnose.py::test_improve_report",
     "lpvpc.improve.physiology": "test_newcomer.py::test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths",
     "lpvpc.improve.write_report": "test_diagnose.py::test_improve_report",
