@@ -30,7 +30,6 @@ from .basis import basis_from_data
 from .errors import (DataError, IdentificationError, InsufficientExcitationError, LpvpcError, PhysiologyWarning,
                      StationaryWarning)
 from .intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor, two_sided_lags
-from .linalg import check_full_rank, project_out_and_solve  # noqa: F401 (re-exported)
 from .segments import Segments
 
 # scipy-based modules are imported where they are used, so that `lpvpc identify --help`
@@ -433,7 +432,7 @@ class LPVPCEstimator:
         # Fail before the expensive subspace step. The pivoted QR runs on the regressors'
         # triangular factors (the same column norms, pivots and rank as the N-row matrices,
         # at 4x less cost: blocked QR, then pivoting on n x n).
-        from .linalg import triangular_factor
+        from .linalg import check_full_rank, triangular_factor
 
         check_full_rank(triangular_factor(Psi_i), "intrinsic")
         check_full_rank(triangular_factor(U_r), "reflex input")
@@ -615,7 +614,7 @@ class LPVPCEstimator:
         return self
 
     def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None):
-        from .linalg import triangular_factor
+        from .linalg import project_out_and_solve, triangular_factor
         from .reflex import fit_hammerstein, reflex_regressor
 
         A, C = sub.system(m)
@@ -896,3 +895,13 @@ def identify(data, **settings) -> LPVPCModel:
     True
     """
     return LPVPCEstimator(**settings).fit(data).model_
+
+
+def __getattr__(name):
+    # project_out_and_solve and check_full_rank moved to lpvpc.linalg; still importable from
+    # here, on first use (lpvpc.linalg imports scipy.linalg, which the CLI's help must not load)
+    if name in ("check_full_rank", "project_out_and_solve"):
+        from . import linalg
+
+        return getattr(linalg, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
