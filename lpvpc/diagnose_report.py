@@ -1,14 +1,14 @@
 """The diagnosis report: the ranking as a text table, and the HTML and markdown report
 with its figures (the HTML body is shared with each step of the improve report).
 
-Built with the reports' common toolkit, :mod:`lpvpc.report_html`.
+Built with the reports' common toolkit, :mod:`lpvpc.report_html`. Each function takes the
+result of :func:`lpvpc.diagnose.diagnose` (a :class:`lpvpc.diagnose.Diagnosis`) as ``diag``.
 """
 
 from __future__ import annotations
 
 import html
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from .diagnose_candidates import _variant_text
 from .diagnose_signals import FORMS
@@ -18,11 +18,8 @@ from .report_html import inline_figure as _html_img
 from .report_html import page as _html_page
 from .report_html import table as _table
 
-if TYPE_CHECKING:  # the result's type, for the annotations (lpvpc.diagnose imports this module)
-    from .diagnose import Diagnosis
 
-
-def format_table(diag: Diagnosis, n=None) -> str:
+def format_table(diag, n=None) -> str:
     """Plain-text ranking table of the candidates."""
     lines = [f"{'rank':>4}  {'candidate':44} {'kind':8} {'pathway':9} {'gain (pp)':>9} {'p':>9}  significant"]
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
@@ -35,7 +32,7 @@ def format_table(diag: Diagnosis, n=None) -> str:
     return "\n".join(lines)
 
 
-def candidates_html(diag: Diagnosis, n=None) -> str:
+def candidates_html(diag, n=None) -> str:
     """The ranked candidates as an HTML table (significant ones first, in conditional order).
     A candidate's note (why it is not available, or what its refit found) takes a full-width
     row under it: as a ninth column it was squeezed to a word per line."""
@@ -54,7 +51,7 @@ def candidates_html(diag: Diagnosis, n=None) -> str:
                                           "p", "significant"], rows, left=(1, 2, 3, 5), notes=notes) + "</div>"
 
 
-def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
+def write_report(diag, data, folder, *, title="Diagnosis") -> Path:
     """Report folder: ``report.html`` (self-contained: the answer, the ranked candidates,
     residual before/after the top candidate, where the model fails, signal dependence),
     ``diagnosis.md`` (the same in markdown), ``diagnosis.json`` and the figures. Returns
@@ -115,7 +112,7 @@ def write_report(diag: Diagnosis, data, folder, *, title="Diagnosis") -> Path:
     return folder / "report.html"
 
 
-def diagnosis_html(diag: Diagnosis, figs=None, change=None, first=None, *, level=2) -> str:
+def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2) -> str:
     """The body of a diagnosis (used by the diagnose report and by each step of the improve
     report)."""
     h = f"h{level}"

@@ -432,7 +432,7 @@ class LPVPCEstimator:
         # Fail before the expensive subspace step. The pivoted QR runs on the regressors'
         # triangular factors (the same column norms, pivots and rank as the N-row matrices,
         # at 4x less cost: blocked QR, then pivoting on n x n).
-        from .linalg import triangular_factor
+        from .linalg import check_full_rank, triangular_factor
 
         check_full_rank(triangular_factor(Psi_i), "intrinsic")
         check_full_rank(triangular_factor(U_r), "reflex input")
@@ -614,7 +614,7 @@ class LPVPCEstimator:
         return self
 
     def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None):
-        from .linalg import triangular_factor
+        from .linalg import project_out_and_solve, triangular_factor
         from .reflex import fit_hammerstein, reflex_regressor
 
         A, C = sub.system(m)
@@ -778,47 +778,6 @@ def richer_basis_irf(position, rho, rho_basis, lags, segments=None):
     return richer, segments.map(intrinsic_regressor, position, G, lags=lags)
 
 
-def project_out_and_solve(Psi_r, Psi_i, y):
-    """theta_i of eqs. (27)-(28) by least squares after projecting out range(Psi_r).
-
-    Equivalent to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y when Psi_i has full column rank
-    (Frisch-Waugh-Lovell) but costs O(N n^2) instead of O(N^2).
-    """
-    import scipy.linalg
-
-    from .linalg import orthonormal_range
-
-    Q_r = orthonormal_range(Psi_r)
-    Pi_perp = Psi_i - Q_r @ (Q_r.T @ Psi_i)
-    y_perp = y - Q_r @ (Q_r.T @ y)
-    Q, R, piv = check_full_rank(Pi_perp, "intrinsic", "after removing the reflex part ")
-    theta = np.empty(Psi_i.shape[1])
-    theta[piv] = scipy.linalg.solve_triangular(R, Q.T @ y_perp, check_finite=False)
-    return theta
-
-
-def check_full_rank(M, name, context=""):
-    """Pivoted QR (Q, R, piv) of M; raises InsufficientExcitationError naming the
-    dependent columns if M is rank-deficient.
-
-    >>> M = np.column_stack([np.arange(5.0), 2 * np.arange(5.0)])
-    >>> check_full_rank(M, "intrinsic")
-    Traceback (most recent call last):
-    ...
-    lpvpc.errors.InsufficientExcitationError: rank-deficient intrinsic regressor: rank 1 of 2 columns (columns [...] are dependent); ...
-    """
-    from .linalg import pivoted_qr
-
-    Q, R, piv, rank = pivoted_qr(M)
-    if rank < M.shape[1]:
-        raise InsufficientExcitationError(
-            f"rank-deficient {name} regressor: rank {rank} of {M.shape[1]} columns {context}(columns "
-            f"{sorted(piv[rank:].tolist())[:10]} are dependent); reduce the basis order, keep IRF lags "
-            f"below the reflex delay, or check that the scheduling variable varies"
-        )
-    return Q, R, piv
-
-
 def check_physiology(model, stacklevel: int = 3) -> None:
     """PhysiologyWarning when the elastic stiffness K(rho) is negative over most of the
     identified range: joint tissue is never negative-stiff there, and the usual cause is a
@@ -936,3 +895,13 @@ def identify(data, **settings) -> LPVPCModel:
     True
     """
     return LPVPCEstimator(**settings).fit(data).model_
+
+
+def __getattr__(name):
+    # project_out_and_solve and check_full_rank moved to lpvpc.linalg; still importable from
+    # here, on first use (lpvpc.linalg imports scipy.linalg, which the CLI's help must not load)
+    if name in ("check_full_rank", "project_out_and_solve"):
+        from . import linalg
+
+        return getattr(linalg, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

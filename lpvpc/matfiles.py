@@ -712,3 +712,19 @@ def is_mat(path) -> bool:
     """
     return Path(path).suffix.lower() == ".mat"
 
+
+def split_variable(path) -> tuple[Path, str | None]:
+    """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
+    (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None).
+
+    >>> split_variable("experimental_data.mat:z_df")
+    (PosixPath('experimental_data.mat'), 'z_df')
+    >>> split_variable("PT.csv")
+    (PosixPath('PT.csv'), None)
+    """
+    text = str(path)
+    head, sep, name = text.rpartition(":")
+    if sep and head.lower().endswith(".mat") and name and "/" not in name and "\\" not in name \
+            and not Path(text).exists():
+        return Path(head), name
+    return Path(path), None

@@ -62,13 +62,12 @@ import scipy.signal
 from . import equations as eq
 from .basis import Basis
 from .errors import DataError, ModelFileError, OutOfRangeWarning, non_finite_problem
+from .modelfile import FORMAT, FORMAT_VERSION, FORMAT_VERSION_CURVATURE, FORMAT_VERSION_EFFECTS  # noqa: F401 (re-exported)
+from .reflex import rectifier_fit  # noqa: F401 (re-exported)
+from .modelfile import check_model_dict, read_model_file
 
-FORMAT = "lpvpc-model"
 #: Lowest velocity rate (Hz) at which the reflex rectifier's threshold is observable.
 RECTIFIER_MIN_FS = 500.0
-FORMAT_VERSION = 1
-FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
-FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
 #: An extra input (EMG) whose RMS differs from its level at identification by more than this
 #: factor is in another unit (mV for V: 1000): predict warns (UnitWarning).
 SIGNAL_LEVEL_FACTOR = 30.0
@@ -569,8 +568,6 @@ class LPVPCModel:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "model") -> "LPVPCModel":
-        from .modelfile import check_model_dict
-
         check_model_dict(d, source)  # the schema and its limits, before anything is built
         try:
             intr, refl = d["intrinsic"], d["reflex"]
@@ -661,8 +658,6 @@ class LPVPCModel:
 
     @classmethod
     def load(cls, path) -> "LPVPCModel":
-        from .modelfile import read_model_file
-
         return cls.from_dict(read_model_file(path), source=str(path))
 
     @property
@@ -680,30 +675,6 @@ def _interval_pair(model, quantity, theta, level):
 
     _, lo, hi = intrinsic_interval(model, quantity, theta, level)
     return Interval(lo, hi)  # unpacks as (lower, upper), like every interval of the model
-
-
-def rectifier_fit(v, curves):
-    """Least-squares half-wave rectifier G * max(v - th, 0) + c for each row of ``curves``
-    (N m) over velocities ``v`` (rad/s, ascending); th searched over v[:-5].
-    Returns (G in N m s/rad, th in rad/s), one per row.
-
-    >>> v = np.linspace(0, 2, 201)
-    >>> g, th = rectifier_fit(v, 3.0 * np.maximum(v - 0.5, 0)[None, :] + 1.0)
-    >>> float(g[0]), float(th[0])
-    (3.0, 0.5)
-    """
-    v = np.asarray(v, dtype=float)
-    F = np.atleast_2d(np.asarray(curves, dtype=float))
-    ths = v[:-5]
-    A = np.maximum(v[None, :] - ths[:, None], 0.0)
-    A -= A.mean(axis=1, keepdims=True)  # the intercept c, profiled out
-    Fc = F - F.mean(axis=1, keepdims=True)
-    aa = np.einsum("tv,tv->t", A, A)
-    af = A @ Fc.T  # (n_th, n_curves)
-    sse = np.einsum("cv,cv->c", Fc, Fc)[None, :] - af**2 / aa[:, None]
-    k = np.argmin(sse, axis=0)
-    cols = np.arange(F.shape[0])
-    return af[k, cols] / aa[k], ths[k]
 
 
 def vaf(measured, predicted) -> float:

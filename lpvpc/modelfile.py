@@ -31,6 +31,11 @@ import numpy as np
 from .equations import DERIVATIVE_STENCILS
 from .errors import ModelFileError
 
+FORMAT = "lpvpc-model"
+FORMAT_VERSION = 1
+FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers refuse them
+FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
+
 # --------------------------------------------------------------------------- limits
 MAX_FILE_BYTES = 8 * 1024 * 1024  # bytes read from a model file (the default model is ~6 KB)
 MAX_NESTING_DEPTH = 32  # JSON nesting (a model needs 5)
@@ -549,8 +554,6 @@ def check_model_dict(d, source: str = "model") -> None:
     ...
     lpvpc.errors.ModelFileError: model: corrupt model file: fs = inf Hz outside (0, ...] (MAX_FS)
     """
-    from .model import FORMAT, FORMAT_VERSION, FORMAT_VERSION_CURVATURE, FORMAT_VERSION_EFFECTS
-
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise ModelFileError(f"{source}: not an lpvpc model file (missing 'format': '{FORMAT}')")
     version = d.get("format_version")

@@ -166,12 +166,12 @@ def _values(value) -> list:
 
 def input_file(value) -> Path:
     """The file an input names: ``file.mat:VARIABLE`` is ``file.mat`` (the rule of
-    :func:`lpvpc.data.split_variable`), anything else the path itself.
+    :func:`lpvpc.matfiles.split_variable`), anything else the path itself.
 
     >>> str(input_file("s.mat:pt")), str(input_file("PT.csv"))
     ('s.mat', 'PT.csv')
     """
-    from .data import split_variable
+    from .matfiles import split_variable
 
     return split_variable(value)[0]
 

@@ -270,3 +270,27 @@ def _normalise(bd, omega, orientation):
         raise IdentificationError("reflex nonlinearity collapsed to zero")
     sign = 1.0 if float(orientation @ omega) >= 0 else -1.0
     return bd * norm * sign, omega * sign / norm
+
+
+def rectifier_fit(v, curves):
+    """Least-squares half-wave rectifier G * max(v - th, 0) + c for each row of ``curves``
+    (N m) over velocities ``v`` (rad/s, ascending); th searched over v[:-5].
+    Returns (G in N m s/rad, th in rad/s), one per row.
+
+    >>> v = np.linspace(0, 2, 201)
+    >>> g, th = rectifier_fit(v, 3.0 * np.maximum(v - 0.5, 0)[None, :] + 1.0)
+    >>> float(g[0]), float(th[0])
+    (3.0, 0.5)
+    """
+    v = np.asarray(v, dtype=float)
+    F = np.atleast_2d(np.asarray(curves, dtype=float))
+    ths = v[:-5]
+    A = np.maximum(v[None, :] - ths[:, None], 0.0)
+    A -= A.mean(axis=1, keepdims=True)  # the intercept c, profiled out
+    Fc = F - F.mean(axis=1, keepdims=True)
+    aa = np.einsum("tv,tv->t", A, A)
+    af = A @ Fc.T  # (n_th, n_curves)
+    sse = np.einsum("cv,cv->c", Fc, Fc)[None, :] - af**2 / aa[:, None]
+    k = np.argmin(sse, axis=0)
+    cols = np.arange(F.shape[0])
+    return af[k, cols] / aa[k], ths[k]

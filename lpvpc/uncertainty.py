@@ -229,8 +229,7 @@ def _reflex_refit(blocks, Psi, y, omega) -> dict:
     fit) with intrinsic columns ``Psi`` (an array, or a list of arrays side by side):
     {"Omega": ..., "bd": [B; D]} (the nonlinearity's
     sign as ``omega``'s)."""
-    from .identify import project_out_and_solve
-    from .linalg import triangular_factor
+    from .linalg import project_out_and_solve, triangular_factor
     from .reflex import fit_hammerstein
 
     k_r = sum(blk.shape[1] for blk in blocks)
@@ -533,7 +532,7 @@ def reflex_bias_bound(model, rho):
     >>> bool(np.all(g_bound >= 0)), th_bound.shape
     (True, (2,))
     """
-    from .model import rectifier_fit
+    from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     alt = _stored(model).get("curvature_reflex")
@@ -575,7 +574,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     >>> reflex_interval(model, np.array([0.0]))[0].biased  # 100 Hz velocity
     True
     """
-    from .model import rectifier_fit
+    from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     cov, _ = _reflex_covariance(model)

@@ -193,13 +193,18 @@ COMMANDS = sorted(BASE)
 def _trap_work(m, trap):
     """Replace what reads inputs (the work) by ``trap``."""
     import lpvpc.data
+    import lpvpc.identification_data
     import lpvpc.model
+    import lpvpc.readers
     import lpvpc.simulate
     import lpvpc.validation
 
     m.setattr(lpvpc.model.LPVPCModel, "load", trap)
-    for name in ("load_identification_data", "load_trial"):
-        m.setattr(lpvpc.data, name, trap)
+    # where the loaders are defined and where they are re-exported: a call through either is caught
+    for module in (lpvpc.data, lpvpc.readers, lpvpc.identification_data):
+        for name in ("load_identification_data", "load_trial"):
+            if hasattr(module, name):
+                m.setattr(module, name, trap)
     m.setattr(lpvpc.simulate, "write_dataset", trap)
     m.setattr(lpvpc.validation, "validate", trap)
 
