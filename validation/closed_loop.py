@@ -186,8 +186,7 @@ def write_loop_ssp(path, ankle_fmu, actuator_fmu, record_fmu, *, stop_time: floa
     from lpvpc.outputs import atomic_path
 
     from .fmu import inspect_fmu
-    from .ssp import (OSP_ANNOTATION, OSP_NAMESPACE, PARAMETER_SET, SSP_VERSION, _connector, _fmt, _q, _unit,
-                      _variables, _write_units)
+    from .ssp import OSP_ANNOTATION, OSP_NAMESPACE, SSP_VERSION, _fmt, _q, _variables, _write_units, _add_component
 
     fmus = {"record": inspect_fmu(record_fmu, "record FMU"), "exoskeleton": inspect_fmu(actuator_fmu, "actuator FMU"),
             "ankle": inspect_fmu(ankle_fmu, "ankle FMU")}
@@ -199,24 +198,8 @@ def write_loop_ssp(path, ankle_fmu, actuator_fmu, record_fmu, *, stop_time: floa
                            description="A series-elastic exoskeleton tracks the recorded reference; the ankle FMU's "
                                        "torque loads it")
     elements = ET.SubElement(system, _q("ssd", "Elements"))
-    for comp, info in fmus.items():
-        el = ET.SubElement(elements, _q("ssd", "Component"), name=comp, type="application/x-fmu-sharedlibrary",
-                           source=f"resources/{comp}.fmu")
-        conns = ET.SubElement(el, _q("ssd", "Connectors"))
-        for v in var_of[comp].values():
-            _connector(conns, v.name, v.causality, v)
-        if parameters.get(comp):
-            bindings = ET.SubElement(el, _q("ssd", "ParameterBindings"))
-            values = ET.SubElement(ET.SubElement(bindings, _q("ssd", "ParameterBinding")), _q("ssd", "ParameterValues"))
-            pset = ET.SubElement(values, _q("ssv", "ParameterSet"), version=SSP_VERSION, name=PARAMETER_SET)
-            params = ET.SubElement(pset, _q("ssv", "Parameters"))
-            for p, value in parameters[comp].items():
-                real = ET.SubElement(ET.SubElement(params, _q("ssv", "Parameter"), name=p), _q("ssv", "Real"),
-                                     value=_fmt(value))
-                if _unit(var_of[comp][p]):
-                    real.set("unit", _unit(var_of[comp][p]))
-        ann = ET.SubElement(ET.SubElement(el, _q("ssd", "Annotations")), _q("ssc", "Annotation"), type=OSP_ANNOTATION)
-        ET.SubElement(ann, f"{{{OSP_NAMESPACE}}}StepSizeHint", value=_fmt(steps[comp]))
+    for comp in fmus:
+        _add_component(elements, comp, f"resources/{comp}.fmu", var_of[comp], parameters.get(comp), steps[comp])
     links = ET.SubElement(system, _q("ssd", "Connections"))
     for (e_comp, e_var), (s_comp, s_var) in LOOP_CONNECTIONS:
         if e_var not in var_of[e_comp]:  # the replay FMU has no angular_velocity input

@@ -183,6 +183,31 @@ def _units(infos) -> list:
     return list(seen.values())
 
 
+def _add_component(elements, name: str, source: str, variables: dict, parameters, step: float):
+    """One FMU component of an SSD: its connectors (every variable of ``variables``, {name:
+    fmpy ScalarVariable}), its parameter bindings (``parameters``, {name: value}, units from the
+    variables) and the OSP step-size hint ``step`` (s) that libcosim reads."""
+    el = ET.SubElement(elements, _q("ssd", "Component"), name=name, type="application/x-fmu-sharedlibrary",
+                       source=source)
+    conns = ET.SubElement(el, _q("ssd", "Connectors"))
+    for v in variables.values():
+        _connector(conns, v.name, v.causality, v)
+    if parameters:
+        bindings = ET.SubElement(el, _q("ssd", "ParameterBindings"))
+        values = ET.SubElement(ET.SubElement(bindings, _q("ssd", "ParameterBinding")), _q("ssd", "ParameterValues"))
+        pset = ET.SubElement(values, _q("ssv", "ParameterSet"), version=SSP_VERSION, name=PARAMETER_SET)
+        params = ET.SubElement(pset, _q("ssv", "Parameters"))
+        for p, value in parameters.items():
+            real = ET.SubElement(ET.SubElement(params, _q("ssv", "Parameter"), name=p), _q("ssv", "Real"),
+                                 value=_fmt(value))
+            unit = _unit(variables[p])
+            if unit:
+                real.set("unit", unit)
+    ann = ET.SubElement(ET.SubElement(el, _q("ssd", "Annotations")), _q("ssc", "Annotation"), type=OSP_ANNOTATION)
+    ET.SubElement(ann, f"{{{OSP_NAMESPACE}}}StepSizeHint", value=_fmt(step))
+    return el
+
+
 def _write_units(root, infos) -> None:
     """The SSD's ``Units``: every unit the FMUs define, with its SI base-unit exponents."""
     units = _units(infos)
@@ -458,25 +483,8 @@ def write_portable_ssp(path, model_fmu, actuator_fmu, record_fmu, *, stop_time: 
     elements = ET.SubElement(system, _q("ssd", "Elements"))
     files = {}
     for comp, role in roles.items():
-        el = ET.SubElement(elements, _q("ssd", "Component"), name=comp, type="application/x-fmu-sharedlibrary",
-                           source=f"resources/{role}.fmu")
         files[f"resources/{role}.fmu"] = fmus[role].path
-        conns = ET.SubElement(el, _q("ssd", "Connectors"))
-        for v in var_of[comp].values():
-            _connector(conns, v.name, v.causality, v)
-        if parameters.get(comp):
-            bindings = ET.SubElement(el, _q("ssd", "ParameterBindings"))
-            values = ET.SubElement(ET.SubElement(bindings, _q("ssd", "ParameterBinding")), _q("ssd", "ParameterValues"))
-            pset = ET.SubElement(values, _q("ssv", "ParameterSet"), version=SSP_VERSION, name=PARAMETER_SET)
-            params = ET.SubElement(pset, _q("ssv", "Parameters"))
-            for p, value in parameters[comp].items():
-                real = ET.SubElement(ET.SubElement(params, _q("ssv", "Parameter"), name=p), _q("ssv", "Real"),
-                                     value=_fmt(value))
-                unit = _unit(var_of[comp][p])
-                if unit:
-                    real.set("unit", unit)
-        ann = ET.SubElement(ET.SubElement(el, _q("ssd", "Annotations")), _q("ssc", "Annotation"), type=OSP_ANNOTATION)
-        ET.SubElement(ann, f"{{{OSP_NAMESPACE}}}StepSizeHint", value=_fmt(steps[comp]))
+        _add_component(elements, comp, f"resources/{role}.fmu", var_of[comp], parameters.get(comp), steps[comp])
     links = ET.SubElement(system, _q("ssd", "Connections"))
     for (e_comp, e_var), (s_comp, s_var) in PORTABLE_CONNECTIONS:
         ET.SubElement(links, _q("ssd", "Connection"), startElement=s_comp, startConnector=s_var,
