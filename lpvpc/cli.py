@@ -491,16 +491,13 @@ def _fmu_interface(path, model) -> list:
 
 def cmd_whole_joint(args) -> int:
     from . import whole_joint as W
-    from .data import load_trial
     from .model import LPVPCModel
 
     if args.pt and not args.closed_loop:
         raise _UsageError("--pt is used by --closed-loop only (the whole-joint curve is fitted to the UT trial)")
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
-    ut = load_trial(args.ut, position_unit=args.position_unit or conv.get("position_unit", "rad"),
-                    time_unit=args.time_unit or conv.get("time_unit", "s"),
-                    torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+    ut = _trial_with_conventions(args.ut, args, conv)
     try:
         wj = W.fit_whole_joint(model, ut, cutoff=args.cutoff, order=args.order)
     except ValueError as exc:  # a cutoff outside (0, fs/2)
@@ -520,14 +517,22 @@ def cmd_whole_joint(args) -> int:
     return 0
 
 
+def _trial_with_conventions(path, args, conv):
+    """One trial read with the command line's units and torque sign, else the model's own
+    (whole-joint's UT trial and --closed-loop's PT trial alike)."""
+    from .data import load_trial
+
+    return load_trial(path, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+                      time_unit=args.time_unit or conv.get("time_unit", "s"),
+                      torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+
+
 def _closed_loop(args, wj, ut, conv) -> int:
     """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.closed_loop)."""
     from . import closed_loop as CL
-    from .data import load_trial
 
     if args.pt:
-        pt = load_trial(args.pt, position_unit=args.position_unit or conv.get("position_unit", "rad"),
-                        torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+        pt = _trial_with_conventions(args.pt, args, conv)
         trials, source = [pt, ut], "the PT and UT trials"
     else:
         trials, source = [CL.distillation_trial(wj, ut)], "the two-sided model's torque (no --pt given)"

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .diagnose import Diagnosis, diagnose, format_table
+from .diagnose_candidates import _variant_text
 from .effects import CATALOG, signals_from_data
 from .identify import LPVPCEstimator
 from .model import vaf
@@ -115,10 +116,6 @@ def _ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
     """``n`` positions (rad) over the central 80 % of the base model's identified range."""
     lo, hi = ladder.rungs[0].model.scheduling_range
     return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
-
-
-def _variant_text(v) -> str:
-    return f" ({', '.join(f'{k}={x:g}' for k, x in v.items())})" if v else ""
 
 
 def _evaluate(model, data):

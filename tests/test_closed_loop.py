@@ -217,6 +217,19 @@ def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
     assert validate_fmu(str(tmp_path / "ankle.fmu")) == []
     rc, out, err = run("-o", str(tmp_path / "cl2.json"), "--closed-loop", "--pt", str(folder / "ident_PT.csv"))
     assert rc == 0 and "PT and UT trials" in out, err
+    # --time-unit reads both trials alike: the same files with time in ms give the same model
+    for name in ("ident_PT.csv", "ident_UT.csv"):
+        table = np.genfromtxt(folder / name, delimiter=",", names=True)
+        table["time"] *= 1000.0
+        np.savetxt(tmp_path / name, table, delimiter=",", header=",".join(table.dtype.names), comments="",
+                   fmt="%.17g")
+    out_, err_ = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out_), contextlib.redirect_stderr(err_):
+        rc = main(["whole-joint", str(model_file), "--ut", str(tmp_path / "ident_UT.csv"), "--time-unit", "ms",
+                   "-o", str(tmp_path / "cl_ms.json"), "--closed-loop", "--pt", str(tmp_path / "ident_PT.csv")])
+    assert rc == 0, err_.getvalue()
+    from_ms, from_s = CL.ClosedLoopModel.load(tmp_path / "cl_ms.json"), CL.ClosedLoopModel.load(tmp_path / "cl2.json")
+    assert abs(from_ms.inertia - from_s.inertia) <= 1e-9 * abs(from_s.inertia)
     rc, out, err = run("-o", str(tmp_path / "wj.json"), "--pt", str(folder / "ident_PT.csv"))
     assert rc == 2 and err.startswith("lpvpc: error: ") and "--closed-loop" in err
 
