@@ -63,6 +63,8 @@ _LAZY = {
     "export_fmu": "lpvpc.export",
     "export_casadi": "lpvpc.export",
     "fit_whole_joint": "lpvpc.whole_joint",
+    "fit_closed_loop": "lpvpc.closed_loop",
+    "ClosedLoopModel": "lpvpc.closed_loop",
     # validation, diagnosis, improvement
     "validate": "lpvpc.validation",
     "ValidationResult": "lpvpc.validation",
