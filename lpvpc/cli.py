@@ -524,7 +524,8 @@ def _trial_with_conventions(path, args, conv):
 
     return load_trial(path, position_unit=args.position_unit or conv.get("position_unit", "rad"),
                       time_unit=args.time_unit or conv.get("time_unit", "s"),
-                      torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+                      torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)),
+                      degrees="refuse")  # a model is fitted to it
 
 
 def _closed_loop(args, wj, ut, conv) -> int:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .conventions import _check_settings, _check_time_unit, _to_si
+from .conventions import _check_settings, _check_time_unit, _refuse_degrees, _to_si
 from .errors import DataError
 from .matfiles import split_variable
 from .trial import OPTIONAL_CHANNELS, REQUIRED_CHANNELS, Trial, _plural, check_trial
@@ -216,7 +216,7 @@ def _trial_from_table(table, path, name, required, extra_channels=()) -> Trial:
 
 
 def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, name=None, variable=None,
-               channels=None, time_unit: str = "s") -> Trial:
+               channels=None, time_unit: str = "s", degrees: str = "warn") -> Trial:
     """Load one trial from CSV or MATLAB ``.mat`` (v4 to v7.3, the lab's ``nldat`` objects too).
 
     Required columns/variables: ``time`` (s), ``position``, ``torque``; optional ``emg``,
@@ -229,11 +229,17 @@ def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, n
     automatically when only one choice fits (:func:`lpvpc.matfiles.select_channels`), and
     time comes from a ``time`` channel or the variable's sample period; ``time_unit`` ("s" or
     "ms") is the unit of a time column.
-    Raises DataError listing every problem; warns (UnitWarning) when radians look like degrees.
+    Raises DataError listing every problem; when angles read as rad look like degrees it warns
+    (UnitWarning), or with ``degrees="refuse"`` raises DataError (where a result computed from
+    them would be meaningless: a held-out record, a trial a model is fitted to).
     """
     _check_settings(position_unit, torque_sign)
+    if degrees not in ("warn", "refuse"):
+        raise ValueError(f"degrees must be 'warn' or 'refuse', got {degrees!r}")
     _check_time_unit(time_unit)
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, variable=variable, channels=channels)
     trial = _trial_from_table(table, path, name or _name(path, variable), REQUIRED_CHANNELS)
+    if degrees == "refuse":
+        _refuse_degrees([trial], position_unit)
     return _to_si(trial, position_unit, torque_sign, str(path), time_unit)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from lpvpc.cli import main
-from lpvpc.data import load_identification_data, write_trial_csv
+from lpvpc.data import load_identification_data, load_trial, write_trial_csv
 from lpvpc.errors import DataError, OutOfRangeWarning, UnitWarning
 from lpvpc.simulate import simulate_pair
 
@@ -81,6 +81,26 @@ def test_positions_in_degrees_are_refused_with_the_unit_option(files, capsys):
     status, _, _ = _cli(["identify", "--pt", files["pt_deg"], "--ut", files["ut_deg"], "-o", model,
                          "--position-unit", "deg"], capsys)
     assert status == 0 and model.exists()
+
+
+def test_held_out_records_in_degrees_are_refused_by_validate_and_whole_joint(files, capsys):
+    """A record in degrees read as rad gave validate a report with VAF -1.2e7 % and exit 0
+    (only a warning): the commands that use a record against a model refuse it as identify does."""
+    model = files["dir"] / "for_degrees.json"
+    assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model, "-q"], capsys)[0] == 0
+    report, whole = files["dir"] / "deg_report", files["dir"] / "deg_whole.json"
+    for argv, out in ((["validate", model, "--pt", files["pt_deg"], "--ut", files["ut_deg"], "--report", report],
+                       report),
+                      (["whole-joint", model, "--ut", files["ut_deg"], "-o", whole], whole)):
+        status, _, err = _cli(argv, capsys)
+        line = _error_line(err)
+        assert status == 2 and "look like degrees" in line and "--position-unit deg" in line, line
+        assert not out.exists()
+    status, _, _ = _cli(["whole-joint", model, "--ut", files["ut_deg"], "-o", whole, "--position-unit", "deg"],
+                        capsys)
+    assert status == 0 and whole.exists()
+    with pytest.warns(UnitWarning, match="looks like degrees"):  # the plain loader still only warns
+        load_trial(files["pt_deg"])
 
 
 def test_time_in_milliseconds_is_refused_with_the_time_unit_option(files, capsys):

@@ -114,7 +114,9 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
         else:
-            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit))
+            # degrees read as rad would make every figure of the report meaningless: refused
+            trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
+                                     degrees="refuse"))
             files[role] = {"path": str(src), "sha256": file_sha256(src)}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
