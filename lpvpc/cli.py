@@ -822,7 +822,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: time s, position rad, torque N m. Exit status 2 for bad input.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-q", "--quiet", action="store_true",
-                        help="no progress lines on stderr (validate, improve, diagnose, identify)")
+                        help="no progress lines on stderr (validate, improve, diagnose and identify print them)")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="print notes on stderr (e.g. CSV columns that were ignored)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -846,6 +846,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "design, holds alternating between 0 and +-0.02..0.04 rad; prbs: +-0.04 rad switching "
                         "every 50-150 ms (no quiet windows)")
     p.set_defaults(func=cmd_simulate)
+    _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     d = _estimator_defaults()
     p = sub.add_parser("identify", help="identify an LPV-PC model and save it as JSON",
@@ -908,6 +909,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use the causal intrinsic IRF (what the default FMU runs)")
     _add_convention_args(p, from_model=True)
     p.set_defaults(func=cmd_predict)
+    _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     p = sub.add_parser("export", help="export a saved model as a CasADi function and/or an FMU",
                        description="Export a saved model as a CasADi step function and/or an FMI "
@@ -929,6 +931,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cs: co-simulation (default); me: Model Exchange, sampled with a time event every 1/fs "
                         "(for tools that import Model Exchange only)")
     p.set_defaults(func=cmd_export)
+    _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     p = sub.add_parser("validate", help="validate a model on a held-out record: routes, co-simulation, report",
                        description="Validate a saved model on a held-out PT/UT record: predict it offline, through "
@@ -994,6 +997,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_convention_args(p, from_model=True)
     _add_time_unit_arg(p, default=None)
     p.set_defaults(func=cmd_whole_joint)
+    _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     p = sub.add_parser("diagnose", help="where does a model fail on held-out data, and which effect is missing",
                        description="Analyse the residual of a saved model on a record it was not fitted to, and "

@@ -213,6 +213,19 @@ def test_quiet_silences_the_progress_lines(files, capsys, monkeypatch):
         assert status == 0 and "VAF:" in out and "lpvpc: [" not in err, err
 
 
+def test_every_command_accepts_quiet_after_its_name():
+    """``lpvpc simulate --out sim -q`` was an argparse error while ``identify -q`` worked."""
+    from lpvpc.cli import build_parser
+
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert len(commands) >= 8
+    for name in commands:
+        assert "-q" in commands[name]._option_string_actions, name
+    args = parser.parse_args(["simulate", "--out", "sim", "-q"])
+    assert args.quiet is True
+
+
 # --------------------------------------------------------------------------- reports
 
 
