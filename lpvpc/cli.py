@@ -85,6 +85,7 @@ CLI_SYNTAX = (
      lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
     # a message that gave both syntaxes: once
     (r"\((--[^,()]+), \1\)", r"(\1)"),
+    (r"(--[\w-]+ [^\s()]+) \(\1\)", r"\1"),  # "--torque-sign -1 (torque_sign=-1)": once
 )
 
 
@@ -95,6 +96,8 @@ def cli_syntax(message) -> str:
     'pass --position-unit deg if it is in degrees; or --fs 0'
     >>> cli_syntax("read it as stationary (stationary=True, --stationary); conventions.torque_sign must be 1")
     'read it as stationary (--stationary); conventions.torque_sign must be 1'
+    >>> cli_syntax("identify again with --torque-sign -1 (torque_sign=-1)")
+    'identify again with --torque-sign -1'
     """
     import re
 
