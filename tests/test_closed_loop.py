@@ -289,3 +289,45 @@ def test_loop_ssp_in_fmpy_and_libcosim(cl, tmp_path):
     assert rep["libcosim_failed_at"] is not None and rep["libcosim_failed_at"] < 2.0
     assert callable(write_loop_ssp) and callable(run_loop_ssp_libcosim) and callable(run_loop_fmpy)
     assert exoskeleton_parameters(40.0, 0.5, 0.025, 0.0)["coupling_damping"] == pytest.approx(0.25)
+
+
+def test_channel_skew_estimated_from_the_files_and_undone(subject, tmp_path):
+    """A torque channel recorded 1 ms late (the virtual subject's 1 kHz trials written so, read
+    back through the loader): the estimate finds ~1 ms there and ~0 on the subject's own files,
+    and aligning by it restores the causal impedance's fit (the skew costs it points)."""
+    from lpvpc.data import load_identification_data, write_trial_csv
+    from lpvpc.trial import Trial
+
+    pair = subject["ident_pair"]
+    for name, trial in (("PT", pair.pt), ("UT", pair.ut)):
+        late = np.r_[trial.torque[0], trial.torque[:-1]]  # one 1 kHz sample late
+        write_trial_csv(Trial(trial.time, trial.position, late, dict(trial.channels), trial.name), tmp_path / f"{name}.csv")
+    skewed = load_identification_data(pt=tmp_path / "PT.csv", ut=tmp_path / "UT.csv").segment(0, 6000)
+    clean = subject["ident"].segment(0, 6000)
+    grid = np.arange(-1.0, 2.01, 0.5) * 1e-3
+    found = CL.estimate_channel_skew(skewed, grid).delay
+    none = CL.estimate_channel_skew(clean, grid).delay
+    print(f"estimated skew: {found * 1e3:.2f} ms (1 ms imposed), {none * 1e3:.2f} ms (none)")
+    assert abs(found - 1e-3) < 0.4e-3 and abs(none) < 0.4e-3
+
+    def impedance_vaf(d):
+        from lpvpc.identify import identify
+
+        m = identify(d)
+        W, inertia = CL.fit_perturbation_impedance(m, d.position, d.scheduling, d.torque)
+        assert inertia > 0
+        return vaf(d.torque, CL.predict_perturbation_impedance(m, W, inertia, d.position, d.scheduling))
+
+    aligned = CL.delay_position(skewed, found)
+    assert aligned.meta["position_delay_s"] == found
+    assert impedance_vaf(aligned) > impedance_vaf(skewed) + 0.3
+
+
+def test_delay_position_round_trip(subject):
+    d = subject["ident"].segment(0, 3000)
+    back = CL.delay_position(CL.delay_position(d, 0.0013), -0.0013)
+    inner = slice(100, -100)
+    # decimated steps carry content up to the anti-alias edge (~0.4 fs): the interpolator is not exact there
+    assert np.max(np.abs(back.position[inner] - d.position[inner])) < 5e-3 * np.std(d.position)
+    assert back.meta["position_delay_s"] == pytest.approx(0.0)
+    assert np.allclose(CL.delay_position(d, 0.01).position[1:], d.position[:-1], rtol=0, atol=1e-14)  # whole samples
