@@ -241,24 +241,31 @@ def _impedance_rows(model, p, rho, vel, acc, memory):
     return np.column_stack([(F[:, :, None] * Gi[:, None, :]).reshape(len(p), -1), acc])
 
 
-def _solve(rows, targets, model, memory):
+def _solve(rows, targets, model, memory, inertia=None):
+    """Least squares for W and the inertia (the last column); a given ``inertia`` (kg m^2) is
+    held instead of fitted (its term moved to the target)."""
     X, y = np.vstack(rows), np.concatenate(targets)
-    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    if inertia is None:
+        theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    else:
+        theta = np.r_[np.linalg.lstsq(X[:, :-1], y - inertia * X[:, -1], rcond=None)[0], inertia]
     W = theta[:-1].reshape(3 + memory, model.intrinsic_basis.size)
     return W, float(theta[-1]), X @ theta
 
 
-def fit_perturbation_impedance(model, position, scheduling, torque, memory: int = 0):
+def fit_perturbation_impedance(model, position, scheduling, torque, memory: int = 0, inertia=None):
     """The closed-loop form's causal impedance at the level of the identification data (the
     perturbation position p and the recorded scheduling rho, no quasi-static curve): least
     squares of ``torque`` minus the model's reflex on p, p', p^2 (times G_i(rho)) and p''.
     Returns (W, inertia). For data without a whole-joint record (the lab's pilot trial:
-    perturbation and scheduling only), to measure what the causal form costs there."""
+    perturbation and scheduling only), to measure what the causal form costs there.
+    ``inertia`` (kg m^2): hold it instead of fitting it (past-sample memory with a fitted
+    inertia turns into a differentiator with a negative inertia)."""
     _check_base_model(model)
     p, rho = _checked(position, "position"), _checked(scheduling, "scheduling")
     vel, acc = eq.derivatives(p, model.fs, STENCIL)
     target = _checked(torque, "torque") - model.predict(p, rho, warn=False).reflex
-    W, inertia, _ = _solve([_impedance_rows(model, p, rho, vel, acc, memory)], [target], model, memory)
+    W, inertia, _ = _solve([_impedance_rows(model, p, rho, vel, acc, memory)], [target], model, memory, inertia)
     return W, inertia
 
 
