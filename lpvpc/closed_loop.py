@@ -196,7 +196,7 @@ def _at_model_rate(trial, fs):
     return _checked(angle, "angle"), _checked(torque, "torque")
 
 
-def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
+def fit_closed_loop(whole, trials, *, memory: int = 0, position_delay: float = 0.0) -> ClosedLoopModel:
     """Identify the closed-loop form from a whole-joint model and the trials it came from.
 
     ``whole``: :class:`lpvpc.whole_joint.WholeJointModel`; ``trials``: the PT and UT trials
@@ -205,7 +205,10 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
     in the impedance (0: none; module notes). With the reflex held, least squares of the
     torque minus quasi-static curve and reflex on the causal features times G_i(rho) and on
     the acceleration (coefficient: the inertia). Without the PT trial, pass
-    ``[distillation_trial(whole, ut)]``.
+    ``[distillation_trial(whole, ut)]``. ``position_delay`` (s): each trial's angle is delayed by
+    it before the fit, to undo a torque channel recorded that much late (a measurement artefact,
+    :func:`estimate_channel_skew`; the lab's pilot trial: ~1 ms). The model itself has no delay:
+    it answers a plant's angle at once, as the ankle does.
     """
     from .model import vaf
 
@@ -216,6 +219,8 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
     rows, targets, parts = [], [], []
     for trial in trials:
         angle, torque = _at_model_rate(trial, model.fs)
+        if position_delay:
+            angle = delayed(angle, model.fs, position_delay)
         vel, acc = eq.derivatives(angle, model.fs, STENCIL)
         rho, p = whole.split(angle)
         known = whole.quasi_static(rho) + model.predict(p, rho, warn=False).reflex
@@ -224,7 +229,8 @@ def fit_closed_loop(whole, trials, *, memory: int = 0) -> ClosedLoopModel:
         parts.append((torque, known))
     W, inertia, fitted = _solve(rows, targets, model, memory)
     fit = {"vaf_with_inertia": vaf(np.concatenate([t for t, _ in parts]), fitted + np.concatenate([k for _, k in parts])),
-           "memory": int(memory), "stencil": STENCIL, "samples": int(len(fitted))}
+           "memory": int(memory), "stencil": STENCIL, "samples": int(len(fitted)),
+           "position_delay_s": float(position_delay)}
     return ClosedLoopModel(whole=whole, W=W, inertia=inertia, memory=memory, fit=fit)
 
 
@@ -314,7 +320,14 @@ def delay_position(data, delay: float):
     by ``delay`` s relative to the torque (a fraction of a sample allowed; :func:`delayed`), to
     undo a torque channel recorded ``delay`` s late. The scheduling is left as is (it moves at
     < 1 Hz); the high-rate copy of the position, when present, is delayed the same.
-    ``meta["position_delay_s"]`` records the delay."""
+    ``meta["position_delay_s"]`` records the delay.
+
+    >>> from lpvpc.data import PerturbationData
+    >>> d = PerturbationData(np.arange(6.0), np.zeros(6), np.zeros(6), 100.0)
+    >>> aligned = delay_position(d, 0.01)  # one sample at 100 Hz
+    >>> aligned.position.round(12).tolist(), aligned.meta["position_delay_s"]
+    ([0.0, 0.0, 1.0, 2.0, 3.0, 4.0], 0.01)
+    """
     import dataclasses
 
     def each_trial(x, fs, segments):  # joined trials: each delayed on its own (ends held)
@@ -333,7 +346,11 @@ class ChannelSkew:
     """The relative delay of the torque channel behind the position channel (s; negative: the
     torque leads) that :func:`estimate_channel_skew` found: ``delay`` (the parabola's peak
     through the best grid point and its neighbours), ``candidates`` (s) and ``scores`` (the
-    two-sided model's in-sample VAF, %, on the data aligned by each candidate)."""
+    two-sided model's in-sample VAF, %, on the data aligned by each candidate).
+
+    >>> ChannelSkew(0.001, np.array([0.0, 0.001, 0.002]), np.array([93.5, 93.8, 93.5])).delay
+    0.001
+    """
 
     delay: float
     candidates: np.ndarray
@@ -350,7 +367,19 @@ def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
     can absorb a skew with its future lags, but only in part (the reflex and the scheduling
     bases cannot), so its fit peaks at the channels' alignment; on the virtual subject (no
     skew) the estimate is within ~0.3 ms of 0 and of an imposed 1 ms (tests). Use the
-    identification part only, then :func:`delay_position` the whole record by the estimate."""
+    identification part only, then :func:`delay_position` the whole record by the estimate.
+
+    A torque channel recorded 2 ms late (the virtual subject's 1 kHz torque shifted by 2 samples):
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=40.0)
+    >>> for trial in (sim.pt, sim.ut):
+    ...     trial.torque = np.r_[trial.torque[:2], trial.torque[:-2]]
+    >>> skew = estimate_channel_skew(pair_trials(sim.pt, sim.ut), np.array([0.0, 1.0, 2.0, 3.0]) * 1e-3)
+    >>> bool(abs(skew.delay - 0.002) < 0.0005)
+    True
+    """
     from .identify import identify
     from .model import vaf
 

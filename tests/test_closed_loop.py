@@ -234,6 +234,37 @@ def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
     assert rc == 2 and err.startswith("lpvpc: error: ") and "--closed-loop" in err
 
 
+
+def test_cli_whole_joint_closed_loop_position_delay(subject, model_file, tmp_path):
+    """--position-delay-ms: a number is used for the fit and recorded, 'auto' estimates it from
+    the PT/UT files (none in the subject's: |delay| < 0.4 ms); misuse is one line, exit 2."""
+    import contextlib
+    import io
+
+    from lpvpc.cli import main
+
+    folder = subject["folder"]
+
+    def run(*extra):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
+        return rc, out.getvalue(), err.getvalue()
+
+    pt = ("--pt", str(folder / "ident_PT.csv"))
+    rc, out, err = run("-o", str(tmp_path / "d1.json"), "--closed-loop", *pt, "--position-delay-ms", "1")
+    assert rc == 0 and "delayed by 1.00 ms" in out, err
+    d1 = CL.ClosedLoopModel.load(tmp_path / "d1.json")
+    assert d1.fit["position_delay_s"] == pytest.approx(1e-3)
+    rc, out, err = run("-o", str(tmp_path / "auto.json"), "--closed-loop", *pt, "--position-delay-ms", "auto")
+    assert rc == 0, err
+    auto = CL.ClosedLoopModel.load(tmp_path / "auto.json")
+    assert abs(auto.fit["position_delay_s"]) < 0.4e-3 and auto.inertia > 0
+    for extra in (["--closed-loop", "--position-delay-ms", "auto"], ["--closed-loop", *pt, "--position-delay-ms", "x"],
+                  ["--position-delay-ms", "1"]):
+        rc, out, err = run("-o", str(tmp_path / "bad.json"), *extra)
+        assert rc == 2 and err.startswith("lpvpc: error: ") and err.count("\n") == 1 and "position-delay" in err, err
+
 def test_example_assistance_profile_designed_with_opti_works_on_the_subject():
     """examples/assistance_profile.py: an exoskeleton torque profile designed with casadi.Opti +
     IPOPT through the closed-loop model's CasADi tick function, then applied (feed-forward, no
