@@ -22,7 +22,14 @@ exoskeleton loop, the replay FMU beside it, and what the causal form costs offli
    form (lags 0..Lc + 5-point derivatives) and the closed-loop form's impedance (K, B, curvature
    of p, p', p^2 and the inertia) with the reflex held, fitted to the measured torque and to the
    two-sided model's torque. The pilot has no UT torque and no whole-joint record: this is at the
-   level of the perturbation data (p, rho = the recorded scheduling).
+   level of the perturbation data (p, rho = the recorded scheduling). Each form twice: as recorded
+   and with the position delayed by the channel skew that lpvpc.closed_loop.estimate_channel_skew
+   finds on the identified part (the torque channel's lag); past-sample memory with the inertia
+   fitted and held; then leave-one-level-out over the development split (all folds, and without
+   the two end plateaus).
+4. The virtual subject's 1 kHz PT/UT trials with the torque written 1 ms late: the skew estimated
+   (and on the unskewed trials), the closed-loop form fitted as recorded and with the delay undone
+   (fit_closed_loop(position_delay=)), offline on the novel trajectory and in the loop (1 ms step).
 
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_closed_loop.py [--seeds 5] [--duration 60]
 """

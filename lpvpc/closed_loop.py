@@ -22,7 +22,10 @@ squares of the trials' total torque minus the quasi-static curve and the reflex 
 features (p, omega, p^2 and memory, each times the intrinsic scheduling basis G_i(rho)) and the
 angular acceleration (its coefficient is the inertia I, one constant). Offline, omega and the
 acceleration come from the angle record by 5-point central differences (the model's stencil);
-in a loop the plant supplies omega, and I joins the plant's inertia.
+in a loop the plant supplies omega, and I joins the plant's inertia. A recording whose torque
+channel lags its position channel (a measurement artefact: ~1 ms on the lab's pilot trial, 4 of
+the form's points there) is lined up for the fit (``position_delay``, :func:`estimate_channel_skew`);
+the model itself answers the plant's angle without delay.
 
 Timing of the exported step and FMU: the model samples every 1/fs s (rho, the delay line,
 the reflex state), and runs on a base tick of ~1 ms (:func:`lpvpc.export.ticks_per_sample`):
