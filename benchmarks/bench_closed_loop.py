@@ -185,6 +185,7 @@ def _pilot_forms(m, ident, d, k):
     imp_m = CL.predict_perturbation_impedance(m, Wm, inertia_m, d.position, d.scheduling)[k:]
     Wf, _ = CL.fit_perturbation_impedance(m, ident.position, ident.scheduling, ident.torque, memory=2, inertia=inertia)
     imp_f = CL.predict_perturbation_impedance(m, Wf, inertia, d.position, d.scheduling)[k:]
+    probes = _pilot_probes(m, d, k)
     G0 = m.intrinsic_basis.evaluate(np.array([0.0]))
     grid = np.linspace(*np.percentile(ident.scheduling, [0.5, 99.5]), 41)
     Gg = m.intrinsic_basis.evaluate(grid)
@@ -193,7 +194,32 @@ def _pilot_forms(m, ident, d, k):
             "memory": vaf(held, imp_m), "inertia_m": inertia_m, "K_m": float((G0 @ Wm[0])[0]),
             "memory_fixed": vaf(held, imp_f), "K_f": float((G0 @ Wf[0])[0]),
             "K_min": float(np.min(Gg @ W[0])), "K_max": float(np.max(Gg @ W[0])), "B_min": float(np.min(Gg @ W[1])),
-            "B_max": float(np.max(Gg @ W[1]))}
+            "B_max": float(np.max(Gg @ W[1])), "probes": probes}
+
+
+PROBES = ("velocity: 3-point central differences", "velocity: backward differences (causal)",
+          "+ p omega", "+ omega |omega|", "+ p^3", "+ |omega|", "- curvature p^2")
+
+
+def _pilot_probes(m, d, k):
+    """Held-out VAF (%) of the impedance (fitted to the measured torque) with another velocity
+    stencil or one feature added or removed: what a different form would gain (probes, not used)."""
+    p, rho = d.position, d.scheduling
+    Gi = m.intrinsic_basis.evaluate(rho)
+    reflex = m.predict(p, rho, warn=False).reflex
+    v5, a5 = eq.derivatives(p, m.fs, CL.STENCIL)
+    v3, a3 = eq.derivatives(p, m.fs, "central3")
+    vb = np.r_[0.0, np.diff(p)] * m.fs
+    ab = np.r_[0.0, np.diff(vb)] * m.fs
+    cases = [(v3, a3, [p * p]), (vb, ab, [p * p]), (v5, a5, [p * p, p * v5]), (v5, a5, [p * p, v5 * np.abs(v5)]),
+             (v5, a5, [p * p, p ** 3]), (v5, a5, [p * p, np.abs(v5)]), (v5, a5, [])]
+    out = []
+    for vel, acc, extra in cases:
+        F = np.column_stack([p, vel, *extra])
+        X = np.column_stack([(F[:, :, None] * Gi[:, None, :]).reshape(len(p), -1), acc])
+        theta = np.linalg.lstsq(X[:k], d.torque[:k] - reflex[:k], rcond=None)[0]
+        out.append(vaf(d.torque[k:], X[k:] @ theta + reflex[k:]))
+    return out
 
 
 def _pilot_lolo(d):
@@ -273,6 +299,8 @@ def _pilot_lines(p) -> list:
               f"  {'memory, inertia fitted: inertia / K(0)':53s} {r['inertia_m']:.4f} / {r['K_m']:.0f}    "
               f"{a['inertia_m']:.4f} / {a['K_m']:.0f}",
               f"  {'memory, inertia held: K(0)':53s} {r['K_f']:12.0f} {a['K_f']:10.0f}",
+              "  probes of the impedance (measured-torque fit), held-out VAF (%), not used:",
+              *[f"    {name:51s} {x:12.2f} {y:10.2f}" for name, x, y in zip(PROBES, r["probes"], a["probes"])],
               f"  cost of causality (two-sided minus closed-loop impedance, measured-torque fit): as recorded "
               f"{r['two'] - r['impedance']:.2f} points, aligned {a['two'] - a['impedance']:.2f} (against the two-sided "
               f"model on the data as recorded: {r['two'] - a['impedance']:.2f}); {p['n_held']} held-out samples at 100 Hz",
