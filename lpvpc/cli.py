@@ -11,7 +11,8 @@
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
     lpvpc whole-joint model.json --ut UT.csv -o whole.json [--cutoff HZ] [--order N] [--fmu F.fmu]
-                      [--fmi 2|3] [--fmi-type cs|me] [--casadi F.casadi] [--closed-loop [--pt PT.csv]]
+                      [--fmi 2|3] [--fmi-type cs|me] [--casadi F.casadi] [--closed-loop [--pt PT.csv]
+                      [--position-delay-ms MS|auto]]
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
@@ -498,6 +499,8 @@ def cmd_whole_joint(args) -> int:
 
     if args.pt and not args.closed_loop:
         raise _UsageError("--pt is used by --closed-loop only (the whole-joint curve is fitted to the UT trial)")
+    if args.position_delay_ms is not None and not args.closed_loop:
+        raise _UsageError("--position-delay-ms is used by --closed-loop only")
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
     ut = _trial_with_conventions(args.ut, args, conv)
@@ -540,8 +543,12 @@ def _closed_loop(args, wj, ut, conv) -> int:
         trials, source = [pt, ut], "the PT and UT trials"
     else:
         trials, source = [CL.distillation_trial(wj, ut)], "the two-sided model's torque (no --pt given)"
-    cl = CL.fit_closed_loop(wj, trials)
+    delay = _position_delay(args, wj, conv)
+    cl = CL.fit_closed_loop(wj, trials, position_delay=delay)
     cl.save(args.out)
+    if delay:
+        print(f"position channel delayed by {delay * 1e3:.2f} ms to meet the torque channel's (fit only; the model "
+              "answers the plant's angle without delay)")
     print(f"closed-loop model: {args.out} (fitted to {source}: VAF {cl.fit['vaf_with_inertia']:.2f} %; inertia "
           f"{cl.inertia:.5g} kg m^2, for the plant; no latency)")
     if args.casadi:
@@ -553,6 +560,31 @@ def _closed_loop(args, wj, ut, conv) -> int:
         print(f"FMU (FMI {args.fmi}.0 {kind}, angle and angular_velocity -> torque, constant output inertia): "
               f"{path}  [{time.perf_counter() - t0:.2f} s]")
     return 0
+
+
+def _position_delay(args, wj, conv) -> float:
+    """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
+    from . import closed_loop as CL
+    from .data import load_identification_data
+
+    text = args.position_delay_ms
+    if text is None:
+        return 0.0
+    if text != "auto":
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not math.isfinite(value) or abs(value) > 20.0:
+            raise _UsageError(f"--position-delay-ms {text!r}: give milliseconds within +-20, or auto")
+        return value * 1e-3
+    if not args.pt:
+        raise _UsageError("--position-delay-ms auto estimates the delay from the PT and UT trials: give --pt")
+    data = load_identification_data(
+        pt=args.pt, ut=args.ut, target_fs=wj.fs, position_unit=args.position_unit or conv.get("position_unit", "rad"),
+        time_unit=args.time_unit or conv.get("time_unit", "s"),
+        torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
+    return CL.estimate_channel_skew(data).delay
 
 
 def _actuator_param(text):
@@ -997,6 +1029,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "angular_velocity (rad/s), no latency, inertia declared apart (docs/guide/closed_loop.md)")
     p.add_argument("--pt", metavar="PT", help="with --closed-loop: fit it to the PT and UT trials (default: to the "
                                               "two-sided model's torque)")
+    p.add_argument("--position-delay-ms", metavar="MS|auto",
+                   help="with --closed-loop: the torque channel's lag behind the position channel in the recording "
+                        "(a measurement artefact, undone for the fit only); auto: estimated from --pt and --ut")
     _add_convention_args(p, from_model=True)
     _add_time_unit_arg(p, default=None)
     p.set_defaults(func=cmd_whole_joint)

@@ -234,6 +234,37 @@ def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
     assert rc == 2 and err.startswith("lpvpc: error: ") and "--closed-loop" in err
 
 
+
+def test_cli_whole_joint_closed_loop_position_delay(subject, model_file, tmp_path):
+    """--position-delay-ms: a number is used for the fit and recorded, 'auto' estimates it from
+    the PT/UT files (none in the subject's: |delay| < 0.4 ms); misuse is one line, exit 2."""
+    import contextlib
+    import io
+
+    from lpvpc.cli import main
+
+    folder = subject["folder"]
+
+    def run(*extra):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
+        return rc, out.getvalue(), err.getvalue()
+
+    pt = ("--pt", str(folder / "ident_PT.csv"))
+    rc, out, err = run("-o", str(tmp_path / "d1.json"), "--closed-loop", *pt, "--position-delay-ms", "1")
+    assert rc == 0 and "delayed by 1.00 ms" in out, err
+    d1 = CL.ClosedLoopModel.load(tmp_path / "d1.json")
+    assert d1.fit["position_delay_s"] == pytest.approx(1e-3)
+    rc, out, err = run("-o", str(tmp_path / "auto.json"), "--closed-loop", *pt, "--position-delay-ms", "auto")
+    assert rc == 0, err
+    auto = CL.ClosedLoopModel.load(tmp_path / "auto.json")
+    assert abs(auto.fit["position_delay_s"]) < 0.4e-3 and auto.inertia > 0
+    for extra in (["--closed-loop", "--position-delay-ms", "auto"], ["--closed-loop", *pt, "--position-delay-ms", "x"],
+                  ["--position-delay-ms", "1"]):
+        rc, out, err = run("-o", str(tmp_path / "bad.json"), *extra)
+        assert rc == 2 and err.startswith("lpvpc: error: ") and err.count("\n") == 1 and "position-delay" in err, err
+
 def test_example_assistance_profile_designed_with_opti_works_on_the_subject():
     """examples/assistance_profile.py: an exoskeleton torque profile designed with casadi.Opti +
     IPOPT through the closed-loop model's CasADi tick function, then applied (feed-forward, no
@@ -289,3 +320,45 @@ def test_loop_ssp_in_fmpy_and_libcosim(cl, tmp_path):
     assert rep["libcosim_failed_at"] is not None and rep["libcosim_failed_at"] < 2.0
     assert callable(write_loop_ssp) and callable(run_loop_ssp_libcosim) and callable(run_loop_fmpy)
     assert exoskeleton_parameters(40.0, 0.5, 0.025, 0.0)["coupling_damping"] == pytest.approx(0.25)
+
+
+def test_channel_skew_estimated_from_the_files_and_undone(subject, tmp_path):
+    """A torque channel recorded 1 ms late (the virtual subject's 1 kHz trials written so, read
+    back through the loader): the estimate finds ~1 ms there and ~0 on the subject's own files,
+    and aligning by it restores the causal impedance's fit (the skew costs it points)."""
+    from lpvpc.data import load_identification_data, write_trial_csv
+    from lpvpc.trial import Trial
+
+    pair = subject["ident_pair"]
+    for name, trial in (("PT", pair.pt), ("UT", pair.ut)):
+        late = np.r_[trial.torque[0], trial.torque[:-1]]  # one 1 kHz sample late
+        write_trial_csv(Trial(trial.time, trial.position, late, dict(trial.channels), trial.name), tmp_path / f"{name}.csv")
+    skewed = load_identification_data(pt=tmp_path / "PT.csv", ut=tmp_path / "UT.csv").segment(0, 6000)
+    clean = subject["ident"].segment(0, 6000)
+    grid = np.arange(-1.0, 2.01, 0.5) * 1e-3
+    found = CL.estimate_channel_skew(skewed, grid).delay
+    none = CL.estimate_channel_skew(clean, grid).delay
+    print(f"estimated skew: {found * 1e3:.2f} ms (1 ms imposed), {none * 1e3:.2f} ms (none)")
+    assert abs(found - 1e-3) < 0.4e-3 and abs(none) < 0.4e-3
+
+    def impedance_vaf(d):
+        from lpvpc.identify import identify
+
+        m = identify(d)
+        W, inertia = CL.fit_perturbation_impedance(m, d.position, d.scheduling, d.torque)
+        assert inertia > 0
+        return vaf(d.torque, CL.predict_perturbation_impedance(m, W, inertia, d.position, d.scheduling))
+
+    aligned = CL.delay_position(skewed, found)
+    assert aligned.meta["position_delay_s"] == found
+    assert impedance_vaf(aligned) > impedance_vaf(skewed) + 0.3
+
+
+def test_delay_position_round_trip(subject):
+    d = subject["ident"].segment(0, 3000)
+    back = CL.delay_position(CL.delay_position(d, 0.0013), -0.0013)
+    inner = slice(100, -100)
+    # decimated steps carry content up to the anti-alias edge (~0.4 fs): the interpolator is not exact there
+    assert np.max(np.abs(back.position[inner] - d.position[inner])) < 5e-3 * np.std(d.position)
+    assert back.meta["position_delay_s"] == pytest.approx(0.0)
+    assert np.allclose(CL.delay_position(d, 0.01).position[1:], d.position[:-1], rtol=0, atol=1e-14)  # whole samples
