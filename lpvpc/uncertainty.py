@@ -27,9 +27,11 @@ Derived quantities:
   one lag shorter on each side and when the scheduling basis is one order higher (each
   refitted to the same intrinsic torque) bounds the bias;
 - reflex gain and threshold come from a half-wave-rectifier fit to the scaled
-  nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): the delta method
-  through the product of the nonlinearity and the dynamics' DC gain (only the product is
-  identifiable, :func:`nonlinearity_jacobian`) and the linearised rectifier fit. Checked
+  nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): a parametric
+  bootstrap through the product of the nonlinearity and the dynamics' DC gain (only the
+  product is identifiable, :func:`nonlinearity_jacobian`, taken linearly) and the
+  rectifier fit itself, whose knee makes the threshold a kinked function of the curve
+  (:func:`reflex_interval`). Checked
   against the spread over noise realisations of the same trials (benchmark row "vs
   noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
   shift when the elastic torque's curvature in the intrinsic pathway is free instead of
@@ -37,11 +39,12 @@ Derived quantities:
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
-the parameters as extra Jacobian columns. Not included: the reflex nonlinearity's
-structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain,
-up to +19 % in dorsiflexion on the virtual subject), so the gain and threshold intervals
-of a model-rate nonlinearity under-cover the truth and say so (``Interval.biased``); those
-of the 1 kHz path cover it (the elastic curvature term removed most of its +14 % bias).
+the parameters as extra Jacobian columns. A model-rate nonlinearity (the rectifier of
+1 kHz velocity pulses seen at 100 Hz: gain biased -10..+5 % over position on the virtual
+subject, threshold trend x0.3) is marked ``Interval.biased``: its gain interval adds the
+knee-softness bound, its threshold is not observable and is reported "not determined by
+these data" (:data:`NOT_DETERMINED`, ``Interval.determined``); as is any reflex quantity
+whose interval spans most of its plausible range (:func:`reflex_determination`).
 Measured coverage:
 ``benchmarks/results/uncertainty.txt``.
 
@@ -57,6 +60,10 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
     vaf           {"estimate": %, "lower": %, "upper": %, "level": 0.95}
+    reflex_determined {"rho": 9 positions over the identified range (rad), "gain": [bool],
+                  "threshold": [bool], "level", "rule"}: where the reflex gain and threshold
+                  are determined by the data (:func:`reflex_determination`); derived from
+                  the rest, written on save and recomputed (not read) on load
 """
 
 from __future__ import annotations
@@ -561,7 +568,7 @@ N_REFLEX_DRAWS = 500
 #: A threshold interval wider than this fraction of the velocity range the rectifier is fitted
 #: over (0 to the 99th percentile of the stretch velocities seen) spans most of the plausible
 #: range: the threshold is "not determined by these data" there.
-THRESHOLD_UNDETERMINED_FRACTION = 0.5
+THRESHOLD_UNDETERMINED_FRACTION = 2 / 3
 #: What the summary, the report and Fig. 5A say instead of a value or a curve.
 NOT_DETERMINED = "not determined by these data"
 
@@ -580,6 +587,31 @@ def _knee_softness_bound(model, rho):
     return np.abs(slope - model.reflex_gain_threshold(rho)[0])
 
 
+def _basis_resolution_bound(model, rho, gain, th):
+    """Bounds (gain N m s/rad, threshold rad/s) on the bias of the velocity basis's
+    resolution: the shifts of the rectifier fit when the estimated rectifier itself,
+    G max(v - th, 0), is projected onto the nonlinearity's velocity basis (least squares
+    weighted by the velocities seen at identification, ``fit["data_density"]``; uniform
+    without it) and refitted. A polynomial rounds the knee; on the virtual subject this
+    accounts for about half the threshold's +0.03..0.05 rad/s bias at mid-range positions."""
+    from .reflex import rectifier_fit
+
+    basis = model.nonlinearity()[0]
+    v, _ = model.rectifier_velocity_grid()
+    vv = np.linspace(basis.lo, basis.hi, 400)
+    weight = np.ones_like(vv)
+    dens = model.fit.get("data_density") if isinstance(model.fit, dict) else None
+    if dens:
+        edges = np.asarray(dens["velocity_edges"], dtype=float)
+        counts = np.asarray(dens["counts"], dtype=float).sum(axis=0)
+        weight = np.interp(vv, 0.5 * (edges[1:] + edges[:-1]), counts) + 1e-9 * max(counts.max(), 1.0)
+    sw = np.sqrt(weight)[:, None]
+    hinge = gain[None, :] * np.maximum(vv[:, None] - th[None, :], 0.0)  # (400, len(rho))
+    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinge * sw, rcond=None)[0]
+    g2, th2 = rectifier_fit(v, (basis.evaluate(v) @ coef).T)
+    return np.abs(g2 - gain), np.abs(th2 - th)
+
+
 def reflex_interval(model, rho, level: float = 0.95):
     """Intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``:
     ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), each an :class:`Interval` of
@@ -590,8 +622,8 @@ def reflex_interval(model, rho, level: float = 0.95):
     draws of the reflex parameters from the stored covariance, each taken linearly through
     the scaled nonlinearity (:func:`nonlinearity_jacobian`: the identifiable product, no
     second-order term) and refitted by the rectifier fit, threshold free; the percentile
-    interval of the draws, widened for :func:`reflex_bias_bound`
-    (:func:`bias_aware_critical_value`). The rectifier's knee makes the threshold a
+    interval of the draws, widened for the structural bias bounds :func:`reflex_bias_bound`
+    and :func:`_basis_resolution_bound` (:func:`bias_aware_critical_value`). The rectifier's knee makes the threshold a
     nonlinear, kinked function of the curve: linearising it there (the former delta method)
     gave intervals ~25 % too narrow (threshold coverage 77 % over 20 seeds of the virtual
     subject; this: benchmarks/results/uncertainty.txt).
@@ -628,8 +660,10 @@ def reflex_interval(model, rho, level: float = 0.95):
     z = z_value(level)
     bound = list(reflex_bias_bound(model, rho))
     biased = model.reflex_threshold_biased
-    if biased:
+    if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
         bound[0] = bound[0] + _knee_softness_bound(model, rho)
+    else:
+        bound = [a + b for a, b in zip(bound, _basis_resolution_bound(model, rho, gain, th))]
     out = []
     for est, d, b in ((gain, g_d, bound[0]), (th, th_d, bound[1])):
         lo, hi = np.percentile(d, [50 * (1 - level), 50 * (1 + level)], axis=0)
@@ -672,11 +706,14 @@ def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> di
         return {}
     lo, hi = model.scheduling_range
     rho = np.linspace(lo, hi, n_positions) if hi - lo > 1e-6 else np.array([lo])
-    g, th = reflex_interval(model, rho, level)
+    try:
+        g, th = reflex_interval(model, rho, level)
+    except (ValueError, np.linalg.LinAlgError):  # e.g. a covariance that does not fit: no record, the file still saves
+        return {}
     return {"rho": rho.tolist(), "gain": [bool(x) for x in g.determined],
             "threshold": [bool(x) for x in th.determined], "level": level,
             "rule": (f"gain: its interval excludes 0; threshold: the gain is determined and its interval is "
-                     f"narrower than {THRESHOLD_UNDETERMINED_FRACTION:g} of the fitted velocity range (0 to the "
+                     f"narrower than {THRESHOLD_UNDETERMINED_FRACTION:.2f} of the fitted velocity range (0 to the "
                      f"99th percentile of the stretch velocities); velocity below the model's RECTIFIER_MIN_FS: "
                      f"threshold never determined")}
 

@@ -350,6 +350,10 @@ def _physiology_table(model, level=0.95) -> str:
     def cell(key, est, i, fmt):
         if not has:
             return fmt.format(est[i])
+        if not ci[key].determined[i]:  # the interval spans most of the plausible range (lpvpc.uncertainty)
+            from lpvpc.uncertainty import NOT_DETERMINED
+
+            return f"<em>{NOT_DETERMINED}</em>"
         lo, hi = ci[key][0][i], ci[key][1][i]
         return f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(lo)}–{fmt.format(hi)})</span>"
 
