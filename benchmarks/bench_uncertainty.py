@@ -161,7 +161,7 @@ def main(n_seeds=20, files_fs=1000.0):
               f"reflex gain + threshold intervals at {N_POS} positions (computed on request, parametric bootstrap): "
               f"median {1000 * np.median(t_ref):.0f} ms; counted in: ratio {np.median((t_tot + t_ref) / (t_tot - t_unc)):.3f}"]
     lines += ["", "The 'not determined' rule on records with little reflex excitation (+-0.01 rad perturbations, 30 s, "
-              "1 kHz files, reflex on the 1 kHz velocity) against the normal records above (9 positions over the whole "
+              f"{files_fs:g} Hz files, high_rate_reflex=True) against the normal records above (9 positions over the whole "
               "identified range, ends included):", "",
               "| record | seeds | gain not determined % | threshold not determined % |", "|---|---|---|---|"]
     for name, kw in (("normal: 2 min, +-0.04 rad", {}), ("weak: 30 s, +-0.01 rad", {"duration": 30.0, "perturbation_amplitude": 0.01})):

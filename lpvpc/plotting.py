@@ -259,7 +259,8 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     it, the density of the delayed velocity seen at identification. At a position where the
     data do not determine the reflex (its gain interval reaches zero,
     :meth:`lpvpc.model.LPVPCModel.reflex_determined`) no curve is drawn and the legend says
-    "not determined by these data"; so it says where only the threshold is not determined. Each curve is drawn
+    "not determined by these data"; where only the threshold is not determined the curve is
+    drawn and the legend (or a note, when that holds at every position) says so. Each curve is drawn
     only where identification saw data at that position and velocity (no polynomial lobes
     beyond the data). ``velocity`` defaults to the identified velocity range. Returns the
     figure.
