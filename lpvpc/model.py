@@ -501,16 +501,19 @@ class LPVPCModel:
 
     def reflex_gain_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (N m s/rad) of the confidence interval of the reflex
-        rectifier gain at positions ``theta`` (rad) (delta method; an
+        rectifier gain at positions ``theta`` (rad): parametric bootstrap of the rectifier
+        fit with bounds for structural bias (:func:`lpvpc.uncertainty.reflex_interval`); an
         :class:`lpvpc.uncertainty.Interval` whose ``biased`` is True for a model-rate
-        nonlinearity, :attr:`reflex_threshold_biased`: then it covers the noise only)."""
+        nonlinearity (:attr:`reflex_threshold_biased`; the interval then includes a bound
+        for the smoothed knee) and whose ``determined`` is False where it reaches zero."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[0]
 
     def reflex_threshold_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (rad/s) of the confidence interval of the reflex velocity
-        threshold (an :class:`lpvpc.uncertainty.Interval`, ``biased`` as for the gain)."""
+        threshold (an :class:`lpvpc.uncertainty.Interval`, ``biased`` as for the gain; a
+        model-rate nonlinearity's spans the fitted velocity range, ``determined`` False)."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[1]

@@ -721,7 +721,8 @@ def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> di
 def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
     (len(rho), len(velocity)) each (for figure bands): the estimate plus/minus z standard
-    errors of the delta method (:func:`nonlinearity_jacobian`), as :func:`reflex_interval`.
+    errors of the delta method (:func:`nonlinearity_jacobian`; the curve has no knee to
+    linearise, unlike the rectifier fit of :func:`reflex_interval`).
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
