@@ -21,6 +21,10 @@ the novel 1 kHz files, i.e. the high-rate path, and the novel 100 Hz files, i.e.
 model-rate stand-in that the exports use; the 100 Hz model the novel 100 Hz files); load +
 identify time of each path (ratio in the same run).
 
+A third identification per seed takes the 1 kHz files with every default (the command line's
+``identify``): issue 22 keeps its gain slope within 20 % as a floor and says where its
+threshold is not determined.
+
 Run: python benchmarks/bench_reflex_1k.py [n_seeds]   (default 10; writes
      benchmarks/results/reflex_1k.txt)
 """
@@ -81,7 +85,16 @@ def one_seed(seed, tmp):
         out["vaf_1k"] = vaf(n1k.torque, m1k.predict(n1k).total)            # high-rate path
         out["vaf_1k_model_rate"] = vaf(n100.torque, m1k.predict(n100).total)  # stand-in (exports)
         out["vaf_100"] = vaf(n100.torque, m100.predict(n100).total)
+        t = time.perf_counter()  # every default (the command line's identify): issue 22's floor on the gain
+        mdef = identify(load_identification_data(pt=dirs[1000] / "ident_PT.csv", ut=dirs[1000] / "ident_UT.csv"))
+        out["tdef"] = time.perf_counter() - t
     assert m1k.high_rate is not None and m100.high_rate is None
+    out["gdef"], out["tdef_slope"] = slopes(mdef)
+    lo, hi = mdef.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 9)
+    for key, m in (("def", mdef), ("1k", m1k)):
+        g_ok, th_ok = m.reflex_determined(rho)
+        out[f"gdet_{key}"], out[f"thdet_{key}"] = float(np.mean(g_ok)), float(np.mean(th_ok))
     out["g1k"], out["t1k_slope"] = slopes(m1k)
     out["g100"], out["t100_slope"] = slopes(m100)
     return out
@@ -106,12 +119,18 @@ def main():
         "'100 Hz': on the 100 Hz velocity. Novel VAF (%): '1 kHz' predicts the novel 1 kHz files (high-rate",
         "path); '1 kHz model, 100 Hz files' uses the model-rate stand-in the CasADi/FMU exports carry.",
         "Time: load + identify (s), both paths in the same run.", "",
-        "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | novel VAF 1 kHz | "
+        "'defaults, 1 kHz files': identify(data) with every default (the command line's), whatever velocity",
+        "the default gives the nonlinearity (today the model rate); 'determined': fraction of 9 central",
+        "positions where the gain / threshold is determined (lpvpc.uncertainty.reflex_determination).", "",
+        "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | gain defaults, 1 kHz files | "
+        "threshold defaults, 1 kHz files | determined gain/threshold: defaults | 1 kHz | novel VAF 1 kHz | "
         "novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(f"| {r['seed']} | {r['g1k']:.2f} | {r['t1k_slope']:.2f} | {r['g100']:.2f} | {r['t100_slope']:.2f} | "
+                     f"{r['gdef']:.2f} | {r['tdef_slope']:.2f} | {r['gdet_def']:.2f}/{r['thdet_def']:.2f} | "
+                     f"{r['gdet_1k']:.2f}/{r['thdet_1k']:.2f} | "
                      f"{r['vaf_1k']:.2f} | {r['vaf_1k_model_rate']:.2f} | {r['vaf_100']:.2f} | {r['t1k']:.1f} | "
                      f"{r['t100']:.1f} |")
     lines += [
@@ -120,6 +139,12 @@ def main():
         f"gain slope ratio: 1 kHz median {np.median(a['g1k']):.2f} (range {a['g1k'].min():.2f}..{a['g1k'].max():.2f}, "
         f"within 20 % on {within(a['g1k'])}/{n}); 100 Hz median {np.median(a['g100']):.2f} "
         f"(within 20 % on {within(a['g100'])}/{n})",
+        f"gain slope ratio at every default from 1 kHz files (the floor: within 20 %): median "
+        f"{np.median(a['gdef']):.2f} (range {a['gdef'].min():.2f}..{a['gdef'].max():.2f}, within 20 % on "
+        f"{within(a['gdef'])}/{n}); its threshold slope median {np.median(a['tdef_slope']):.2f}, determined at "
+        f"{100 * np.mean(a['thdet_def']):.0f} % of positions (gain at {100 * np.mean(a['gdet_def']):.0f} %); "
+        f"1 kHz path: threshold determined at {100 * np.mean(a['thdet_1k']):.0f} %, gain at "
+        f"{100 * np.mean(a['gdet_1k']):.0f} %",
         f"threshold slope ratio: 1 kHz median {np.median(a['t1k_slope']):.2f} (range {a['t1k_slope'].min():.2f}.."
         f"{a['t1k_slope'].max():.2f}, within 20 % on {within(a['t1k_slope'])}/{n}); 100 Hz median "
         f"{np.median(a['t100_slope']):.2f} (within 20 % on {within(a['t100_slope'])}/{n})",

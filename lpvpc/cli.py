@@ -363,13 +363,18 @@ def _physical_summary(model) -> list:
     bias = (f" (threshold biased: rectifier seen on {model.nonlinearity_fs:g} Hz velocity)"
             if model.reflex_threshold_biased else "")
     s = model.settings
+    from .uncertainty import NOT_DETERMINED
+
+    g_ok, th_ok = model.reflex_determined(rho[[0, -1]])  # where an interval spans most of the plausible range
+    gain = [f"{g:.2f}" if ok else NOT_DETERMINED for g, ok in zip(gain, g_ok)]
+    thr = [f"{t:.3f}" if ok else NOT_DETERMINED for t, ok in zip(thr, th_ok)]
     if len(rho) == 1:  # a stationary trial: one operating point, one value each
         viscosity = f"B {B[0]:.2f} N m s/rad"
-        reflex = f"{gain[0]:.2f} N m s/rad; threshold {thr[0]:.3f} rad/s{bias}"
+        reflex = f"{gain[0]} N m s/rad; threshold {thr[0]} rad/s{bias}"
     else:
         viscosity = f"B {B.min():.2f}..{B.max():.2f} N m s/rad"
-        reflex = (f"{gain[0]:.2f} at {rho[0]:+.3f} .. {gain[-1]:.2f} at {rho[-1]:+.3f} N m s/rad; threshold "
-                  f"{thr[0]:.3f} .. {thr[-1]:.3f} rad/s{bias}")
+        reflex = (f"{gain[0]} at {rho[0]:+.3f} .. {gain[-1]} at {rho[-1]:+.3f} N m s/rad; threshold "
+                  + (f"{NOT_DETERMINED}{bias}" if not th_ok.any() else f"{thr[0]} .. {thr[-1]} rad/s{bias}"))
     return [
         f"stiffness:   K(theta) {at(K, rho)} N m/rad",
         f"viscosity:   {viscosity}",

@@ -501,19 +501,35 @@ class LPVPCModel:
 
     def reflex_gain_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (N m s/rad) of the confidence interval of the reflex
-        rectifier gain at positions ``theta`` (rad) (delta method; an
+        rectifier gain at positions ``theta`` (rad): parametric bootstrap of the rectifier
+        fit with bounds for structural bias (:func:`lpvpc.uncertainty.reflex_interval`); an
         :class:`lpvpc.uncertainty.Interval` whose ``biased`` is True for a model-rate
-        nonlinearity, :attr:`reflex_threshold_biased`: then it covers the noise only)."""
+        nonlinearity (:attr:`reflex_threshold_biased`; the interval then includes a bound
+        for the smoothed knee) and whose ``determined`` is False where it reaches zero."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[0]
 
     def reflex_threshold_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (rad/s) of the confidence interval of the reflex velocity
-        threshold (an :class:`lpvpc.uncertainty.Interval`, ``biased`` as for the gain)."""
+        threshold (an :class:`lpvpc.uncertainty.Interval`, ``biased`` as for the gain; a
+        model-rate nonlinearity's spans the fitted velocity range, ``determined`` False)."""
         from .uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[1]
+
+    def reflex_determined(self, theta, level: float = 0.95):
+        """(gain, threshold) bool arrays at positions ``theta`` (rad): False where the
+        quantity's interval spans most of its plausible range, so the data do not determine
+        it there ("not determined by these data"; rule: :func:`lpvpc.uncertainty.reflex_determination`).
+        All True for a model without intervals (nothing to judge by)."""
+        theta = np.atleast_1d(np.asarray(theta, dtype=float))
+        if not self.has_intervals:
+            return np.ones(len(theta), dtype=bool), np.ones(len(theta), dtype=bool)
+        from .uncertainty import reflex_interval
+
+        g, th = reflex_interval(self, theta, level)
+        return g.determined, th.determined
 
     def vaf_interval(self, level: float = 0.95):
         """(lower, upper) VAF (%) on the identification record, moving-block bootstrap."""
@@ -525,7 +541,9 @@ class LPVPCModel:
         raise ValueError(f"the model file stores the {v['level']:.0%} VAF interval only, not {level}")
 
     # -- persistence ---------------------------------------------------------------------
-    def to_dict(self) -> dict:
+    def to_dict(self, derived: bool = True) -> dict:
+        """The model file's content; ``derived``: with the entries computed from the model
+        (``uncertainty.reflex_determined``), which loading recomputes rather than trusts."""
         d = {
             "format": FORMAT,
             "format_version": (FORMAT_VERSION_CURVATURE if self.curvature is not None
@@ -564,6 +582,10 @@ class LPVPCModel:
             d["effects"] = [fe.to_dict() for fe in self.effects]
         if self.uncertainty:
             d["uncertainty"] = self.uncertainty
+            if derived:  # where the data determine the reflex gain and threshold, recorded for readers of the file
+                from .uncertainty import reflex_determination
+
+                d["uncertainty"] = {**self.uncertainty, "reflex_determined": reflex_determination(self)}
         return d
 
     @classmethod
@@ -591,7 +613,7 @@ class LPVPCModel:
                 provenance=d.get("provenance", {}),
                 conventions=d.get("conventions", {}),
                 fit=d.get("fit", {}),
-                uncertainty=d.get("uncertainty") or {},
+                uncertainty={k: v for k, v in (d.get("uncertainty") or {}).items() if k != "reflex_determined"},
                 high_rate=HighRateNonlinearity.from_dict(refl["high_rate"]) if refl.get("high_rate") else None,
                 curvature=np.array(intr["curvature"], dtype=float) if intr.get("curvature") is not None else None,
             )
@@ -665,7 +687,7 @@ class LPVPCModel:
         """sha256 of the canonical JSON of the model's equations and coefficients."""
         import hashlib
 
-        d = self.to_dict()
+        d = self.to_dict(derived=False)
         core = {k: d[k] for k in ("fs", "intrinsic", "reflex", "effects") if k in d}
         return hashlib.sha256(json.dumps(core, sort_keys=True).encode()).hexdigest()
 

@@ -438,6 +438,14 @@ def _check_uncertainty(x, where, problems, d, budget):
         for key, size in (("omega", n["omega"]), ("bd", m + 1)):
             _shape(_array(c.get(key), f"{where}.curvature_reflex.{key}", problems, 1, [0]), (size,),
                    f"{where}.curvature_reflex.{key}", problems)
+    if "reflex_determined" in u:  # lpvpc.uncertainty.reflex_determination: derived, rewritten on save
+        r = _dict(u["reflex_determined"], f"{where}.reflex_determined", problems, required=True)
+        if r:
+            rho = _array(r.get("rho"), f"{where}.reflex_determined.rho", problems, 1, [0])
+            for key in ("gain", "threshold"):
+                flags = r.get(key)
+                if not isinstance(flags, list) or len(flags) != len(rho) or not all(isinstance(b, bool) for b in flags):
+                    problems.append(f"{where}.reflex_determined.{key} must be a list of {len(rho)} true/false values")
     v = _dict(u.get("vaf"), f"{where}.vaf", problems, required=True)
     for key in ("estimate", "lower", "upper"):
         _number(v.get(key), f"{where}.vaf.{key}", problems)

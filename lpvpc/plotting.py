@@ -256,7 +256,11 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     """Reflex static nonlinearity f(v, rho) (N m, steady reflex torque for a constant
     delayed velocity v in rad/s) for ``positions`` positions across the identified range
     (Fig. 5A), with ``level`` confidence bands when the model carries intervals and, under
-    it, the density of the delayed velocity seen at identification. Each curve is drawn
+    it, the density of the delayed velocity seen at identification. At a position where the
+    data do not determine the reflex (its gain interval reaches zero,
+    :meth:`lpvpc.model.LPVPCModel.reflex_determined`) no curve is drawn and the legend says
+    "not determined by these data"; where only the threshold is not determined the curve is
+    drawn and the legend (or a note, when that holds at every position) says so. Each curve is drawn
     only where identification saw data at that position and velocity (no polynomial lobes
     beyond the data). ``velocity`` defaults to the identified velocity range. Returns the
     figure.
@@ -277,15 +281,22 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     curves = model.reflex_nonlinearity(velocity, rho)
     ok = _supported(model, rho, velocity)
     band = None
+    from .uncertainty import NOT_DETERMINED
+
+    g_ok, th_ok = model.reflex_determined(rho, level)  # all True without intervals
     if model.has_intervals:
         from .uncertainty import nonlinearity_band
 
         band = nonlinearity_band(model, velocity, rho, level)
     for k, (r, f, c) in enumerate(zip(rho, curves, _position_colours(len(rho)))):
+        if not g_ok[k]:  # the data cannot tell this position's reflex from none: no curve to draw
+            ax.plot([], [], color=c, ls=":", label=f"{r:+.2f} rad: {NOT_DETERMINED}")
+            continue
         f = np.where(ok[k], f, np.nan)
         if band is not None:
             ax.fill_between(velocity, band[0][k], band[1][k], where=ok[k], color=c, alpha=0.18, lw=0)
-        ax.plot(velocity, f, color=c, label=f"{r:+.2f} rad")
+        partly = "" if th_ok[k] or not th_ok.any() else f" (threshold {NOT_DETERMINED})"
+        ax.plot(velocity, f, color=c, label=f"{r:+.2f} rad{partly}")
         if truth is not None:
             g, th = float(truth.reflex_gain(r)), float(truth.reflex_threshold(r))
             ax.plot(velocity, np.where(ok[k], g * np.maximum(velocity - th, 0.0), np.nan), color=c, ls="--", lw=0.9)
@@ -298,8 +309,12 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     ax.set_title("reflex nonlinearity" + (f" ({'; '.join(extra)})" if extra else ""), fontsize="medium")
     _legend_outside(ax, title="position")
     if model.reflex_threshold_biased:
-        ax.text(0.98, 0.02, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)",
+        ax.text(0.98, 0.02, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)"
+                + (f"; threshold {NOT_DETERMINED}" if not th_ok.any() else ""),
                 transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
+    elif not th_ok.any() and g_ok.any():
+        ax.text(0.98, 0.02, f"threshold {NOT_DETERMINED}", transform=ax.transAxes, ha="right", va="bottom",
+                fontsize="x-small", color="0.35")
     dens = _density(model)
     if dens is not None:
         _density_strip(ax, dens[1], dens[2].sum(axis=0), "delayed stretch velocity (rad/s)", log=True)

@@ -27,9 +27,11 @@ Derived quantities:
   one lag shorter on each side and when the scheduling basis is one order higher (each
   refitted to the same intrinsic torque) bounds the bias;
 - reflex gain and threshold come from a half-wave-rectifier fit to the scaled
-  nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): the delta method
-  through the product of the nonlinearity and the dynamics' DC gain (only the product is
-  identifiable, :func:`nonlinearity_jacobian`) and the linearised rectifier fit. Checked
+  nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): a parametric
+  bootstrap through the product of the nonlinearity and the dynamics' DC gain (only the
+  product is identifiable, :func:`nonlinearity_jacobian`, taken linearly) and the
+  rectifier fit itself, whose knee makes the threshold a kinked function of the curve
+  (:func:`reflex_interval`). Checked
   against the spread over noise realisations of the same trials (benchmark row "vs
   noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
   shift when the elastic torque's curvature in the intrinsic pathway is free instead of
@@ -37,11 +39,12 @@ Derived quantities:
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
-the parameters as extra Jacobian columns. Not included: the reflex nonlinearity's
-structural error (the rectifier of 1 kHz velocity seen at 100 Hz biases the reflex gain,
-up to +19 % in dorsiflexion on the virtual subject), so the gain and threshold intervals
-of a model-rate nonlinearity under-cover the truth and say so (``Interval.biased``); those
-of the 1 kHz path cover it (the elastic curvature term removed most of its +14 % bias).
+the parameters as extra Jacobian columns. A model-rate nonlinearity (the rectifier of
+1 kHz velocity pulses seen at 100 Hz: gain biased -10..+5 % over position on the virtual
+subject, threshold trend x0.3) is marked ``Interval.biased``: its gain interval adds the
+knee-softness bound, its threshold is not observable and is reported "not determined by
+these data" (:data:`NOT_DETERMINED`, ``Interval.determined``); as is any reflex quantity
+whose interval spans most of its plausible range (:func:`reflex_determination`).
 Measured coverage:
 ``benchmarks/results/uncertainty.txt``.
 
@@ -57,6 +60,10 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
     vaf           {"estimate": %, "lower": %, "upper": %, "level": 0.95}
+    reflex_determined {"rho": 9 positions over the identified range (rad), "gain": [bool],
+                  "threshold": [bool], "level", "rule"}: where the reflex gain and threshold
+                  are determined by the data (:func:`reflex_determination`); derived from
+                  the rest, written on save and recomputed (not read) on load
 """
 
 from __future__ import annotations
@@ -403,21 +410,25 @@ def bias_aware_critical_value(t, level: float = 0.95):
 
 class Interval(tuple):
     """(lower, upper) arrays of a confidence interval, unpacked like a pair. ``biased`` is
-    True when the estimate is known to be biased beyond what the interval accounts for
-    (``note`` says why): then the interval describes the noise only, not the truth.
+    True when the estimate is known to be biased (``note`` says why and how the interval
+    allows for it). ``determined`` (bool array, default all True) is False where the
+    interval spans most of the plausible range: the quantity is "not determined by these
+    data" there (:data:`NOT_DETERMINED`).
 
     >>> lo, hi = Interval(np.array([1.0]), np.array([2.0]))
     >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why")
     (1.0, Interval(lower=array([1.]), upper=array([2.]), biased=True))
     """
 
-    def __new__(cls, lower, upper, biased: bool = False, note: str = ""):
+    def __new__(cls, lower, upper, biased: bool = False, note: str = "", determined=None):
         self = super().__new__(cls, (lower, upper))
         self.biased, self.note = bool(biased), note
+        # False where the interval spans most of the plausible range ("not determined by these data")
+        self.determined = np.ones(np.shape(lower), dtype=bool) if determined is None else np.asarray(determined, dtype=bool)
         return self
 
-    def __getnewargs__(self):  # pickling/copying keeps the flag
-        return (self[0], self[1], self.biased, self.note)
+    def __getnewargs__(self):  # pickling/copying keeps the flags
+        return (self[0], self[1], self.biased, self.note, self.determined)
 
     def __repr__(self):
         flag = ", biased=True" if self.biased else ""
@@ -438,8 +449,10 @@ class Interval(tuple):
 
 #: What the reflex intervals of a model-rate nonlinearity leave out (Interval.note).
 MODEL_RATE_BIAS_NOTE = ("reflex nonlinearity identified on the model-rate velocity: gain and threshold are biased "
-                        "(the ~20 ms reflex-evoking pulses are smoothed; LPVPCModel.reflex_threshold_biased) and "
-                        "the interval covers the noise only; identify with high_rate_reflex=True from >= 500 Hz files")
+                        "(the ~20 ms reflex-evoking pulses are smoothed; LPVPCModel.reflex_threshold_biased); the "
+                        "gain interval is widened for the smoothed knee, the threshold is not observable (its "
+                        "interval spans the fitted velocity range); identify with high_rate_reflex=True from "
+                        ">= 500 Hz files")
 
 
 def _reflex_covariance(model):
@@ -550,17 +563,75 @@ def reflex_bias_bound(model, rho):
     return np.abs(g_alt - g), np.abs(th_alt - th)
 
 
+#: Monte Carlo draws of the reflex parameters behind the gain and threshold intervals.
+N_REFLEX_DRAWS = 500
+#: A threshold interval wider than this fraction of the velocity range the rectifier is fitted
+#: over (0 to the 99th percentile of the stretch velocities seen) spans most of the plausible
+#: range: the threshold is "not determined by these data" there.
+THRESHOLD_UNDETERMINED_FRACTION = 2 / 3
+#: What the summary, the report and Fig. 5A say instead of a value or a curve.
+NOT_DETERMINED = "not determined by these data"
+
+
+def _knee_softness_bound(model, rho):
+    """Bound (N m s/rad) on the gain bias of a rectifier seen on smoothed (model-rate)
+    velocity: the gain of the rectifier fit minus the slope of the nonlinearity over the
+    top half of the fitted velocity range, where smoothing the knee no longer reaches. A
+    true half-wave rectifier has both equal; the smoothed one's knee fit lowers the gain in
+    plantarflexion and raises it in dorsiflexion (benchmarks/results/uncertainty.txt)."""
+    v, v_top = model.rectifier_velocity_grid()
+    f = model.reflex_nonlinearity(v, rho)
+    top = v >= 0.5 * v_top
+    X = np.column_stack([v[top], np.ones(int(top.sum()))])
+    slope = np.linalg.lstsq(X, f[:, top].T, rcond=None)[0][0]
+    return np.abs(slope - model.reflex_gain_threshold(rho)[0])
+
+
+def _basis_resolution_bound(model, rho, gain, th):
+    """Bounds (gain N m s/rad, threshold rad/s) on the bias of the velocity basis's
+    resolution: the shifts of the rectifier fit when the estimated rectifier itself,
+    G max(v - th, 0), is projected onto the nonlinearity's velocity basis (least squares
+    weighted by the velocities seen at identification, ``fit["data_density"]``; uniform
+    without it) and refitted. A polynomial rounds the knee; on the virtual subject this
+    accounts for about half the threshold's +0.03..0.05 rad/s bias at mid-range positions."""
+    from .reflex import rectifier_fit
+
+    basis = model.nonlinearity()[0]
+    v, _ = model.rectifier_velocity_grid()
+    vv = np.linspace(basis.lo, basis.hi, 400)
+    weight = np.ones_like(vv)
+    dens = model.fit.get("data_density") if isinstance(model.fit, dict) else None
+    if dens:
+        edges = np.asarray(dens["velocity_edges"], dtype=float)
+        counts = np.asarray(dens["counts"], dtype=float).sum(axis=0)
+        weight = np.interp(vv, 0.5 * (edges[1:] + edges[:-1]), counts) + 1e-9 * max(counts.max(), 1.0)
+    sw = np.sqrt(weight)[:, None]
+    hinge = gain[None, :] * np.maximum(vv[:, None] - th[None, :], 0.0)  # (400, len(rho))
+    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinge * sw, rcond=None)[0]
+    g2, th2 = rectifier_fit(v, (basis.evaluate(v) @ coef).T)
+    return np.abs(g2 - gain), np.abs(th2 - th)
+
+
 def reflex_interval(model, rho, level: float = 0.95):
     """Intervals of reflex gain (N m s/rad) and threshold (rad/s) at ``rho``:
     ((gain_lo, gain_hi), (threshold_lo, threshold_hi)), each an :class:`Interval` of
-    arrays of len(rho).
+    arrays of len(rho) whose ``determined`` (bool array) is False where the interval spans
+    most of the plausible range (:func:`reflex_determination`).
 
-    Delta method: the stored covariance propagated linearly through the scaled
-    nonlinearity (:func:`nonlinearity_jacobian`) and the rectifier fit (threshold free),
-    widened for :func:`reflex_bias_bound` (:func:`bias_aware_critical_value`).
-    The threshold interval is clipped to the fit's search range. On a model whose
-    nonlinearity saw model-rate velocity the estimates are biased
-    (``Interval.biased``, :data:`MODEL_RATE_BIAS_NOTE`).
+    Parametric bootstrap of the half-wave-rectifier fit: :data:`N_REFLEX_DRAWS` Gaussian
+    draws of the reflex parameters from the stored covariance, each taken linearly through
+    the scaled nonlinearity (:func:`nonlinearity_jacobian`: the identifiable product, no
+    second-order term) and refitted by the rectifier fit, threshold free; the percentile
+    interval of the draws, widened for the structural bias bounds :func:`reflex_bias_bound`
+    and :func:`_basis_resolution_bound` (:func:`bias_aware_critical_value`). The rectifier's knee makes the threshold a
+    nonlinear, kinked function of the curve: linearising it there (the former delta method)
+    gave intervals ~25 % too narrow (threshold coverage 77 % over 20 seeds of the virtual
+    subject; this: benchmarks/results/uncertainty.txt).
+
+    On a model whose nonlinearity saw velocity below ``RECTIFIER_MIN_FS`` (model rate,
+    ``Interval.biased``) the ~20 ms reflex-evoking pulses are smoothed: the threshold is
+    not observable (its interval is the whole fitted range, so "not determined"), and the
+    gain's interval is widened for :func:`_knee_softness_bound`.
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
@@ -571,32 +642,87 @@ def reflex_interval(model, rho, level: float = 0.95):
     >>> gain, threshold = model.reflex_gain_threshold([0.0])  # N m s/rad, rad/s
     >>> bool(g_lo[0] < gain[0] < g_hi[0]) and bool(th_lo[0] <= threshold[0] < th_hi[0])
     True
-    >>> reflex_interval(model, np.array([0.0]))[0].biased  # 100 Hz velocity
-    True
+    >>> g, th = reflex_interval(model, np.array([0.0]))  # 100 Hz velocity
+    >>> g.biased, th.biased, bool(th.determined[0])
+    (True, True, False)
     """
     from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     cov, _ = _reflex_covariance(model)
-    v, _ = model.rectifier_velocity_grid()
+    v, v_top = model.rectifier_velocity_grid()
     f, J = nonlinearity_jacobian(model, v, rho)
     gain, th = rectifier_fit(v, f)
-    se = np.empty((2, len(rho)))
-    for r in range(len(rho)):
-        grads = _rectifier_sensitivity(v, gain[r], th[r]) @ J[:, r, :].T  # (2, p)
-        se[:, r] = np.sqrt(np.clip(np.einsum("ip,pq,iq->i", grads, cov, grads), 0.0, None))
-    bound = np.array(reflex_bias_bound(model, rho))
-    half = bias_aware_critical_value(bound / np.maximum(se, 1e-300), level) * se
+    w, U = np.linalg.eigh(cov)
+    draws = np.random.default_rng(20141).standard_normal((N_REFLEX_DRAWS, len(w))) @ (U * np.sqrt(np.clip(w, 0, None))).T
+    curves = f[None] + np.einsum("np,prv->nrv", draws, J)
+    g_d, th_d = (x.reshape(N_REFLEX_DRAWS, len(rho)) for x in rectifier_fit(v, curves.reshape(-1, len(v))))
+    z = z_value(level)
+    bound = list(reflex_bias_bound(model, rho))
     biased = model.reflex_threshold_biased
+    if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
+        bound[0] = bound[0] + _knee_softness_bound(model, rho)
+    else:
+        bound = [a + b for a, b in zip(bound, _basis_resolution_bound(model, rho, gain, th))]
+    out = []
+    for est, d, b in ((gain, g_d, bound[0]), (th, th_d, bound[1])):
+        lo, hi = np.percentile(d, [50 * (1 - level), 50 * (1 + level)], axis=0)
+        lo, hi = np.minimum(lo, est), np.maximum(hi, est)  # the estimate inside its own interval
+        se = np.maximum((hi - lo) / (2 * z), 1e-300)
+        extra = (bias_aware_critical_value(b / se, level) - z) * se
+        out.append([lo - extra, hi + extra])
+    th_lo, th_hi = np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6])
+    if biased:  # smoothed pulses: the threshold is not observable (benchmarks/results/reflex_observability.txt)
+        th_lo, th_hi = np.full(len(rho), v[0]), np.full(len(rho), v[-6])
+    g_ok, th_ok = _determined(out[0][0], th_lo, th_hi, v_top)
     note = MODEL_RATE_BIAS_NOTE if biased else ""
-    th_lo, th_hi = np.clip(th - half[1], v[0], v[-6]), np.clip(th + half[1], v[0], v[-6])
-    return (Interval(gain - half[0], gain + half[0], biased, note), Interval(th_lo, th_hi, biased, note))
+    return (Interval(out[0][0], out[0][1], biased, note, g_ok), Interval(th_lo, th_hi, biased, note, th_ok))
+
+
+def _determined(gain_lo, th_lo, th_hi, v_top):
+    """(gain determined, threshold determined) bool arrays: the gain where its interval
+    excludes zero (the data tell a reflex from none); the threshold where the gain is and
+    its interval is narrower than THRESHOLD_UNDETERMINED_FRACTION of 0..v_top."""
+    g_ok = np.asarray(gain_lo) > 0
+    th_ok = g_ok & (np.asarray(th_hi) - np.asarray(th_lo) < THRESHOLD_UNDETERMINED_FRACTION * v_top)
+    return g_ok, th_ok
+
+
+def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> dict:
+    """Where the data determine the reflex gain and threshold, at ``n_positions`` positions
+    evenly over the identified range (what the model file records as
+    ``uncertainty.reflex_determined``): {"rho": rad, "gain": [bool], "threshold": [bool],
+    "level", "rule"}. Empty when the model carries no intervals.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> det = reflex_determination(identify(pair_trials(sim.pt, sim.ut)))
+    >>> all(det["gain"]), any(det["threshold"])  # 100 Hz velocity: a threshold is not observable
+    (True, False)
+    """
+    if not getattr(model, "uncertainty", None):
+        return {}
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo, hi, n_positions) if hi - lo > 1e-6 else np.array([lo])
+    try:
+        g, th = reflex_interval(model, rho, level)
+    except (ValueError, np.linalg.LinAlgError):  # e.g. a covariance that does not fit: no record, the file still saves
+        return {}
+    return {"rho": rho.tolist(), "gain": [bool(x) for x in g.determined],
+            "threshold": [bool(x) for x in th.determined], "level": level,
+            "rule": (f"gain: its interval excludes 0; threshold: the gain is determined and its interval is "
+                     f"narrower than {THRESHOLD_UNDETERMINED_FRACTION:.2f} of the fitted velocity range (0 to the "
+                     f"99th percentile of the stretch velocities); velocity below the model's RECTIFIER_MIN_FS: "
+                     f"threshold never determined")}
 
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
     (len(rho), len(velocity)) each (for figure bands): the estimate plus/minus z standard
-    errors of the delta method (:func:`nonlinearity_jacobian`), as :func:`reflex_interval`.
+    errors of the delta method (:func:`nonlinearity_jacobian`; the curve has no knee to
+    linearise, unlike the rectifier fit of :func:`reflex_interval`).
 
     >>> from lpvpc.data import pair_trials
     >>> from lpvpc.identify import identify
