@@ -25,7 +25,11 @@ Derived quantities:
   intervals are bias-aware (:func:`bias_aware_critical_value`) with
   :func:`structural_bias_bound`: the sum of the shifts of the quantity when the IRF is
   one lag shorter on each side and when the scheduling basis is one order higher (each
-  refitted to the same intrinsic torque) bounds the bias;
+  refitted to the same intrinsic torque) bounds the bias; and, when the model stores it
+  (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`), the larger of that
+  bound and the spread over the structures cross-validation cannot tell apart, which
+  holds on stiffness curves the basis cannot represent (K coverage 95-97 % on three
+  families: ``benchmarks/results/coverage_families.txt``);
 - reflex gain and threshold come from a half-wave-rectifier fit to the scaled
   nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): the delta method
   through the product of the nonlinearity and the dynamics' DC gain (only the product is
@@ -57,6 +61,9 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
                   the covariance (den: reflex denominator coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
     vaf           {"estimate": %, "lower": %, "upper": %, "level": 0.95}
+    structural    (optional) the IRF shifts of the structures cross-validation cannot tell
+                  apart (:mod:`lpvpc.structural_uncertainty`); when present the K, viscosity
+                  and inertia intervals include them (:func:`intrinsic_interval`)
 """
 
 from __future__ import annotations
@@ -333,16 +340,30 @@ def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
     >>> bool(np.allclose(est, model.elastic_stiffness([-0.1, 0.1]))), bool(np.all((lower < est) & (est < upper)))
     (True, True)
     """
+    est, se, bias = intrinsic_interval_parts(model, quantity, rho)
+    # The near-equivalent structures vary the IRF length and the basis orders, the same parts
+    # the neighbouring specifications vary: two bounds of one bias, so the larger (their sum
+    # over-covered: K 100 % on the sum-of-exponentials family, coverage_families.txt)
+    half = bias_aware_critical_value(np.maximum(bias["specification"], bias["structures"])
+                                     / np.maximum(se, 1e-300), level) * se
+    return est, est - half, est + half
+
+
+def intrinsic_interval_parts(model, quantity: str, rho):
+    """(estimate, standard error, {"specification": ..., "structures": ...}) of an intrinsic
+    quantity at ``rho``: the HAC standard error of the noise, and the two structural bias
+    bounds of which :func:`intrinsic_interval` takes the larger: :func:`structural_bias_bound`
+    (the IRF one lag shorter, the basis one order higher) and
+    :func:`structural_shift` (the structures cross-validation
+    cannot tell apart; zeros unless stored). All in the quantity's units."""
     cov, n_i, _ = _cov_blocks(model)
     w = lag_moment_weights(model, quantity)
     g = _gradients_intrinsic(model, rho, w)
     n_base = g.shape[1]  # theta_i beyond the base IRF belongs to effects (not stored here)
     est = g @ model.H.ravel()
-    var = np.einsum("ij,jk,ik->i", g, cov[:n_base, :n_base], g)
-    se = np.sqrt(var)
-    bias = structural_bias_bound(model, quantity, rho, est)
-    half = bias_aware_critical_value(bias / np.maximum(se, 1e-300), level) * se
-    return est, est - half, est + half
+    se = np.sqrt(np.einsum("ij,jk,ik->i", g, cov[:n_base, :n_base], g))
+    return est, se, {"specification": structural_bias_bound(model, quantity, rho, est),
+                     "structures": structural_shift(model, quantity, rho)}
 
 
 def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
@@ -379,6 +400,24 @@ def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
         H = np.asarray(richer["H"], dtype=float)
         bias += np.abs((G @ H.T) @ lag_moment_weights(model, quantity) - est)
     return bias
+
+
+def structural_shift(model, quantity: str, rho) -> np.ndarray:
+    """Largest absolute shift of an intrinsic quantity (its units) at ``rho`` over the
+    near-equivalent structures stored by
+    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty`; zeros when the model
+    stores none."""
+    from .basis import Basis
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    st = (getattr(model, "uncertainty", None) or {}).get("structural")
+    if not st or not st["shifts"]:
+        return np.zeros(len(rho))
+    basis = Basis.from_dict(st["basis"])
+    G = basis.evaluate(np.clip(rho, basis.lo, basis.hi))  # (len(rho), n_basis)
+    w = lag_moment_weights(model, quantity, st["lags"])
+    dH = np.asarray(st["shifts"], dtype=float)  # (n_s, n_lags, n_basis)
+    return np.max(np.abs(np.einsum("l,slj,rj->sr", w, dH, G)), axis=0)
 
 
 def bias_aware_critical_value(t, level: float = 0.95):
