@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.structural_uncertainty import add_structural_uncertainty  # noqa: E402
+from lpvpc.structural_uncertainty import add_structural_uncertainty, structural_term, structure_search  # noqa: E402
 from lpvpc.subject import STIFFNESS_FAMILIES  # noqa: E402
 from lpvpc.uncertainty import bias_aware_critical_value, intrinsic_interval_parts, z_value  # noqa: E402
 from _results import write_results  # noqa: E402
@@ -77,6 +77,16 @@ def one_seed(family, seed):
         t = time.perf_counter()
         add_structural_uncertainty(model, d)
         t_struct = time.perf_counter() - t
+        # its parts: the search's regressor and Gram matrices, the coordinate search, the refits
+        # (with identify's own search reused, on its selection path, only the refits remain)
+        t = time.perf_counter()
+        search, start, fixed = structure_search(model, d)
+        t_build = time.perf_counter() - t
+        sel = search.run(start, fixed)
+        t_run = time.perf_counter() - t - t_build
+        t = time.perf_counter()
+        structural_term(model, d, search, sel)
+        t_refit = time.perf_counter() - t
     lo, hi = model.scheduling_range
     rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)
     rows = {}
@@ -89,7 +99,8 @@ def one_seed(family, seed):
     rows["reflex gain"] = (gain, *model.reflex_gain_interval(rho), truth.reflex_gain(rho))
     rows["reflex threshold"] = (thr, *model.reflex_threshold_interval(rho), truth.reflex_threshold(rho))
     st = model.uncertainty["structural"]
-    return {"rows": rows, "t_ident": t_ident, "t_struct": t_struct, "t_unc": model.fit["timings_s"]["uncertainty"],
+    return {"rows": rows, "t_ident": t_ident, "t_struct": t_struct, "t_build": t_build, "t_run": t_run,
+            "t_refit": t_refit, "t_unc": model.fit["timings_s"]["uncertainty"],
             "n_near": len(st["shifts"]), "n_scored": st["n_scored"],
             "selection": model.fit.get("structure_selection", {}).get("skipped", "ran")}
 
@@ -131,11 +142,16 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0):
         t_s = np.array([r["t_struct"] for r in results])
         t_u = np.array([r["t_unc"] for r in results])
         sel = sorted({r["selection"] for r in results})
+        parts = {k: np.median([r[k] for r in results]) for k in ("t_build", "t_run", "t_refit")}
         lines += ["", f"identify median {np.median(t_i):.2f} s (its interval step {1000 * np.median(t_u):.0f} ms); "
                       f"structural term median {np.median(t_s):.2f} s = {100 * np.median(t_s / t_i):.0f} % of "
                       f"identify (max {100 * np.max(t_s / t_i):.0f} %); near-equivalent structures per seed median "
                       f"{np.median([r['n_near'] for r in results]):.0f} of "
                       f"{np.median([r['n_scored'] for r in results]):.0f} scored; identify's selection: {', '.join(sel)}",
+                  f"structural term's parts (medians, timed again separately): search regressor and Gram matrices "
+                  f"{1000 * parts['t_build']:.0f} ms, coordinate search {1000 * parts['t_run']:.0f} ms, refits of the "
+                  f"near-equivalent structures {1000 * parts['t_refit']:.0f} ms (= {100 * parts['t_refit'] / np.median(t_i):.1f} % "
+                  f"of identify: the cost when identify's own search is handed over)",
                   ""]
     lines += ["## Summary (K)", ""] + summary + [
         "", "units: K N m/rad, viscosity N m s/rad, reflex gain N m s/rad, threshold rad/s",
