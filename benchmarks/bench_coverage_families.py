@@ -25,8 +25,9 @@ median half-width (absolute and % of the estimate), median |error| %; the cost o
 structural term against the identification.
 
 Run: nice python benchmarks/bench_coverage_families.py [n_seeds] [--first-seed S] [family ...]
-(default 20 seeds of each family from seed 0; writes benchmarks/results/coverage_families.txt,
-or coverage_families_seeds<S>.txt: the rule was chosen on seeds 0-19, seeds 20-39 check it)
+(default 20 seeds of each family from seed 0; writes benchmarks/results/coverage_families.txt;
+with --first-seed S the run is recorded below that table as a check on fresh seeds: the rule
+was chosen on seeds 0-19, seeds 20-39 check it)
 """
 
 from __future__ import annotations
@@ -157,8 +158,24 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0):
         "", "units: K N m/rad, viscosity N m s/rad, reflex gain N m s/rad, threshold rad/s",
         f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
         f"load {load0:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; wall time {(time.time() - t0) / 60:.1f} min"]
-    write_results("coverage_families.txt" if not first_seed else f"coverage_families_seeds{first_seed}.txt", lines,
-                  echo=True)
+    write_results("coverage_families.txt", _merged(lines, first_seed), echo=True)
+
+
+CHECK_MARK = "# Check on fresh seeds"
+
+
+def _merged(lines, first_seed):
+    """The file's lines: a run from seed 0 replaces the table and keeps the fresh-seed check
+    below it; a run from another seed (the check) replaces that check, under a heading of
+    its own, and keeps the table above it (one file, which the docs' results page shows)."""
+    path = ROOT / "benchmarks" / "results" / "coverage_families.txt"
+    old = path.read_text().splitlines() if path.exists() else []
+    cut = next((i for i, x in enumerate(old) if x.startswith(CHECK_MARK)), len(old))
+    if not first_seed:
+        return lines + ([""] + old[cut:] if cut < len(old) else [])
+    check = [f"{CHECK_MARK} (the rule was chosen on the seeds above)", ""] + ["#" + x if x.startswith("#") else x
+                                                                               for x in lines]
+    return (old[:cut] or ["(no run from seed 0 recorded yet)"]) + [""] + check
 
 
 if __name__ == "__main__":
