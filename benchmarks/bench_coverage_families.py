@@ -24,10 +24,11 @@ them). Coverage % pooled over seeds and positions, seeds with every position cov
 median half-width (absolute and % of the estimate), median |error| %; the cost of the
 structural term against the identification.
 
-Run: nice python benchmarks/bench_coverage_families.py [n_seeds] [--first-seed S] [family ...]
+Run: nice python benchmarks/bench_coverage_families.py [n_seeds] [--first-seed S] [--files-fs 100] [family ...]
 (default 20 seeds of each family from seed 0; writes benchmarks/results/coverage_families.txt;
-with --first-seed S the run is recorded below that table as a check on fresh seeds: the rule
-was chosen on seeds 0-19, seeds 20-39 check it)
+with --first-seed S (a check on fresh seeds: the rule was chosen on seeds 0-19) or --files-fs
+100 (100 Hz files: the reflex on the model-rate velocity, identify's own selection runs) the
+run is recorded as its own section below that table)
 """
 
 from __future__ import annotations
@@ -66,14 +67,14 @@ def _bands(est, se, spec, struct):
     return out
 
 
-def one_seed(family, seed):
+def one_seed(family, seed, files_fs=1000.0):
     truth = SubjectParams().with_stiffness_family(family)
-    pair = simulate_pair("multilevel", seed=seed, fs_out=1000.0, stiffness_family=family)
+    pair = simulate_pair("multilevel", seed=seed, fs_out=files_fs, stiffness_family=family)
     d = pair_trials(pair.pt, pair.ut)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # physiology notes on the unusual families
         t = time.perf_counter()
-        model = identify(d, structure="cv", high_rate_reflex=True)
+        model = identify(d, structure="cv", high_rate_reflex=True)  # 100 Hz files: model-rate reflex, selection runs
         t_ident = time.perf_counter() - t
         t = time.perf_counter()
         add_structural_uncertainty(model, d)
@@ -106,20 +107,20 @@ def one_seed(family, seed):
             "selection": model.fit.get("structure_selection", {}).get("skipped", "ran")}
 
 
-def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0):
+def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0, files_fs=1000.0):
     t0 = time.time()
     load0 = os.getloadavg()[0]
-    opt = f" --first-seed {first_seed}" if first_seed else ""
+    opt = (f" --first-seed {first_seed}" if first_seed else "") + (f" --files-fs {files_fs:g}" if files_fs != 1000.0 else "")
     lines = [f"# Interval coverage on three stiffness families (nice python benchmarks/bench_coverage_families.py "
              f"{n_seeds}{opt}{' ' + ' '.join(families) if tuple(families) != STIFFNESS_FAMILIES else ''})", "",
-             f"2-minute multilevel pairs at 1 kHz (18 dB), model at 100 Hz, identify(structure='cv', "
-             f"high_rate_reflex=True); {n_seeds} seeds per family (seeds {first_seed}..{first_seed + n_seeds - 1}), {N_POS} positions per seed over the central 80 % "
+             f"2-minute multilevel pairs at {files_fs:g} Hz (18 dB), model at 100 Hz, identify(structure='cv', "
+             f"high_rate_reflex=True: {'the 1 kHz' if files_fs > 100 else 'the model-rate'} velocity); {n_seeds} seeds per family (seeds {first_seed}..{first_seed + n_seeds - 1}), {N_POS} positions per seed over the central 80 % "
              f"of the identified range; 95 % intervals", ""]
     summary = []
     for family in families:
         results = []
         for seed in range(first_seed, first_seed + n_seeds):
-            r = one_seed(family, seed)
+            r = one_seed(family, seed, files_fs)
             results.append(r)
             cov = {k: np.mean((lo <= tr) & (tr <= hi)) for k, (est, lo, hi, tr) in r["rows"].items()}
             print(f"{family} seed {seed}: " + ", ".join(f"{k} {100 * v:.0f}" for k, v in cov.items())
@@ -158,24 +159,29 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0):
         "", "units: K N m/rad, viscosity N m s/rad, reflex gain N m s/rad, threshold rad/s",
         f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
         f"load {load0:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; wall time {(time.time() - t0) / 60:.1f} min"]
-    write_results("coverage_families.txt", _merged(lines, first_seed), echo=True)
+    write_results("coverage_families.txt", _merged(lines, opt.strip()), echo=True)
 
 
-CHECK_MARK = "# Check on fresh seeds"
+SECTION = "# Also recorded: "
 
 
-def _merged(lines, first_seed):
-    """The file's lines: a run from seed 0 replaces the table and keeps the fresh-seed check
-    below it; a run from another seed (the check) replaces that check, under a heading of
-    its own, and keeps the table above it (one file, which the docs' results page shows)."""
+def _merged(lines, options):
+    """The file's lines (one file, which the docs' results page shows): the default run
+    replaces the main table and keeps the other runs' sections below it; a run with
+    ``options`` (fresh seeds, 100 Hz files) replaces its own section and keeps the rest."""
     path = ROOT / "benchmarks" / "results" / "coverage_families.txt"
     old = path.read_text().splitlines() if path.exists() else []
-    cut = next((i for i, x in enumerate(old) if x.startswith(CHECK_MARK)), len(old))
-    if not first_seed:
-        return lines + ([""] + old[cut:] if cut < len(old) else [])
-    check = [f"{CHECK_MARK} (the rule was chosen on the seeds above)", ""] + ["#" + x if x.startswith("#") else x
-                                                                               for x in lines]
-    return (old[:cut] or ["(no run from seed 0 recorded yet)"]) + [""] + check
+    starts = [i for i, x in enumerate(old) if x.startswith(SECTION)] + [len(old)]
+    head, sections = old[: starts[0]], {old[a]: old[a:b] for a, b in zip(starts, starts[1:])}
+    if not options:
+        return lines + [x for sec in sections.values() for x in [""] + sec]
+    what = ("a check on fresh seeds (the rule was chosen on seeds 0-19)" if "--first-seed" in options
+            else "files at the model's rate (identify's selection runs)")
+    key = f"{SECTION}{options}: {what}"
+    sections[key] = [key, ""] + ["#" + x if x.startswith("#") else x for x in lines]
+    while head and not head[-1]:
+        head = head[:-1]
+    return (head or ["(no default run recorded yet)"]) + [x for sec in sections.values() for x in [""] + sec]
 
 
 if __name__ == "__main__":
@@ -185,5 +191,10 @@ if __name__ == "__main__":
         i = args.index("--first-seed")
         first = int(args[i + 1])
         del args[i:i + 2]
+    files_fs = 1000.0
+    if "--files-fs" in args:  # 100: files at the model's rate, where identify's own selection runs
+        i = args.index("--files-fs")
+        files_fs = float(args[i + 1])
+        del args[i:i + 2]
     n = int(args[0]) if args else 20
-    main(n, tuple(args[1:]) or STIFFNESS_FAMILIES, first)
+    main(n, tuple(args[1:]) or STIFFNESS_FAMILIES, first, files_fs)

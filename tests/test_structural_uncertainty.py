@@ -107,6 +107,7 @@ def test_the_model_file_records_the_structural_term_and_round_trips(piecewise, t
     model.save(path)
     loaded = LPVPCModel.load(path)
     assert "cross-validated" in loaded.uncertainty["structural"]["method"]
+    assert loaded.interval_terms[-1] == "near-equivalent structures of the cross-validation"
     a, b = model.elastic_stiffness_interval(rho), loaded.elastic_stiffness_interval(rho)
     assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
     loaded.save(tmp_path / "again.json")
@@ -122,5 +123,6 @@ def test_a_model_without_intervals_gets_a_clear_error(piecewise):
     d, model, _, _, _ = piecewise
     bare = copy.deepcopy(model)
     bare.uncertainty = {}
+    assert bare.interval_terms == []
     with pytest.raises(ModelFileError, match="carries no uncertainty"):
         add_structural_uncertainty(bare, d)
