@@ -26,10 +26,9 @@ Derived quantities:
   :func:`structural_bias_bound`: the sum of the shifts of the quantity when the IRF is
   one lag shorter on each side and when the scheduling basis is one order higher (each
   refitted to the same intrinsic torque) bounds the bias; and, when the model stores it
-  (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`), the larger of that
-  bound and the spread over the structures cross-validation cannot tell apart, which
-  holds on stiffness curves the basis cannot represent (K coverage 95-97 % on three
-  families: ``benchmarks/results/coverage_families.txt``);
+  (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`), plus the spread over
+  the structures cross-validation cannot tell apart, which holds on stiffness curves the
+  basis cannot represent (``benchmarks/results/coverage_families.txt``);
 - reflex gain and threshold come from a half-wave-rectifier fit to the scaled
   nonlinearity (:meth:`lpvpc.model.LPVPCModel.reflex_gain_threshold`): the delta method
   through the product of the nonlinearity and the dynamics' DC gain (only the product is
@@ -341,10 +340,11 @@ def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
     (True, True)
     """
     est, se, bias = intrinsic_interval_parts(model, quantity, rho)
-    # The near-equivalent structures vary the IRF length and the basis orders, the same parts
-    # the neighbouring specifications vary: two bounds of one bias, so the larger (their sum
-    # over-covered: K 100 % on the sum-of-exponentials family, coverage_families.txt)
-    half = bias_aware_critical_value(np.maximum(bias["specification"], bias["structures"])
+    # The two bounds see different parts of the bias (the neighbours: a short IRF's and a
+    # richer basis's shift of this fit; the structures: what the CV cannot decide), so they
+    # add. The larger of the two alone under-covered the piecewise K on 100 Hz files (88 %,
+    # 1 of 20 seeds fully covered; benchmarks/results/coverage_families.txt)
+    half = bias_aware_critical_value((bias["specification"] + bias["structures"])
                                      / np.maximum(se, 1e-300), level) * se
     return est, est - half, est + half
 
@@ -352,7 +352,7 @@ def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
 def intrinsic_interval_parts(model, quantity: str, rho):
     """(estimate, standard error, {"specification": ..., "structures": ...}) of an intrinsic
     quantity at ``rho``: the HAC standard error of the noise, and the two structural bias
-    bounds of which :func:`intrinsic_interval` takes the larger: :func:`structural_bias_bound`
+    bounds that :func:`intrinsic_interval` adds: :func:`structural_bias_bound`
     (the IRF one lag shorter, the basis one order higher) and
     :func:`structural_shift` (the structures cross-validation
     cannot tell apart; zeros unless stored). All in the quantity's units."""

@@ -126,3 +126,11 @@ def test_a_model_without_intervals_gets_a_clear_error(piecewise):
     assert bare.interval_terms == []
     with pytest.raises(ModelFileError, match="carries no uncertainty"):
         add_structural_uncertainty(bare, d)
+
+
+def test_a_non_polynomial_basis_is_refused_with_the_reason(piecewise):
+    d, model, _, _, _ = piecewise
+    other = copy.deepcopy(model)
+    other.settings["basis"] = "gaussian"
+    with pytest.raises(ValueError, match="needs polynomial bases.*'gaussian' in position"):
+        add_structural_uncertainty(other, d)
