@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["add_structural_uncertainty", "structural_term", "structure_search", "near_equivalent"]
+
 METHOD = ("spread of the IRF's quantities over the structures within one standard error of the best "
           "cross-validated one (leave-one-level-out), each refitted to the record with the reflex dynamics held")
 MAX_STRUCTURES = 24  # the near-equivalent structures kept (closest in CV error first)
@@ -59,9 +61,25 @@ def _start(model) -> dict:
 
 
 def structure_search(model, data):
-    """A :class:`lpvpc.selection.StructureSearch` on ``data`` (the record the model was
-    identified from, at the model's rate) with the model's reflex dynamics, and the model's
-    structure as its start; the settings the model fixed stay fixed."""
+    """(search, start, fixed): a :class:`lpvpc.selection.StructureSearch` on ``data`` (the
+    record the model was identified from, at the model's rate) with the model's reflex
+    dynamics, the model's structure as its start and the settings the model fixed.
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(d)
+    >>> search, start, fixed = structure_search(model, d)
+    >>> selection = search.run(start, fixed)
+    >>> near = near_equivalent(search, selection)  # within one SE of the best CV structure
+    >>> near[0].settings == selection.best, start["intrinsic_order"] == model.settings["intrinsic_order"]
+    (True, True)
+    """
     from .segments import Segments
     from .selection import SEARCH, StructureSearch
 
@@ -83,7 +101,18 @@ def structure_search(model, data):
 def near_equivalent(search, selection) -> list:
     """The scored structures (lpvpc.selection.Scored) within one standard error of the
     best (the paired standard error over folds of the difference in held-out error, as
-    the one-standard-error rule), closest to the best first."""
+    the one-standard-error rule), closest to the best first (``search`` is not used; kept
+    for symmetry with :func:`structural_term`).
+
+    >>> from lpvpc.selection import Scored, Selection
+    >>> best = Scored({"order": 5}, 60, np.array([1.0, 1.9, 1.4]), 97.1)  # N m^2 per fold, CV VAF %
+    >>> close = Scored({"order": 3}, 40, np.array([1.0, 1.95, 1.35]), 97.0)
+    >>> poor = Scored({"order": 2}, 30, np.array([3.0, 4.0, 5.0]), 90.0)
+    >>> sel = Selection(chosen={"order": 3}, start={"order": 5}, fold_kind="level", n_folds=3,
+    ...                 scored=[best, close, poor], best={"order": 5})
+    >>> [s.settings["order"] for s in near_equivalent(None, sel)]
+    [5, 3]
+    """
     scored = sorted(selection.scored, key=lambda s: -s.cv_vaf)
     best, K = scored[0], selection.n_folds
     out = []
@@ -119,7 +148,21 @@ def _refit_irf(search, settings) -> np.ndarray:
 def structural_term(model, data, search=None, selection=None) -> dict:
     """The ``structural`` entry of ``model.uncertainty`` (module docstring) from ``data``,
     the record the model was identified from. ``search``/``selection``: a search already
-    run on these data with these dynamics (identify's), else one is run here."""
+    run on these data with these dynamics (identify's), else one is run here.
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0, stiffness_family="piecewise")
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(d)
+    >>> term = structural_term(model, d)
+    >>> len(term["shifts"]) == len(term["structures"]) > 0, len(term["lags"]) == len(term["shifts"][0])
+    (True, True)
+    """
     if search is None or selection is None:
         search, start, fixed = structure_search(model, data)
         selection = search.run(start, fixed)

@@ -117,12 +117,8 @@ class SubjectParams:
     def with_stiffness_family(self, family: str) -> "SubjectParams":
         """A copy with the elastic stiffness of ``family`` (:data:`STIFFNESS_FAMILIES`);
         "sum_of_exponentials" sets :data:`SUM_OF_EXPONENTIALS`, "standard" the defaults'
-        values; every other parameter is kept.
-
-        >>> p = SubjectParams().with_stiffness_family("piecewise")
-        >>> [round(float(k), 1) for k in p.K([-0.4, -0.15, 0.2])]  # N m/rad at the knots
-        [45.0, 25.0, 150.0]
-        """
+        values; every other parameter is kept (examples: tests/test_simulate.py, whose
+        example of SubjectParams is registered in tests/test_examples.py)."""
         if family not in STIFFNESS_FAMILIES:
             raise ValueError(f"unknown stiffness family {family!r}; use one of {list(STIFFNESS_FAMILIES)}")
         d = SubjectParams()
