@@ -224,11 +224,17 @@ def cmd_simulate(args) -> int:
         raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
     if args.duration * args.fs < 100:
         raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
+    from .subject import STIFFNESS_FAMILIES
+
+    if args.stiffness_family not in STIFFNESS_FAMILIES:
+        raise _UsageError(f"unknown stiffness family {args.stiffness_family!r} (known: {', '.join(STIFFNESS_FAMILIES)})")
     paths = write_dataset(args.out, seed=args.seed, fs_out=args.fs, snr_db=args.snr,
-                          effects=tuple(args.effect), duration=args.duration, perturbation=args.perturbation)
+                          effects=tuple(args.effect), duration=args.duration, perturbation=args.perturbation,
+                          stiffness_family=args.stiffness_family)
     effects = f", effects: {', '.join(args.effect)}" if args.effect else ""
     print(f"virtual subject, seed {args.seed}, {args.duration:g} s at {args.fs:g} Hz, SNR {args.snr:g} dB, "
-          f"perturbation {args.perturbation}{effects}")
+          f"perturbation {args.perturbation}{effects}"
+          + ("" if args.stiffness_family == "standard" else f", stiffness {args.stiffness_family}"))
     for path in paths.values():
         print(path)
     return 0
@@ -885,6 +891,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pralds: levels uniform in +-0.04 rad (default); lab_pulses: the lab pilot trial's "
                         "design, holds alternating between 0 and +-0.02..0.04 rad; prbs: +-0.04 rad switching "
                         "every 50-150 ms (no quiet windows)")
+    p.add_argument("--stiffness-family", default="standard", metavar="NAME",
+                   help="shape of the elastic stiffness K(theta): standard (default), sum_of_exponentials "
+                        "(steeper textbook form), piecewise (piecewise linear with a kink)")
     p.set_defaults(func=cmd_simulate)
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 

@@ -485,10 +485,26 @@ class LPVPCModel:
         """True when the model carries the covariance the ``*_interval`` methods need."""
         return bool(self.uncertainty)
 
+    @property
+    def interval_terms(self) -> list:
+        """What the K, viscosity and inertia intervals include: the noise, the neighbouring
+        specifications' bias bound and, when stored
+        (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`), the spread over
+        the structures cross-validation cannot tell apart. Empty without intervals."""
+        if not self.uncertainty:
+            return []
+        terms = ["noise (HAC sandwich)"]
+        if self.uncertainty.get("truncation") or self.uncertainty.get("richer_basis"):
+            terms.append("neighbouring specifications (IRF one lag shorter, basis one order higher)")
+        if self.uncertainty.get("structural"):
+            terms.append("near-equivalent structures of the cross-validation")
+        return terms
+
     def elastic_stiffness_interval(self, theta, level: float = 0.95):
         """Interval (unpacks as lower, upper arrays) (N m/rad) of the ``level`` confidence interval of K(theta)
         at positions ``theta`` (rad). HAC covariance of the final least squares (correlated
-        residuals respected); see :mod:`lpvpc.uncertainty` for what it leaves out."""
+        residuals respected), widened for the structural bias (:attr:`interval_terms`); see
+        :mod:`lpvpc.uncertainty` for what it leaves out."""
         return _interval_pair(self, "stiffness", theta, level)
 
     def viscosity_interval(self, theta, level: float = 0.95):

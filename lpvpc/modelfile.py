@@ -446,11 +446,32 @@ def _check_uncertainty(x, where, problems, d, budget):
                 flags = r.get(key)
                 if not isinstance(flags, list) or len(flags) != len(rho) or not all(isinstance(b, bool) for b in flags):
                     problems.append(f"{where}.reflex_determined.{key} must be a list of {len(rho)} true/false values")
+    if "structural" in u:
+        _check_structural(u["structural"], f"{where}.structural", problems, budget)
     v = _dict(u.get("vaf"), f"{where}.vaf", problems, required=True)
     for key in ("estimate", "lower", "upper"):
         _number(v.get(key), f"{where}.vaf.{key}", problems)
     _number(v.get("level"), f"{where}.vaf.level", problems, lo=0.0, hi=1.0, limit="a probability")
     _number(u.get("block_length_s"), f"{where}.block_length_s", problems, lo=0.0)
+
+
+def _check_structural(x, where, problems, budget):
+    """The structural term of the intrinsic intervals (:mod:`lpvpc.structural_uncertainty`):
+    one IRF-weight shift per near-equivalent structure, on one basis and lag set."""
+    from .structural_uncertainty import MAX_STRUCTURES
+
+    st = _dict(x, where, problems, required=True)
+    n_b = _basis(st.get("basis"), f"{where}.basis", problems)
+    lags = _lags(st.get("lags"), f"{where}.lags", problems, -MAX_LAG)
+    shifts = st.get("shifts")
+    if not isinstance(shifts, list) or len(shifts) > MAX_STRUCTURES:
+        problems.append(f"{where}.shifts must be a list of at most MAX_STRUCTURES = {MAX_STRUCTURES} IRF shifts")
+        raise _Refused
+    for i, h in enumerate(shifts):
+        _shape(_array(h, f"{where}.shifts[{i}]", problems, 2, budget), (len(lags), n_b), f"{where}.shifts[{i}]",
+               problems)
+    if not isinstance(st.get("structures"), list) or len(st["structures"]) != len(shifts):
+        problems.append(f"{where}.structures must list the {len(shifts)} structures of the shifts")
 
 
 def _check_effects(x, where, problems, d, budget):

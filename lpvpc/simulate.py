@@ -122,7 +122,8 @@ def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
 def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: float = 120.0,
                   fs_out: float = 1000.0, snr_db: float = 18.0,
                   perturbation_amplitude: float = 0.04, params: SubjectParams | None = None,
-                  effects=(), emg_unit: str = "V", perturbation: str = "pralds") -> SimulatedPair:
+                  effects=(), emg_unit: str = "V", perturbation: str = "pralds",
+                  stiffness_family: str | None = None) -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
     ``trajectory``: "multilevel" (identification), "novel" (held-out shapes that also
@@ -139,7 +140,11 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
     quantisation is negligible next to the torque noise). Both trials carry channel
     'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
-    in ``emg_unit`` ("V", "mV" or "uV").
+    in ``emg_unit`` ("V", "mV" or "uV"). ``stiffness_family``: the subject's elastic
+    stiffness shape (:data:`lpvpc.subject.STIFFNESS_FAMILIES`; None: that of ``params``,
+    "standard" by default), set with :meth:`SubjectParams.with_stiffness_family`; it draws
+    no random numbers, so a seed gives the same trajectory, perturbation and noise streams
+    in every family.
     """
     if emg_unit not in EMG_UNITS:
         raise ValueError(f"unknown EMG unit {emg_unit!r}; use one of {sorted(EMG_UNITS)}")
@@ -149,6 +154,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         raise ValueError(f"unknown perturbation {perturbation!r}; use one of {sorted(PERTURBATIONS)}")
     effects = _check_effects(effects)
     params = params or SubjectParams()
+    if stiffness_family is not None:
+        params = params.with_stiffness_family(stiffness_family)
     fs = FS_SIM
     q = fs / fs_out
     if fs_out <= 0 or abs(q - round(q)) > 1e-9:
@@ -269,7 +276,7 @@ def _save_truth_npz(path, pair: SimulatedPair):
 
 def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: float = 18.0,
                   effects=(), duration: float = 120.0, params: SubjectParams | None = None,
-                  perturbation: str = "pralds") -> dict:
+                  perturbation: str = "pralds", stiffness_family: str | None = None) -> dict:
     """Write an identification pair and a novel (held-out) pair with their truth.
 
     Files in ``out_dir``: ident_PT.csv, ident_UT.csv, novel_PT.csv, novel_UT.csv
@@ -277,11 +284,13 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
     (parameters, curves, per-pair truth) and truth_ident.npz / truth_novel.npz (time,
     positions, clean PT/UT torques, the four components and the perturbation intrinsic
     and reflex torques, all at the output rate). ``perturbation`` as in
-    :func:`simulate_pair`. Returns {stem: Path}.
+    :func:`simulate_pair`, and ``stiffness_family``. Returns {stem: Path}.
     """
+    params = params or SubjectParams()
+    if stiffness_family is not None:
+        params = params.with_stiffness_family(stiffness_family)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    params = params or SubjectParams()
     paths, truth = {}, {"params": params.to_dict(), "curves": params.curves(),
                         "units": {"time": "s", "position": "rad", "torque": "N m",
                                   "command": "rad", "emg": "V"}}

@@ -9,7 +9,7 @@ N m s/rad, inertia kg m^2. Used by every element of the simulation (:mod:`lpvpc.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -21,6 +21,18 @@ THETA_PF = -0.4  # rad, most plantarflexed level
 THETA_DF = 0.2  # rad, most dorsiflexed level
 
 _EXP_MAX = 700.0  # keeps np.exp finite for absurd angles (no overflow warnings)
+
+#: Elastic stiffness families of the virtual subject (SubjectParams.stiffness_family):
+#: "standard" (today's smooth sum of exponentials, which the position basis holds to < 0.5 %
+#: at order 4), "sum_of_exponentials" (the textbook form with steeper ends: a Chebyshev basis of
+#: order 4-5 misses it by 5-7 % over the central 80 % of the range) and "piecewise"
+#: (piecewise-linear K with a kink near its minimum: 20-35 % at orders 4-7).
+STIFFNESS_FAMILIES = ("standard", "sum_of_exponentials", "piecewise")
+
+#: The textbook sum of exponentials (k_base, k_df, k_df_rate, k_pf, k_pf_rate): 20 N m/rad
+#: plus 160 N m/rad at +0.2 rad decaying at 14/rad and 45 N m/rad at -0.4 rad decaying at
+#: 18/rad (K 22..180 N m/rad, minimum near -0.14 rad).
+SUM_OF_EXPONENTIALS = {"k_base": 20.0, "k_df": 160.0, "k_df_rate": 14.0, "k_pf": 45.0, "k_pf_rate": 18.0}
 
 
 def _exp(x):
@@ -47,6 +59,12 @@ class SubjectParams:
     (dorsiflexion) and of the anterior structures (plantarflexion).
     ``elastic_torque`` is its exact integral, zero at ``elastic_rest``.
 
+    ``stiffness_family`` (:data:`STIFFNESS_FAMILIES`) picks the shape of K(theta); build
+    another family with :meth:`with_stiffness_family` (it sets that family's values).
+    "piecewise" is linear between ``k_knots`` (rad) with values ``k_values`` (N m/rad),
+    continued linearly beyond the end knots; its elastic torque (piecewise quadratic) is
+    continuous.
+
     Reflex nonlinearity: half-wave rectifier of delayed velocity with gain ``G(theta)``
     (exponential from ``reflex_gain_pf`` at theta_pf to ``reflex_gain_df`` at theta_df)
     and threshold ``th(theta)`` (linear from ``reflex_threshold_pf`` to
@@ -64,6 +82,9 @@ class SubjectParams:
     theta_df: float = THETA_DF  # rad, reference angle of the dorsiflexion end
     theta_pf: float = THETA_PF  # rad, reference angle of the plantarflexion end
     elastic_rest: float = -0.2  # rad, angle where the elastic torque is zero (passive rest)
+    stiffness_family: str = "standard"  # shape of K(theta): one of STIFFNESS_FAMILIES
+    k_knots: tuple = (-0.4, -0.15, 0.2)  # rad, knots of the "piecewise" K (the kink at -0.15)
+    k_values: tuple = (45.0, 25.0, 150.0)  # N m/rad, the "piecewise" K at its knots
     # reflex pathway
     reflex_delay: float = 0.040  # s, stretch-reflex loop delay
     reflex_gain_pf: float = 2.0  # N m s/rad, rectifier slope at theta_pf
@@ -93,9 +114,43 @@ class SubjectParams:
     noise_order: int = 2  # order of that filter
 
     # -- intrinsic --------------------------------------------------------------------
+    def with_stiffness_family(self, family: str) -> "SubjectParams":
+        """A copy with the elastic stiffness of ``family`` (:data:`STIFFNESS_FAMILIES`);
+        "sum_of_exponentials" sets :data:`SUM_OF_EXPONENTIALS`, "standard" the defaults'
+        values; every other parameter is kept (examples: tests/test_simulate.py, whose
+        example of SubjectParams is registered in tests/test_examples.py)."""
+        if family not in STIFFNESS_FAMILIES:
+            raise ValueError(f"unknown stiffness family {family!r}; use one of {list(STIFFNESS_FAMILIES)}")
+        d = SubjectParams()
+        values = {k: getattr(d, k) for k in SUM_OF_EXPONENTIALS}
+        if family == "sum_of_exponentials":
+            values = dict(SUM_OF_EXPONENTIALS)
+        return replace(self, stiffness_family=family, **values)
+
+    def _check_family(self):
+        if self.stiffness_family not in STIFFNESS_FAMILIES:
+            raise ValueError(f"unknown stiffness family {self.stiffness_family!r}; use one of "
+                             f"{list(STIFFNESS_FAMILIES)}")
+        if self.stiffness_family == "piecewise":
+            x = np.asarray(self.k_knots, dtype=float)
+            if len(x) < 2 or len(x) != len(self.k_values) or np.any(np.diff(x) <= 0):
+                raise ValueError("piecewise stiffness needs >= 2 increasing k_knots and as many k_values")
+
+    def _piecewise(self, theta):
+        """(K, integral of K from the first knot) of the piecewise-linear family at ``theta``."""
+        x, k = np.asarray(self.k_knots, dtype=float), np.asarray(self.k_values, dtype=float)
+        slope = np.diff(k) / np.diff(x)
+        at_knot = np.concatenate([[0.0], np.cumsum(np.diff(x) * (k[:-1] + 0.5 * slope * np.diff(x)))])
+        i = np.clip(np.searchsorted(x, theta, side="right") - 1, 0, len(x) - 2)  # end segments continue
+        u = theta - x[i]
+        return k[i] + slope[i] * u, at_knot[i] + k[i] * u + 0.5 * slope[i] * u * u
+
     def K(self, theta):
         """Elastic stiffness dE/dtheta (N m/rad) at joint angle ``theta`` (rad)."""
         theta = np.asarray(theta, dtype=float)
+        self._check_family()
+        if self.stiffness_family == "piecewise":
+            return self._piecewise(theta)[0]
         return (
             self.k_base
             + self.k_df * _exp(self.k_df_rate * (theta - self.theta_df))
@@ -114,6 +169,14 @@ class SubjectParams:
         = 1 + x^2/10 + ... (and ``amplitude`` -> 0 gives K).
         """
         theta = np.asarray(theta, dtype=float)
+        self._check_family()
+        if self.stiffness_family == "piecewise":  # no closed form: Gauss-Legendre over s in +-amplitude
+            if amplitude <= 0:
+                return self.K(theta)
+            s, w = np.polynomial.legendre.leggauss(400)
+            s, w = amplitude * s, amplitude * w
+            dE = self.elastic_torque(theta[..., None] + s) - self.elastic_torque(theta)[..., None]
+            return 1.5 / amplitude ** 3 * np.sum(w * s * dE, axis=-1)
 
         def phi(x):
             return 1.0 + x * x / 10.0 if x < 1e-3 else 3.0 * (x * np.cosh(x) - np.sinh(x)) / x**3
@@ -126,6 +189,9 @@ class SubjectParams:
 
     def _E_unshifted(self, theta):
         theta = np.asarray(theta, dtype=float)
+        self._check_family()
+        if self.stiffness_family == "piecewise":
+            return self._piecewise(theta)[1]
         return (
             self.k_base * theta
             + self.k_df / self.k_df_rate * _exp(self.k_df_rate * (theta - self.theta_df))

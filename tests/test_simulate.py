@@ -387,3 +387,75 @@ def test_background_activation_is_own_per_trial_unless_shared_and_its_speed_and_
                        params=SubjectParams(activation_cutoff=0.5, activation_stiffness_gain=1.5))
     eff = pr.truth["effects"][0]["parameters"]
     assert eff["cutoff_hz"] == 0.5 and eff["perturbation_stiffness_scale"] == "1 + 1.5 a"
+
+
+# ---- stiffness families (issue 22: curves the position basis cannot hold) -------------------
+
+
+@pytest.mark.parametrize("family", ["standard", "sum_of_exponentials", "piecewise"])
+def test_each_stiffness_family_has_its_elastic_torque_as_exact_integral_and_a_realistic_K(family):
+    p = SubjectParams().with_stiffness_family(family)
+    th = np.linspace(-0.4, 0.2, 6001)  # rad, the identified range
+    K = p.K(th)
+    assert np.all((K > 15.0) & (K < 220.0))  # N m/rad: realistic ankle values
+    assert K[np.argmin(np.abs(th - 0.2))] > 3 * K.min()  # rises toward dorsiflexion
+    E = p.elastic_torque(th)
+    dE = np.gradient(E, th)
+    assert np.max(np.abs(dE[1:-1] - K[1:-1])) < 0.02  # continuous torque whose slope is K
+    assert abs(float(p.elastic_torque(p.elastic_rest))) < 1e-12
+    # the perturbation-amplitude stiffness tends to the tangent for small amplitudes
+    off_knots = np.array([-0.33, -0.07, 0.11])  # rad
+    assert np.allclose(p.incremental_stiffness(off_knots, 1e-4), p.K(off_knots), rtol=1e-5)
+
+
+def test_piecewise_family_has_a_kink_and_its_incremental_stiffness_averages_it():
+    p = SubjectParams().with_stiffness_family("piecewise")
+    kink = p.k_knots[1]
+    left = (p.K(kink) - p.K(kink - 0.01)) / 0.01
+    right = (p.K(kink + 0.01) - p.K(kink)) / 0.01
+    assert left < 0 < right  # slope changes sign: a kink, not a smooth minimum
+    # at the kink the +-0.04 rad perturbation sees more than the tangent minimum (both sides rise)
+    assert float(p.incremental_stiffness(kink, 0.04)) > float(p.K(kink)) + 1.0
+    # away from the knots K is linear, so the least-squares slope equals the tangent
+    assert np.isclose(float(p.incremental_stiffness(0.05, 0.04)), float(p.K(0.05)), rtol=1e-6)
+
+
+def test_sum_of_exponentials_family_is_not_held_by_a_quartic():
+    th = np.linspace(-0.4, 0.2, 601)  # rad, the identified range
+    central = np.abs(th + 0.1) <= 0.24  # its central 80 %
+    for family, worst in (("standard", 0.01), ("sum_of_exponentials", 0.03)):
+        K = SubjectParams().with_stiffness_family(family).K(th)
+        fit = np.polynomial.chebyshev.Chebyshev.fit(th, K, 4)(th)
+        err = np.max(np.abs(fit / K - 1)[central])
+        assert (err < worst) if family == "standard" else (err > worst)
+
+
+def test_stiffness_family_keeps_the_random_streams_and_changes_only_the_elastic_torque():
+    a = simulate_pair("multilevel", seed=4, duration=20.0, fs_out=100.0)
+    b = simulate_pair("multilevel", seed=4, duration=20.0, fs_out=100.0, stiffness_family="piecewise")
+    assert np.array_equal(a.pt.position, b.pt.position) and np.array_equal(a.ut.position, b.ut.position)
+    noise_a, noise_b = a.pt.torque - a.pt_clean.torque, b.pt.torque - b.pt_clean.torque
+    assert np.corrcoef(noise_a, noise_b)[0, 1] > 0.999  # same noise stream (scaled to the SNR)
+    assert not np.allclose(a.components["pt_intrinsic"], b.components["pt_intrinsic"])
+    assert np.allclose(a.components["pt_reflex"], b.components["pt_reflex"])
+    assert b.truth["params"]["stiffness_family"] == "piecewise"
+    th = np.array(b.truth["curves"]["theta"])
+    assert np.allclose(b.truth["curves"]["K"], SubjectParams().with_stiffness_family("piecewise").K(th))
+    default = simulate_pair("multilevel", seed=4, duration=20.0, fs_out=100.0, stiffness_family="standard")
+    assert np.array_equal(default.pt.torque, a.pt.torque)  # the default is today's subject
+    with pytest.raises(ValueError, match="unknown stiffness family 'cubic'"):
+        simulate_pair("multilevel", seed=4, duration=20.0, fs_out=100.0, stiffness_family="cubic")
+
+
+def test_cli_simulate_writes_the_chosen_stiffness_family_and_refuses_an_unknown_one(tmp_path, capsys):
+    from lpvpc.cli import main
+
+    assert main(["simulate", "--out", str(tmp_path / "d"), "--duration", "5", "--fs", "100",
+                 "--stiffness-family", "sum_of_exponentials"]) == 0
+    truth = json.loads((tmp_path / "d" / "truth.json").read_text())
+    assert truth["params"]["stiffness_family"] == "sum_of_exponentials"
+    assert truth["params"]["k_df_rate"] == 14.0
+    capsys.readouterr()
+    assert main(["simulate", "--out", str(tmp_path / "e"), "--stiffness-family", "cubic"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown stiffness family 'cubic'" in err[0]

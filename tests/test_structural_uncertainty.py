@@ -1,0 +1,136 @@
+"""The structural term of the intrinsic intervals (lpvpc.structural_uncertainty): the spread
+over the structures cross-validation cannot tell apart, on stiffness families the position
+basis cannot hold."""
+
+import copy
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from lpvpc.data import pair_trials
+from lpvpc.errors import ModelFileError
+from lpvpc.identify import identify
+from lpvpc.model import LPVPCModel
+from lpvpc.simulate import SubjectParams, simulate_pair
+from lpvpc.structural_uncertainty import (
+    add_structural_uncertainty,
+    near_equivalent,
+    structural_term,
+    structure_search,
+)
+from lpvpc.uncertainty import intrinsic_interval_parts, structural_shift
+
+N_POS = 9
+
+
+def _fit(family, seed):
+    """A 2-minute record of ``family`` at 100 Hz (identify's selection runs on this path),
+    identified with structure='cv'; (data, model, truth K at the perturbation amplitude, rho)."""
+    sim = simulate_pair("multilevel", seed=seed, fs_out=100.0, stiffness_family=family)
+    d = pair_trials(sim.pt, sim.ut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(d, structure="cv")
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)  # central 80 %
+    K_true = SubjectParams().with_stiffness_family(family).incremental_stiffness(rho, 0.04)
+    return d, model, K_true, rho
+
+
+@pytest.fixture(scope="module")
+def piecewise():
+    d, model, K_true, rho = _fit("piecewise", 1)
+    before = model.elastic_stiffness_interval(rho)
+    add_structural_uncertainty(model, d)
+    return d, model, K_true, rho, before
+
+
+def _covered(interval, truth):
+    return (interval.lower <= truth) & (truth <= interval.upper)
+
+
+def test_on_a_kinked_stiffness_the_structural_interval_covers_where_the_noise_intervals_do_not(piecewise):
+    d, model, K_true, rho, before = piecewise
+    assert model.fit["structure_selection"].get("chosen")  # identify's cross-validation ran
+    after = model.elastic_stiffness_interval(rho)
+    est, se, bias = intrinsic_interval_parts(model, "stiffness", rho)
+    noise_only = (est - 1.96 * se, est + 1.96 * se)
+    # the basis cannot follow the kink: the noise band misses the truth at several positions
+    missed = ~((noise_only[0] <= K_true) & (K_true <= noise_only[1]))
+    assert missed.sum() >= 3
+    # the structures the CV cannot tell apart spread over the miss: the new interval holds the truth
+    assert _covered(after, K_true).mean() >= 8 / 9
+    assert _covered(after, K_true).sum() > _covered(before, K_true).sum()
+    assert np.all(bias["structures"] > 0) and len(model.uncertainty["structural"]["shifts"]) >= 2
+    # it widens, it does not move the estimate
+    assert np.all(after.lower <= before.lower) and np.all(after.upper >= before.upper)
+    assert np.allclose((after.lower + after.upper) / 2, model.elastic_stiffness(rho))
+
+
+def test_where_the_basis_holds_the_structural_term_adds_little():
+    d, model, K_true, rho = _fit("standard", 2)
+    before = model.elastic_stiffness_interval(rho)
+    add_structural_uncertainty(model, d)
+    after = model.elastic_stiffness_interval(rho)
+    ratio = (after.upper - after.lower) / (before.upper - before.lower)
+    assert np.median(ratio) < 1.5
+    assert _covered(after, K_true).mean() >= 8 / 9
+
+
+def test_the_shift_is_the_largest_difference_to_the_model_structure_refitted_alike(piecewise):
+    d, model, _, rho, _ = piecewise
+    search, start, fixed = structure_search(model, d)
+    sel = search.run(start, fixed)
+    again = structural_term(model, d, search, sel)  # a search already run (identify's) is reused
+    assert again["shifts"] == model.uncertainty["structural"]["shifts"]
+    near = near_equivalent(search, sel)
+    assert near[0].settings == sel.best  # the best CV structure leads the near-equivalent ones
+    assert len(again["shifts"]) == len([s for s in near if s.settings != start])
+    # by hand for one structure: the shift of K is the sum over lags of the IRF weights' shift
+    from lpvpc.basis import Basis
+
+    st = model.uncertainty["structural"]
+    G = Basis.from_dict(st["basis"]).evaluate(rho)
+    shifts = np.array([np.asarray(h).sum(axis=0) @ G.T for h in st["shifts"]])
+    assert np.allclose(structural_shift(model, "stiffness", rho), np.abs(shifts).max(axis=0))
+    # no stored structures: no structural term
+    m2 = copy.deepcopy(model)
+    m2.uncertainty["structural"]["shifts"], m2.uncertainty["structural"]["structures"] = [], []
+    assert np.all(structural_shift(m2, "viscosity", rho) == 0)
+
+
+def test_the_model_file_records_the_structural_term_and_round_trips(piecewise, tmp_path):
+    _, model, _, rho, _ = piecewise
+    path = tmp_path / "m.json"
+    model.save(path)
+    loaded = LPVPCModel.load(path)
+    assert "cross-validated" in loaded.uncertainty["structural"]["method"]
+    assert loaded.interval_terms[-1] == "near-equivalent structures of the cross-validation"
+    a, b = model.elastic_stiffness_interval(rho), loaded.elastic_stiffness_interval(rho)
+    assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
+    loaded.save(tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_text() == path.read_text()
+    d = json.loads(path.read_text())
+    d["uncertainty"]["structural"]["shifts"][0] = d["uncertainty"]["structural"]["shifts"][0][:-1]
+    path.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=r"uncertainty\.structural\.shifts\[0\] has shape"):
+        LPVPCModel.load(path)
+
+
+def test_a_model_without_intervals_gets_a_clear_error(piecewise):
+    d, model, _, _, _ = piecewise
+    bare = copy.deepcopy(model)
+    bare.uncertainty = {}
+    assert bare.interval_terms == []
+    with pytest.raises(ModelFileError, match="carries no uncertainty"):
+        add_structural_uncertainty(bare, d)
+
+
+def test_a_non_polynomial_basis_is_refused_with_the_reason(piecewise):
+    d, model, _, _, _ = piecewise
+    other = copy.deepcopy(model)
+    other.settings["basis"] = "gaussian"
+    with pytest.raises(ValueError, match="needs polynomial bases.*'gaussian' in position"):
+        add_structural_uncertainty(other, d)
