@@ -1,4 +1,4 @@
-"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --perturbation NAME | --seeds H0,EFFECT]).
+"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --perturbation NAME | --seeds H0,EFFECT | --activation-why | --relaxation-why]).
 
 1. False alarms: data without a hidden effect, 20 noise seeds: is any candidate significant?
 2. Detection: each catalog effect hidden in the subject (settings candidates: the model is
@@ -502,6 +502,32 @@ def estimate_errors(say, seeds=range(3)):
     say("")
 
 
+def relaxation_why(seeds=range(3)):
+    """``--relaxation-why``: how much torque stress relaxation adds under each design (its
+    share of the torque variance: the subject with the effect minus the same seed without)
+    and how much of it falls in quiet windows (no perturbation movement for 150 ms), 60-s
+    multilevel records. Writes results/diagnose_relaxation.txt."""
+    from lpvpc.effects import quiet_mask
+
+    lines = ["Stress relaxation per perturbation design (python benchmarks/bench_diagnose.py --relaxation-why; "
+             f"60-s multilevel records, seeds {list(seeds)}): the effect's torque (with minus without, same seed) "
+             "in % of the torque variance, the quiet windows' share of the samples and of the effect's variance", "",
+             "| design | seed | effect (% of torque variance) | quiet samples | effect variance in quiet windows |",
+             "|---|---|---|---|---|"]
+    for design in ("pralds", "lab_pulses", "prbs"):
+        for seed in seeds:
+            a, b = (pair_trials(p.pt, p.ut) for p in (
+                simulate_pair("multilevel", seed=seed, duration=60.0, perturbation=design, effects=e)
+                for e in ((), ("stress_relaxation",))))
+            d = b.torque - a.torque
+            d = d - d.mean()
+            q = quiet_mask(a.position, a.fs)
+            lines.append(f"| {design} | {seed} | {100 * d.var() / a.torque.var():.2f} | {100 * q.mean():.0f} % | "
+                         f"{100 * np.sum(d[q] ** 2) / np.sum(d ** 2):.0f} % |")
+            print(lines[-1], flush=True)
+    write_results("diagnose_relaxation.txt", lines)
+
+
 def speed_only():
     """``--speed``: section 4 alone, written to results/diagnose_speed.txt."""
     lines = []
@@ -515,4 +541,5 @@ def speed_only():
 
 
 if __name__ == "__main__":
-    speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv else main()
+    (speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
+     else relaxation_why() if "--relaxation-why" in sys.argv else main())
