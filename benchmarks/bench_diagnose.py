@@ -1,4 +1,4 @@
-"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --perturbation NAME | --seeds H0,EFFECT]).
+"""Diagnosis benchmark on the virtual subject (python benchmarks/bench_diagnose.py [--quick | --speed | --only NAME | --perturbation NAME | --seeds H0,EFFECT | --activation-why | --relaxation-why]).
 
 1. False alarms: data without a hidden effect, 20 noise seeds: is any candidate significant?
 2. Detection: each catalog effect hidden in the subject (settings candidates: the model is
@@ -470,15 +470,18 @@ def estimate_errors(say, seeds=range(3)):
     """The background-activation estimate against the subject's true activation, per design:
     RMS error / mean and the correlation with trial time, under reflex habituation (the
     bursts fade; the activation does not change) and the issue-23 activation subject; 60-s
-    multilevel records at 100 Hz."""
+    multilevel records at 100 Hz; each trial's EMG (UT: the second, tonic estimate); the bursts
+    explained by lagged velocity hinges (no model) or by the reflex drive of a model identified
+    on the same record (what diagnose and improve use)."""
     from lpvpc.effects import signals_from_data
 
     volts = SubjectParams().emg_volts
     say(f"Background-activation estimate against the true activation (60-s records, seeds {list(seeds)}): "
         "RMS error in % of the mean, correlation with trial time")
     say("")
-    say("| design | hidden | seed | quiet windows + 1 Hz: error | its corr(t) | leak-free: error | its corr(t) |")
-    say("|---|---|---|---|---|---|---|")
+    say("| design | hidden | seed | trial | quiet windows + 1 Hz: error | its corr(t) | velocity hinges: error | its corr(t) "
+        "| model's reflex drive: error | its corr(t) |")
+    say("|---|---|---|---|---|---|---|---|---|---|")
     for design in ("pralds", "lab_pulses", "prbs"):
         for hidden, params in (("reflex_habituation", None), (ACTIVATION_SUBJECT, SCENARIO_PARAMS[ACTIVATION_SUBJECT])):
             effect = "reflex_habituation" if params is None else "background_activation"
@@ -486,13 +489,43 @@ def estimate_errors(say, seeds=range(3)):
                 pr = simulate_pair("multilevel", seed=seed, duration=60.0, fs_out=100.0, effects=(effect,),
                                    perturbation=design, params=SubjectParams(**params) if params else None)
                 d = pair_trials(pr.pt, pr.ut)
-                true, t = pr.activation["PT"] * volts, np.arange(d.n)
-                row = []
-                for est in (_quiet_window_activation(d.extra["emg"], d.position, d.fs), signals_from_data(d)["activation"]):
-                    row += [f"{100 * np.sqrt(np.mean((est - true) ** 2)) / np.mean(true):.0f} %",
-                            f"{np.corrcoef(est, t)[0, 1]:+.2f}"]
-                say(f"| {design} | {hidden} | {seed} | " + " | ".join(row) + " |")
+                t = np.arange(d.n)
+                hinges, own = signals_from_data(d), signals_from_data(d, identify(d))
+                for trial, key, emg, pos in (("PT", "activation", d.extra["emg"], d.position),
+                                             ("UT", "emg_ut", d.extra["emg_ut"], np.zeros(d.n))):
+                    true = pr.activation[trial] * volts
+                    row = []
+                    for est in (_quiet_window_activation(emg, pos, d.fs), hinges[key], own[key]):
+                        row += [f"{100 * np.sqrt(np.mean((est - true) ** 2)) / np.mean(true):.0f} %",
+                                f"{np.corrcoef(est, t)[0, 1]:+.2f}"]
+                    say(f"| {design} | {hidden} | {seed} | {trial} | " + " | ".join(row) + " |")
     say("")
+
+
+def relaxation_why(seeds=range(3)):
+    """``--relaxation-why``: how much torque stress relaxation adds under each design (its
+    share of the torque variance: the subject with the effect minus the same seed without)
+    and how much of it falls in quiet windows (no perturbation movement for 150 ms), 60-s
+    multilevel records. Writes results/diagnose_relaxation.txt."""
+    from lpvpc.effects import quiet_mask
+
+    lines = ["Stress relaxation per perturbation design (python benchmarks/bench_diagnose.py --relaxation-why; "
+             f"60-s multilevel records, seeds {list(seeds)}): the effect's torque (with minus without, same seed) "
+             "in % of the torque variance, the quiet windows' share of the samples and of the effect's variance", "",
+             "| design | seed | effect (% of torque variance) | quiet samples | effect variance in quiet windows |",
+             "|---|---|---|---|---|"]
+    for design in ("pralds", "lab_pulses", "prbs"):
+        for seed in seeds:
+            a, b = (pair_trials(p.pt, p.ut) for p in (
+                simulate_pair("multilevel", seed=seed, duration=60.0, perturbation=design, effects=e)
+                for e in ((), ("stress_relaxation",))))
+            d = b.torque - a.torque
+            d = d - d.mean()
+            q = quiet_mask(a.position, a.fs)
+            lines.append(f"| {design} | {seed} | {100 * d.var() / a.torque.var():.2f} | {100 * q.mean():.0f} % | "
+                         f"{100 * np.sum(d[q] ** 2) / np.sum(d ** 2):.0f} % |")
+            print(lines[-1], flush=True)
+    write_results("diagnose_relaxation.txt", lines)
 
 
 def speed_only():
@@ -508,4 +541,5 @@ def speed_only():
 
 
 if __name__ == "__main__":
-    speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv else main()
+    (speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
+     else relaxation_why() if "--relaxation-why" in sys.argv else main())

@@ -74,7 +74,7 @@ from .diagnose_report import candidates_html, diagnosis_html, format_table, writ
 from .diagnose_signals import FORMS, TIME_KNOT_S, candidate_signals, signal_dependence, time_basis  # noqa: F401
 from .diagnose_surrogate import Surrogate
 from .diagnose_where import where_it_fails  # noqa: F401
-from .effects import signals_from_data
+from .effects import signals_from_data, with_model_activation
 from .model import vaf
 
 OUTSIDE_RATIO = 1.5  # a signal probe this many times better than the top candidate: say so
@@ -310,6 +310,8 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
 
         raise DataError(f"the diagnosis takes one trial; got {len(data.segments)} joined trials",
                         source=getattr(data, "source", None) or None)
+    # the EMG's reflex bursts explained by this model's own reflex drive (not the measured velocity)
+    data = with_model_activation(data, model)
     cov = check_record(model, data)
     outside = cov.pop("outside_mask")
     mask = ~outside if outside.any() else None

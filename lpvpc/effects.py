@@ -538,9 +538,13 @@ def default_signals(scheduling, fs, signals=None) -> dict:
     return out
 
 
-def signals_from_data(data) -> dict:
+def signals_from_data(data, model=None) -> dict:
     """Extra signals of :class:`lpvpc.data.PerturbationData` under the names of
-    :data:`SIGNALS` (trial_time from its time column, starting at 0)."""
+    :data:`SIGNALS` (trial_time from its time column, starting at 0). The background
+    activation (``activation``, and ``emg_ut`` from the unperturbed trial's EMG) is
+    :func:`background_emg` of the EMG: its reflex-evoked part explained by ``model``'s reflex
+    drive when a model is given (:func:`_emg_reflex_drives`), else by the measured velocity;
+    estimates stored in the data (:func:`with_model_activation`) are used as they are."""
     extra = getattr(data, "extra", {}) or {}
     out = {}
     if "time" in extra:
@@ -551,11 +555,76 @@ def signals_from_data(data) -> dict:
     for k in ("emg", "emg_ut"):
         if k in extra:
             out[k] = np.asarray(extra[k], dtype=float)
+    drives = _emg_reflex_drives(model, data) if model is not None and not _has_backgrounds(extra) else None
     if "emg" in out:
-        out["activation"] = background_emg(out["emg"], data.position, data.fs, scheduling=data.scheduling)
+        out["activation"] = (np.asarray(extra["emg_background"], dtype=float) if "emg_background" in extra else
+                             background_emg(out["emg"], data.position, data.fs, scheduling=data.scheduling,
+                                            drive=None if drives is None else drives[0]))
     if "emg_ut" in out:  # the second, independent estimate of tonic activation: the same treatment
-        out["emg_ut"] = background_emg(out["emg_ut"], np.zeros(len(out["emg_ut"])), data.fs, scheduling=data.scheduling)
+        out["emg_ut"] = (np.asarray(extra["emg_ut_background"], dtype=float) if "emg_ut_background" in extra else
+                         background_emg(out["emg_ut"], np.zeros(len(out["emg_ut"])), data.fs,
+                                        scheduling=data.scheduling, drive=None if drives is None else drives[1]))
     return default_signals(data.scheduling, data.fs, out)
+
+
+def _has_backgrounds(extra) -> bool:
+    return "emg_background" in extra or "emg_ut_background" in extra
+
+
+def _emg_reflex_drives(model, data):
+    """The model's own reflex drive for each trial's EMG (:func:`background_emg`'s ``drive``):
+    the nonlinearity's output (delayed, before the reflex dynamics, as the EMG is recorded)
+    on the perturbation's velocity (PT) and on the slow movement's (UT: all it has). Not on
+    the PT's whole joint velocity: the nonlinearity is identified on perturbation
+    velocities, and extrapolated to the slow movement's it put slow-velocity content into
+    the PT estimate (a reflex gain modulated by the slow velocity, outside the catalog, was
+    then named activation_reflex_gain, +0.74 pp); the price is that the few bursts the slow
+    movement fires in the PT stay in its estimate. None when the model has no reflex pathway."""
+    if model is None or getattr(model, "Omega", None) is None:
+        return None
+    p, rho = (np.asarray(x, dtype=float) for x in (data.position, data.scheduling))
+    return (np.asarray(model.reflex_drive(p, rho), dtype=float),
+            np.asarray(model.reflex_drive(rho, rho), dtype=float))
+
+
+def with_model_activation(data, model):
+    """``data`` with its background-activation estimates computed once with ``model``'s reflex
+    drive (extra ``emg_background``, ``emg_ut_background``; :func:`signals_from_data` then
+    uses them), so every fit and evaluation of the data sees the same estimate (the
+    estimator's refits read the data's signals without the model). Unchanged without EMG,
+    without a reflex pathway, or when the estimates are there already.
+
+    Measured on the issue-23 activation subject (bench_diagnose.py --activation-why): the
+    lagged hinges of measured velocity (~400 columns) also fit part of the slow activation
+    itself, in the unperturbed trial most (its slow movement gives slow hinges); the model's
+    drive (16 lags) does not.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> data = pair_trials(sim.pt, sim.ut)  # both trials' EMG in data.extra
+    >>> stored = with_model_activation(data, identify(data))
+    >>> sorted(set(stored.extra) - set(data.extra))
+    ['emg_background', 'emg_ut_background']
+    >>> bool(np.all(signals_from_data(stored)["activation"] == stored.extra["emg_background"]))
+    True
+    """
+    import dataclasses
+
+    extra = getattr(data, "extra", None) or {}
+    if ("emg" not in extra and "emg_ut" not in extra) or _has_backgrounds(extra):
+        return data
+    drives = _emg_reflex_drives(model, data)
+    if drives is None:
+        return data
+    sig = signals_from_data(data, model)
+    new = dict(extra)
+    if "emg" in extra:
+        new["emg_background"] = sig["activation"]
+    if "emg_ut" in extra:
+        new["emg_ut_background"] = sig["emg_ut"]
+    return dataclasses.replace(data, extra=new)
 
 
 def quiet_mask(position, fs, after=QUIET_AFTER_STEP) -> np.ndarray:
@@ -582,7 +651,7 @@ def _slow_time_basis(n, fs, resolution):
 
 
 def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_LAG,
-                      gain_s=BURST_GAIN_S) -> np.ndarray:
+                      gain_s=BURST_GAIN_S, drive=None) -> np.ndarray:
     """The reflex-evoked part of a perturbed trial's EMG envelope (same unit as ``emg``).
 
     The reflex drive is a half-wave rectified velocity of the stretch (at 100 Hz its
@@ -609,6 +678,8 @@ def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_L
     """
     emg = np.asarray(emg, dtype=float)
     n = len(emg)
+    if drive is not None and not np.any(drive):  # no reflex drive: nothing evoked
+        return np.zeros(n)
     # the reflex sees the joint's whole velocity: the slow movement's fast transitions fire it too
     joint = np.asarray(position, dtype=float) + (0.0 if scheduling is None else np.asarray(scheduling, dtype=float))
     v = eq.velocity(joint, fs)
@@ -628,6 +699,11 @@ def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_L
         R = np.column_stack([np.ones(n), r, r * r])
     # hinges max(+-v - c, 0): a rectifier with a threshold anywhere in BURST_HINGES is their sum
     hinges = [np.maximum(sign * v - c, 0.0) for sign in (1.0, -1.0) for c in BURST_HINGES]
+    if drive is not None:  # the model's own reflex drive: delayed, rectified, position-gained already
+        z = np.asarray(drive, dtype=float)
+        if step > 1:
+            z = np.convolve(z, np.ones(step) / step, mode="full")[:n]
+        hinges, R = [z], np.ones((n, 1))
 
     def drive_columns(a, b):  # rows a..b-1 of the lagged, position-scaled hinges
         cols = [eq.lagged_rows(h, lags, a, b)[:, :, None] * R[a:b, None, :] for h in hinges]
@@ -684,7 +760,7 @@ def activation_cutoff(x, fs, *, limits=ACTIVATION_CUTOFF, ratio=10.0) -> float:
     return float(np.clip(1.5 * above.max() if above.size else 0.0, *limits))
 
 
-def background_emg(emg, position, fs, *, cutoff=None, scheduling=None) -> np.ndarray:
+def background_emg(emg, position, fs, *, cutoff=None, scheduling=None, drive=None) -> np.ndarray:
     """Background activation from the perturbed trial's EMG envelope (same unit as ``emg``).
 
     Leak-free under any perturbation design: the reflex-evoked part is taken off
@@ -701,7 +777,7 @@ def background_emg(emg, position, fs, *, cutoff=None, scheduling=None) -> np.nda
     n = len(emg)
     if n <= 30:
         return emg.copy()
-    x = emg - reflex_evoked_emg(emg, position, fs, scheduling=scheduling)
+    x = emg - reflex_evoked_emg(emg, position, fs, scheduling=scheduling, drive=drive)
     cutoff = activation_cutoff(x, fs) if cutoff is None else cutoff
     if cutoff < fs / 2:
         b, a = scipy.signal.butter(2, cutoff, fs=fs)

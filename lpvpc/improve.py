@@ -23,7 +23,7 @@ import numpy as np
 
 from .diagnose import Diagnosis, diagnose, format_table
 from .diagnose_candidates import _variant_text
-from .effects import CATALOG, signals_from_data
+from .effects import CATALOG, signals_from_data, with_model_activation
 from .identify import LPVPCEstimator
 from .model import vaf
 from .progress import report
@@ -149,7 +149,13 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         r.diagnosis = diagnose(r.model, heldout, **diagnose_kw)
         r.diagnosis_time = time.perf_counter() - t0
 
-    current = rung(0, "base model" + (f" + {', '.join(effects)}" if effects else ""), {}, settings, effects)
+    label0 = "base model" + (f" + {', '.join(effects)}" if effects else "")
+    current = rung(0, label0, {}, settings, effects)
+    # the background activation from the EMG, its reflex bursts explained by the base model's
+    # own reflex drive: computed once, so every rung is fitted and scored on the same estimate
+    ident, heldout = (with_model_activation(d, current.model) for d in (ident, heldout))
+    if effects:  # the base's own effects may read the activation: refit on the estimate
+        current = rung(0, label0, {}, settings, effects)
     diagnose_rung(current)
     ladder.rungs.append(current)
     if progress:

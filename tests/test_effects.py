@@ -298,3 +298,38 @@ def test_reflex_evoked_emg_follows_a_slowly_changing_reflex_gain():
     assert np.sqrt(np.mean((got - burst) ** 2)) < 0.1 * np.sqrt(np.mean(burst ** 2))
     rest = fx.background_emg(tonic + burst, p, fs)
     assert np.max(np.abs(rest - tonic)[200:-200]) < 0.1 * np.ptp(tonic)
+
+
+def test_reflex_evoked_emg_explained_by_a_given_reflex_drive():
+    """Given the reflex drive (the model's nonlinearity output, delayed), the bursts are its
+    lagged copies with a slowly changing gain: recovered without velocity hinges; a zero
+    drive explains nothing (the EMG is all background)."""
+    fs = 100.0
+    rng = np.random.default_rng(5)
+    p = np.repeat(rng.uniform(-0.04, 0.04, 400), 30)  # rad, PRALDS-like holds of 0.3 s
+    t = np.arange(p.size) / fs
+    z = 20.0 * np.maximum(np.r_[np.zeros(4), eq.velocity(p, fs)[:-4]] - 0.3, 0.0)  # N m, 40 ms delay
+    burst = 0.001 * (0.6 + 0.4 * np.exp(-t / 40.0)) * np.r_[np.zeros(1), z[:-1]]
+    tonic = 0.1 + 0.03 * np.sin(2 * np.pi * t / 20.0)
+    emg = tonic + burst + 0.002 * rng.standard_normal(p.size)
+    got = fx.reflex_evoked_emg(emg, p, fs, drive=z)
+    assert np.sqrt(np.mean((got - burst) ** 2)) < 0.1 * np.sqrt(np.mean(burst ** 2))
+    assert not np.any(fx.reflex_evoked_emg(emg, p, fs, drive=np.zeros(p.size)))
+
+
+def test_model_activation_is_computed_once_and_reused():
+    """with_model_activation stores both trials' background estimates made with the model's
+    reflex drive; signals_from_data then returns them as they are (every refit and score of
+    the ladder sees the same estimate), the original data keep none; no EMG: unchanged."""
+    pair = simulate_pair("multilevel", seed=2, effects=("background_activation",), duration=40.0, fs_out=100.0)
+    data = pair_trials(pair.pt, pair.ut)
+    model = identify(data)
+    stored = fx.with_model_activation(data, model)
+    assert "emg_background" not in data.extra and "emg_ut_background" in stored.extra
+    direct, reused = fx.signals_from_data(data, model), fx.signals_from_data(stored)
+    for key in ("activation", "emg_ut"):
+        np.testing.assert_array_equal(direct[key], reused[key])
+    assert not np.allclose(fx.signals_from_data(data)["activation"], direct["activation"])  # not the hinge estimate
+    assert fx.with_model_activation(stored, model) is stored
+    bare = pair_trials(*(type(t)(t.time, t.position, t.torque, {}, t.name) for t in (pair.pt, pair.ut)))
+    assert fx.with_model_activation(bare, model) is bare
