@@ -410,7 +410,7 @@ def cmd_predict(args) -> int:
     if model.effects:  # an extended model takes its extra channels from the data
         from .effects import signals_from_data
 
-        signals = signals_from_data(data)
+        signals = signals_from_data(data, model)  # activation with the model's reflex drive, as improve fits it
     pred = model.predict(data, causal=args.causal, signals=signals)  # a 1 kHz reflex model: its 1 kHz path
     measured = data.torque
     metrics = {

@@ -366,7 +366,7 @@ class LPVPCModel:
         if signals is None and self.effects:
             from .effects import signals_from_data
 
-            signals = signals_from_data(data)
+            signals = signals_from_data(data, self)  # activation with this model's reflex drive, as improve fits it
         return data.position, data.scheduling, signals
 
     def export_fmu(self, path, fmi_version: int = 2, variant: str = "sampled", **options):

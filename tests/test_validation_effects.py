@@ -62,7 +62,7 @@ def test_extended_model_validates_through_every_route(extended):
     # the offline VAF of the model on the same record (files read back as validate does)
     folder = extended["folder"]
     held = load_identification_data(pt=folder / "PT.csv", ut=folder / "UT.csv", target_fs=model.fs)
-    signals = signals_from_data(held)
+    signals = signals_from_data(held, model)  # the activation with the model's reflex drive, as validate's
     offline = vaf(held.torque, model.predict(held.position, held.scheduling, signals=signals, warn=False).total)
     offline_causal = vaf(held.torque, model.predict(held.position, held.scheduling, causal=True, signals=signals,
                                                     warn=False).total)
@@ -93,7 +93,7 @@ def test_extended_model_without_its_signals_would_fail_offline(extended):
     explains far less of the same record (so routes that dropped them would show it)."""
     folder, model = extended["folder"], extended["model"]
     held = load_identification_data(pt=folder / "PT.csv", ut=folder / "UT.csv", target_fs=model.fs)
-    sig = signals_from_data(held)
+    sig = signals_from_data(held, model)
     flat = {**sig, "activation": np.zeros(held.n), "emg_ut": np.zeros(held.n)}
     with_sig = vaf(held.torque, model.predict(held.position, held.scheduling, signals=sig, warn=False).total)
     without = vaf(held.torque, model.predict(held.position, held.scheduling, signals=flat, warn=False).total)

@@ -274,7 +274,7 @@ def record_signals(model: LPVPCModel, measured) -> dict | None:
     names = model_signals(model)
     if not names:
         return None
-    signals = signals_from_data(measured)
+    signals = signals_from_data(measured, model)  # activation with the model's reflex drive, as improve fits it
     check_signals(signals, names, measured.n, source=measured.source or "record")
     return {n: signals[n] for n in names}
 
