@@ -329,7 +329,7 @@ class LPVPCEstimator:
             self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
             return self
         first = LPVPCEstimator(**base)
-        first._reuse = {"no_intervals": True}  # computed once, for the model kept
+        first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             first._fit(data)
@@ -481,11 +481,16 @@ class LPVPCEstimator:
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
         curvature = curvature_from_irf(H, G_i) if self.elastic_curvature else None
         causal = list(range(0, (self.causal_lags if self.causal_lags is not None else L + 2) + 1))
-        S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
-        Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
-        # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
-        H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
-        del Psi_c, S_c
+        bare = bool(reuse.get("bare"))  # structure selection's first fit: only its dynamics and order are used
+        if bare:
+            H_causal = np.zeros((len(causal) + 2, G_i.size))  # (no causal form)
+        else:
+            S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
+            Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
+            # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
+            H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base],
+                                       rcond=None)[0].reshape(S_c.shape[1], G_i.size)
+            del Psi_c, S_c
 
         hf = best["hammerstein"]
         Omega = hf.omega.reshape(-1, G_r.size)
@@ -517,7 +522,7 @@ class LPVPCEstimator:
                 return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
-        if design is None and not reuse.get("no_intervals"):  # intervals (lpvpc.uncertainty); extended models carry none
+        if design is None and not bare:  # intervals (lpvpc.uncertainty); extended models carry none
             from .reflex import reflex_regressor
             from .uncertainty import fit_uncertainty
 
@@ -537,8 +542,8 @@ class LPVPCEstimator:
             timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {
-            "vaf": vaf(y, predicted(False)),
-            "vaf_causal": vaf(y, predicted(True)),
+            "vaf": float("nan") if bare else vaf(y, predicted(False)),
+            "vaf_causal": float("nan") if bare else vaf(y, predicted(True)),
             "n_samples": int(n),
             "n_trials": len(seg),
             # the top of the rectifier fit (model.reflex_gain_threshold). High rate: the top of the
@@ -547,7 +552,7 @@ class LPVPCEstimator:
             # file's rounding, fall on either side of zero: 2.6 or 4.5 rad/s for one recording), and
             # beyond the range the curve is only the basis's linear continuation.
             "velocity_p99": _velocity_p99(dvel, V_b) if high is None else high.velocity_basis.hi,
-            "data_density": data_density(rho, dvel, G_i, V_b) if high is None else
+            "data_density": {} if bare else data_density(rho, dvel, G_i, V_b) if high is None else
             data_density(high.rho, high.dvel, G_i, high.velocity_basis),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
@@ -560,7 +565,8 @@ class LPVPCEstimator:
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
         }
-        check_physiology(model)
+        if not bare:
+            check_physiology(model)
         self.model_ = model
         self.subspace_ = sub
         self.n_features_ = Psi_i.shape[1] + U_r.shape[1]

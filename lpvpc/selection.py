@@ -39,7 +39,7 @@ import numpy as np
 from . import equations as eq
 from .basis import Basis, basis_from_data
 from .intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
-from .reflex import reflex_input_regressor, reflex_regressor
+from .reflex import reflex_input_regressor, reflex_response_regressor
 from .segments import Segments
 
 #: Candidate values of each selected setting (IRF half-widths in s, delays in s).
@@ -183,8 +183,13 @@ class _Design:
         Gi, Gr = self.G_i.evaluate(rho), self.G_r.evaluate(rho)
         X = self._regressor(Gi, Gr)
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
-        self.G = np.stack([X[r].T @ X[r] for r in rows])
-        self.b = np.stack([X[r].T @ y[r] for r in rows])
+        # each fold's Gram matrix summed over its contiguous runs: views of X, no row copies
+        self.G = np.zeros((n_folds, self.n_cols, self.n_cols))
+        self.b = np.zeros((n_folds, self.n_cols))
+        cuts = np.r_[0, np.flatnonzero(np.diff(labels)) + 1, len(labels)]
+        for a, c in zip(cuts[:-1], cuts[1:]):
+            self.G[labels[a]] += X[a:c].T @ X[a:c]
+            self.b[labels[a]] += X[a:c].T @ y[a:c]
         self.end = {rule: {} for rule in rules}
         for f, r in enumerate(rows):
             train = rho[labels != f]
@@ -219,8 +224,8 @@ class _Design:
         col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
         k = r - w0  # the rows within the window
         for V in self.V:
-            blocks = reflex_regressor(reflex_input_regressor(V[window], dGr[window]), self.A, self.C, seg)
-            out[:, col : col + n_ref] = sum(c * blk[k] for c, blk in zip(self.bd, blocks))
+            out[:, col : col + n_ref] = reflex_response_regressor(reflex_input_regressor(V[window], dGr[window]),
+                                                                  self.A, self.C, self.bd[:-1], self.bd[-1], seg)[k]
             col += n_ref
         return out
 
@@ -235,8 +240,8 @@ class _Design:
         X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
         col = n_lag + Gi.shape[1]
         for V in self.V:
-            blocks = reflex_regressor(reflex_input_regressor(V, Gr), self.A, self.C, self.seg)
-            X[:, col : col + V_cols] = sum(c * blk for c, blk in zip(self.bd, blocks))
+            X[:, col : col + V_cols] = reflex_response_regressor(reflex_input_regressor(V, Gr), self.A, self.C,
+                                                                 self.bd[:-1], self.bd[-1], self.seg)
             col += V_cols
         return X
 
