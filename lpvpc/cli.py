@@ -255,7 +255,7 @@ def cmd_identify(args) -> int:
         settings.pop("state_order")
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
-    if settings.get("structure") == "cv":  # what the user wrote is not selected
+    if settings.get("structure", "cv") == "cv":  # (the default) what the user wrote is not selected
         from .selection import SEARCH
 
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags")
@@ -340,7 +340,7 @@ def _selection_summary(sel) -> list:
 
     lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
              f"             {'CV VAF %':>9} {'params':>6}  structure"]
-    for row in sel["table"]:
+    for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
         mark = "*" if row["settings"] == sel["chosen"] else " "
         lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
     return lines
@@ -884,8 +884,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--structure", choices=("fixed", "cv"),
-                   help="cv: choose IRF half-width, basis orders, reflex delay, curvature term and extrapolation "
-                        "rule by leave-one-level-out cross-validation (options given here stay fixed; default fixed)")
+                   help="cv (default): choose IRF half-width, basis orders, reflex delay, curvature term and "
+                        "extrapolation rule by leave-one-level-out cross-validation (options given here stay fixed); "
+                        "fixed: the settings as given")
     p.add_argument("--extrapolation", dest="scheduling_extrapolation", choices=("clip", "linear"),
                    help="beyond the identified position range the bases are held (clip, default) or continued "
                         "linearly")

@@ -61,6 +61,19 @@ MIN_LEVELS = 4
 RIDGE = 1e-10  # relative to the scaled Gram matrix's unit diagonal
 
 
+def design_columns(search: dict, fs: float) -> int:
+    """Columns of the largest regressor of a search (its IRF lags at rate ``fs`` Hz, curvature
+    shares, each delay's reflex columns, a zero column): memory is 8 bytes x samples x this.
+
+    >>> design_columns(SEARCH, 100.0)  # 11 lags x 8, 8, 3 delays x 7 x 4, 1
+    181
+    """
+    n_lags = 2 * max(max(1, int(round(x * fs))) for x in search["irf_length"]) + 1
+    n_i = max(search["intrinsic_order"]) + 1
+    n_delays = len({max(1, int(round(x * fs))) for x in search["reflex_delay"]})
+    return n_lags * n_i + n_i + n_delays * (max(search["velocity_order"]) + 1) * (max(search["reflex_order"]) + 1) + 1
+
+
 def level_folds(rho, fs):
     """Fold label of each sample (N,) and the fold kind ("level" or "block").
 
