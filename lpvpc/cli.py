@@ -343,6 +343,10 @@ def _selection_summary(sel) -> list:
     for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
         mark = "*" if row["settings"] == sel["chosen"] else " "
         lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
+    orders = sel.get("state_order", {})
+    if orders.get("cv_vaf"):
+        lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
+                     + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")")
     return lines
 
 

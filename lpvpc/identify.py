@@ -341,14 +341,14 @@ class LPVPCEstimator:
         """structure="cv": a fit at the given settings gives the reflex dynamics; the
         structure is chosen by cross-validation with them held (lpvpc.selection); the
         chosen structure is fitted (its state order the first fit's)."""
-        from .selection import SEARCH, StructureSearch, design_columns
+        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns
 
         t0 = time.perf_counter()
         given = self._given_settings()
-        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags"})
+        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"})
         if unknown:
             raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
-                             f"{sorted(SEARCH)} (and irf_lags)")
+                             f"{sorted(SEARCH)} (and irf_lags, state_order)")
         fixed = {"irf_length" if k == "irf_lags" else k for k in given}
         base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
@@ -380,23 +380,36 @@ class LPVPCEstimator:
                                   self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
         except np.linalg.LinAlgError as exc:  # e.g. a fold's normal equations singular on a very short record
             return self._fit_unselected(data, base, f"cross-validation failed: {exc}")
+        # The state order: BIC's at the starting structure, against one lower and one higher
+        # (those the first fit tried) scored by CV at the chosen structure, unless it is given.
+        order, bic_order, order_cv = m.fit["state_order"], m.fit["state_order"], {}
+        if self.state_order is None and "state_order" not in fixed:
+            neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
+            chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
+            order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
+                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)))
         t_select = time.perf_counter() - t
-        # The chosen structure is fitted at the first fit's state order, its poles refined from
-        # the first fit's subspace step (the poles do not depend on the structure's columns;
-        # MOESP is a quarter of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
+        # The chosen structure is fitted at that order, its poles refined from the first fit's
+        # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
+        # of a fit). The starting structure chosen: the same fit, with intervals.
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
-        if sel.chosen != {k: start[k] for k in sel.chosen}:  # another structure: its refinement starts at the
-            est._reuse["poles"] = {m.fit["state_order"]: m.A}  # first fit's poles (fewer steps than from MOESP's)
+        if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
+            # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
+            est._reuse["poles"] = {order: first._order_dynamics[order][0]}
         est._fit(data)
-        est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
         est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
         model = est.model_
         model.settings.update({"structure": "cv", "structure_fixed": sorted(fixed)})
         model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
-                                            "state_order_from": "BIC at the starting structure"}
+                                            "state_order": {"bic": int(bic_order), "chosen": int(order),
+                                                            "cv_vaf": {str(k): v for k, v in order_cv.items()}},
+                                            "state_order_from": "BIC at the starting structure" if not order_cv else
+                                            "BIC at the starting structure, against one lower and one higher by CV "
+                                            "at the chosen structure (one-standard-error rule toward BIC's)"}
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
@@ -408,7 +421,7 @@ class LPVPCEstimator:
             return tuple(self.structure_fixed)
         from .selection import SEARCH
 
-        return tuple(k for k in (*SEARCH, "irf_lags") if k in getattr(self, "_given", ()))
+        return tuple(k for k in (*SEARCH, "irf_lags", "state_order") if k in getattr(self, "_given", ()))
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
@@ -528,6 +541,8 @@ class LPVPCEstimator:
                if m in stable or not stable}
         m_best = min(bic, key=bic.get)
         best = fits[m_best]
+        self._order_dynamics = {m: (f["A"], np.reshape(f["C"], (1, -1)), np.append(f["hammerstein"].b, f["hammerstein"].d))
+                                for m, f in fits.items() if m in bic}  # (structure selection compares them)
         del refinement  # its N-row factors (a third of a 30-minute record's peak memory)
         timings["projection_and_reflex"] = time.perf_counter() - t
 

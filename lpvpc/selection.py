@@ -388,3 +388,23 @@ class StructureSearch:
                        key=lambda s: (s.n_params, s.settings["scheduling_extrapolation"] != "clip", -s.cv_vaf))
         return Selection(chosen=dict(simplest.settings), start=dict(first.settings), fold_kind=self.kind, n_folds=K,
                          scored=scored, best=dict(best.settings))
+
+
+def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order: int, bic_score: Scored,
+                         family="chebyshev", velocity_family="chebyshev", segments=None):
+    """The reflex state order by cross-validation: the chosen structure scored (same folds)
+    under the reflex dynamics of each other order the first fit tried (``dynamics``: order ->
+    (A, C, [B; D])). BIC's order stays unless another predicts the left-out folds better by
+    more than one paired standard error. Returns (order, {order: CV VAF %})."""
+    scores = {bic_order: bic_score}
+    for order, dyn in dynamics.items():
+        if order != bic_order:
+            search = StructureSearch(p, y, rho, fs, dyn, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
+                                     segments)
+            scores[order] = search.score(chosen)
+    best = min(scores, key=lambda k: float(scores[k].fold_sse.sum()))
+    K = len(bic_score.fold_sse)
+    diff = K * (scores[bic_order].fold_sse - scores[best].fold_sse)  # > 0 where ``best`` predicts better
+    if best != bic_order and (K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)):
+        best = bic_order
+    return best, {int(k): float(v.cv_vaf) for k, v in sorted(scores.items())}
