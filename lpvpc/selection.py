@@ -224,22 +224,24 @@ class _Design:
         out = np.zeros((len(r), self.n_cols))
         if changed.size == 0:
             return out
-        w0 = min(int(changed[0]), int(r.min())) if len(self.seg) == 1 else 0  # input zero before changed[0]
-        w1 = int(max(r.max(), changed[-1])) + 1 if len(self.seg) == 1 else len(self.p)
+        # the window: from the first change (the input is zero before it; rows before it change
+        # by nothing) to the last row wanted (later inputs do not reach it)
+        w0 = int(changed[0]) if len(self.seg) == 1 else 0
+        w1 = int(r.max()) + 1 if len(self.seg) == 1 else len(self.p)
         seg = self.seg if len(self.seg) > 1 else None
         window = slice(w0, w1)
         n_lag = (2 * self.L_max + 1) * Gi.shape[1]
-        lags = two_sided_lags(self.L_max)
-        intr = self.seg.map(intrinsic_regressor, self.p, dGi, lags=lags) if seg is not None else \
-            intrinsic_regressor(self.p, dGi, lags)
-        out[:, :n_lag] = intr[r]
+        P = self.seg.map(eq.lagged, self.p, lags=two_sided_lags(self.L_max))[r]  # the IRF columns at rows r only
+        out[:, :n_lag] = (P[:, :, None] * dGi[r][:, None, :]).reshape(len(r), n_lag)
         out[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p[r], dGi[r], self.G_i)
         col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
-        k = r - w0  # the rows within the window
-        for V in self.V:
-            out[:, col : col + n_ref] = reflex_response_regressor(reflex_input_regressor(V[window], dGr[window]),
-                                                                  self.A, self.C, self.bd[:-1], self.bd[-1], seg)[k]
-            col += n_ref
+        inside = r >= w0
+        k = r[inside] - w0  # the rows within the window
+        if w1 > w0:
+            for V in self.V:
+                out[inside, col : col + n_ref] = reflex_response_regressor(
+                    reflex_input_regressor(V[window], dGr[window]), self.A, self.C, self.bd[:-1], self.bd[-1], seg)[k]
+                col += n_ref
         return out
 
     def _regressor(self, Gi, Gr, basis=None):
