@@ -84,10 +84,11 @@ def leave_one_level_out(d):
     ends = {int(np.argmin(med)), int(np.argmax(med))}
     y = d.torque
     sse = {name: np.zeros(K) for name in [*METHODS, FLEX]}
-    chosen, seconds = [], {name: 0.0 for name in sse}
+    chosen, seconds, train_s = [], {name: 0.0 for name in sse}, []
     for f in range(K):
         test = labels == f
         train_data = join_trials(training_pieces(d, labels, f))
+        train_s.append(train_data.n / train_data.fs)
         for name, settings in METHODS.items():
             t = time.perf_counter()
             with warnings.catch_warnings():
@@ -97,15 +98,16 @@ def leave_one_level_out(d):
             seconds[name] += time.perf_counter() - t
             e = y[test] - pred[test]
             sse[name][f] = e @ e
-            if name == NEW:
-                chosen.append(model.fit["structure_selection"]["chosen"])
+            if name == NEW:  # (the chosen settings, or why selection was skipped)
+                sel = model.fit["structure_selection"]
+                chosen.append(sel.get("chosen", {"skipped": sel.get("skipped")}))
         name = FLEX
         t = time.perf_counter()
         e = y[test] - flexible_prediction(d, ~test)[test]
         seconds[name] += time.perf_counter() - t
         sse[name][f] = e @ e
     ss = np.array([np.sum((y[labels == f] - y.mean()) ** 2) for f in range(K)])
-    return labels, kind, med, ends, sse, ss, chosen, seconds
+    return labels, kind, med, ends, sse, ss, chosen, seconds, train_s
 
 
 def pilot_section() -> list:
@@ -113,7 +115,7 @@ def pilot_section() -> list:
     if folder is None or not (folder / "pilot_ident.csv").is_file():
         return ["## 1. Lab pilot trial: skipped (pilot_ident.csv not found; set LPVPC_REAL_DATA)"]
     d = load_identification_data(data=folder / "pilot_ident.csv", torque_sign=-1)
-    labels, kind, med, ends, sse, ss, chosen, seconds = leave_one_level_out(d)
+    labels, kind, med, ends, sse, ss, chosen, seconds, train_s = leave_one_level_out(d)
     K = len(med)
     end_idx = sorted(ends)
     lines = [f"## 1. Lab pilot trial (pilot_ident.csv, first 70 % of the recording: {d.n} samples at {d.fs:g} Hz, "
@@ -142,6 +144,9 @@ def pilot_section() -> list:
     lines.append("Structures chosen inside the training sets (fold by level):")
     for f in np.argsort(med):
         c = chosen[f]
+        if "skipped" in c:
+            lines.append(f"- without {med[f]:+.3f}: not selected ({c['skipped']}; {train_s[f]:.0f} s of training data)")
+            continue
         lines.append(f"- without {med[f]:+.3f}: L {1e3 * c['irf_length']:g} ms, orders {c['intrinsic_order']}/"
                      f"{c['reflex_order']}/{c['velocity_order']} (intrinsic/reflex/velocity), delay "
                      f"{1e3 * c['reflex_delay']:g} ms, curvature {c['elastic_curvature']}, beyond range "
@@ -173,7 +178,8 @@ def development_split(d) -> list:
         lines.append(f"| {name.replace(' inside each training set', '')} | {vaf(held.torque, two):.2f} | "
                      f"{vaf(held.torque, cau):.2f} | {m.fit['vaf']:.2f} | {el:.1f} |")
         if name == NEW:
-            chosen = m.fit["structure_selection"]["chosen"]
+            sel = m.fit["structure_selection"]
+            chosen = sel.get("chosen", f"nothing: selection skipped ({sel.get('skipped')})")
     t = time.perf_counter()
     fl = FlexibleFit(d.fs).fit(ident.position, ident.torque, ident.scheduling)
     pf = fl.predict(d.position, d.scheduling)[k:]
