@@ -125,7 +125,7 @@ def test_selection_is_skipped_where_it_cannot_apply_and_bad_values_are_refused(r
         est = LPVPCEstimator(structure="cv", basis="gaussian").fit(record)
         short = LPVPCEstimator().fit(record.segment(0, 3000))  # 30 s: too short to select reliably
     assert "non-polynomial" in est.model_.fit["structure_selection"]["skipped"]
-    assert "shorter than 60 s" in short.model_.fit["structure_selection"]["skipped"]
+    assert "shorter than 45 s" in short.model_.fit["structure_selection"]["skipped"]
     with pytest.raises(ValueError, match="structure must be 'fixed' or 'cv'"):
         LPVPCEstimator(structure="best").fit(record)
     with pytest.raises(ValueError, match=r"structure_fixed names settings that are not selected: \['horizon'\]"):
