@@ -4,16 +4,18 @@
    negated), leave-one-level-out: each level of the staircase (every visit to it, end
    plateaus included) is predicted by models identified on the rest (the remaining
    stretches joined as trials: nothing crosses a gap), the whole record predicted and the
-   level's samples scored. Side by side: structure="cv" (the selection runs inside each
-   training set, on its own levels: nested), the previous default settings (structure
-   "fixed"), the previous default with linear extrapolation beyond the range, a fixed-
-   setting implementation of the paper's algorithm in lpvpc (no pole refinement, no
-   curvature term, state order 2, no time-constant cap; the same basis orders and IRF) and
-   the crude flexible least-squares fit (``flexible_fit.py``, fitted on the training rows).
-   Pooled CV VAF over all folds, and over the two end plateaus alone (extrapolation).
-   The kept-back last 30 % of the recording is not available here: no figure on it.
+   level's samples scored. Side by side: the new default (structure chosen by
+   cross-validation, run inside each training set on its own levels: nested), the
+   previous default settings (structure="fixed"), a fixed-setting implementation of the
+   paper's algorithm in lpvpc (no pole refinement, no curvature term, state order 2, no
+   time-constant cap; the previous default's basis orders and IRF) and the crude flexible
+   least-squares fit (``flexible_fit.py``, fitted on the training rows). Pooled CV VAF
+   over all folds, and over the two end plateaus alone (extrapolation). Then the
+   development split: the same methods identified on the first 70 % of the file, its last
+   30 % predicted. The kept-back last 30 % of the recording is not available here: no
+   figure on it.
 2. The virtual subject (2-minute multilevel records, seeds 0-4): novel-trajectory VAF and
-   K(theta) error against the truth, structure "fixed" against "cv".
+   K(theta) error against the truth, the new default against the previous one.
 
 Run: python benchmarks/bench_selection.py   (writes benchmarks/results/selection.txt)
 """
@@ -44,13 +46,15 @@ from lpvpc.selection import level_folds  # noqa: E402
 
 MIN_PIECE_S = 1.0  # training stretches shorter than this are left out (too short for the subspace step)
 
+NEW = "lpvpc new default (structure chosen by CV inside each training set)"
 METHODS = {
-    "lpvpc structure='cv' (selection inside each training set)": {"structure": "cv"},
-    "lpvpc previous default (structure fixed)": {},
-    "lpvpc previous default, linear extrapolation": {"scheduling_extrapolation": "linear"},
+    NEW: {},
+    "lpvpc previous default (structure='fixed')": {"structure": "fixed"},
     "paper's algorithm, fixed settings (no refinement/curvature, m = 2)": {
-        "refine": False, "elastic_curvature": False, "state_order": 2, "max_reflex_time_constant": None},
+        "structure": "fixed", "refine": False, "elastic_curvature": False, "state_order": 2,
+        "max_reflex_time_constant": None},
 }
+FLEX = "flexible least squares (training rows)"
 
 
 def flexible_prediction(d, train):
@@ -79,11 +83,12 @@ def leave_one_level_out(d):
     med = np.array([np.median(d.scheduling[labels == f]) for f in range(K)])
     ends = {int(np.argmin(med)), int(np.argmax(med))}
     y = d.torque
-    sse = {name: np.zeros(K) for name in [*METHODS, "flexible least squares (training rows)"]}
-    chosen, seconds = [], {name: 0.0 for name in sse}
+    sse = {name: np.zeros(K) for name in [*METHODS, FLEX]}
+    chosen, seconds, train_s = [], {name: 0.0 for name in sse}, []
     for f in range(K):
         test = labels == f
         train_data = join_trials(training_pieces(d, labels, f))
+        train_s.append(train_data.n / train_data.fs)
         for name, settings in METHODS.items():
             t = time.perf_counter()
             with warnings.catch_warnings():
@@ -93,15 +98,16 @@ def leave_one_level_out(d):
             seconds[name] += time.perf_counter() - t
             e = y[test] - pred[test]
             sse[name][f] = e @ e
-            if settings.get("structure") == "cv":
-                chosen.append(model.fit["structure_selection"]["chosen"])
-        name = "flexible least squares (training rows)"
+            if name == NEW:  # (the chosen settings, or why selection was skipped)
+                sel = model.fit["structure_selection"]
+                chosen.append(sel.get("chosen", {"skipped": sel.get("skipped")}))
+        name = FLEX
         t = time.perf_counter()
         e = y[test] - flexible_prediction(d, ~test)[test]
         seconds[name] += time.perf_counter() - t
         sse[name][f] = e @ e
     ss = np.array([np.sum((y[labels == f] - y.mean()) ** 2) for f in range(K)])
-    return labels, kind, med, ends, sse, ss, chosen, seconds
+    return labels, kind, med, ends, sse, ss, chosen, seconds, train_s
 
 
 def pilot_section() -> list:
@@ -109,7 +115,7 @@ def pilot_section() -> list:
     if folder is None or not (folder / "pilot_ident.csv").is_file():
         return ["## 1. Lab pilot trial: skipped (pilot_ident.csv not found; set LPVPC_REAL_DATA)"]
     d = load_identification_data(data=folder / "pilot_ident.csv", torque_sign=-1)
-    labels, kind, med, ends, sse, ss, chosen, seconds = leave_one_level_out(d)
+    labels, kind, med, ends, sse, ss, chosen, seconds, train_s = leave_one_level_out(d)
     K = len(med)
     end_idx = sorted(ends)
     lines = [f"## 1. Lab pilot trial (pilot_ident.csv, first 70 % of the recording: {d.n} samples at {d.fs:g} Hz, "
@@ -127,7 +133,7 @@ def pilot_section() -> list:
     lines.append("")
     new = rows[0]
     for name, pooled, end in rows[1:]:
-        lines.append(f"- structure='cv' minus {name}: {new[1] - pooled:+.2f} points (all folds), "
+        lines.append(f"- new default minus {name}: {new[1] - pooled:+.2f} points (all folds), "
                      f"{new[2] - end:+.2f} (end plateaus)")
     lines.append("")
     lines.append("Per fold (level, rad: VAF % of each method in the order above; * end plateau):")
@@ -138,17 +144,49 @@ def pilot_section() -> list:
     lines.append("Structures chosen inside the training sets (fold by level):")
     for f in np.argsort(med):
         c = chosen[f]
+        if "skipped" in c:
+            lines.append(f"- without {med[f]:+.3f}: not selected ({c['skipped']}; {train_s[f]:.0f} s of training data)")
+            continue
         lines.append(f"- without {med[f]:+.3f}: L {1e3 * c['irf_length']:g} ms, orders {c['intrinsic_order']}/"
                      f"{c['reflex_order']}/{c['velocity_order']} (intrinsic/reflex/velocity), delay "
                      f"{1e3 * c['reflex_delay']:g} ms, curvature {c['elastic_curvature']}, beyond range "
                      f"{c['scheduling_extrapolation']}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        whole = LPVPCEstimator(structure="cv").fit(d).model_
+        whole = LPVPCEstimator().fit(d).model_
     c = whole.fit["structure_selection"]["chosen"]
-    lines += ["", f"On the whole file, structure='cv' chooses: {c} (CV VAF {whole.fit['structure_selection']['chosen_cv_vaf']:.2f} %, "
+    lines += ["", f"On the whole file, the default chooses: {c} (CV VAF {whole.fit['structure_selection']['chosen_cv_vaf']:.2f} %, "
                   f"selection {whole.fit['structure_selection']['seconds']:.2f} s)"]
-    return lines
+    return lines + [""] + development_split(d)
+
+
+def development_split(d) -> list:
+    """Identified on the first 70 % of the file, its last 30 % predicted (the whole record is
+    predicted so that the scored part starts from the trial's own past)."""
+    k = int(0.7 * d.n)
+    ident, held = d.segment(0, k), d.segment(k, None)
+    lines = [f"## 1b. Development split: identified on the first 70 % of pilot_ident.csv ({k} samples), its last "
+             f"30 % predicted ({d.n - k} samples)", "",
+             "| method | held-out VAF (%) | causal form (%) | identification VAF (%) | time (s) |", "|---|---|---|---|---|"]
+    for name, settings in METHODS.items():
+        t = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = LPVPCEstimator(**settings).fit(ident).model_
+            two, cau = m.predict(d).total[k:], m.predict(d, causal=True).total[k:]
+        el = time.perf_counter() - t
+        lines.append(f"| {name.replace(' inside each training set', '')} | {vaf(held.torque, two):.2f} | "
+                     f"{vaf(held.torque, cau):.2f} | {m.fit['vaf']:.2f} | {el:.1f} |")
+        if name == NEW:
+            sel = m.fit["structure_selection"]
+            chosen = sel.get("chosen", f"nothing: selection skipped ({sel.get('skipped')})")
+    t = time.perf_counter()
+    fl = FlexibleFit(d.fs).fit(ident.position, ident.torque, ident.scheduling)
+    pf = fl.predict(d.position, d.scheduling)[k:]
+    el = time.perf_counter() - t
+    lines.append(f"| {FLEX.replace('training rows', 'first 70 %')} | {vaf(held.torque, pf):.2f} | - | "
+                 f"{vaf(ident.torque, fl.predict(ident.position, ident.scheduling)):.2f} | {el:.1f} |")
+    return lines + ["", f"The new default chose on the first 70 %: {chosen}"]
 
 
 def subject_section(seeds=range(5)) -> list:
@@ -158,15 +196,15 @@ def subject_section(seeds=range(5)) -> list:
     lines = ["## 2. Virtual subject: 2-minute multilevel records, novel trajectory predicted (seed + 1000)", "",
              "| seed | structure | novel VAF (%) | K worst err (%) | K mean abs err (%) | identify (s) | chosen |",
              "|---|---|---|---|---|---|---|"]
-    agg = {"fixed": [], "cv": []}
+    agg = {"previous default (fixed)": [], "new default (cv)": []}
     for seed in seeds:
         ident, novel = simulate_pair("multilevel", seed=seed), simulate_pair("novel", seed=seed + 1000)
         d, nv = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
-        for structure in ("fixed", "cv"):
+        for structure in agg:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 t = time.perf_counter()
-                model = LPVPCEstimator(structure=structure).fit(d).model_
+                model = LPVPCEstimator(**({"structure": "fixed"} if "fixed" in structure else {})).fit(d).model_
                 el = time.perf_counter() - t
                 pred = model.predict(nv.position, nv.scheduling).total
             lo, hi = model.scheduling_range

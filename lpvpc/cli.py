@@ -265,7 +265,7 @@ def cmd_identify(args) -> int:
         settings.pop("state_order")
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
-    if settings.get("structure") == "cv":  # what the user wrote is not selected
+    if settings.get("structure", "cv") == "cv":  # (the default) what the user wrote is not selected
         from .selection import SEARCH
 
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags")
@@ -350,9 +350,13 @@ def _selection_summary(sel) -> list:
 
     lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
              f"             {'CV VAF %':>9} {'params':>6}  structure"]
-    for row in sel["table"]:
+    for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
         mark = "*" if row["settings"] == sel["chosen"] else " "
         lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
+    orders = sel.get("state_order", {})
+    if orders.get("cv_vaf"):
+        lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
+                     + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")")
     return lines
 
 
@@ -935,8 +939,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
     p.add_argument("--structure", choices=("fixed", "cv"),
-                   help="cv: choose IRF half-width, basis orders, reflex delay, curvature term and extrapolation "
-                        "rule by leave-one-level-out cross-validation (options given here stay fixed; default fixed)")
+                   help="cv (default): choose IRF half-width, basis orders, reflex delay, curvature term and "
+                        "extrapolation rule by leave-one-level-out cross-validation (options given here stay fixed); "
+                        "fixed: the settings as given")
     p.add_argument("--extrapolation", dest="scheduling_extrapolation", choices=("clip", "linear"),
                    help="beyond the identified position range the bases are held (clip, default) or continued "
                         "linearly")

@@ -19,6 +19,8 @@ Steps (equation numbers of the seed paper):
 
 from __future__ import annotations
 
+import functools
+import inspect
 import time
 import warnings
 
@@ -40,6 +42,28 @@ DEFAULT_REFLEX_DELAY = 0.040  # s
 DEFAULT_IRF_LENGTH = 0.040  # s
 DEFAULT_MAX_REFLEX_TIME_CONSTANT = 1.0  # s (see max_reflex_time_constant)
 STATIONARY_DELAYS = (0.04, 0.05, 0.06, 0.07, 0.08)  # s
+#: structure="cv" is skipped (the settings as given, the reason recorded) when its largest
+#: regressor would take more than this: a 30-minute 100 Hz record's takes 260 MB; a 1 kHz
+#: record's IRF has 10x the lags.
+DESIGN_BUDGET_BYTES = 400e6
+#: s: structure="cv" is skipped on shorter records (the settings as given, the reason recorded).
+#: Virtual subject, seeds 0-5, worst K(theta) error over the central 80 % of the range: 30-s
+#: records 2.5-28 % with the selection (small structures: IRF 20 ms, intrinsic order 2-3)
+#: against 3.7-6.9 % at the fixed settings; 45-s records 2.2-5.4 % against 2.7-4.9 %;
+#: 60-s records (seeds 0-3, five positions) within 2.5 %, as good or better.
+MIN_SELECTION_S = 45.0
+
+
+def _records_given_settings(init):
+    """Wrap ``__init__`` to record the names of the settings passed (structure="cv" leaves them as given)."""
+    signature = inspect.signature(init)
+
+    @functools.wraps(init)
+    def wrapper(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self._given = set(signature.bind(self, *args, **kwargs).arguments) - {"self"}
+
+    return wrapper
 
 
 class LPVPCEstimator:
@@ -118,13 +142,20 @@ class LPVPCEstimator:
         +14 % high on the virtual subject (+1 % with it; K unchanged). Lab pilot trial:
         held-out VAF 94.06 % with it, 94.10 % without; free coefficients instead of tied
         ones lost 0.13 points there (and 6 points on the 1 kHz path).
-    structure : "fixed" (default: the settings as given) or "cv": the IRF half-width, basis
-        orders, reflex delay, curvature term and scheduling extrapolation are chosen by
-        leave-one-level-out cross-validation with the one-standard-error rule
+    structure : "cv" (default) or "fixed". "cv": the IRF half-width, basis orders, reflex
+        delay, curvature term and scheduling extrapolation the caller did not set are
+        chosen by leave-one-level-out cross-validation with the one-standard-error rule
         (:mod:`lpvpc.selection`), starting from the settings given; the choice and a CV
-        table are recorded in ``model.fit["structure_selection"]``.
+        table are recorded in ``model.fit["structure_selection"]``. On the lab's pilot
+        trial (first 70 %, leave-one-level-out) it predicted left-out levels at 90.9 %
+        VAF against 81.1 % for the fixed settings (benchmarks/results/selection.txt).
+        Selection is skipped, with the reason recorded, on stationary trials, extended
+        models (effects), non-polynomial bases, the high-rate reflex path and records whose
+        selection design would exceed ``DESIGN_BUDGET_BYTES``. "fixed": the settings as given.
     structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
-        given (the command line puts there every option the user wrote).
+        given. None (default): every selected setting named in the call (to the constructor,
+        :meth:`set_params` or :func:`identify`), whatever its value; an ``irf_lags`` given
+        fixes ``irf_length``. The command line likewise fixes every option the user wrote.
     scheduling_extrapolation : beyond the identified range of the scheduling variable the
         position bases are held at the boundary ("clip", default) or continued along their
         tangent ("linear"; :class:`lpvpc.basis.Basis`).
@@ -159,6 +190,7 @@ class LPVPCEstimator:
     4
     """
 
+    @_records_given_settings
     def __init__(
         self,
         irf_lags: int | None = None,
@@ -186,8 +218,8 @@ class LPVPCEstimator:
         high_rate_reflex: bool = False,
         elastic_curvature: bool = True,
         max_reflex_time_constant: float | None = DEFAULT_MAX_REFLEX_TIME_CONSTANT,
-        structure: str = "fixed",
-        structure_fixed: tuple = (),
+        structure: str = "cv",
+        structure_fixed: tuple | None = None,
         scheduling_extrapolation: str = "clip",
     ):
         self.structure = structure
@@ -227,7 +259,8 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")}
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")
+            } | {"structure_fixed": self._given_settings()}  # (a clone keeps what was given)
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -243,6 +276,7 @@ class LPVPCEstimator:
             raise ValueError(f"unknown estimator setting(s) {unknown}; valid: {sorted(self.get_params())}")
         for k, v in params.items():
             setattr(self, k, v)
+        self._given = getattr(self, "_given", set()) | set(params)
         return self
 
     def predict(self, data):
@@ -301,6 +335,9 @@ class LPVPCEstimator:
         rho = np.asarray(data.scheduling, dtype=float)
         if rho.size == 0 or not np.all(np.isfinite(rho)) or float(np.ptp(rho)) < self.stationary_range:
             return "stationary trial (its delay is chosen by BIC: stationary_delays)"
+        if len(rho) < MIN_SELECTION_S * float(data.fs):
+            return (f"record of {len(rho) / float(data.fs):.0f} s, shorter than {MIN_SELECTION_S:.0f} s: too short for "
+                    f"the cross-validation to choose reliably")
         if self.effects:
             return "extended model (effects)"
         if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
@@ -313,23 +350,21 @@ class LPVPCEstimator:
         """structure="cv": a fit at the given settings gives the reflex dynamics; the
         structure is chosen by cross-validation with them held (lpvpc.selection); the
         chosen structure is fitted (its state order the first fit's)."""
-        from .selection import SEARCH, StructureSearch
+        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns
 
         t0 = time.perf_counter()
-        unknown = sorted(set(self.structure_fixed) - set(SEARCH) - {"irf_lags"})
+        given = self._given_settings()
+        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"})
         if unknown:
             raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
-                             f"{sorted(SEARCH)} (and irf_lags)")
-        base = {**self.get_params(), "structure": "fixed"}
+                             f"{sorted(SEARCH)} (and irf_lags, state_order)")
+        fixed = {"irf_length" if k == "irf_lags" else k for k in given}
+        base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
         if reason is not None:
-            est = LPVPCEstimator(**base).fit(data)
-            est.model_.settings["structure"] = "cv"
-            est.model_.fit["structure_selection"] = {"skipped": reason}
-            self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
-            return self
+            return self._fit_unselected(data, base, reason)
         first = LPVPCEstimator(**base)
-        first._reuse = {"no_intervals": True}  # computed once, for the model kept
+        first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             first._fit(data)
@@ -339,31 +374,70 @@ class LPVPCEstimator:
                  "reflex_order": self.reflex_order, "velocity_order": self.velocity_order,
                  "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
                  "scheduling_extrapolation": self.scheduling_extrapolation}
-        fixed = {"irf_length" if k == "irf_lags" else k for k in self.structure_fixed}
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
         search = {**SEARCH, **{k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH if k not in fixed}}
         search.update({k: (start[k],) for k in fixed if k in SEARCH})
+        n_cols = design_columns(search, fs)
+        if 8.0 * len(y) * n_cols > DESIGN_BUDGET_BYTES:
+            return self._fit_unselected(data, base, f"the selection's design ({len(y)} x {n_cols}) would exceed "
+                                                    f"{DESIGN_BUDGET_BYTES / 1e6:.0f} MB")
+        if int(round(start["irf_length"] * fs)) > int(round(start["reflex_delay"] * fs)):
+            return self._fit_unselected(data, base, "IRF half-width longer than the reflex delay")
         t = time.perf_counter()
-        sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                              self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
+        try:
+            sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                                  self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
+        except np.linalg.LinAlgError as exc:  # e.g. a fold's normal equations singular on a very short record
+            return self._fit_unselected(data, base, f"cross-validation failed: {exc}")
+        # The state order: BIC's at the starting structure, against one lower and one higher
+        # (those the first fit tried) scored by CV at the chosen structure, unless it is given.
+        order, bic_order, order_cv = m.fit["state_order"], m.fit["state_order"], {}
+        if self.state_order is None and "state_order" not in fixed:
+            neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
+            chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
+            order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
+                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)))
         t_select = time.perf_counter() - t
-        # The chosen structure is fitted at the first fit's state order, its poles refined from
-        # the first fit's subspace step (the poles do not depend on the structure's columns;
-        # MOESP is a quarter of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**sel.chosen, "irf_lags": None, "state_order": m.fit["state_order"]}
+        # The chosen structure is fitted at that order, its poles refined from the first fit's
+        # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
+        # of a fit). The starting structure chosen: the same fit, with intervals.
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
+        if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
+            # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
+            est._reuse["poles"] = {order: first._order_dynamics[order][0]}
         est._fit(data)
-        est.model_.settings["state_order"] = self.state_order  # chosen by BIC at the starting structure
+        est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
         est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
         model = est.model_
         model.settings.update({"structure": "cv", "structure_fixed": sorted(fixed)})
         model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
-                                            "state_order_from": "BIC at the starting structure"}
+                                            "state_order": {"bic": int(bic_order), "chosen": int(order),
+                                                            "cv_vaf": {str(k): v for k, v in order_cv.items()}},
+                                            "state_order_from": "BIC at the starting structure" if not order_cv else
+                                            "BIC at the starting structure, against one lower and one higher by CV "
+                                            "at the chosen structure (one-standard-error rule toward BIC's)"}
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
+        return self
+
+    def _given_settings(self) -> tuple:
+        """Names of the selected settings the caller set: structure_fixed, or those named in the call."""
+        if self.structure_fixed is not None:
+            return tuple(self.structure_fixed)
+        from .selection import SEARCH
+
+        return tuple(k for k in (*SEARCH, "irf_lags", "state_order") if k in getattr(self, "_given", ()))
+
+    def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
+        """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
+        est = LPVPCEstimator(**base).fit(data)
+        est.model_.settings["structure"] = "cv"
+        est.model_.fit["structure_selection"] = {"skipped": reason}
+        self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
         return self
 
     def _fit_both_ways(self, data) -> "LPVPCEstimator":
@@ -460,7 +534,8 @@ class LPVPCEstimator:
         fits, failed = {}, {}
         for m in orders:
             try:
-                fits[m] = self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg)
+                fits[m] = self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg,
+                                                start=reuse.get("poles", {}).get(m))
             except InsufficientExcitationError as err:  # a candidate order the data cannot support
                 failed[m] = err
         if not fits:  # every order failed: report the first
@@ -475,17 +550,24 @@ class LPVPCEstimator:
                if m in stable or not stable}
         m_best = min(bic, key=bic.get)
         best = fits[m_best]
+        self._order_dynamics = {m: (f["A"], np.reshape(f["C"], (1, -1)), np.append(f["hammerstein"].b, f["hammerstein"].d))
+                                for m, f in fits.items() if m in bic}  # (structure selection compares them)
         del refinement  # its N-row factors (a third of a 30-minute record's peak memory)
         timings["projection_and_reflex"] = time.perf_counter() - t
 
         H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
         curvature = curvature_from_irf(H, G_i) if self.elastic_curvature else None
         causal = list(range(0, (self.causal_lags if self.causal_lags is not None else L + 2) + 1))
-        S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
-        Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
-        # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
-        H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base], rcond=None)[0].reshape(S_c.shape[1], G_i.size)
-        del Psi_c, S_c
+        bare = bool(reuse.get("bare"))  # structure selection's first fit: only its dynamics and order are used
+        if bare:
+            H_causal = np.zeros((len(causal) + 2, G_i.size))  # (no causal form)
+        else:
+            S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
+            Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
+            # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
+            H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base],
+                                       rcond=None)[0].reshape(S_c.shape[1], G_i.size)
+            del Psi_c, S_c
 
         hf = best["hammerstein"]
         Omega = hf.omega.reshape(-1, G_r.size)
@@ -502,7 +584,7 @@ class LPVPCEstimator:
             curvature=curvature,
             settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
                       "stationary_delays": [float(c) for c in self.stationary_delays],  # JSON: lists
-                      "structure_fixed": list(self.structure_fixed)},
+                      "structure_fixed": list(self.structure_fixed or ())},
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
@@ -517,7 +599,7 @@ class LPVPCEstimator:
                 return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
-        if design is None and not reuse.get("no_intervals"):  # intervals (lpvpc.uncertainty); extended models carry none
+        if design is None and not bare:  # intervals (lpvpc.uncertainty); extended models carry none
             from .reflex import reflex_regressor
             from .uncertainty import fit_uncertainty
 
@@ -537,8 +619,8 @@ class LPVPCEstimator:
             timings["uncertainty"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         model.fit = {
-            "vaf": vaf(y, predicted(False)),
-            "vaf_causal": vaf(y, predicted(True)),
+            "vaf": float("nan") if bare else vaf(y, predicted(False)),
+            "vaf_causal": float("nan") if bare else vaf(y, predicted(True)),
             "n_samples": int(n),
             "n_trials": len(seg),
             # the top of the rectifier fit (model.reflex_gain_threshold). High rate: the top of the
@@ -547,7 +629,7 @@ class LPVPCEstimator:
             # file's rounding, fall on either side of zero: 2.6 or 4.5 rad/s for one recording), and
             # beyond the range the curve is only the basis's linear continuation.
             "velocity_p99": _velocity_p99(dvel, V_b) if high is None else high.velocity_basis.hi,
-            "data_density": data_density(rho, dvel, G_i, V_b) if high is None else
+            "data_density": {} if bare else data_density(rho, dvel, G_i, V_b) if high is None else
             data_density(high.rho, high.dvel, G_i, high.velocity_basis),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
@@ -560,7 +642,8 @@ class LPVPCEstimator:
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
         }
-        check_physiology(model)
+        if not bare:
+            check_physiology(model)
         self.model_ = model
         self.subspace_ = sub
         self.n_features_ = Psi_i.shape[1] + U_r.shape[1]
@@ -613,14 +696,14 @@ class LPVPCEstimator:
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self
 
-    def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None):
+    def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None, start=None):
         from .linalg import project_out_and_solve, triangular_factor
         from .reflex import fit_hammerstein, reflex_regressor
 
         A, C = sub.system(m)
         moesp_poles = np.linalg.eigvals(A)
-        if refinement is not None:
-            A, C, _ = refinement.refine(A)
+        if refinement is not None:  # from ``start`` (A of the fit at a neighbouring structure) when given
+            A, C, _ = refinement.refine(A if start is None else start)
         blocks = reflex_regressor(U_r, A, C, segments)
         # Every fit below is a least-squares problem in the columns of [Psi_r, Psi_i, y]:
         # solved on their triangular factor, at ~100 rows instead of N, with the same

@@ -148,6 +148,23 @@ def reflex_regressor(U_r, A, C, segments=None):
     return blocks
 
 
+
+def reflex_response_regressor(U_r, A, C, b, d, segments=None):
+    """sum_i b_i Psi_r,i + d U_r (the blocks of :func:`reflex_regressor` weighted by [B; D]):
+    U_r filtered by the whole reflex dynamics C (zI - A)^-1 B + D in one filter instead of m.
+
+    >>> rng = np.random.default_rng(0)
+    >>> U = rng.standard_normal((500, 3))
+    >>> A, C = np.array([[1.6, 1.0], [-0.63, 0.0]]), np.array([[1.0, 0.0]])
+    >>> b, d = np.array([0.5, -0.2]), 0.1
+    >>> blocks = reflex_regressor(U, A, C)
+    >>> bool(np.allclose(reflex_response_regressor(U, A, C, b, d), sum(c * k for c, k in zip([*b, d], blocks))))
+    True
+    """
+    num, den = scipy.signal.ss2tf(A, np.asarray(b, dtype=float).reshape(-1, 1), C, np.array([[float(d)]]))
+    filt = lambda u: scipy.signal.lfilter(num[0], den, u, axis=0)  # noqa: E731
+    return filt(U_r) if segments is None else segments.map(filt, U_r)
+
 @dataclass
 class HammersteinFit:
     """The result of :func:`fit_hammerstein`: the reflex dynamics' input vector and

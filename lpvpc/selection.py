@@ -39,7 +39,7 @@ import numpy as np
 from . import equations as eq
 from .basis import Basis, basis_from_data
 from .intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
-from .reflex import reflex_input_regressor, reflex_regressor
+from .reflex import reflex_input_regressor, reflex_response_regressor
 from .segments import Segments
 
 #: Candidate values of each selected setting (IRF half-widths in s, delays in s).
@@ -59,6 +59,19 @@ BLOCK_FOLDS = 5
 HOLD_S, HOLD_SPEED, LEVEL_TOL = 1.0, 0.05, 0.015
 MIN_LEVELS = 4
 RIDGE = 1e-10  # relative to the scaled Gram matrix's unit diagonal
+
+
+def design_columns(search: dict, fs: float) -> int:
+    """Columns of the largest regressor of a search (its IRF lags at rate ``fs`` Hz, curvature
+    shares, each delay's reflex columns, a zero column): memory is 8 bytes x samples x this.
+
+    >>> design_columns(SEARCH, 100.0)  # 11 lags x 8, 8, 3 delays x 7 x 4, 1
+    181
+    """
+    n_lags = 2 * max(max(1, int(round(x * fs))) for x in search["irf_length"]) + 1
+    n_i = max(search["intrinsic_order"]) + 1
+    n_delays = len({max(1, int(round(x * fs))) for x in search["reflex_delay"]})
+    return n_lags * n_i + n_i + n_delays * (max(search["velocity_order"]) + 1) * (max(search["reflex_order"]) + 1) + 1
 
 
 def level_folds(rho, fs):
@@ -183,8 +196,13 @@ class _Design:
         Gi, Gr = self.G_i.evaluate(rho), self.G_r.evaluate(rho)
         X = self._regressor(Gi, Gr)
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
-        self.G = np.stack([X[r].T @ X[r] for r in rows])
-        self.b = np.stack([X[r].T @ y[r] for r in rows])
+        # each fold's Gram matrix summed over its contiguous runs: views of X, no row copies
+        self.G = np.zeros((n_folds, self.n_cols, self.n_cols))
+        self.b = np.zeros((n_folds, self.n_cols))
+        cuts = np.r_[0, np.flatnonzero(np.diff(labels)) + 1, len(labels)]
+        for a, c in zip(cuts[:-1], cuts[1:]):
+            self.G[labels[a]] += X[a:c].T @ X[a:c]
+            self.b[labels[a]] += X[a:c].T @ y[a:c]
         self.end = {rule: {} for rule in rules}
         for f, r in enumerate(rows):
             train = rho[labels != f]
@@ -206,22 +224,24 @@ class _Design:
         out = np.zeros((len(r), self.n_cols))
         if changed.size == 0:
             return out
-        w0 = min(int(changed[0]), int(r.min())) if len(self.seg) == 1 else 0  # input zero before changed[0]
-        w1 = int(max(r.max(), changed[-1])) + 1 if len(self.seg) == 1 else len(self.p)
+        # the window: from the first change (the input is zero before it; rows before it change
+        # by nothing) to the last row wanted (later inputs do not reach it)
+        w0 = int(changed[0]) if len(self.seg) == 1 else 0
+        w1 = int(r.max()) + 1 if len(self.seg) == 1 else len(self.p)
         seg = self.seg if len(self.seg) > 1 else None
         window = slice(w0, w1)
         n_lag = (2 * self.L_max + 1) * Gi.shape[1]
-        lags = two_sided_lags(self.L_max)
-        intr = self.seg.map(intrinsic_regressor, self.p, dGi, lags=lags) if seg is not None else \
-            intrinsic_regressor(self.p, dGi, lags)
-        out[:, :n_lag] = intr[r]
+        P = self.seg.map(eq.lagged, self.p, lags=two_sided_lags(self.L_max))[r]  # the IRF columns at rows r only
+        out[:, :n_lag] = (P[:, :, None] * dGi[r][:, None, :]).reshape(len(r), n_lag)
         out[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p[r], dGi[r], self.G_i)
         col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
-        k = r - w0  # the rows within the window
-        for V in self.V:
-            blocks = reflex_regressor(reflex_input_regressor(V[window], dGr[window]), self.A, self.C, seg)
-            out[:, col : col + n_ref] = sum(c * blk[k] for c, blk in zip(self.bd, blocks))
-            col += n_ref
+        inside = r >= w0
+        k = r[inside] - w0  # the rows within the window
+        if w1 > w0:
+            for V in self.V:
+                out[inside, col : col + n_ref] = reflex_response_regressor(
+                    reflex_input_regressor(V[window], dGr[window]), self.A, self.C, self.bd[:-1], self.bd[-1], seg)[k]
+                col += n_ref
         return out
 
     def _regressor(self, Gi, Gr, basis=None):
@@ -235,8 +255,8 @@ class _Design:
         X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
         col = n_lag + Gi.shape[1]
         for V in self.V:
-            blocks = reflex_regressor(reflex_input_regressor(V, Gr), self.A, self.C, self.seg)
-            X[:, col : col + V_cols] = sum(c * blk for c, blk in zip(self.bd, blocks))
+            X[:, col : col + V_cols] = reflex_response_regressor(reflex_input_regressor(V, Gr), self.A, self.C,
+                                                                 self.bd[:-1], self.bd[-1], self.seg)
             col += V_cols
         return X
 
@@ -370,3 +390,44 @@ class StructureSearch:
                        key=lambda s: (s.n_params, s.settings["scheduling_extrapolation"] != "clip", -s.cv_vaf))
         return Selection(chosen=dict(simplest.settings), start=dict(first.settings), fold_kind=self.kind, n_folds=K,
                          scored=scored, best=dict(best.settings))
+
+
+def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order: int, bic_score: Scored,
+                         family="chebyshev", velocity_family="chebyshev", segments=None):
+    """The reflex state order by cross-validation: the chosen structure scored (same folds)
+    under the reflex dynamics of each other order the first fit tried (``dynamics``: order ->
+    (A, C, [B; D])). BIC's order stays unless another predicts the left-out folds better by
+    more than one paired standard error. Returns (order, {order: CV VAF %}).
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import LPVPCEstimator
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     m = LPVPCEstimator(structure="fixed").fit(d).model_
+    >>> settings = {"irf_length": 0.04, "intrinsic_order": 5, "reflex_order": 2, "velocity_order": 4,
+    ...             "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": "clip"}
+    >>> one = {k: (v,) for k, v in settings.items()}
+    >>> own = StructureSearch(d.position, d.torque, d.scheduling, d.fs, (m.A, m.C[None, :], np.append(m.B, m.D)),
+    ...                       search=one).score(settings)
+    >>> silent = (np.array([[0.5]]), np.array([[1.0]]), np.zeros(2))  # a made-up order 1 without reflex torque
+    >>> order, cv = compare_state_orders(d.position, d.torque, d.scheduling, d.fs, settings, {1: silent},
+    ...                                  m.state_order, own)
+    >>> order == m.state_order, bool(cv[1] < cv[m.state_order])  # BIC's order stays: the other predicts worse
+    (True, True)
+    """
+    scores = {bic_order: bic_score}
+    for order, dyn in dynamics.items():
+        if order != bic_order:
+            search = StructureSearch(p, y, rho, fs, dyn, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
+                                     segments)
+            scores[order] = search.score(chosen)
+    best = min(scores, key=lambda k: float(scores[k].fold_sse.sum()))
+    K = len(bic_score.fold_sse)
+    diff = K * (scores[bic_order].fold_sse - scores[best].fold_sse)  # > 0 where ``best`` predicts better
+    if best != bic_order and (K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)):
+        best = bic_order
+    return best, {int(k): float(v.cv_vaf) for k, v in sorted(scores.items())}

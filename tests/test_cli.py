@@ -405,7 +405,9 @@ def test_identify_prints_the_physiology_and_warns_on_a_reversed_torque_sign(run_
     same data with the torque sign reversed (--torque-sign -1 on a correctly signed file)
     give a negative stiffness and one warning line naming the option."""
     data = run_dir / "data"
-    args = ["identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "--state-order", "2"]
+    # structure fixed: the printing is tested here, at the IRF the line names (tests/test_selection.py: the default's)
+    args = ["identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "--state-order", "2",
+            "--structure", "fixed"]
     status, out, err = _run(args + ["-o", tmp_path / "m.json"], capsys)
     assert status == 0 and "warning" not in err
     for key in ("stiffness:   K(theta)", "viscosity:   B", "reflex gain:", "threshold", "orders:      IRF lags -4..4",

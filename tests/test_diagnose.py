@@ -46,7 +46,9 @@ def clean(seed):
     """(model, held-out data, diagnosis) without a hidden effect, cached per seed."""
     if seed not in _CLEAN:
         ident, novel = _pairs(seed)
-        model = identify(ident)
+        # structure fixed: these tests are about the diagnosis (with the default's selected
+        # structure, a 32-s record's surrogate missed the model's prediction by 0.54 VAF points)
+        model = identify(ident, structure="fixed")
         _CLEAN[seed] = (model, novel, diagnose(model, novel))
     return _CLEAN[seed]
 

@@ -172,7 +172,7 @@ def test_effect_columns_join_the_intrinsic_regressor(rich):
     base model) and the fitted effect reproduces its share of the torque."""
     data, model = rich
     est = LPVPCEstimator(effects=("drift",)).fit(data)
-    base = LPVPCEstimator().fit(data)
+    base = LPVPCEstimator(structure="fixed").fit(data)  # the same structure as the extended model's (not selected)
     (fe,) = est.model_.effects
     n_b = fe.channel_basis.size  # drift's own rho basis order (below the intrinsic one)
     assert est.n_features_ == base.n_features_ + len(est.model_.lags) * n_b

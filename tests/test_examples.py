@@ -527,7 +527,9 @@ def test_example_diagnosing_a_missing_effect():
     effect = "direction_dependent_stiffness"
     ident = simulate_pair("multilevel", seed=4, effects=(effect,), duration=60.0, fs_out=100.0)
     held = simulate_pair("multilevel", seed=5, effects=(effect,), duration=60.0, fs_out=100.0)
-    model, data = identify(pair_trials(ident.pt, ident.ut)), pair_trials(held.pt, held.ut)
+    # structure fixed: the diagnosis is the subject here (a structure selected on these data can
+    # take up part of the missing stiffness, and the residual's dependence then ranks trial time first)
+    model, data = identify(pair_trials(ident.pt, ident.ut), structure="fixed"), pair_trials(held.pt, held.ut)
 
     coverage = D.record_coverage(model, data)  # s, fractions of the identified range
     assert coverage["duration_s"] == 60.0 and coverage["outside_fraction"] == 0.0
@@ -578,7 +580,7 @@ def test_example_an_extended_fit_by_hand():
     pair = simulate_pair("multilevel", seed=4, effects=("drift",), duration=30.0, fs_out=100.0)
     data = pair_trials(pair.pt, pair.ut)
     p, rho, fs = data.position, data.scheduling, data.fs  # rad, rad, Hz
-    base = identify(data)
+    base = identify(data, structure="fixed")  # the extended fit below is not selected either: the same structure
     Gi = base.intrinsic_basis.evaluate(rho)
 
     # the base model's causal IRF is the least-squares causal fit of its two-sided torque

@@ -148,8 +148,10 @@ def test_random_record_nonzero_start_and_scheduling_out_of_range(model, variant)
     lat = ex.latency_samples(model, variant)
     errors = _rel_errors(out, ref, lat)
     assert max(errors.values()) < TOL, errors
-    clamped = reference(model, position, np.clip(scheduling, lo, hi), variant)
-    assert np.max(np.abs(ref["torque"] - clamped["torque"])) < 1e-12 * np.max(np.abs(ref["torque"]))
+    if model.intrinsic_basis.extrapolation == "clip":  # held at the edge (the default structure may choose
+        # "linear" continuation: then the export's agreement with numpy beyond the range is what is checked above)
+        clamped = reference(model, position, np.clip(scheduling, lo, hi), variant)
+        assert np.max(np.abs(ref["torque"] - clamped["torque"])) < 1e-12 * np.max(np.abs(ref["torque"]))
     assert np.all(np.isfinite(out["torque"]))
 
 

@@ -335,9 +335,10 @@ def test_scheduling_out_of_range_is_clamped(model, subject, fmus, variant):
     with pytest.warns(Warning, match="outside the identified range"):
         ref = model.predict(data.position, scheduling, causal=variant == "causal")
     ref = np.column_stack([ref.total, ref.intrinsic, ref.reflex])
-    clamped = _ref(model, data.position, np.clip(scheduling, lo, hi), variant)
     assert _rel_err(Y, ref, lat) < TOL
-    assert _rel_err(Y, clamped, lat) < TOL
+    if model.intrinsic_basis.extrapolation == "clip":  # (the default structure may choose "linear" continuation:
+        clamped = _ref(model, data.position, np.clip(scheduling, lo, hi), variant)  # then the FMU equals numpy's)
+        assert _rel_err(Y, clamped, lat) < TOL
 
 
 def test_parameters_are_settable_before_initialization(model, subject, fmus):

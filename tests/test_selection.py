@@ -106,8 +106,9 @@ def test_structure_cv_chooses_records_and_round_trips(record, tmp_path):
 def test_linear_extrapolation_continues_the_stiffness_beyond_the_range(record):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        clip = LPVPCEstimator(scheduling_extrapolation="clip").fit(record).model_
-        lin = LPVPCEstimator(scheduling_extrapolation="linear").fit(record).model_
+        # the rule alone differs (structure fixed: the selection could pick other orders for each)
+        clip = LPVPCEstimator(scheduling_extrapolation="clip", structure="fixed").fit(record).model_
+        lin = LPVPCEstimator(scheduling_extrapolation="linear", structure="fixed").fit(record).model_
     lo, hi = lin.scheduling_range
     inside = np.linspace(lo, hi, 7)
     np.testing.assert_allclose(lin.elastic_stiffness(inside), clip.elastic_stiffness(inside), rtol=1e-9)
@@ -122,7 +123,9 @@ def test_selection_is_skipped_where_it_cannot_apply_and_bad_values_are_refused(r
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         est = LPVPCEstimator(structure="cv", basis="gaussian").fit(record)
+        short = LPVPCEstimator().fit(record.segment(0, 3000))  # 30 s: too short to select reliably
     assert "non-polynomial" in est.model_.fit["structure_selection"]["skipped"]
+    assert "shorter than 45 s" in short.model_.fit["structure_selection"]["skipped"]
     with pytest.raises(ValueError, match="structure must be 'fixed' or 'cv'"):
         LPVPCEstimator(structure="best").fit(record)
     with pytest.raises(ValueError, match=r"structure_fixed names settings that are not selected: \['horizon'\]"):
@@ -137,13 +140,53 @@ def test_cli_structure_cv_prints_the_choice_and_keeps_written_options(record, tm
     write_trial_csv(sim.pt, tmp_path / "PT.csv")
     write_trial_csv(sim.ut, tmp_path / "UT.csv")
     out = tmp_path / "m.json"
+    # the default: no --structure option; an option written at its default value stays fixed too
     rc = main(["identify", "--pt", str(tmp_path / "PT.csv"), "--ut", str(tmp_path / "UT.csv"), "-o", str(out),
-               "--structure", "cv", "--intrinsic-order", "3"])
+               "--intrinsic-order", "3", "--reflex-order", "2"])
     text = capsys.readouterr().out
     assert rc == 0 and "structure:   chosen by leave-one-level-out" in text and "CV VAF %" in text
+    table = [line for line in text.splitlines() if line.startswith("           ")]
+    assert 3 <= len(table) <= 6 and "CV VAF %" in table[0]  # a short table: header, up to 4 rows, state orders
+    assert "reflex state order by CV" in text
     model = json.loads(out.read_text())
-    assert model["settings"]["intrinsic_order"] == 3
+    assert model["settings"]["intrinsic_order"] == 3 and model["settings"]["structure"] == "cv"
     assert model["fit"]["structure_selection"]["chosen"]["intrinsic_order"] == 3
+    assert model["fit"]["structure_selection"]["chosen"]["reflex_order"] == 2
+    assert model["settings"]["structure_fixed"] == ["intrinsic_order", "reflex_order"]
+    rc = main(["identify", "--pt", str(tmp_path / "PT.csv"), "--ut", str(tmp_path / "UT.csv"), "-o", str(out),
+               "--structure", "fixed"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "structure:" not in text
+    assert "structure_selection" not in json.loads(out.read_text())["fit"]
+
+
+def test_cli_refuses_an_unknown_structure_with_exit_2(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "lpvpc.cli", "identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o",
+                        str(tmp_path / "m.json"), "--structure", "best"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "argument --structure: invalid choice: 'best' (choose from 'fixed', 'cv')" in r.stderr.splitlines()[-1]
+
+
+def test_default_is_cross_validated_and_named_settings_stay_as_given(record):
+    """The default selects the structure; a setting named in the call stays as given even at its
+    default value (set_params likewise); the state order is BIC's against one lower and one higher."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        default = LPVPCEstimator().fit(record).model_
+        named = LPVPCEstimator(intrinsic_order=5).set_params(scheduling_extrapolation="clip").fit(record).model_
+        given_order = LPVPCEstimator(state_order=2).fit(record).model_
+    sel = default.fit["structure_selection"]
+    assert default.settings["structure"] == "cv" and "chosen" in sel and sel["n_folds"] >= 4
+    orders = sel["state_order"]
+    assert orders["chosen"] == default.state_order and str(orders["bic"]) in orders["cv_vaf"]
+    assert set(orders["cv_vaf"]) <= {str(orders["bic"] + k) for k in (-1, 0, 1)} and len(orders["cv_vaf"]) >= 2
+    chosen = named.fit["structure_selection"]["chosen"]
+    assert chosen["intrinsic_order"] == 5 and chosen["scheduling_extrapolation"] == "clip"
+    assert named.settings["structure_fixed"] == ["intrinsic_order", "scheduling_extrapolation"]
+    assert given_order.state_order == 2 and given_order.fit["structure_selection"]["state_order"]["cv_vaf"] == {}
 
 
 def test_everything_fixed_gives_the_fixed_structures_model(record):
@@ -153,8 +196,8 @@ def test_everything_fixed_gives_the_fixed_structures_model(record):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fixed = LPVPCEstimator().fit(record).model_
-        cv = LPVPCEstimator(structure="cv", structure_fixed=tuple(SEARCH)).fit(record).model_
+        fixed = LPVPCEstimator(structure="fixed").fit(record).model_
+        cv = LPVPCEstimator(structure="cv", structure_fixed=(*SEARCH, "state_order")).fit(record).model_
     np.testing.assert_allclose(cv.H, fixed.H, rtol=1e-10, atol=1e-12 * np.abs(fixed.H).max())
     np.testing.assert_allclose(cv.Omega, fixed.Omega, rtol=1e-10, atol=1e-12)
     assert cv.state_order == fixed.state_order
