@@ -79,7 +79,8 @@ def one_seed(family, seed, files_fs=1000.0):
         model = identify(d, structure="cv", high_rate_reflex=True)  # 100 Hz files: model-rate reflex, selection runs
         t_ident = time.perf_counter() - t
         t = time.perf_counter()
-        add_structural_uncertainty(model, d)
+        if "structural" not in model.uncertainty:  # identify adds it itself when its selection ran (100 Hz files)
+            add_structural_uncertainty(model, d)
         t_struct = time.perf_counter() - t
         # its parts: the search's regressor and Gram matrices, the coordinate search, the refits
         # (with identify's own search reused, on its selection path, only the refits remain)

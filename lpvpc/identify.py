@@ -385,8 +385,9 @@ class LPVPCEstimator:
             return self._fit_unselected(data, base, "IRF half-width longer than the reflex delay")
         t = time.perf_counter()
         try:
-            sel = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                                  self.velocity_basis, search, Segments.of(data, len(y))).run(start, fixed)
+            structures = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                                         self.velocity_basis, search, Segments.of(data, len(y)))
+            sel = structures.run(start, fixed)
         except np.linalg.LinAlgError as exc:  # e.g. a fold's normal equations singular on a very short record
             return self._fit_unselected(data, base, f"cross-validation failed: {exc}")
         # The state order: BIC's at the starting structure, against one lower and one higher
@@ -419,6 +420,12 @@ class LPVPCEstimator:
                                             "state_order_from": "BIC at the starting structure" if not order_cv else
                                             "BIC at the starting structure, against one lower and one higher by CV "
                                             "at the chosen structure (one-standard-error rule toward BIC's)"}
+        if model.uncertainty:  # the intervals include the spread over the structures CV cannot tell apart
+            # (lpvpc.structural_uncertainty): the search continued from the chosen structure, so its
+            # neighbours are scored too (cached scores reused), and the near-equivalent ones refitted
+            from .structural_uncertainty import add_structural_uncertainty
+
+            add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed))
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_

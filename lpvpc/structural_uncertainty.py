@@ -27,6 +27,9 @@ holds richer structures that follow the curve more closely. So:
   on 100 Hz files (88 %, 1 of 20 seeds fully covered), their sum covers 93-100 % on every
   family and path (``benchmarks/results/coverage_families.txt``).
 
+identify adds it whenever its selection ran (reusing that search: only the refits);
+:func:`add_structural_uncertainty` adds it to any other model with intervals.
+
 Stored in ``model.uncertainty["structural"]`` (the model file round-trips it)::
 
     method        text
@@ -194,7 +197,7 @@ def add_structural_uncertainty(model, data, search=None, selection=None):
     >>> d = pair_trials(sim.pt, sim.ut)
     >>> with warnings.catch_warnings():
     ...     warnings.simplefilter("ignore")
-    ...     model = identify(d, structure="cv")
+    ...     model = identify(d, structure="fixed")  # with selection (the default) identify adds it itself
     >>> theta = np.array([-0.2, 0.0])  # rad
     >>> narrow = model.elastic_stiffness_interval(theta)
     >>> wide = add_structural_uncertainty(model, d).elastic_stiffness_interval(theta)
