@@ -745,11 +745,12 @@ def cmd_improve(args) -> int:
     ladder = improve(ident, held, settings={"effects": effects} if effects else None, max_steps=args.max_steps,
                      progress=show)
     first, last = ladder.rungs[0], ladder.final
+    changed = {k: v for k, v in last.settings.items() if first.settings.get(k) != v}  # from the base's structure
     print(f"stopped:   {ladder.stopped}")
     print(f"result:    held-out VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE "
           f"{first.heldout_rmse:.4f} -> {last.heldout_rmse:.4f} N m; final model: "
           f"{', '.join(last.effects) or 'no effects'}"
-          + (f"; settings changed: {', '.join(f'{k}={v:g}' for k, v in last.settings.items())}" if last.settings else ""))
+          + (f"; settings changed: {', '.join(f'{k}={v}' for k, v in changed.items())}" if changed else ""))
     if args.output:
         model = last.model
         model.conventions.setdefault("position_unit", args.position_unit)

@@ -151,6 +151,12 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
 
     label0 = "base model" + (f" + {', '.join(effects)}" if effects else "")
     current = rung(0, label0, {}, settings, effects)
+    # every step changes one thing from the base's structure: the one its cross-validation
+    # chose (an extended model is not selected: it would fall back to the default structure)
+    chosen = (current.model.fit.get("structure_selection") or {}).get("chosen")
+    if chosen:
+        settings = {**settings, **chosen, "state_order": current.model.fit["state_order"], "structure": "fixed"}
+        current.settings = dict(settings)
     # the background activation from the EMG, its reflex bursts explained by the base model's
     # own reflex drive: computed once, so every rung is fitted and scored on the same estimate
     ident, heldout = (with_model_activation(d, current.model) for d in (ident, heldout))

@@ -196,8 +196,13 @@ def test_improve_report(tmp_path):
     assert final.diagnosis.top is None and base.diagnosis.top.effect == "nonlinear_viscosity"
     assert final.heldout_vaf > base.heldout_vaf and final.heldout_rmse < base.heldout_rmse  # %, N m
     assert "nonlinear_viscosity" in ladder.table().splitlines()[1]  # the base rung names the next step
+    # the step keeps the structure the base model's cross-validation chose (the extended model is not selected)
+    chosen = base.model.fit["structure_selection"]["chosen"]
+    assert final.settings == {**chosen, "state_order": base.model.fit["state_order"], "structure": "fixed"}
+    assert final.model.settings["intrinsic_order"] == chosen["intrinsic_order"]
+    assert final.model.settings["irf_lags"] == round(chosen["irf_length"] * final.model.fs)
     summary = ladder.to_dict()
-    assert summary["final"] == {"effects": ["nonlinear_viscosity"], "settings": {},
+    assert summary["final"] == {"effects": ["nonlinear_viscosity"], "settings": final.settings,
                                 "heldout_vaf": round(final.heldout_vaf, 3)}
     assert summary["steps"][1] == final.to_dict() and final.to_dict()["model_hash"] == final.model.model_hash
     path = write_ladder(ladder, novel, tmp_path / "imp")
