@@ -486,7 +486,7 @@ def cmd_export(args) -> int:
         lat = export.latency_samples(model, variant)
         lo, hi = model.scheduling_range
         print(f"latency:     {lat} sample{'s' if lat != 1 else ''} ({lat / model.fs:g} s at {model.fs:g} Hz) for the "
-              f"{variant} variant; scheduling outside [{lo:+.3f}, {hi:+.3f}] rad is clamped to that range")
+              f"{variant} variant; scheduling outside [{lo:+.3f}, {hi:+.3f}] rad: {model.beyond_range}")
     return 0
 
 

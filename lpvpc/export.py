@@ -55,8 +55,8 @@ State layout (a column vector, initial value all zeros)::
       n ]                                samples seen, saturating at L + d: marks the
                                          start of the record (velocity before it is 0)
 
-Scheduling outside the identified range is clamped by the scheduling bases (the model is
-held at its boundary); velocities beyond the identified range continue the reflex
+Scheduling outside the identified range follows the scheduling bases' extrapolation rule
+(held at the boundary, or continued linearly: ``model.beyond_range``); velocities beyond the identified range continue the reflex
 nonlinearity linearly. The CasADi function and the FMU inherit this from the basis code.
 
 Closed loop
@@ -624,7 +624,7 @@ CASADI_C_NAME = "lpvpc_model_casadi"  # generated C file (name fixed: the adapte
 
 _INPUT_INFO = {
     "position": ("rad", "perturbation position (joint angle minus the operating position)"),
-    "scheduling": ("rad", "operating position: the scheduling variable rho (clamped to the identified range)"),
+    "scheduling": ("rad", "operating position: the scheduling variable rho (beyond the identified range as the model's extrapolation rule says)"),
     "velocity": ("rad/s", "current perturbation velocity (from the actuator in closed loop; central "
                           "difference when replaying a record)"),
     "acceleration": ("rad/s2", "current perturbation acceleration (from the actuator in closed loop; central "
@@ -793,7 +793,7 @@ def fmu_description(model, variant="causal") -> str:
     else:
         text += (f"Exact two-sided intrinsic IRF: outputs are the torque of {lat} samples earlier "
                  f"(latency {lat / model.fs!r} s) with direct feedthrough of the current inputs; 0 before that. ")
-    text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad is clamped to it. "
+    text += (f"Scheduling outside the identified range [{lo!r}, {hi!r}] rad: the model is {model.beyond_range}. "
              "Parameters: identified coefficients (row-major, see variable descriptions).")
     if getattr(model, "effects", None):
         text += (f" Extended model with effects {', '.join(fe.name for fe in model.effects)}; extra inputs "

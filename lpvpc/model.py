@@ -42,8 +42,9 @@ Floats are written with Python's shortest round-trip representation, so save/loa
 A file is checked against this format and its limits (:mod:`lpvpc.modelfile`) before
 anything is built from it.
 
-Out-of-range behaviour: scheduling values outside the identified range are clamped to
-the nearest boundary (the model holds its boundary dynamics) and an
+Out-of-range behaviour: scheduling values outside the identified range follow the
+scheduling bases' extrapolation rule (:attr:`LPVPCModel.beyond_range`: "clip" holds the
+boundary dynamics, "linear" continues them along the boundary tangent) and an
 :class:`~lpvpc.errors.OutOfRangeWarning` names the fraction affected. Velocities outside
 the identified range continue the reflex nonlinearity along its boundary tangent, so a
 fast outlier produces a proportionate torque, never a polynomial spike.
@@ -231,6 +232,13 @@ class LPVPCModel:
         return (self.intrinsic_basis.lo, self.intrinsic_basis.hi)
 
     @property
+    def beyond_range(self) -> str:
+        """What the model does with scheduling outside its identified range, in words (its
+        scheduling bases' extrapolation rule, chosen by cross-validation by default)."""
+        return ("continued linearly from the boundary (extrapolation rule 'linear')"
+                if self.intrinsic_basis.extrapolation == "linear" else "held at the boundary")
+
+    @property
     def velocity_range(self):
         return (self.velocity_basis.lo, self.velocity_basis.hi)
 
@@ -300,7 +308,7 @@ class LPVPCModel:
         if outside > 0 and warn:
             warnings.warn(
                 f"{100 * outside:.2f} % of scheduling values lie outside the identified range "
-                f"[{lo:.4f}, {hi:.4f}] rad; the model is held at the boundary there",
+                f"[{lo:.4f}, {hi:.4f}] rad; the model is {self.beyond_range} there",
                 OutOfRangeWarning,
                 stacklevel=2,
             )

@@ -209,11 +209,24 @@ def test_out_of_range_scheduling_warns_and_holds_the_boundary(subject):
     lo, hi = model.scheduling_range
     n = 300
     pos = 0.01 * np.sin(np.arange(n) / 5.0)
-    with pytest.warns(OutOfRangeWarning, match="outside the identified range"):
+    with pytest.warns(OutOfRangeWarning, match="outside the identified range.*held at the boundary there"):
         beyond = model.predict(pos, np.full(n, hi + 0.2))
     at_edge = model.predict(pos, np.full(n, hi))
     np.testing.assert_array_equal(beyond.total, at_edge.total)
     assert beyond.out_of_range_fraction == 1.0
+
+
+def test_out_of_range_warning_says_what_a_linear_extrapolation_model_does(subject):
+    """The warning said "held at the boundary" for every model, also one whose
+    cross-validation chose linear continuation."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(subject["ident"], scheduling_extrapolation="linear", structure="fixed")
+    lo, hi = model.scheduling_range
+    pos = 0.01 * np.sin(np.arange(300) / 5.0)
+    with pytest.warns(OutOfRangeWarning, match="continued linearly from the boundary"):
+        beyond = model.predict(pos, np.full(300, hi + 0.2))
+    assert not np.array_equal(beyond.total, model.predict(pos, np.full(300, hi)).total)
 
 
 # -- persistence -------------------------------------------------------------------------
