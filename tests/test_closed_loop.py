@@ -186,6 +186,19 @@ def test_compliant_loop_stays_stable_and_follows_the_subject(cl, fmus, kp):
     assert not replay.stable and replay.diverged_at < 2.0, replay.diverged_at
 
 
+def _whole_joint(model_file, folder, *extra):
+    """lpvpc whole-joint MODEL --ut ident_UT.csv EXTRA...: (exit status, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from lpvpc.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
+    return rc, out.getvalue(), err.getvalue()
+
+
 def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
     """lpvpc whole-joint ... --closed-loop: from the UT trial alone (fitted to the two-sided
     model's torque) and with --pt; FMI 3 Model Exchange; --pt without --closed-loop is a usage error."""
@@ -200,10 +213,7 @@ def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
     folder = subject["folder"]
 
     def run(*extra):
-        out, err = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
-        return rc, out.getvalue(), err.getvalue()
+        return _whole_joint(model_file, folder, *extra)
 
     rc, out, err = run("-o", str(tmp_path / "cl.json"), "--fmu", str(tmp_path / "ankle.fmu"), "--closed-loop",
                        "--fmi", "3", "--fmi-type", "me")
@@ -238,18 +248,10 @@ def test_cli_whole_joint_closed_loop(subject, model_file, tmp_path):
 def test_cli_whole_joint_closed_loop_position_delay(subject, model_file, tmp_path):
     """--position-delay-ms: a number is used for the fit and recorded, 'auto' estimates it from
     the PT/UT files (none in the subject's: |delay| < 0.4 ms); misuse is one line, exit 2."""
-    import contextlib
-    import io
-
-    from lpvpc.cli import main
-
     folder = subject["folder"]
 
     def run(*extra):
-        out, err = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            rc = main(["whole-joint", str(model_file), "--ut", str(folder / "ident_UT.csv"), *extra])
-        return rc, out.getvalue(), err.getvalue()
+        return _whole_joint(model_file, folder, *extra)
 
     pt = ("--pt", str(folder / "ident_PT.csv"))
     rc, out, err = run("-o", str(tmp_path / "d1.json"), "--closed-loop", *pt, "--position-delay-ms", "1")
