@@ -635,7 +635,7 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
                    f"{int(cl.model.delay) / cl.fs!r} s). The foot's inertia {cl.inertia:.6g} kg m^2 is NOT in the "
                    f"torque (constant output 'inertia'): the plant adds it to its own. Samples every {1.0 / cl.fs!r} s, "
                    f"outputs every tick of {1.0 / (cl.fs * N)!r} s from the current inputs. Operating angle outside "
-                   f"[{lo!r}, {hi!r}] rad: the scheduling is held at the boundary, the curve continues linearly.")
+                   f"[{lo!r}, {hi!r}] rad: the model is {cl.model.beyond_range}, the curve continues linearly.")
     with tempfile.TemporaryDirectory(prefix="lpvpc-closed-loop-") as tmp:
         generated = write_system_c(functions, tmp)
         try:

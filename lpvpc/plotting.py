@@ -309,8 +309,9 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     ax.set_title("reflex nonlinearity" + (f" ({'; '.join(extra)})" if extra else ""), fontsize="medium")
     _legend_outside(ax, title="position")
     if model.reflex_threshold_biased:
+        # two lines: one overran the axes' left edge onto the tick labels
         ax.text(0.98, 0.02, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)"
-                + (f"; threshold {NOT_DETERMINED}" if not th_ok.any() else ""),
+                + (f"\nthreshold {NOT_DETERMINED}" if not th_ok.any() else ""),
                 transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
     elif not th_ok.any() and g_ok.any():
         ax.text(0.98, 0.02, f"threshold {NOT_DETERMINED}", transform=ax.transAxes, ha="right", va="bottom",

@@ -376,7 +376,7 @@ def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, r
                    f"the operating angle (first-order low-pass, cutoff {wj.cutoff!r} Hz) + LPV parallel cascade of "
                    f"the angle minus it. Outputs are those of {L} samples earlier (latency {L / wj.fs!r} s; 0 before "
                    f"that). Sample rate {wj.fs!r} Hz. Operating angle outside [{lo!r}, {hi!r}] rad: the cascade is "
-                   f"held at the boundary, the curve continues linearly.")
+                   f"{wj.model.beyond_range}, the curve continues linearly.")
     with tempfile.TemporaryDirectory(prefix="lpvpc-whole-joint-") as tmp:
         generated = write_system_c(functions, tmp)
         try:

@@ -403,7 +403,7 @@ def _reflex_bias_note(model) -> str:
                 f"~20 ms velocity pulses smoothed at that rate. The gain's interval includes a bound for the smoothed "
                 f"knee; the threshold is not observable at that rate and is reported as not determined by these data "
                 f"(from 1 kHz files, <code>high_rate_reflex=True</code> identifies it on the 1 kHz velocity; "
-                f"<code>docs/guide/reflex_intervals.md</code>).")
+                f"see the user guide's page on reflex intervals).")
     return (f"The reflex nonlinearity was identified on the {fs_v:g} Hz delayed velocity (its output decimated to the "
             f"model rate); its gain and threshold intervals come from a parametric bootstrap of the rectifier fit "
             f"with bounds for structural bias, and a quantity whose interval spans most of its plausible range is "
@@ -456,8 +456,8 @@ def _html(m: dict, figs: dict, model) -> str:
         top.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
                      f"of the held-out samples ({o['n']}) have a scheduling variable outside the identified range "
                      f"[{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad (held-out range "
-                     f"[{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad); the model is held at its "
-                     f"boundary there. Offline RMSE there {_num(o['rmse'], '{:.3f}')} N m against "
+                     f"[{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad); the model is "
+                     f"{model.beyond_range} there. Offline RMSE there {_num(o['rmse'], '{:.3f}')} N m against "
                      f"{_num(i['rmse'], '{:.3f}')} N m inside (VAF {_num(o['vaf'])} % vs {_num(i['vaf'])} %).</p>")
 
     # Fig. 3
