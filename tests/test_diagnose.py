@@ -491,3 +491,19 @@ def test_a_gain_that_swings_with_trial_time_is_found_on_its_pathway():
     # the intrinsic pathway's gain over time explains far less
     intrinsic = next(x for x in d.dependence if (x["signal"], x["form"]) == ("trial_time", "intrinsic"))
     assert intrinsic["vaf_gain"] < 0.5 * top["vaf_gain"]
+
+
+def test_settings_the_models_cross_validation_chose_are_not_re_decided_on_held_out_data():
+    """A selected model's structure was judged on the identification record (one-standard-
+    error rule); diagnosis re-deciding it named irf_length significant on 1 of 20 clean
+    seeds. Those candidates are unavailable with the reason; a setting the user gave stays a
+    candidate (the 'IRF too short' scenario)."""
+    ident, novel = _pairs(0)
+    selected = identify(ident)
+    assert selected.fit["structure_selection"].get("chosen")
+    by_name = {c.effect: c for c in diagnose(selected, novel).candidates}
+    for name in ("irf_length", "intrinsic_basis_order", "reflex_basis_order", "reflex_delay"):
+        assert not by_name[name].available and "chosen by cross-validation" in by_name[name].reason, name
+    given = identify(ident, irf_lags=1)  # the user's IRF: judged on the held-out record
+    c = {c.effect: c for c in diagnose(given, novel).candidates}["irf_length"]
+    assert c.available and c.significant
