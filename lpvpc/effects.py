@@ -680,30 +680,29 @@ def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_L
     n = len(emg)
     if drive is not None and not np.any(drive):  # no reflex drive: nothing evoked
         return np.zeros(n)
-    # the reflex sees the joint's whole velocity: the slow movement's fast transitions fire it too
-    joint = np.asarray(position, dtype=float) + (0.0 if scheduling is None else np.asarray(scheduling, dtype=float))
-    v = eq.velocity(joint, fs)
     step = max(1, int(round(0.01 * fs)))  # one lag per 10 ms: ~16 lags at any rate
-    if step > 1:  # each lag then stands for the mean of its 10 ms
-        box = np.ones(step) / step
-        v = np.convolve(v, box, mode="full")[:n]
+
+    def per_lag(x):  # each lag stands for the mean of its 10 ms
+        return np.convolve(x, np.ones(step) / step, mode="full")[:n] if step > 1 else x
+
     lags = list(range(0, int(round(max_lag * fs)) + 1, step))
     T = _slow_time_basis(n, fs, BURST_TONIC_S)  # the tonic level
     Tg = _slow_time_basis(n, fs, gain_s)  # the bursts' gain
-    if scheduling is None:
-        R = np.ones((n, 1))
-    else:
-        rho = np.asarray(scheduling, dtype=float)
-        lo, hi = float(np.min(rho)), float(np.max(rho))
-        r = (2 * rho - lo - hi) / (hi - lo) if hi > lo else np.zeros(n)
-        R = np.column_stack([np.ones(n), r, r * r])
-    # hinges max(+-v - c, 0): a rectifier with a threshold anywhere in BURST_HINGES is their sum
-    hinges = [np.maximum(sign * v - c, 0.0) for sign in (1.0, -1.0) for c in BURST_HINGES]
     if drive is not None:  # the model's own reflex drive: delayed, rectified, position-gained already
-        z = np.asarray(drive, dtype=float)
-        if step > 1:
-            z = np.convolve(z, np.ones(step) / step, mode="full")[:n]
-        hinges, R = [z], np.ones((n, 1))
+        hinges, R = [per_lag(np.asarray(drive, dtype=float))], np.ones((n, 1))
+    else:
+        # the reflex sees the joint's whole velocity: the slow movement's fast transitions fire it too
+        joint = np.asarray(position, dtype=float) + (0.0 if scheduling is None else np.asarray(scheduling, dtype=float))
+        v = per_lag(eq.velocity(joint, fs))
+        if scheduling is None:
+            R = np.ones((n, 1))
+        else:
+            rho = np.asarray(scheduling, dtype=float)
+            lo, hi = float(np.min(rho)), float(np.max(rho))
+            r = (2 * rho - lo - hi) / (hi - lo) if hi > lo else np.zeros(n)
+            R = np.column_stack([np.ones(n), r, r * r])
+        # hinges max(+-v - c, 0): a rectifier with a threshold anywhere in BURST_HINGES is their sum
+        hinges = [np.maximum(sign * v - c, 0.0) for sign in (1.0, -1.0) for c in BURST_HINGES]
 
     def drive_columns(a, b):  # rows a..b-1 of the lagged, position-scaled hinges
         cols = [eq.lagged_rows(h, lags, a, b)[:, :, None] * R[a:b, None, :] for h in hinges]
