@@ -350,7 +350,7 @@ class LPVPCEstimator:
         """structure="cv": a fit at the given settings gives the reflex dynamics; the
         structure is chosen by cross-validation with them held (lpvpc.selection); the
         chosen structure is fitted (its state order the first fit's)."""
-        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns
+        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns, search_space
 
         t0 = time.perf_counter()
         given = self._given_settings()
@@ -375,8 +375,7 @@ class LPVPCEstimator:
                  "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
                  "scheduling_extrapolation": self.scheduling_extrapolation}
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
-        search = {**SEARCH, **{k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH if k not in fixed}}
-        search.update({k: (start[k],) for k in fixed if k in SEARCH})
+        search = search_space(start, fixed)
         n_cols = design_columns(search, fs)
         if 8.0 * len(y) * n_cols > DESIGN_BUDGET_BYTES:
             return self._fit_unselected(data, base, f"the selection's design ({len(y)} x {n_cols}) would exceed "

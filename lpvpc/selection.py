@@ -61,6 +61,19 @@ MIN_LEVELS = 4
 RIDGE = 1e-10  # relative to the scaled Gram matrix's unit diagonal
 
 
+def search_space(start: dict, fixed=()) -> dict:
+    """The candidate values of each selected setting: :data:`SEARCH` with the starting value
+    added, a fixed setting held at its start.
+
+    >>> space = search_space({**{k: v[0] for k, v in SEARCH.items()}, "intrinsic_order": 9}, fixed={"reflex_delay"})
+    >>> space["intrinsic_order"][-1], space["reflex_delay"]
+    (9, (0.03,))
+    """
+    space = {k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH}
+    space.update({k: (start[k],) for k in fixed if k in SEARCH})
+    return space
+
+
 def design_columns(search: dict, fs: float) -> int:
     """Columns of the largest regressor of a search (its IRF lags at rate ``fs`` Hz, curvature
     shares, each delay's reflex columns, a zero column): memory is 8 bytes x samples x this.

@@ -84,7 +84,7 @@ def structure_search(model, data):
     (True, True)
     """
     from .segments import Segments
-    from .selection import SEARCH, StructureSearch
+    from .selection import StructureSearch, search_space
 
     families = (model.settings.get("basis", "chebyshev"), model.settings.get("velocity_basis", "chebyshev"))
     if any(f not in ("chebyshev", "legendre") for f in families):
@@ -92,8 +92,7 @@ def structure_search(model, data):
                          f"has {families[0]!r} in position and {families[1]!r} in velocity")
     start = _start(model)
     fixed = {"irf_length" if k == "irf_lags" else k for k in model.settings.get("structure_fixed") or ()}
-    search = {k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH}
-    search.update({k: (start[k],) for k in fixed if k in SEARCH})
+    search = search_space(start, fixed)
     p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
     s = StructureSearch(p, y, rho, model.fs, (model.A, model.C[None, :], np.append(model.B, model.D)),
                         model.settings.get("basis", "chebyshev"), model.settings.get("velocity_basis", "chebyshev"),
