@@ -392,7 +392,10 @@ def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
     scores = []
     for c in cand:
         aligned = delay_position(data, float(c))
-        scores.append(vaf(aligned.torque, identify(aligned, **settings).predict(aligned, warn=False).total))
+        # one structure for every candidate (structure selection could change it with the
+        # delay, and the scores would compare structures, not alignments)
+        model = identify(aligned, **{"structure": "fixed", **settings})
+        scores.append(vaf(aligned.torque, model.predict(aligned, warn=False).total))
     scores = np.array(scores)
     i = int(np.clip(np.argmax(scores), 1, len(cand) - 2))
     y0, y1, y2 = scores[i - 1: i + 2]
