@@ -7,13 +7,17 @@ the reflex not at all. The loaders undo a known skew at the file's rate, before 
 (``channel_skew`` of :func:`lpvpc.data.load_identification_data`: the position channels are
 delayed by it). This module finds it from the record itself:
 
-- :func:`choose_channel_skew`: cross-validation over a few candidate skews on the structure
-  selection's contiguous folds, the candidate nearest 0 within one standard error of the
-  best (the virtual subject, recorded without skew: 0);
-- :func:`estimate_channel_skew`: the peak of the in-sample VAF over a finer grid (biased by
-  ~+0.3 ms on the virtual subject; kept for the closed-loop fit's ``position_delay``);
-- :func:`load_aligned`: load files with the skew given or chosen (``"auto"``) and undone at
+- :func:`estimate_channel_skew`: the peak of the in-sample VAF of a fixed-structure model
+  over candidate skews -2..+3 ms (aligned at the model rate, a fraction of a sample allowed);
+  :attr:`ChannelSkew.chosen` keeps it only when it removes at least MIN_RESIDUAL_REDUCTION of
+  the residual variance (the virtual subject without skew: 0; its torque 1 ms late: ~1.3 ms);
+- :func:`load_aligned`: load files with the skew given, or estimated (``"auto"``), undone at
   the file's rate.
+
+Cross-validation over candidate skews on contiguous folds (left-out levels or time blocks) was
+measured and not adopted: the extrapolation and structure noise of the folds is larger than
+the skew's effect, and it chose 0 even for the virtual subject with its torque 1 ms late
+(benchmarks/bench_real_pilot.py).
 
 The skew belongs to the recording, not to the ankle: a model identified on aligned data maps
 the true angle to the true torque. ``lpvpc predict`` loads new files with the model's recorded
@@ -29,8 +33,14 @@ import numpy as np
 
 from .identification_data import SINC_HALF_WIDTH, check_channel_skew, delayed  # noqa: F401
 
-__all__ = ["delayed", "delay_position", "ChannelSkew", "estimate_channel_skew", "choose_channel_skew",
-           "CV_SKEW_CANDIDATES", "load_aligned"]
+__all__ = ["delayed", "delay_position", "ChannelSkew", "estimate_channel_skew", "load_aligned",
+           "MIN_RESIDUAL_REDUCTION"]
+
+# A skew is undone only when lining the channels up removes at least this share of the
+# in-sample residual variance. Measured (benchmarks/results/real_pilot.txt): the virtual subject
+# without skew 0.1-0.5 % (its estimate then 0.2-0.4 ms: noise, not a skew), with its torque 1 ms
+# late 6 %, the lab's pilot trial 5 %.
+MIN_RESIDUAL_REDUCTION = 0.02
 
 
 def delay_position(data, delay: float):
@@ -66,15 +76,31 @@ class ChannelSkew:
     through the best grid point and its neighbours), ``candidates`` (s) and ``scores`` (the
     two-sided model's in-sample VAF, %, on the data aligned by each candidate).
 
-    >>> ChannelSkew(0.001, np.array([0.0, 0.001, 0.002]), np.array([93.5, 93.8, 93.5])).delay
-    0.001
+    >>> skew = ChannelSkew(0.001, np.array([0.0, 0.001, 0.002]), np.array([93.5, 93.8, 93.5]))
+    >>> round(skew.residual_reduction, 3), skew.chosen  # 0.3 of the 6.5 points left: 4.6 %
+    (0.046, 0.001)
     """
 
     delay: float
     candidates: np.ndarray
     scores: np.ndarray
-    method: str = "in-sample"  # or "cv": :func:`choose_channel_skew` (scores: pooled CV VAF, %)
-    standard_error: float = float("nan")  # cv: one standard error of the best candidate's lead (VAF points)
+
+    @property
+    def residual_reduction(self) -> float:
+        """The share of the residual variance (0..1) that the best candidate removes against no
+        alignment (the candidate 0): (VAF_best - VAF_0) / (100 - VAF_0); nan without a 0 candidate."""
+        zero = np.flatnonzero(np.abs(self.candidates) < 1e-12)
+        if len(zero) == 0:
+            return float("nan")
+        v0 = float(self.scores[zero[0]])
+        return (float(np.max(self.scores)) - v0) / max(100.0 - v0, 1e-12)
+
+    @property
+    def chosen(self) -> float:
+        """The skew to undo (s): ``delay`` when lining the channels up removes at least
+        MIN_RESIDUAL_REDUCTION of the residual variance, else 0 (no skew shown by the data)."""
+        r = self.residual_reduction
+        return self.delay if not np.isfinite(r) or r >= MIN_RESIDUAL_REDUCTION else 0.0
 
 
 def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
@@ -122,89 +148,23 @@ def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
     return ChannelSkew(delay=float(cand[i] + np.clip(offset, -1.0, 1.0) * step), candidates=cand, scores=scores)
 
 
-CV_SKEW_CANDIDATES = (0.0, 0.5e-3, 1.0e-3, 1.5e-3, 2.0e-3)  # s: torque late by 0 to 2 ms (the pilot: ~1 ms)
-MIN_CV_PIECE_S = 1.0  # s: training stretches shorter than this are left out (too short for the subspace step)
-
-
-def choose_channel_skew(data, candidates=CV_SKEW_CANDIDATES, folds: str = "level", **settings) -> ChannelSkew:
-    """Choose the channel skew by cross-validation on contiguous folds (s; the candidate kept).
-
-    The folds are the structure selection's (:func:`lpvpc.selection.level_folds`: each level
-    of a staircase, the two end plateaus not scored, or contiguous blocks); for each candidate delay the position is delayed
-    by it (:func:`delay_position`), a model identified on the record without the fold (its
-    stretches as trials; ``settings`` as for :func:`lpvpc.identify.identify`, one fixed
-    structure for all candidates) and the fold predicted. The choice is the candidate
-    closest to 0 whose pooled CV VAF is within one standard error (of the per-fold VAF
-    differences) of the best: a skew is adopted only when predicting unseen stretches says
-    so (the virtual subject, recorded without skew: 0). Costs one fixed-structure fit per
-    candidate and fold.
-
-    >>> from lpvpc.data import pair_trials
-    >>> from lpvpc.simulate import simulate_pair
-    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0)
-    >>> choose_channel_skew(pair_trials(sim.pt, sim.ut), (0.0, 1e-3, 2e-3)).delay
-    0.0
-    """
-    from .data import join_trials
-    from .identify import identify
-    from .selection import BLOCK_FOLDS, level_folds
-
-    cand = np.asarray(candidates, dtype=float)
-    if cand.ndim != 1 or len(cand) < 2 or len(set(cand.tolist())) != len(cand):
-        raise ValueError("candidates: at least 2 distinct delays (s)")
-    if folds == "block":  # contiguous blocks of time (every level seen in training)
-        labels, kind = (np.arange(data.n) * BLOCK_FOLDS // max(data.n, 1)).astype(int), "block"
-    else:
-        labels, kind = level_folds(data.scheduling, data.fs)
-    folds = np.unique(labels)
-    if kind == "level" and len(folds) >= 5:
-        # the end plateaus score extrapolation beyond the training range, whose errors (tens of
-        # points, changing with any small change of the fit) would drown the alignment's
-        med = [np.median(data.scheduling[labels == f]) for f in folds]
-        folds = np.delete(folds, [int(np.argmin(med)), int(np.argmax(med))])
-    bounds = list(data.segments) or [(0, data.n)]
-    y = np.asarray(data.torque, dtype=float)
-    ss = np.array([np.sum((y[labels == f] - y.mean()) ** 2) for f in folds])
-    sse = np.zeros((len(cand), len(folds)))
-    min_len = MIN_CV_PIECE_S * data.fs
-    for i, c in enumerate(cand):
-        aligned = delay_position(data, float(c))
-        for j, f in enumerate(folds):
-            pieces = []
-            for a, b in bounds:  # the stretches outside the fold, trial by trial
-                keep = np.r_[False, labels[a:b] != f, False]
-                e = np.flatnonzero(np.diff(keep.astype(int)))
-                pieces += [aligned.segment(a + u, a + v) for u, v in zip(e[::2], e[1::2]) if v - u >= min_len]
-            model = identify(join_trials(pieces), **{"structure": "fixed", **settings})
-            test = labels == f
-            r = y[test] - model.predict(aligned, warn=False).total[test]
-            sse[i, j] = r @ r
-    scores = 100 * (1 - sse.sum(axis=1) / ss.sum())
-    per_fold = 100 * (1 - sse / ss)  # VAF (%) of each candidate on each fold
-    best = int(np.argmax(scores))
-    lead = per_fold[best] - per_fold
-    se = np.std(lead, axis=1, ddof=1) / np.sqrt(len(folds)) if len(folds) > 1 else np.zeros(len(cand))
-    ok = scores >= scores[best] - se
-    pick = min(np.flatnonzero(ok), key=lambda i: (abs(cand[i]), i))
-    return ChannelSkew(delay=float(cand[pick]), candidates=cand, scores=scores, method="cv",
-                       standard_error=float(se[pick]))
-
-
 def load_aligned(pt=None, ut=None, data=None, *, channel_skew="auto", **load_settings):
     """:func:`lpvpc.data.load_identification_data` with the channel skew undone at the file's
     rate: ``channel_skew`` in s, or ``"auto"``: chosen from these data by
-    :func:`choose_channel_skew` (on the record loaded as is; everything given is treated as
-    identification data, so load only what you identify from). ``meta["channel_skew_s"]``
-    records the skew applied (absent when 0), ``meta["channel_skew_choice"]`` the candidates
-    (s) and their CV VAF (%) when chosen."""
+    :func:`estimate_channel_skew` and :attr:`ChannelSkew.chosen` (on the record loaded as is;
+    everything given is treated as identification data, so load only what you identify
+    from). ``meta["channel_skew_s"]`` records the skew applied (absent when 0),
+    ``meta["channel_skew_choice"]`` the estimate when chosen: candidates (s), in-sample VAF
+    (%), the estimate (s) and the share of residual variance it removes."""
     from .data import load_identification_data
 
     skew = check_channel_skew(channel_skew)
     if skew != "auto":
         return load_identification_data(pt, ut, data, channel_skew=skew, **load_settings)
     raw = load_identification_data(pt, ut, data, **load_settings)
-    found = choose_channel_skew(raw)
-    out = load_identification_data(pt, ut, data, channel_skew=found.delay, **load_settings) if found.delay else raw
-    out.meta["channel_skew_choice"] = {"candidates_s": found.candidates.tolist(), "cv_vaf": found.scores.round(4).tolist(),
-                                       "chosen_s": found.delay}
+    found = estimate_channel_skew(raw)
+    out = load_identification_data(pt, ut, data, channel_skew=found.chosen, **load_settings) if found.chosen else raw
+    out.meta["channel_skew_choice"] = {"candidates_s": found.candidates.tolist(),
+                                       "in_sample_vaf": found.scores.round(4).tolist(), "estimate_s": found.delay,
+                                       "residual_reduction": found.residual_reduction, "chosen_s": found.chosen}
     return out

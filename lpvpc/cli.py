@@ -296,11 +296,14 @@ def cmd_identify(args) -> int:
     trials = f"{len(data.segments)} trials, " if data.segments else ""
     print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")
+    from .channel_skew import MIN_RESIDUAL_REDUCTION
+
     choice = data.meta.get("channel_skew_choice")
     if "channel_skew_s" in data.meta or choice:
         skew = data.meta.get("channel_skew_s", 0.0)
-        how = ("chosen by cross-validation among " + ", ".join(f"{c * 1e3:g}" for c in choice["candidates_s"])
-               + " ms") if choice else "given"
+        how = (f"estimated {choice['estimate_s'] * 1e3:+.2f} ms, removing {100 * choice['residual_reduction']:.1f} % of "
+               f"the residual variance" + ("" if skew else f" (< {100 * MIN_RESIDUAL_REDUCTION:g} %: not applied)")
+               ) if choice else "given"
         print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how})"
               + ("; position delayed by it at the file's rate (recorded in the model: predict does the same)"
                  if skew else ""))

@@ -47,12 +47,11 @@ from . import equations as eq
 from .basis import CasadiOps
 from .errors import DataError, ExportError, ModelFileError, non_finite_problem
 # the channel skew lives in its own module; its names stay importable from here (earlier API)
-from .channel_skew import (CV_SKEW_CANDIDATES, ChannelSkew, choose_channel_skew, delay_position,  # noqa: F401
-                           delayed, estimate_channel_skew)
+from .channel_skew import ChannelSkew, delay_position, delayed, estimate_channel_skew  # noqa: F401
 
 __all__ = ["ClosedLoopModel", "ClosedLoopPrediction", "fit_closed_loop", "distillation_trial", "closed_loop_step",
            "fit_perturbation_impedance", "predict_perturbation_impedance", "delay_position", "ChannelSkew",
-           "estimate_channel_skew", "choose_channel_skew", "CV_SKEW_CANDIDATES",
+           "estimate_channel_skew",
            "export_closed_loop_fmu", "export_closed_loop_casadi", "OUTPUT_NAMES", "INPUT_NAMES"]
 
 FORMAT = "lpvpc-closed-loop"

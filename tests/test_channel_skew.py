@@ -1,6 +1,6 @@
 """Channel skew (issue 22): a torque channel recorded late is undone at the file's rate before
-decimation, chosen from the record by cross-validation (0 on the virtual subject, which has no
-skew; the imposed skew when one channel of its 1 kHz record is shifted), recorded in the model
+decimation, estimated from the record (none on the virtual subject, which has no skew; the
+imposed skew when one channel of its 1 kHz record is shifted), recorded in the model
 and reused by ``lpvpc predict``; bad values are one-line errors (CLI exit 2).
 
 Real recordings are not needed (the pilot trial's figures are in benchmarks/results/real_pilot.txt).
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpvpc.channel_skew import choose_channel_skew, load_aligned
+from lpvpc.channel_skew import MIN_RESIDUAL_REDUCTION, estimate_channel_skew, load_aligned
 from lpvpc.cli import main as cli_main
 from lpvpc.data import load_identification_data, pair_trials
 from lpvpc.model import LPVPCModel, vaf
@@ -63,16 +63,22 @@ def test_bad_channel_skew_is_named(subject, value, words):
 
 
 @pytest.mark.slow
-def test_cv_chooses_the_simulated_skew_and_none_without_one(subject):
-    """The virtual subject's 1 kHz torque written 1 ms late: cross-validation on the contiguous
-    level folds chooses 1 ms; on the record as simulated (no skew) it chooses 0."""
-    cand = (0.0, 1e-3, 2e-3)
-    clean = choose_channel_skew(pair_trials(subject.pt, subject.ut), cand)
-    late = choose_channel_skew(pair_trials(shifted(subject.pt), shifted(subject.ut)), cand)
-    print(f"CV VAF (%) at {cand} s: no skew {clean.scores.round(3)}, torque 1 ms late {late.scores.round(3)}")
-    assert clean.delay == 0.0
-    assert late.delay == pytest.approx(1e-3)
-    assert late.scores[1] > late.scores[0]  # the alignment predicts unseen levels better
+def test_estimate_recovers_a_simulated_skew_and_finds_none_without_one(subject):
+    """The virtual subject's 1 kHz torque written 1 ms late (one sample): the estimate recovers
+    the skew and lining up removes well over MIN_RESIDUAL_REDUCTION of the residual; on the
+    record as simulated the reduction stays below it, so "auto" changes nothing."""
+    late = estimate_channel_skew(pair_trials(shifted(subject.pt), shifted(subject.ut)))
+    clean = estimate_channel_skew(pair_trials(subject.pt, subject.ut))
+    print(f"torque 1 ms late: estimate {late.delay * 1e3:.2f} ms, residual reduction {100 * late.residual_reduction:.1f} %;"
+          f" no skew: {clean.delay * 1e3:.2f} ms, {100 * clean.residual_reduction:.2f} %")
+    assert abs(late.delay - 1e-3) < 0.5e-3 and late.chosen == late.delay
+    assert late.residual_reduction > 2 * MIN_RESIDUAL_REDUCTION
+    assert clean.residual_reduction < 0.5 * MIN_RESIDUAL_REDUCTION and clean.chosen == 0.0
+    # "auto" on the skew-free files: the same data as no alignment at all
+    auto = load_aligned(pt=subject.pt, ut=subject.ut, channel_skew="auto")
+    plain = load_identification_data(pt=subject.pt, ut=subject.ut)
+    assert np.array_equal(auto.position, plain.position) and "channel_skew_s" not in auto.meta
+    assert auto.meta["channel_skew_choice"]["chosen_s"] == 0.0
 
 
 def _subprocess(*argv):
