@@ -89,8 +89,8 @@ def _subprocess(*argv):
 
 
 def test_model_records_the_skew_and_predict_reuses_it(subject, tmp_path):
-    """lpvpc identify --channel-skew-ms 1: the model records 1 ms; lpvpc predict loads new files
-    with it (the same VAF as the library on data loaded with channel_skew=1 ms)."""
+    """lpvpc identify --channel-skew-ms 1: the model records 1 ms; lpvpc predict (and validate's
+    loader) load new files with it (the same VAF as the library on data loaded with channel_skew=1 ms)."""
     d = tmp_path
 
     def main(argv):
@@ -109,6 +109,9 @@ def test_model_records_the_skew_and_predict_reuses_it(subject, tmp_path):
     assert json.loads((d / "p.json").read_text())["vaf"] == pytest.approx(expected, abs=1e-9)
     raw = load_identification_data(pt=npt, ut=nut)
     assert not np.allclose(model.predict(raw, warn=False).total, model.predict(data, warn=False).total)
+    from lpvpc.validation.harness import load_record  # validate's loading: the same alignment
+
+    assert np.array_equal(load_record(model, npt, nut).measured.position, data.position)
 
 
 @pytest.mark.parametrize("value", ["25", "abc", "nan"])
