@@ -158,7 +158,7 @@ def load_aligned(pt=None, ut=None, data=None, *, channel_skew="auto", **load_set
     (%), the estimate (s) and the share of residual variance it removes."""
     from .data import load_identification_data
 
-    skew = check_channel_skew(channel_skew)
+    skew = check_channel_skew(channel_skew, allow_auto=True)
     if skew != "auto":
         return load_identification_data(pt, ut, data, channel_skew=skew, **load_settings)
     raw = load_identification_data(pt, ut, data, **load_settings)

@@ -67,14 +67,16 @@ def delayed(x, fs: float, delay: float) -> np.ndarray:
     return y[pad - whole: pad - whole + len(x)]
 
 
-
-
-def check_channel_skew(value) -> float | str:
-    """``channel_skew`` as given: "auto" or a finite number of seconds within +-MAX_CHANNEL_SKEW
-    (ValueError naming the problem otherwise)."""
+def check_channel_skew(value, allow_auto: bool = False) -> float | str:
+    """``channel_skew`` as given: a finite number of seconds within +-MAX_CHANNEL_SKEW, or "auto"
+    where ``allow_auto`` (ValueError naming the problem otherwise)."""
     if isinstance(value, str):
         if value == "auto":
-            return value
+            if allow_auto:
+                return value
+            # choosing needs identification, which needs this module: not in the loaders
+            raise ValueError("channel_skew='auto' is chosen by lpvpc.channel_skew.load_aligned (same arguments); "
+                             "give seconds here")
         raise ValueError(f"channel_skew {value!r}: give seconds (e.g. 0.001), or 'auto' to choose it "
                          f"(lpvpc.channel_skew.load_aligned)")
     try:
@@ -558,9 +560,6 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     if isinstance(data, PerturbationData) and skew:
         raise DataError(["channel_skew aligns the channels at the file's own rate: give the file (or Trials), "
                          "not loaded data"])
-    if skew == "auto":  # choosing needs identification, which needs this module: not here
-        raise ValueError("channel_skew='auto' is chosen by lpvpc.channel_skew.load_aligned (same arguments); "
-                         "give seconds here")
     kw["channel_skew"] = skew
     if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
         if data is not None:

@@ -60,6 +60,8 @@ def test_skew_is_undone_at_the_file_rate_before_decimation(subject):
 def test_bad_channel_skew_is_named(subject, value, words):
     with pytest.raises(ValueError, match=words):
         load_identification_data(pt=subject.pt, ut=subject.ut, channel_skew=value)
+    with pytest.raises(ValueError, match=words):
+        pair_trials(subject.pt, subject.ut, channel_skew=value)
 
 
 @pytest.mark.slow
