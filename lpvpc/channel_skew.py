@@ -14,7 +14,7 @@ delayed by it). This module finds it from the record itself:
 - :func:`load_aligned`: load files with the skew given, or estimated (``"auto"``), undone at
   the file's rate.
 
-Cross-validation over candidate skews on contiguous folds (left-out levels or time blocks) was
+Cross-validation over candidate skews on contiguous folds (left-out interior levels) was
 measured and not adopted: the extrapolation and structure noise of the folds is larger than
 the skew's effect, and it chose 0 even for the virtual subject with its torque 1 ms late
 (benchmarks/bench_real_pilot.py).
@@ -38,8 +38,8 @@ __all__ = ["delayed", "delay_position", "ChannelSkew", "estimate_channel_skew", 
 
 # A skew is undone only when lining the channels up removes at least this share of the
 # in-sample residual variance. Measured (benchmarks/results/real_pilot.txt): the virtual subject
-# without skew 0.1-0.5 % (its estimate then 0.2-0.4 ms: noise, not a skew), with its torque 1 ms
-# late 6 %, the lab's pilot trial 5 %.
+# without skew 0.0-0.5 % (its estimate then 0.2-0.4 ms: noise, not a skew), with its torque 1 ms
+# late 5.7-6.1 %, the lab's pilot trial 4.9 %.
 MIN_RESIDUAL_REDUCTION = 0.02
 
 
