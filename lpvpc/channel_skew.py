@@ -155,7 +155,13 @@ def load_aligned(pt=None, ut=None, data=None, *, channel_skew="auto", **load_set
     everything given is treated as identification data, so load only what you identify
     from). ``meta["channel_skew_s"]`` records the skew applied (absent when 0),
     ``meta["channel_skew_choice"]`` the estimate when chosen: candidates (s), in-sample VAF
-    (%), the estimate (s) and the share of residual variance it removes."""
+    (%), the estimate (s) and the share of residual variance it removes.
+
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=5.0)  # 1 kHz trials
+    >>> load_aligned(pt=sim.pt, ut=sim.ut, channel_skew=1e-3).meta["channel_skew_s"]  # given: no estimate
+    0.001
+    """
     from .data import load_identification_data
 
     skew = check_channel_skew(channel_skew, allow_auto=True)

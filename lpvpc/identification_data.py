@@ -69,7 +69,11 @@ def delayed(x, fs: float, delay: float) -> np.ndarray:
 
 def check_channel_skew(value, allow_auto: bool = False) -> float | str:
     """``channel_skew`` as given: a finite number of seconds within +-MAX_CHANNEL_SKEW, or "auto"
-    where ``allow_auto`` (ValueError naming the problem otherwise)."""
+    where ``allow_auto`` (ValueError naming the problem otherwise).
+
+    >>> check_channel_skew(0.001), check_channel_skew("auto", allow_auto=True)
+    (0.001, 'auto')
+    """
     if isinstance(value, str):
         if value == "auto":
             if allow_auto:
