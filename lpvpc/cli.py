@@ -6,7 +6,7 @@
     lpvpc identify (--pt PT.csv --ut UT.csv [--pt PT2 --ut UT2 ...] | DATA.csv [DATA2 ...]
                     | --pt PT.mat --stationary) -o model.json [estimator settings]
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
-                   [--variable NAME] [--channel ROLE=NAME ...]
+                   [--variable NAME] [--channel ROLE=NAME ...] [--channel-skew-ms MS|auto]
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
@@ -124,10 +124,11 @@ def _listed(value) -> list:
     return list(value) if isinstance(value, list) else [] if value is None else [value]
 
 
-def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None):
+def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, channel_skew=0.0):
     """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
-    loader); several files (identify) are joined as trials of one identification."""
-    from .data import load_identification_data
+    loader); several files (identify) are joined as trials of one identification; the
+    channel skew (s or "auto") undone at the files' rate (lpvpc.channel_skew)."""
+    from .channel_skew import load_aligned
     from .matfiles import parse_channel_options
 
     data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
@@ -157,14 +158,14 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None):
         raise _UsageError(f"--channel: {exc}") from None
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
               variable=getattr(args, "variable", None), channels=channels or None,
-              time_unit=getattr(args, "time_unit", None) or time_unit or "s")
+              time_unit=getattr(args, "time_unit", None) or time_unit or "s", channel_skew=channel_skew)
 
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
 
     if data:
-        return load_identification_data(data=one(data), **kw)
-    return load_identification_data(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+        return load_aligned(data=one(data), **kw)
+    return load_aligned(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
@@ -271,7 +272,7 @@ def cmd_identify(args) -> int:
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags")
     target_fs = None if args.fs == 0 else args.fs
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
-                      torque_sign=args.torque_sign)
+                      torque_sign=args.torque_sign, channel_skew=_channel_skew(args.channel_skew_ms))
     t0 = time.perf_counter()
     est = LPVPCEstimator(**settings)
     # most fits take a second or two: a line only when this one takes longer
@@ -295,6 +296,17 @@ def cmd_identify(args) -> int:
     trials = f"{len(data.segments)} trials, " if data.segments else ""
     print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")
+    from .channel_skew import MIN_RESIDUAL_REDUCTION
+
+    choice = data.meta.get("channel_skew_choice")
+    if "channel_skew_s" in data.meta or choice:
+        skew = data.meta.get("channel_skew_s", 0.0)
+        how = (f"estimated {choice['estimate_s'] * 1e3:+.2f} ms, removing {100 * choice['residual_reduction']:.1f} % of "
+               f"the residual variance" + ("" if skew else f" (< {100 * MIN_RESIDUAL_REDUCTION:g} %: not applied)")
+               ) if choice else "given"
+        print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how})"
+              + ("; position delayed by it at the file's rate (recorded in the model: predict does the same)"
+                 if skew else ""))
     if data.meta.get("stationary"):
         ops = data.meta.get("operating_points", [data.meta.get("operating_point")])
         print(f"stationary:  no UT trial; operating point {', '.join(f'{x:+.4f}' for x in ops)} rad "
@@ -406,7 +418,7 @@ def cmd_predict(args) -> int:
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
-                      time_unit=conv.get("time_unit"))
+                      time_unit=conv.get("time_unit"), channel_skew=conv.get("channel_skew_s", 0.0))
     if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
                         source=data.source or None)
@@ -577,6 +589,20 @@ def _closed_loop(args, wj, ut, conv) -> int:
     return 0
 
 
+def _channel_skew(text):
+    """--channel-skew-ms: a number (ms) or 'auto', as the loaders' channel_skew (s or 'auto')."""
+    if text is None or text == "auto":
+        return 0.0 if text is None else "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not math.isfinite(value) or abs(value) > 20.0:
+        raise _UsageError(f"--channel-skew-ms {text!r}: give milliseconds within +-20 (the torque channel's lag "
+                          f"behind the position channel), or auto")
+    return value * 1e-3
+
+
 def _position_delay(args, wj, conv) -> float:
     """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
     from . import closed_loop as CL
@@ -675,7 +701,7 @@ def _load_for_model(args, model):
     position_unit = args.position_unit or conv.get("position_unit", "rad")
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
-                      time_unit=conv.get("time_unit"))
+                      time_unit=conv.get("time_unit"), channel_skew=conv.get("channel_skew_s", 0.0))
     return data
 
 
@@ -939,6 +965,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")
+    p.add_argument("--channel-skew-ms", metavar="MS|auto",
+                   help="the torque channel's lag behind the position channel in ms (a recording artefact), "
+                        "undone at the file's rate before decimation; auto: estimated from these data (about 11 "
+                        "extra fits); default 0 (docs: data guide, channel skew)")
     p.add_argument("--structure", choices=("fixed", "cv"),
                    help="cv (default): choose IRF half-width, basis orders, reflex delay, curvature term and "
                         "extrapolation rule by leave-one-level-out cross-validation (options given here stay fixed); "

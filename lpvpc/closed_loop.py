@@ -46,6 +46,8 @@ import numpy as np
 from . import equations as eq
 from .basis import CasadiOps
 from .errors import DataError, ExportError, ModelFileError, non_finite_problem
+# the channel skew lives in its own module; its names stay importable from here (earlier API)
+from .channel_skew import ChannelSkew, delay_position, delayed, estimate_channel_skew  # noqa: F401
 
 __all__ = ["ClosedLoopModel", "ClosedLoopPrediction", "fit_closed_loop", "distillation_trial", "closed_loop_step",
            "fit_perturbation_impedance", "predict_perturbation_impedance", "delay_position", "ChannelSkew",
@@ -286,123 +288,6 @@ def predict_perturbation_impedance(model, W, inertia, position, scheduling):
     Gi = model.intrinsic_basis.evaluate(rho)
     tq = eq.impedance_torque(_features(p, vel, W.shape[0] - 3), Gi, W, np.zeros((len(p), 1)), np.zeros(1))
     return tq + inertia * acc + model.predict(p, rho, warn=False).reflex
-
-
-# ---------------------------------------------------------------------------------------
-# A relative delay between the recorded position and torque channels (a measurement artefact)
-
-SINC_HALF_WIDTH = 16  # samples each side of the fractional-delay filter (flat to ~0.4 fs)
-
-
-def delayed(x, fs: float, delay: float) -> np.ndarray:
-    """``x`` (sampled at ``fs`` Hz) delayed by ``delay`` s (negative: advanced), any fraction of
-    a sample: a Hann-windowed sinc interpolator, the record's end values held beyond its ends.
-    Exact for whole samples; for signals band-limited below ~0.4 fs (decimated data) the
-    interpolation error is ~1e-4 of the amplitude.
-
-    >>> t = np.arange(200) / 100.0
-    >>> y = delayed(np.sin(2 * np.pi * 2 * t), 100.0, 0.0035)
-    >>> bool(np.max(np.abs(y[20:180] - np.sin(2 * np.pi * 2 * (t[20:180] - 0.0035)))) < 1e-3)
-    True
-    """
-    x = np.asarray(x, dtype=float)
-    shift = delay * fs
-    whole = int(np.floor(shift))
-    frac = shift - whole
-    k = np.arange(-SINC_HALF_WIDTH, SINC_HALF_WIDTH + 1)
-    h = np.sinc(k + frac) * (0.5 + 0.5 * np.cos(np.pi * (k + frac) / (SINC_HALF_WIDTH + 1)))
-    h /= h.sum()  # unit DC gain: a constant stays constant
-    pad = SINC_HALF_WIDTH + abs(whole) + 1
-    xp = np.r_[np.full(pad, x[0]), x, np.full(pad, x[-1])]
-    y = np.convolve(xp, h[::-1], mode="same")  # y[i] = sum_j h[j] xp[i + j]
-    return y[pad - whole: pad - whole + len(x)]
-
-
-def delay_position(data, delay: float):
-    """Perturbation data (:class:`lpvpc.data.PerturbationData`) with the position channel delayed
-    by ``delay`` s relative to the torque (a fraction of a sample allowed; :func:`delayed`), to
-    undo a torque channel recorded ``delay`` s late. The scheduling is left as is (it moves at
-    < 1 Hz); the high-rate copy of the position, when present, is delayed the same.
-    ``meta["position_delay_s"]`` records the delay.
-
-    >>> from lpvpc.data import PerturbationData
-    >>> d = PerturbationData(np.arange(6.0), np.zeros(6), np.zeros(6), 100.0)
-    >>> aligned = delay_position(d, 0.01)  # one sample at 100 Hz
-    >>> aligned.position.round(12).tolist(), aligned.meta["position_delay_s"]
-    ([0.0, 0.0, 1.0, 2.0, 3.0, 4.0], 0.01)
-    """
-    import dataclasses
-
-    def each_trial(x, fs, segments):  # joined trials: each delayed on its own (ends held)
-        return np.concatenate([delayed(x[a:b], fs, delay) for a, b in (list(segments) or [(0, len(x))])])
-
-    high = data.high_rate
-    if high is not None:
-        high = dataclasses.replace(high, position=each_trial(high.position, high.fs, high.segments))
-    meta = {**data.meta, "position_delay_s": float(delay) + float(data.meta.get("position_delay_s", 0.0))}
-    return dataclasses.replace(data, position=each_trial(data.position, data.fs, data.segments), high_rate=high,
-                               meta=meta)
-
-
-@dataclass
-class ChannelSkew:
-    """The relative delay of the torque channel behind the position channel (s; negative: the
-    torque leads) that :func:`estimate_channel_skew` found: ``delay`` (the parabola's peak
-    through the best grid point and its neighbours), ``candidates`` (s) and ``scores`` (the
-    two-sided model's in-sample VAF, %, on the data aligned by each candidate).
-
-    >>> ChannelSkew(0.001, np.array([0.0, 0.001, 0.002]), np.array([93.5, 93.8, 93.5])).delay
-    0.001
-    """
-
-    delay: float
-    candidates: np.ndarray
-    scores: np.ndarray
-
-
-def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
-    """Estimate a delay between a record's position and torque channels from the data alone.
-
-    For each candidate delay (s; default -2 to +3 ms in 0.5 ms steps) the position is delayed
-    by it (:func:`delay_position`), an LPV-PC model identified (``settings`` as for
-    :func:`lpvpc.identify.identify`) and its in-sample VAF recorded; the estimate is the peak
-    of the parabola through the best candidate and its two neighbours. The two-sided model
-    can absorb a skew with its future lags, but only in part (the reflex and the scheduling
-    bases cannot), so its fit peaks at the channels' alignment; on the virtual subject (no
-    skew) the estimate is within ~0.3 ms of 0 and of an imposed 1 ms (tests). Use the
-    identification part only, then :func:`delay_position` the whole record by the estimate.
-
-    A torque channel recorded 2 ms late (the virtual subject's 1 kHz torque shifted by 2 samples):
-
-    >>> from lpvpc.data import pair_trials
-    >>> from lpvpc.simulate import simulate_pair
-    >>> sim = simulate_pair("multilevel", seed=0, duration=40.0)
-    >>> for trial in (sim.pt, sim.ut):
-    ...     trial.torque = np.r_[trial.torque[:2], trial.torque[:-2]]
-    >>> skew = estimate_channel_skew(pair_trials(sim.pt, sim.ut), np.array([0.0, 1.0, 2.0, 3.0]) * 1e-3)
-    >>> bool(abs(skew.delay - 0.002) < 0.0005)
-    True
-    """
-    from .identify import identify
-    from .model import vaf
-
-    cand = np.arange(-2.0, 3.01, 0.5) * 1e-3 if candidates is None else np.asarray(candidates, float)
-    if cand.ndim != 1 or len(cand) < 3 or not np.all(np.diff(cand) > 0):
-        raise ValueError("candidates: at least 3 increasing delays (s)")
-    scores = []
-    for c in cand:
-        aligned = delay_position(data, float(c))
-        # one structure for every candidate (structure selection could change it with the
-        # delay, and the scores would compare structures, not alignments)
-        model = identify(aligned, **{"structure": "fixed", **settings})
-        scores.append(vaf(aligned.torque, model.predict(aligned, warn=False).total))
-    scores = np.array(scores)
-    i = int(np.clip(np.argmax(scores), 1, len(cand) - 2))
-    y0, y1, y2 = scores[i - 1: i + 2]
-    curvature = y0 - 2 * y1 + y2
-    step = 0.5 * (cand[i + 1] - cand[i - 1])
-    offset = 0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0
-    return ChannelSkew(delay=float(cand[i] + np.clip(offset, -1.0, 1.0) * step), candidates=cand, scores=scores)
 
 
 def distillation_trial(whole, ut, *, amplitude: float = 0.04, seed: int = 0):

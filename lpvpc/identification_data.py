@@ -32,6 +32,79 @@ STATIONARY_MAX_SPAN = 0.1
 MIN_PERTURBATION_VARIANCE = 1e-12
 
 
+# ------------------------------------------------------- channel skew (a measurement artefact)
+
+# A torque channel recorded a little later than the position channel (the lab's pilot trial:
+# ~1 ms, a tenth of a 100 Hz sample) is lined up at the file's rate, before decimation: the
+# position channels are delayed by the skew (lpvpc.channel_skew; docs/guide/data.md).
+MAX_CHANNEL_SKEW = 0.02  # s: beyond this a "skew" is a misunderstanding, not a sensor lag
+
+
+SINC_HALF_WIDTH = 16  # samples each side of the fractional-delay filter (flat to ~0.4 fs)
+
+
+def delayed(x, fs: float, delay: float) -> np.ndarray:
+    """``x`` (sampled at ``fs`` Hz) delayed by ``delay`` s (negative: advanced), any fraction of
+    a sample: a Hann-windowed sinc interpolator, the record's end values held beyond its ends.
+    Exact for whole samples; for signals band-limited below ~0.4 fs (decimated data) the
+    interpolation error is ~1e-4 of the amplitude.
+
+    >>> t = np.arange(200) / 100.0
+    >>> y = delayed(np.sin(2 * np.pi * 2 * t), 100.0, 0.0035)
+    >>> bool(np.max(np.abs(y[20:180] - np.sin(2 * np.pi * 2 * (t[20:180] - 0.0035)))) < 1e-3)
+    True
+    """
+    x = np.asarray(x, dtype=float)
+    shift = delay * fs
+    whole = int(np.floor(shift))
+    frac = shift - whole
+    k = np.arange(-SINC_HALF_WIDTH, SINC_HALF_WIDTH + 1)
+    h = np.sinc(k + frac) * (0.5 + 0.5 * np.cos(np.pi * (k + frac) / (SINC_HALF_WIDTH + 1)))
+    h /= h.sum()  # unit DC gain: a constant stays constant
+    pad = SINC_HALF_WIDTH + abs(whole) + 1
+    xp = np.r_[np.full(pad, x[0]), x, np.full(pad, x[-1])]
+    y = np.convolve(xp, h[::-1], mode="same")  # y[i] = sum_j h[j] xp[i + j]
+    return y[pad - whole: pad - whole + len(x)]
+
+
+def check_channel_skew(value, allow_auto: bool = False) -> float | str:
+    """``channel_skew`` as given: a finite number of seconds within +-MAX_CHANNEL_SKEW, or "auto"
+    where ``allow_auto`` (ValueError naming the problem otherwise).
+
+    >>> check_channel_skew(0.001), check_channel_skew("auto", allow_auto=True)
+    (0.001, 'auto')
+    """
+    if isinstance(value, str):
+        if value == "auto":
+            if allow_auto:
+                return value
+            # choosing needs identification, which needs this module: not in the loaders
+            raise ValueError("channel_skew='auto' is chosen by lpvpc.channel_skew.load_aligned (same arguments); "
+                             "give seconds here")
+        raise ValueError(f"channel_skew {value!r}: give seconds (e.g. 0.001), or 'auto' to choose it "
+                         f"(lpvpc.channel_skew.load_aligned)")
+    try:
+        skew = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"channel_skew {value!r}: give seconds (e.g. 0.001), or 'auto' to choose it "
+                         f"(lpvpc.channel_skew.load_aligned)") from None
+    if not math.isfinite(skew) or abs(skew) > MAX_CHANNEL_SKEW:
+        raise ValueError(f"channel_skew {value!r} s: give a finite delay within +-{MAX_CHANNEL_SKEW:g} s "
+                         f"(+-{MAX_CHANNEL_SKEW * 1e3:g} ms)")
+    return skew
+
+
+def _aligned(trial: Trial, skew: float) -> Trial:
+    """``trial`` (at its file's rate) with its position channels (position and, when present,
+    scheduling) delayed by ``skew`` s: the torque channel's lag behind them undone."""
+    if not skew:
+        return trial
+    channels = dict(trial.channels)
+    if "scheduling" in channels:
+        channels["scheduling"] = delayed(channels["scheduling"], trial.fs, skew)
+    return Trial(trial.time, delayed(trial.position, trial.fs, skew), trial.torque, channels, trial.name)
+
+
 # --------------------------------------------------------------------------- identification data
 
 
@@ -242,7 +315,7 @@ def _resampled(fs_file, fs_now, target_fs) -> dict:
     return {} if fs_now == fs_file else {"resampled_to": multiple_rate(fs_file, target_fs)}
 
 
-def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
+def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0, channel_skew: float = 0.0) -> PerturbationData:
     """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
 
     position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
@@ -250,7 +323,9 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
     ``ut_velocity`` (rad/s, gradient of the decimated UT position), ``emg`` from PT and
     ``emg_ut`` from UT if present (decimated as given with the same filter: rectify/envelope
-    raw EMG first).
+    raw EMG first). ``channel_skew`` (s): the torque channels' lag behind the position channels,
+    undone at the file's rate before decimation (the position and scheduling delayed by it;
+    recorded as ``meta["channel_skew_s"]``; docs/guide/data.md).
     Raises DataError (problems of both trials, different lengths or rates) or
     InsufficientExcitationError (no perturbation).
     """
@@ -282,6 +357,8 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
         name=source,
     )
     fs_file = float(pt.fs)
+    skew = check_channel_skew(channel_skew)
+    diff = _aligned(diff, skew)  # at the file's rate: a fraction of a model sample is whole samples here
     diff = to_multiple_rate(diff, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
     q = decimation_factor(diff.fs, target_fs, source=source)
     low = decimate_trial(diff, target_fs) if q > 1 else diff
@@ -291,14 +368,16 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0) -> PerturbationData:
     for k in ("emg", "emg_ut"):
         if k in low.channels:
             extra[k] = low.channels[k]
-    meta = {"fs_original": fs_file, "decimation": q, **_resampled(fs_file, diff.fs, target_fs)}
+    meta = {"fs_original": fs_file, "decimation": q, **_resampled(fs_file, diff.fs, target_fs),
+            **({"channel_skew_s": skew} if skew else {})}
     high = HighRate(diff.position, diff.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta,
                             high_rate=high)
 
 
 def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
-                           target_fs=100.0, variable=None, channels=None, time_unit: str = "s") -> PerturbationData:
+                           target_fs=100.0, variable=None, channels=None, time_unit: str = "s",
+                           channel_skew: float = 0.0) -> PerturbationData:
     """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
@@ -306,9 +385,10 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
     :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`load_trial` (the lab's
     pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
-    found without options).
+    found without options). ``channel_skew`` as in :func:`pair_trials`.
     """
     _check_settings(position_unit, torque_sign)
+    skew = check_channel_skew(channel_skew)
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
                               channels=channels)
@@ -316,6 +396,7 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
     trial = _to_si(trial, position_unit, torque_sign, str(path), time_unit)
     fs_file = float(trial.fs)
+    trial = _aligned(trial, skew)  # at the file's rate, before decimation
     trial = to_multiple_rate(trial, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
     q = decimation_factor(trial.fs, target_fs, source=str(path))
     low = decimate_trial(trial, target_fs) if q > 1 else trial
@@ -324,7 +405,8 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
     extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
     meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
-            "fs_original": fs_file, "decimation": q, **_resampled(fs_file, trial.fs, target_fs)}
+            "fs_original": fs_file, "decimation": q, **_resampled(fs_file, trial.fs, target_fs),
+            **({"channel_skew_s": skew} if skew else {})}
     high = HighRate(trial.position, trial.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
                             high_rate=high)
@@ -341,7 +423,7 @@ def _refuse_single_trial(table, path) -> None:
                          "channels={'scheduling': COLUMN})"], source=str(path))
 
 
-def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
+def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float = 0.0) -> PerturbationData:
     """Perturbation data from one perturbed trial around a fixed operating position recorded
     without a UT trial (the commonest experiment in the field, e.g. the lab's
     ``experimental_data.mat``).
@@ -377,7 +459,7 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0) -> PerturbationData:
     op, tq0 = float(np.mean(pt.position)), float(np.mean(pt.torque))
     ut = Trial(np.asarray(pt.time, dtype=float), np.full(len(pt.time), op), np.full(len(pt.time), tq0), {},
                "constant operating point")
-    out = pair_trials(pt, ut, target_fs=target_fs)
+    out = pair_trials(pt, ut, target_fs=target_fs, channel_skew=channel_skew)
     out.source = f"{pt.name or 'PT'} (stationary at {op:+.4f} rad)"
     out.meta.update(stationary=True, operating_point=op, torque_offset=tq0)
     return out
@@ -447,7 +529,7 @@ def _joined_high_rate(trials) -> HighRate | None:
 
 def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
                              torque_sign: float = 1.0, target_fs=100.0, variable=None, channels=None,
-                             stationary: bool = False, time_unit: str = "s") -> PerturbationData:
+                             stationary: bool = False, time_unit: str = "s", channel_skew=0.0) -> PerturbationData:
     """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
     a perturbation file, or a PerturbationData returned as is).
 
@@ -463,6 +545,11 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     give a wrong model are refused (DataError naming the fix): angles that look like
     degrees read as rad, a time column that looks like milliseconds read as s, PT and UT
     swapped (the perturbation in the UT trial).
+
+    ``channel_skew`` (s): the torque channel's lag behind the position channel, a measurement
+    artefact undone at the file's rate before decimation (:func:`pair_trials`); to choose it
+    from the data, :func:`lpvpc.channel_skew.load_aligned`. A PerturbationData passed as
+    ``data`` is returned as is (align it when loading it).
     """
     given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
     allowed = (["pt"],) if stationary else (["pt", "ut"], ["data"])
@@ -471,8 +558,13 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
         raise DataError([f"give {want}; got {', '.join(given) or 'nothing'}"])
     torque_sign = _check_settings(position_unit, torque_sign)
     _check_time_unit(time_unit)
+    skew = check_channel_skew(channel_skew)
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs, variable=variable,
               channels=channels, stationary=stationary, time_unit=time_unit)
+    if isinstance(data, PerturbationData) and skew:
+        raise DataError(["channel_skew aligns the channels at the file's own rate: give the file (or Trials), "
+                         "not loaded data"])
+    kw["channel_skew"] = skew
     if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
         if data is not None:
             return join_trials([load_identification_data(data=d, **kw) for d in data])
@@ -489,7 +581,7 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
             warnings.simplefilter("ignore", UnitWarning)  # degrees: refused below instead
             out = load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
                                          target_fs=target_fs, variable=variable, channels=channels,
-                                         time_unit=time_unit)
+                                         time_unit=time_unit, channel_skew=skew)
         _refuse_degrees([Trial(out.time, out.position, out.torque, {"scheduling": out.scheduling}, out.source)],
                         position_unit)
         _refuse_milliseconds(out, time_unit)
@@ -509,9 +601,9 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
                                          variable=variable, channels=channels, time_unit=time_unit))
     _refuse_degrees(trials, position_unit)
     if stationary:
-        out = stationary_perturbation(trials[0], target_fs=target_fs)
+        out = stationary_perturbation(trials[0], target_fs=target_fs, channel_skew=skew)
     else:
-        out = pair_trials(trials[0], trials[1], target_fs=target_fs)
+        out = pair_trials(trials[0], trials[1], target_fs=target_fs, channel_skew=skew)
     _refuse_milliseconds(out, time_unit)
     out.meta.update(position_unit=position_unit, torque_sign=torque_sign)
     if time_unit != "s":

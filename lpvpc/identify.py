@@ -951,7 +951,8 @@ def _conventions(data) -> dict:
     """Units and torque sign the data were loaded with (recorded so predict can reuse them)."""
     meta = dict(getattr(data, "meta", {}) or {})
     return {"position_unit": meta.get("position_unit", "rad"), "torque_sign": float(meta.get("torque_sign", 1.0)),
-            "fs_original": meta.get("fs_original"), "decimation": meta.get("decimation")}
+            "fs_original": meta.get("fs_original"), "decimation": meta.get("decimation"),
+            **({"channel_skew_s": float(meta["channel_skew_s"])} if meta.get("channel_skew_s") else {})}
 
 
 def _provenance(data) -> dict:

@@ -352,6 +352,8 @@ def _check_conventions(x, where, problems, d, budget):
     if "position_unit" in c and c["position_unit"] not in POSITION_UNITS:
         problems.append(f"{where}.position_unit must be one of {', '.join(POSITION_UNITS)}, "
                         f"got {_show(c['position_unit'])}")
+    if "channel_skew_s" in c:  # s, the recording's torque lag undone at loading (lpvpc.channel_skew)
+        _number(c["channel_skew_s"], f"{where}.channel_skew_s", problems, lo=-0.02, hi=0.02, limit="+-20 ms")
 
 
 def _check_settings(x, where, problems, d, budget):

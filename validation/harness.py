@@ -121,7 +121,8 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
     pt_t, ut_t = (to_multiple_rate(tr, model.fs) for tr in trials)
-    measured = pair_trials(pt_t, ut_t, target_fs=model.fs)
+    # the recording's channel skew, undone as at identification (lpvpc.channel_skew)
+    measured = pair_trials(pt_t, ut_t, target_fs=model.fs, channel_skew=conv.get("channel_skew_s", 0.0))
     if abs(measured.fs - model.fs) > RATE_TOLERANCE * model.fs:
         raise DataError(f"sampling rate {measured.fs:g} Hz of the record differs from the model's {model.fs:g} Hz",
                         source=measured.source or None)

@@ -1,0 +1,129 @@
+"""Channel skew (issue 22): a torque channel recorded late is undone at the file's rate before
+decimation, estimated from the record (none on the virtual subject, which has no skew; the
+imposed skew when one channel of its 1 kHz record is shifted), recorded in the model
+and reused by ``lpvpc predict``; bad values are one-line errors (CLI exit 2).
+
+Real recordings are not needed (the pilot trial's figures are in benchmarks/results/real_pilot.txt).
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lpvpc.channel_skew import MIN_RESIDUAL_REDUCTION, estimate_channel_skew, load_aligned
+from lpvpc.cli import main as cli_main
+from lpvpc.data import load_identification_data, pair_trials
+from lpvpc.model import LPVPCModel, vaf
+from lpvpc.simulate import simulate_pair
+from lpvpc.trial import Trial
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shifted(trial, n=1, channel="torque"):
+    """``trial`` (1 kHz) with one channel written ``n`` samples late (its first value held)."""
+    x = getattr(trial, channel)
+    late = np.r_[np.full(n, x[0]), x[:-n]]
+    return Trial(trial.time, late if channel == "position" else trial.position,
+                 late if channel == "torque" else trial.torque, dict(trial.channels), trial.name)
+
+
+@pytest.fixture(scope="module")
+def subject():
+    return simulate_pair("multilevel", seed=0, duration=60.0)  # 1 kHz trials, no skew
+
+
+def test_skew_is_undone_at_the_file_rate_before_decimation(subject):
+    """channel_skew=1 ms delays the 1 kHz position channels by one whole sample before the
+    decimation: the same data as files whose position was written 1 ms late; 0 changes nothing."""
+    pt, ut = subject.pt, subject.ut
+    aligned = pair_trials(pt, ut, channel_skew=1e-3)
+    by_hand = pair_trials(shifted(pt, channel="position"), shifted(ut, channel="position"))
+    assert np.allclose(aligned.position, by_hand.position, rtol=0, atol=1e-12)
+    assert np.allclose(aligned.scheduling, by_hand.scheduling, rtol=0, atol=1e-12)
+    assert np.array_equal(aligned.torque, by_hand.torque)
+    assert np.allclose(aligned.high_rate.position, by_hand.high_rate.position, rtol=0, atol=1e-12)
+    assert aligned.meta["channel_skew_s"] == 1e-3
+    plain, zero = pair_trials(pt, ut), pair_trials(pt, ut, channel_skew=0.0)
+    assert np.array_equal(plain.position, zero.position) and "channel_skew_s" not in zero.meta
+    # a fraction of a model sample is a real change at 100 Hz (not rounded away)
+    assert np.max(np.abs(aligned.position - plain.position)) > 0.05 * np.std(np.diff(plain.position))
+
+
+@pytest.mark.parametrize("value, words", [(0.5, r"within \+-0\.02 s"), (float("nan"), "finite"),
+                                          ("soon", "give seconds"), ("auto", "load_aligned")])
+def test_bad_channel_skew_is_named(subject, value, words):
+    with pytest.raises(ValueError, match=words):
+        load_identification_data(pt=subject.pt, ut=subject.ut, channel_skew=value)
+    with pytest.raises(ValueError, match=words):
+        pair_trials(subject.pt, subject.ut, channel_skew=value)
+
+
+@pytest.mark.slow
+def test_estimate_recovers_a_simulated_skew_and_finds_none_without_one(subject):
+    """The virtual subject's 1 kHz torque written 1 ms late (one sample): the estimate recovers
+    the skew and lining up removes well over MIN_RESIDUAL_REDUCTION of the residual; on the
+    record as simulated the reduction stays below it, so "auto" changes nothing."""
+    late = estimate_channel_skew(pair_trials(shifted(subject.pt), shifted(subject.ut)))
+    clean = estimate_channel_skew(pair_trials(subject.pt, subject.ut))
+    print(f"torque 1 ms late: estimate {late.delay * 1e3:.2f} ms, residual reduction {100 * late.residual_reduction:.1f} %;"
+          f" no skew: {clean.delay * 1e3:.2f} ms, {100 * clean.residual_reduction:.2f} %")
+    assert abs(late.delay - 1e-3) < 0.5e-3 and late.chosen == late.delay
+    assert late.residual_reduction > 2 * MIN_RESIDUAL_REDUCTION
+    assert clean.residual_reduction < 0.5 * MIN_RESIDUAL_REDUCTION and clean.chosen == 0.0
+    # "auto" on the skew-free files: the same data as no alignment at all
+    auto = load_aligned(pt=subject.pt, ut=subject.ut, channel_skew="auto")
+    plain = load_identification_data(pt=subject.pt, ut=subject.ut)
+    assert np.array_equal(auto.position, plain.position) and "channel_skew_s" not in auto.meta
+    assert auto.meta["channel_skew_choice"]["chosen_s"] == 0.0
+
+
+def _subprocess(*argv):
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "lpvpc.cli", *map(str, argv)], capture_output=True, text=True,
+                          env=env, timeout=300)
+
+
+def test_model_records_the_skew_and_predict_reuses_it(subject, tmp_path):
+    """lpvpc identify --channel-skew-ms 1: the model records 1 ms; lpvpc predict (and validate's
+    loader) load new files with it (the same VAF as the library on data loaded with channel_skew=1 ms)."""
+    d = tmp_path
+
+    def main(argv):
+        return cli_main([str(a) for a in argv])
+
+    assert main(["simulate", "--out", str(d / "data"), "--seed", "0", "--duration", "40"]) == 0
+    pt, ut = d / "data" / "ident_PT.csv", d / "data" / "ident_UT.csv"
+    assert main(["identify", "--pt", pt, "--ut", ut, "-o", d / "m.json", "--channel-skew-ms", "1",
+                 "--structure", "fixed"]) == 0
+    model = LPVPCModel.load(d / "m.json")
+    assert model.conventions["channel_skew_s"] == pytest.approx(1e-3)
+    npt, nut = d / "data" / "novel_PT.csv", d / "data" / "novel_UT.csv"
+    assert main(["predict", d / "m.json", "--pt", npt, "--ut", nut, "--json", d / "p.json"]) == 0
+    data = load_identification_data(pt=npt, ut=nut, channel_skew=1e-3)
+    expected = vaf(data.torque, model.predict(data, warn=False).total)
+    assert json.loads((d / "p.json").read_text())["vaf"] == pytest.approx(expected, abs=1e-9)
+    raw = load_identification_data(pt=npt, ut=nut)
+    assert not np.allclose(model.predict(raw, warn=False).total, model.predict(data, warn=False).total)
+    from lpvpc.validation.harness import load_record  # validate's loading: the same alignment
+
+    assert np.array_equal(load_record(model, npt, nut).measured.position, data.position)
+
+
+@pytest.mark.parametrize("value", ["25", "abc", "nan"])
+def test_cli_bad_skew_is_one_line_exit_2(tmp_path, value):
+    r = _subprocess("identify", "x.csv", "-o", tmp_path / "m.json", "--channel-skew-ms", value)
+    lines = [ln for ln in r.stderr.strip().splitlines() if not ln.startswith("lpvpc: [")]
+    assert r.returncode == 2 and len(lines) == 1 and "--channel-skew-ms" in lines[0], r.stderr
+
+
+def test_load_aligned_passes_a_given_skew_through(subject):
+    a = load_aligned(pt=subject.pt, ut=subject.ut, channel_skew=1e-3)
+    b = load_identification_data(pt=subject.pt, ut=subject.ut, channel_skew=1e-3)
+    assert np.array_equal(a.position, b.position) and a.meta["channel_skew_s"] == 1e-3
