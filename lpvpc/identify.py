@@ -314,6 +314,7 @@ class LPVPCEstimator:
                 data = join_trials(data)
             if self.structure not in ("fixed", "cv"):
                 raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+            _check_reflex_path_settings(self)
             if self.structure == "cv":
                 return self._fit_selected(data)
             try:
@@ -350,14 +351,15 @@ class LPVPCEstimator:
         """structure="cv": a fit at the given settings gives the reflex dynamics; the
         structure is chosen by cross-validation with them held (lpvpc.selection); the
         chosen structure is fitted (its state order the first fit's)."""
-        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns, search_space
+        from .selection import (REFLEX_PATH_SETTINGS, SEARCH, StructureSearch, compare_state_orders, design_columns,
+                                search_space)
 
         t0 = time.perf_counter()
         given = self._given_settings()
-        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"})
+        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"} - set(REFLEX_PATH_SETTINGS))
         if unknown:
             raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
-                             f"{sorted(SEARCH)} (and irf_lags, state_order)")
+                             f"{sorted(SEARCH)} (and irf_lags, state_order, {', '.join(REFLEX_PATH_SETTINGS)})")
         fixed = {"irf_length" if k == "irf_lags" else k for k in given}
         base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
@@ -392,22 +394,26 @@ class LPVPCEstimator:
         # The state order: BIC's at the starting structure, against one lower and one higher
         # (those the first fit tried) scored by CV at the chosen structure, unless it is given.
         order, bic_order, order_cv = m.fit["state_order"], m.fit["state_order"], {}
+        chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
         if self.state_order is None and "state_order" not in fixed:
             neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
-            chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
                                                    self.basis, self.velocity_basis, Segments.of(data, len(y)))
+        path = self._select_reflex_path(data, first, sel.chosen, order, bic_order, chosen_score, fixed)
         t_select = time.perf_counter() - t
         # The chosen structure is fitted at that order, its poles refined from the first fit's
         # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
         # of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": order, **(path.chosen if path else {})}
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
         if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
-        est._fit(data)
+        if path is not None and path.chosen["high_rate_reflex"]:
+            est = self._fit_high_rate_chosen(data, est, path, first._order_dynamics[order][0], order)
+        else:
+            est._fit(data)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
         est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
@@ -416,6 +422,7 @@ class LPVPCEstimator:
         model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
                                             "state_order": {"bic": int(bic_order), "chosen": int(order),
                                                             "cv_vaf": {str(k): v for k, v in order_cv.items()}},
+                                            **({"reflex_path": path.to_dict()} if path is not None else {}),
                                             "state_order_from": "BIC at the starting structure" if not order_cv else
                                             "BIC at the starting structure, against one lower and one higher by CV "
                                             "at the chosen structure (one-standard-error rule toward BIC's)"}
@@ -434,9 +441,48 @@ class LPVPCEstimator:
         """Names of the selected settings the caller set: structure_fixed, or those named in the call."""
         if self.structure_fixed is not None:
             return tuple(self.structure_fixed)
-        from .selection import SEARCH
+        from .selection import REFLEX_PATH_SETTINGS, SEARCH
 
-        return tuple(k for k in (*SEARCH, "irf_lags", "state_order") if k in getattr(self, "_given", ()))
+        return tuple(k for k in (*SEARCH, "irf_lags", "state_order", *REFLEX_PATH_SETTINGS)
+                     if k in getattr(self, "_given", ()))
+
+    def _select_reflex_path(self, data, first, chosen, order, bic_order, chosen_score, fixed):
+        """structure="cv" on data that keep their file's higher rate: model-rate or high-rate reflex
+        nonlinearity (and the high-rate velocity basis) by the same folds and rule
+        (:func:`lpvpc.selection.compare_reflex_paths`); None when it is not a candidate (no
+        high-rate signals, or ``high_rate_reflex`` given by the caller)."""
+        from .selection import HIGH_RATE_BASES, SEARCH, StructureSearch, compare_reflex_paths
+
+        high = getattr(data, "high_rate", None)
+        if high is None or "high_rate_reflex" in fixed:
+            return None
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        seg = Segments.of(data, len(y))
+        dynamics = first._order_dynamics[order]
+        if order != bic_order:  # the model-rate score under the chosen order's dynamics
+            chosen_score = StructureSearch(p, y, rho, data.fs, dynamics, self.basis, self.velocity_basis,
+                                           {k: (chosen[k],) for k in SEARCH}, seg).score(chosen)
+        candidates = HIGH_RATE_BASES
+        if {"high_rate_velocity_basis", "high_rate_velocity_order"} & set(fixed):  # the caller's basis only
+            candidates = ((self.high_rate_velocity_basis, int(self.high_rate_velocity_order)),)
+        return compare_reflex_paths(p, y, rho, data.fs, chosen, dynamics, chosen_score, high, candidates,
+                                    self.basis, seg)
+
+    def _fit_high_rate_chosen(self, data, est, path, poles, order):
+        """The chosen structure on the high-rate path: its own subspace step (the reflex inputs
+        differ from the first fit's), the refinement from the first fit's poles. Not determined
+        (InsufficientExcitationError): the model-rate fit, the reason recorded."""
+        est._reuse = {"poles": {order: poles}}
+        try:
+            est._fit(data)
+        except InsufficientExcitationError as exc:
+            fallback = LPVPCEstimator(**{**est.get_params(), "high_rate_reflex": False})
+            fallback._reuse = {"poles": {order: poles}}
+            fallback._fit(data)
+            path.chosen = {"high_rate_reflex": False}
+            path.fallback = f"the high-rate fit was not determined ({exc}): model-rate velocity"
+            return fallback
+        return est
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
@@ -772,6 +818,20 @@ class LPVPCEstimator:
                 f"({n_intrinsic} intrinsic, {n_reflex} reflex nonlinearity); need at least {need} "
                 f"(reduce basis orders, IRF lags or MOESP horizon, or record longer)"
             )
+
+
+def _check_reflex_path_settings(est) -> None:
+    """ValueError naming a bad high-rate setting (before any fit)."""
+    from .basis import FAMILIES
+    from .modelfile import MAX_BASIS_ORDER
+
+    if not isinstance(est.high_rate_reflex, (bool, np.bool_)):
+        raise ValueError(f"high_rate_reflex must be True or False, got {est.high_rate_reflex!r}")
+    if est.high_rate_velocity_basis not in FAMILIES:
+        raise ValueError(f"high_rate_velocity_basis must be one of {FAMILIES}, got {est.high_rate_velocity_basis!r}")
+    order = est.high_rate_velocity_order
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 1 <= order <= MAX_BASIS_ORDER:
+        raise ValueError(f"high_rate_velocity_order must be an integer in 1..{MAX_BASIS_ORDER}, got {order!r}")
 
 
 def _high_rate_input(est, data, rho_basis):

@@ -72,27 +72,56 @@ def high_rate_input(high, q, reflex_delay, rho_basis, velocity_family, velocity_
     dynamics (bandwidth ~3 Hz) are identified at the model rate as before. Built trial by
     trial (``high.segments``), one column at a time (memory: a few high-rate vectors).
     """
-    from . import equations as eq
-    from .basis import Basis
-    from .data import decimate_signal
-    from .segments import Segments
+    src = HighRateReflexInput(high, q, reflex_delay, velocity_family, velocity_order)
+    return HighRateInput(src(rho_basis), src.dvel, high.scheduling, src.delay, float(high.fs), src.velocity_basis)
 
-    fs_h = float(high.fs)
-    delay = int(round(reflex_delay * fs_h))
-    if delay < 1:
-        raise IdentificationError(f"reflex delay {reflex_delay} s is less than one sample at {fs_h:g} Hz")
-    seg = Segments(high.segments, high.n)
-    dvel = seg.map(eq.delayed_velocity, high.position, fs=fs_h, delay=delay)
-    # The basis spans the central 99 % of the velocities: at 1 kHz the rare extremes of the
-    # servo's step transients (-10..+6 rad/s against +-2.6 for the central 99 % on the virtual
-    # subject) would otherwise set the range and leave the rectifier's kink region (0.2-0.8
-    # rad/s) between a few coarse knots; beyond the range the basis continues linearly.
-    lo, hi = np.percentile(dvel, [VELOCITY_RANGE_PERCENTILE, 100.0 - VELOCITY_RANGE_PERCENTILE])
-    V_b = Basis(velocity_family, int(velocity_order), float(lo), float(max(hi, lo + 1e-9)), "linear")
-    V, G = V_b.evaluate(dvel), rho_basis.evaluate(high.scheduling)
-    cols = [seg.map(lambda x: decimate_signal(x, q), V[:, i] * G[:, j])
-            for i in range(V.shape[1]) for j in range(G.shape[1])]
-    return HighRateInput(np.column_stack(cols), dvel, high.scheduling, delay, fs_h, V_b)
+
+class HighRateReflexInput:
+    """The high-rate path's model-rate U_r as a function of the scheduling basis: the
+    delayed high-rate velocity and its basis are evaluated once, and each call decimates
+    the products with ``rho_basis.evaluate(high.scheduling)`` (structure selection calls it
+    again with the bases an end fold's model would hold: lpvpc.selection).
+
+    >>> from lpvpc.basis import basis_from_data
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=10.0)  # 1 kHz trials
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> src = HighRateReflexInput(data.high_rate, 10, 0.040, "chebyshev", 4)
+    >>> rho_basis = basis_from_data(data.scheduling, "chebyshev", 2)
+    >>> src(rho_basis).shape, src.n_velocity  # model-rate rows; 5 velocity functions x 3
+    ((1000, 15), 5)
+    """
+
+    def __init__(self, high, q, reflex_delay, velocity_family, velocity_order):
+        from . import equations as eq
+        from .basis import Basis
+        from .segments import Segments
+
+        fs_h = float(high.fs)
+        self.delay = int(round(reflex_delay * fs_h))
+        if self.delay < 1:
+            raise IdentificationError(f"reflex delay {reflex_delay} s is less than one sample at {fs_h:g} Hz")
+        self.q, self.scheduling = int(q), high.scheduling
+        self.seg = Segments(high.segments, high.n)
+        self.dvel = self.seg.map(eq.delayed_velocity, high.position, fs=fs_h, delay=self.delay)
+        # The basis spans the central 99 % of the velocities: at 1 kHz the rare extremes of the
+        # servo's step transients (-10..+6 rad/s against +-2.6 for the central 99 % on the virtual
+        # subject) would otherwise set the range and leave the rectifier's kink region (0.2-0.8
+        # rad/s) between a few coarse knots; beyond the range the basis continues linearly.
+        lo, hi = np.percentile(self.dvel, [VELOCITY_RANGE_PERCENTILE, 100.0 - VELOCITY_RANGE_PERCENTILE])
+        self.velocity_basis = Basis(velocity_family, int(velocity_order), float(lo), float(max(hi, lo + 1e-9)),
+                                    "linear")
+        self.V = self.velocity_basis.evaluate(self.dvel)
+        self.n_velocity = self.V.shape[1]
+
+    def __call__(self, rho_basis) -> np.ndarray:
+        from .data import decimate_signal
+
+        G = rho_basis.evaluate(self.scheduling)
+        cols = [self.seg.map(lambda x: decimate_signal(x, self.q), self.V[:, i] * G[:, j])
+                for i in range(self.V.shape[1]) for j in range(G.shape[1])]
+        return np.column_stack(cols)
 
 
 def high_rate_drive(high, q, delay, velocity_basis, rho_basis, Omega):
