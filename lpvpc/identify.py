@@ -84,12 +84,19 @@ class LPVPCEstimator:
     velocity_basis : its family ("chebyshev" polynomials or "hinge" piecewise-linear);
         both continue linearly beyond the identified velocity range.
     high_rate_reflex : identify the reflex nonlinearity on the high-rate delayed velocity of
-        data that keep their file's higher rate (below). Off by default: on the lab's pilot
-        trial (1 kHz file, split 70/30) it predicted the held-out part worse than the
-        model-rate velocity (93.49 % against 94.06 %: benchmarks/results/real_pilot.txt),
-        although on the virtual subject it recovers the reflex gain trend (and, on long or
-        clean records, the threshold's) better (benchmarks/results/reflex_1k.txt) and its gain
-        intervals cover the truth (benchmarks/results/uncertainty.txt).
+        data that keep their file's higher rate (below). With ``structure="cv"`` (the default)
+        and the setting not given, it is chosen per record by the same cross-validation
+        (:func:`lpvpc.selection.compare_reflex_paths`; the model rate unless the high rate
+        predicts the left-out levels better by more than a standard error), together with the
+        high-rate velocity basis (Chebyshev 4 or hinge 8) unless one is given. Why per record:
+        on the lab's pilot trial (1 kHz file, split 70/30) the high rate predicted the held-out
+        part worse than the model-rate velocity (93.49 % against 94.06 %:
+        benchmarks/results/real_pilot.txt), while on the virtual subject it recovers the reflex
+        gain trend (and, on long or clean records, the threshold's) better
+        (benchmarks/results/reflex_1k.txt) and its gain intervals cover the truth
+        (benchmarks/results/uncertainty.txt). Given (True or False), or with
+        ``structure="fixed"`` (then False unless given), it stays as given; given True, the
+        rest of the structure is not selected (its candidates are model-rate columns).
     high_rate_velocity_basis, high_rate_velocity_order : family and order in delayed
         velocity of the reflex nonlinearity when ``high_rate_reflex`` and the data keep their file's higher rate
         (1 kHz files loaded at the 100 Hz model rate: :class:`lpvpc.data.HighRate`). The
@@ -149,8 +156,10 @@ class LPVPCEstimator:
         table are recorded in ``model.fit["structure_selection"]``. On the lab's pilot
         trial (first 70 %, leave-one-level-out) it predicted left-out levels at 90.9 %
         VAF against 81.1 % for the fixed settings (benchmarks/results/selection.txt).
+        On data that keep their file's higher rate, the velocity of the reflex nonlinearity
+        (model or high rate, see ``high_rate_reflex``) is a candidate too.
         Selection is skipped, with the reason recorded, on stationary trials, extended
-        models (effects), non-polynomial bases, the high-rate reflex path and records whose
+        models (effects), non-polynomial bases, ``high_rate_reflex=True`` given and records whose
         selection design would exceed ``DESIGN_BUDGET_BYTES``. "fixed": the settings as given.
     structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
         given. None (default): every selected setting named in the call (to the constructor,

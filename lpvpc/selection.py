@@ -500,10 +500,37 @@ class PathChoice:
 
     def to_dict(self) -> dict:
         return {"chosen": dict(self.chosen), "label": self.label(self.chosen), "fs_high": float(self.fs_high),
-                "method": "same folds, one-standard-error rule toward the model-rate velocity",
+                "method": "same folds, one-standard-error rule toward fewer parameters (the model-rate velocity "
+                          "on a tie)",
                 **({"fallback": self.fallback} if self.fallback else {}),
                 "table": [{"settings": dict(s), "label": self.label(s), "n_params": int(n), "cv_vaf": float(v)}
                           for s, n, v in self.rows]}
+
+
+def pick_reflex_path(scored: list) -> dict:
+    """The one-standard-error rule over (settings, :class:`Scored`) pairs of the reflex paths:
+    the fewest parameters within one paired standard error of the best, the model rate
+    (``high_rate_reflex`` False) on a tie.
+
+    >>> model = ({"high_rate_reflex": False}, Scored({}, 60, np.array([1.00, 1.00, 1.00, 1.00])))
+    >>> hinge = ({"high_rate_reflex": True, "high_rate_velocity_basis": "hinge"},
+    ...          Scored({}, 72, np.array([0.90, 0.91, 0.92, 0.89])))  # better on every fold
+    >>> cheb = ({"high_rate_reflex": True, "high_rate_velocity_basis": "chebyshev"},
+    ...         Scored({}, 60, np.array([0.99, 1.00, 0.97, 1.02])))
+    >>> pick_reflex_path([model, hinge])["high_rate_reflex"]  # the model rate is clearly worse
+    True
+    >>> pick_reflex_path([model, cheb])["high_rate_reflex"]  # within a standard error, as many parameters
+    False
+    """
+    best = min((s for _, s in scored), key=lambda s: float(s.fold_sse.sum()))
+    K = len(best.fold_sse)
+
+    def within(s):
+        diff = K * (s.fold_sse - best.fold_sse)
+        return K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)
+
+    simplest = sorted(scored, key=lambda t: (t[1].n_params, bool(t[0]["high_rate_reflex"])))
+    return dict(next(settings for settings, s in simplest if within(s)))
 
 
 def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scored, high, candidates=HIGH_RATE_BASES,
@@ -511,9 +538,12 @@ def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scor
     """Model-rate against high-rate reflex nonlinearity, at the chosen structure: each
     high-rate candidate (velocity family, order) replaces the reflex columns of ``chosen``
     (the reflex dynamics ``dynamics`` held, as for every candidate) and is scored on the
-    same folds as ``model_rate`` (the chosen structure's score). The model-rate velocity
-    stays unless it is more than one paired standard error worse than the best; otherwise the
-    high-rate candidate with the fewest parameters within one standard error of the best.
+    same folds as ``model_rate`` (the chosen structure's score). The one-standard-error rule
+    of :meth:`StructureSearch.run`: among the candidates within one paired standard error of
+    the best, the one with the fewest parameters, the model-rate velocity on a tie (the
+    simpler path: no high-rate signals needed to predict, exports without a stand-in). So the
+    model rate stays unless a high-rate candidate with no more parameters is within one
+    standard error of the best, or the model rate is more than one standard error worse.
     ``high``: :class:`lpvpc.data.HighRate` of the record (its rate a multiple of ``fs``).
 
     Why per record: on the virtual subject's 1 kHz files the high-rate velocity recovers the
@@ -533,13 +563,5 @@ def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scor
                              reflex_input=src).score({**chosen, "velocity_order": nv})
         scored.append(({"high_rate_reflex": True, "high_rate_velocity_basis": vfam,
                         "high_rate_velocity_order": int(vorder)}, sc))
-    best = min((s for _, s in scored), key=lambda s: float(s.fold_sse.sum()))
-    K = len(best.fold_sse)
-
-    def within(s):
-        diff = K * (s.fold_sse - best.fold_sse)
-        return K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)
-
-    simplest = [scored[0]] + sorted(scored[1:], key=lambda t: t[1].n_params)
-    pick = next(settings for settings, s in simplest if within(s))
+    pick = pick_reflex_path(scored)
     return PathChoice(chosen=pick, rows=[(st, s.n_params, s.cv_vaf) for st, s in scored], fs_high=float(high.fs))
