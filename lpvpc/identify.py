@@ -420,7 +420,7 @@ class LPVPCEstimator:
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
         if path is not None and path.chosen["high_rate_reflex"]:
-            est = self._fit_high_rate_chosen(data, est, path, first._order_dynamics[order][0], order)
+            est = self._fit_high_rate_chosen(data, est, path, first, order)
         else:
             est._fit(data)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
@@ -477,16 +477,19 @@ class LPVPCEstimator:
         return compare_reflex_paths(p, y, rho, data.fs, chosen, dynamics, chosen_score, high, candidates,
                                     self.basis, seg)
 
-    def _fit_high_rate_chosen(self, data, est, path, poles, order):
-        """The chosen structure on the high-rate path: its own subspace step (the reflex inputs
-        differ from the first fit's), the refinement from the first fit's poles. Not determined
-        (InsufficientExcitationError): the model-rate fit, the reason recorded."""
-        est._reuse = {"poles": {order: poles}}
+    def _fit_high_rate_chosen(self, data, est, path, first, order):
+        """The chosen structure on the high-rate path, its pole refinement from the first fit's
+        poles of that order (the reflex dynamics the comparison held). The first fit's subspace
+        step is reused: with the order given and a start, only its record (singular values)
+        is read, not its poles. Not determined (InsufficientExcitationError): the model-rate
+        fit, the reason recorded."""
+        reuse = {"subspace": first.subspace_, "poles": {order: first._order_dynamics[order][0]}}
+        est._reuse = dict(reuse)
         try:
             est._fit(data)
         except InsufficientExcitationError as exc:
             fallback = LPVPCEstimator(**{**est.get_params(), "high_rate_reflex": False})
-            fallback._reuse = {"poles": {order: poles}}
+            fallback._reuse = dict(reuse)
             fallback._fit(data)
             path.chosen = {"high_rate_reflex": False}
             path.fallback = f"the high-rate fit was not determined ({exc}): model-rate velocity"

@@ -500,17 +500,17 @@ class PathChoice:
 
     def to_dict(self) -> dict:
         return {"chosen": dict(self.chosen), "label": self.label(self.chosen), "fs_high": float(self.fs_high),
-                "method": "same folds, one-standard-error rule toward fewer parameters (the model-rate velocity "
-                          "on a tie)",
+                "method": "same folds, one-standard-error rule toward the model-rate velocity, then fewer "
+                          "parameters",
                 **({"fallback": self.fallback} if self.fallback else {}),
                 "table": [{"settings": dict(s), "label": self.label(s), "n_params": int(n), "cv_vaf": float(v)}
                           for s, n, v in self.rows]}
 
 
 def pick_reflex_path(scored: list) -> dict:
-    """The one-standard-error rule over (settings, :class:`Scored`) pairs of the reflex paths:
-    the fewest parameters within one paired standard error of the best, the model rate
-    (``high_rate_reflex`` False) on a tie.
+    """The one-standard-error rule over (settings, :class:`Scored`) pairs of the reflex paths,
+    the model rate (``high_rate_reflex`` False) the simplest, then the high-rate candidates by
+    parameter count: the first within one paired standard error of the best.
 
     >>> model = ({"high_rate_reflex": False}, Scored({}, 60, np.array([1.00, 1.00, 1.00, 1.00])))
     >>> hinge = ({"high_rate_reflex": True, "high_rate_velocity_basis": "hinge"},
@@ -519,7 +519,10 @@ def pick_reflex_path(scored: list) -> dict:
     ...         Scored({}, 60, np.array([0.99, 1.00, 0.97, 1.02])))
     >>> pick_reflex_path([model, hinge])["high_rate_reflex"]  # the model rate is clearly worse
     True
-    >>> pick_reflex_path([model, cheb])["high_rate_reflex"]  # within a standard error, as many parameters
+    >>> pick_reflex_path([model, cheb])["high_rate_reflex"]  # within a standard error of the best
+    False
+    >>> fewer = ({**cheb[0]}, Scored({}, 40, cheb[1].fold_sse))  # fewer parameters: the model rate still
+    >>> pick_reflex_path([model, fewer])["high_rate_reflex"]
     False
     """
     best = min((s for _, s in scored), key=lambda s: float(s.fold_sse.sum()))
@@ -529,7 +532,7 @@ def pick_reflex_path(scored: list) -> dict:
         diff = K * (s.fold_sse - best.fold_sse)
         return K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)
 
-    simplest = sorted(scored, key=lambda t: (t[1].n_params, bool(t[0]["high_rate_reflex"])))
+    simplest = sorted(scored, key=lambda t: (bool(t[0]["high_rate_reflex"]), t[1].n_params))
     return dict(next(settings for settings, s in simplest if within(s)))
 
 
@@ -539,11 +542,10 @@ def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scor
     high-rate candidate (velocity family, order) replaces the reflex columns of ``chosen``
     (the reflex dynamics ``dynamics`` held, as for every candidate) and is scored on the
     same folds as ``model_rate`` (the chosen structure's score). The one-standard-error rule
-    of :meth:`StructureSearch.run`: among the candidates within one paired standard error of
-    the best, the one with the fewest parameters, the model-rate velocity on a tie (the
-    simpler path: no high-rate signals needed to predict, exports without a stand-in). So the
-    model rate stays unless a high-rate candidate with no more parameters is within one
-    standard error of the best, or the model rate is more than one standard error worse.
+    toward the simpler path, the model rate (no high-rate signals needed to predict, exports
+    without a model-rate stand-in): it stays unless it is more than one paired standard
+    error worse than the best; then the high-rate candidate with the fewest parameters
+    within one standard error of the best.
     ``high``: :class:`lpvpc.data.HighRate` of the record (its rate a multiple of ``fs``).
 
     Why per record: on the virtual subject's 1 kHz files the high-rate velocity recovers the
