@@ -474,8 +474,11 @@ class LPVPCEstimator:
         candidates = HIGH_RATE_BASES
         if {"high_rate_velocity_basis", "high_rate_velocity_order"} & set(fixed):  # the caller's basis only
             candidates = ((self.high_rate_velocity_basis, int(self.high_rate_velocity_order)),)
-        return compare_reflex_paths(p, y, rho, data.fs, chosen, dynamics, chosen_score, high, candidates,
-                                    self.basis, seg)
+        try:
+            return compare_reflex_paths(p, y, rho, data.fs, chosen, dynamics, chosen_score, high, candidates,
+                                        self.basis, seg)
+        except np.linalg.LinAlgError:  # a high-rate design singular (a very short record): the model rate
+            return None
 
     def _fit_high_rate_chosen(self, data, est, path, first, order):
         """The chosen structure on the high-rate path, its pole refinement from the first fit's
