@@ -77,6 +77,7 @@ CLI_SYNTAX = (
     (r"\btarget_fs=", "--fs "),
     (r"\bstationary=True\b", "--stationary"),
     (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\bhigh_rate_reflex=False\b", "--model-rate-reflex"),
     (r"\bpt=PT\b", "--pt PT"),
     (r"\but=UT\b", "--ut UT"),
     (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),

@@ -1010,7 +1010,7 @@ def _check_reflex_gain(model, stacklevel: int) -> None:
         return
     if model.high_rate is not None:
         setting = ("identify with high_rate_velocity_basis='chebyshev', high_rate_velocity_order=4 (held up on the "
-                   "lab's pilot trial) or without high_rate_reflex")
+                   "lab's pilot trial) or with high_rate_reflex=False")
     else:
         setting = "identify with a lower velocity_order"
     k = int(np.argmin(gain))
