@@ -551,6 +551,28 @@ def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scor
     Why per record: on the virtual subject's 1 kHz files the high-rate velocity recovers the
     reflex gain trend (benchmarks/results/reflex_1k.txt); on the lab's pilot trial it
     predicted held-out data worse (benchmarks/results/real_pilot.txt).
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import LPVPCEstimator
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=9, duration=60.0)  # 1 kHz trials
+    >>> d = pair_trials(sim.pt, sim.ut)  # 100 Hz, the 1 kHz signals kept (d.high_rate)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     m = LPVPCEstimator(structure="fixed").fit(d).model_
+    >>> settings = {"irf_length": 0.04, "intrinsic_order": 5, "reflex_order": 2, "velocity_order": 4,
+    ...             "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": "clip"}
+    >>> dyn = (m.A, m.C[None, :], np.append(m.B, m.D))
+    >>> own = StructureSearch(d.position, d.torque, d.scheduling, d.fs, dyn,
+    ...                       search={k: (v,) for k, v in settings.items()}).score(settings)
+    >>> choice = compare_reflex_paths(d.position, d.torque, d.scheduling, d.fs, settings, dyn, own, d.high_rate)
+    >>> [row[0].get("high_rate_velocity_basis", "model rate") for row in choice.rows]
+    ['model rate', 'chebyshev', 'hinge']
+    >>> [n for _, n, _ in choice.rows]  # parameters: 5 velocity functions x 3, 9 x 3 in the reflex
+    [69, 69, 81]
+    >>> choice.chosen in [row[0] for row in choice.rows]
+    True
     """
     from .reflex import HighRateReflexInput
 
