@@ -197,7 +197,10 @@ def speed_floor() -> list:
     lines.append(f"From files, load + identify: 100 Hz CSV {t100:.2f} s, 1 kHz CSV (decimated to 100 Hz) {t1k:.2f} s: "
                  f"ratio {t1k / t100:.2f}x (floor 3x); same model rate {model1k.fs:g} Hz, VAF {model1k.fit['vaf']:.2f} / "
                  f"{model.fit['vaf']:.2f} %; reflex nonlinearity of the 1 kHz files on "
-                 f"{getattr(model1k, 'nonlinearity_fs', model1k.fs):g} Hz velocity")
+                 f"{getattr(model1k, 'nonlinearity_fs', model1k.fs):g} Hz velocity"
+                 + (f" (chosen per record by the structure selection: {path['label']}; CV VAF % "
+                    + ", ".join(f"{r['label']}: {r['cv_vaf']:.2f}" for r in path["table"]) + ")"
+                    if (path := model1k.fit.get("structure_selection", {}).get("reflex_path")) else ""))
     return lines
 
 

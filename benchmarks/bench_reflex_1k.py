@@ -23,10 +23,12 @@ identify time of each path (ratio in the same run).
 
 A third identification per seed takes the 1 kHz files with every default (the command line's
 ``identify``): issue 22 keeps its gain slope within 20 % as a floor and says where its
-threshold is not determined.
+threshold is not determined. Its structure selection chooses the velocity the nonlinearity
+sees (model rate, or 1 kHz with a Chebyshev or hinge basis: lpvpc.selection.compare_reflex_paths);
+the table names the choice.
 
-Run: python benchmarks/bench_reflex_1k.py [n_seeds]   (default 10; writes
-     benchmarks/results/reflex_1k.txt)
+Run: python benchmarks/bench_reflex_1k.py [n_seeds [first_seed]]   (default 10 seeds from 0; writes
+     benchmarks/results/reflex_1k.txt, or reflex_1k_seeds<first>-<last>.txt from another first seed)
 """
 
 from __future__ import annotations
@@ -88,6 +90,8 @@ def one_seed(seed, tmp):
         t = time.perf_counter()  # every default (the command line's identify): issue 22's floor on the gain
         mdef = identify(load_identification_data(pt=dirs[1000] / "ident_PT.csv", ut=dirs[1000] / "ident_UT.csv"))
         out["tdef"] = time.perf_counter() - t
+        path = mdef.fit.get("structure_selection", {}).get("reflex_path")
+        out["path"] = path["label"] if path else "not selected"
     assert m1k.high_rate is not None and m100.high_rate is None
     out["gdef"], out["tdef_slope"] = slopes(mdef)
     lo, hi = mdef.scheduling_range
@@ -102,16 +106,17 @@ def one_seed(seed, tmp):
 
 def main():
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 10
+    first = int(sys.argv[2]) if len(sys.argv) > 2 else 0
     t0 = time.time()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for s in range(n):
+        for s in range(first, first + n):
             rows.append(one_seed(s, tmp))
             print(rows[-1], flush=True)
     a = {k: np.array([r[k] for r in rows]) for k in rows[0]}
     within = lambda x: int(np.sum((x > 0.8) & (x < 1.2)))  # noqa: E731
     lines = [
-        "# Reflex trends from 1 kHz files vs 100 Hz files (python benchmarks/bench_reflex_1k.py)", "",
+        f"# Reflex trends from 1 kHz files vs 100 Hz files (python benchmarks/bench_reflex_1k.py {n} {first})", "",
         "Slope over position of the identified rectifier gain / threshold as a ratio to the simulator's",
         "(1 = exact, target 0.8-1.2). Files written by lpvpc.simulate.write_dataset, read by",
         "load_identification_data with default settings (model rate 100 Hz), identified with defaults.",
@@ -120,22 +125,24 @@ def main():
         "path); '1 kHz model, 100 Hz files' uses the model-rate stand-in the CasADi/FMU exports carry.",
         "Time: load + identify (s), both paths in the same run.", "",
         "'defaults, 1 kHz files': identify(data) with every default (the command line's), whatever velocity",
-        "the default gives the nonlinearity (today the model rate); 'determined': fraction of 9 central",
+        "the default's structure selection gives the nonlinearity ('default path'); 'determined': fraction of 9 central",
         "positions where the gain / threshold is determined (lpvpc.uncertainty.reflex_determination).", "",
         "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | gain defaults, 1 kHz files | "
-        "threshold defaults, 1 kHz files | determined gain/threshold: defaults | 1 kHz | novel VAF 1 kHz | "
-        "novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "threshold defaults, 1 kHz files | default path | determined gain/threshold: defaults | 1 kHz | "
+        "novel VAF 1 kHz | novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz | "
+        "time defaults, 1 kHz files |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(f"| {r['seed']} | {r['g1k']:.2f} | {r['t1k_slope']:.2f} | {r['g100']:.2f} | {r['t100_slope']:.2f} | "
-                     f"{r['gdef']:.2f} | {r['tdef_slope']:.2f} | {r['gdet_def']:.2f}/{r['thdet_def']:.2f} | "
+                     f"{r['gdef']:.2f} | {r['tdef_slope']:.2f} | {r['path']} | {r['gdet_def']:.2f}/{r['thdet_def']:.2f} | "
                      f"{r['gdet_1k']:.2f}/{r['thdet_1k']:.2f} | "
                      f"{r['vaf_1k']:.2f} | {r['vaf_1k_model_rate']:.2f} | {r['vaf_100']:.2f} | {r['t1k']:.1f} | "
-                     f"{r['t100']:.1f} |")
+                     f"{r['t100']:.1f} | {r['tdef']:.1f} |")
     lines += [
         "",
-        f"seeds: {n}",
+        f"seeds: {first}..{first + n - 1}",
+        "default path: " + ", ".join(f"{k} {sum(r['path'] == k for r in rows)}" for k in sorted({r['path'] for r in rows})),
         f"gain slope ratio: 1 kHz median {np.median(a['g1k']):.2f} (range {a['g1k'].min():.2f}..{a['g1k'].max():.2f}, "
         f"within 20 % on {within(a['g1k'])}/{n}); 100 Hz median {np.median(a['g100']):.2f} "
         f"(within 20 % on {within(a['g100'])}/{n})",
@@ -157,7 +164,8 @@ def main():
     ]
     text = "\n".join(lines) + "\n"
     print(text)
-    (ROOT / "benchmarks" / "results" / "reflex_1k.txt").write_text(text)
+    name = "reflex_1k.txt" if first == 0 else f"reflex_1k_seeds{first}-{first + n - 1}.txt"
+    (ROOT / "benchmarks" / "results" / name).write_text(text)
 
 
 if __name__ == "__main__":

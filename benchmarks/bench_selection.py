@@ -70,6 +70,11 @@ def flexible_prediction(d, train):
     return X @ theta
 
 
+def _reflex_path(sel) -> dict:
+    """The reflex nonlinearity's velocity the selection chose (data that keep their 1 kHz signals)."""
+    return {"reflex_path": sel["reflex_path"]["label"]} if "reflex_path" in sel else {}
+
+
 def training_pieces(d, labels, f):
     """The record without fold f, as trials: its contiguous stretches of other folds."""
     keep = np.r_[False, labels != f, False]
@@ -100,7 +105,7 @@ def leave_one_level_out(d):
             sse[name][f] = e @ e
             if name == NEW:  # (the chosen settings, or why selection was skipped)
                 sel = model.fit["structure_selection"]
-                chosen.append(sel.get("chosen", {"skipped": sel.get("skipped")}))
+                chosen.append(sel.get("chosen", {"skipped": sel.get("skipped")}) | _reflex_path(sel))
         name = FLEX
         t = time.perf_counter()
         e = y[test] - flexible_prediction(d, ~test)[test]
@@ -150,11 +155,11 @@ def pilot_section() -> list:
         lines.append(f"- without {med[f]:+.3f}: L {1e3 * c['irf_length']:g} ms, orders {c['intrinsic_order']}/"
                      f"{c['reflex_order']}/{c['velocity_order']} (intrinsic/reflex/velocity), delay "
                      f"{1e3 * c['reflex_delay']:g} ms, curvature {c['elastic_curvature']}, beyond range "
-                     f"{c['scheduling_extrapolation']}")
+                     f"{c['scheduling_extrapolation']}" + (f", reflex {c['reflex_path']}" if "reflex_path" in c else ""))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         whole = LPVPCEstimator().fit(d).model_
-    c = whole.fit["structure_selection"]["chosen"]
+    c = whole.fit["structure_selection"]["chosen"] | _reflex_path(whole.fit["structure_selection"])
     lines += ["", f"On the whole file, the default chooses: {c} (CV VAF {whole.fit['structure_selection']['chosen_cv_vaf']:.2f} %, "
                   f"selection {whole.fit['structure_selection']['seconds']:.2f} s)"]
     return lines + [""] + development_split(d)
@@ -180,6 +185,8 @@ def development_split(d) -> list:
         if name == NEW:
             sel = m.fit["structure_selection"]
             chosen = sel.get("chosen", f"nothing: selection skipped ({sel.get('skipped')})")
+            if "chosen" in sel:
+                chosen = chosen | _reflex_path(sel)
     t = time.perf_counter()
     fl = FlexibleFit(d.fs).fit(ident.position, ident.torque, ident.scheduling)
     pf = fl.predict(d.position, d.scheduling)[k:]

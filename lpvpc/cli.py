@@ -77,6 +77,7 @@ CLI_SYNTAX = (
     (r"\btarget_fs=", "--fs "),
     (r"\bstationary=True\b", "--stationary"),
     (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\bhigh_rate_reflex=False\b", "--model-rate-reflex"),
     (r"\bpt=PT\b", "--pt PT"),
     (r"\but=UT\b", "--ut UT"),
     (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
@@ -267,9 +268,10 @@ def cmd_identify(args) -> int:
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
     if settings.get("structure", "cv") == "cv":  # (the default) what the user wrote is not selected
-        from .selection import SEARCH
+        from .selection import REFLEX_PATH_SETTINGS, SEARCH
 
-        settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags")
+        settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags"
+                                            or k in REFLEX_PATH_SETTINGS)
     target_fs = None if args.fs == 0 else args.fs
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, channel_skew=_channel_skew(args.channel_skew_ms))
@@ -369,6 +371,11 @@ def _selection_summary(sel) -> list:
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
                      + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")")
+    path = sel.get("reflex_path")
+    if path:  # data that keep their file's higher rate: which velocity the reflex nonlinearity sees
+        lines.append(f"             reflex nonlinearity by CV: {path['label']} (CV VAF % "
+                     + ", ".join(f"{r['label']}: {r['cv_vaf']:.2f}" for r in path["table"]) + ")"
+                     + (f"; {path['fallback']}" if path.get("fallback") else ""))
     return lines
 
 
@@ -950,7 +957,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--high-rate-reflex", dest="high_rate_reflex", action="store_const", const=True, default=None,
                    help="identify the reflex nonlinearity on the file's own rate (e.g. 1 kHz) delayed velocity "
                         "instead of the model rate's (better reflex trends on the virtual subject, worse held-out "
-                        "prediction on the lab's pilot trial)")
+                        "prediction on the lab's pilot trial; default: chosen per record by the structure selection)")
+    p.add_argument("--model-rate-reflex", dest="high_rate_reflex", action="store_const", const=False,
+                   help="identify the reflex nonlinearity on the model rate's delayed velocity (not selected)")
+    p.add_argument("--high-rate-velocity-basis", choices=("chebyshev", "legendre", "hinge"),
+                   help="velocity basis of the high-rate reflex nonlinearity (default: chosen between chebyshev 4 "
+                        "and hinge 8)")
+    p.add_argument("--high-rate-velocity-order", type=int, choices=range(1, 13), metavar="N",
+                   help="its order, 1-12")
     p.add_argument("--state-order", type=_state_order, metavar="M|auto",
                    help="order of the reflex dynamics (default auto: from the singular values and BIC)")
     p.add_argument("--max-state-order", type=int, metavar="M",

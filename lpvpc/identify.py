@@ -84,12 +84,19 @@ class LPVPCEstimator:
     velocity_basis : its family ("chebyshev" polynomials or "hinge" piecewise-linear);
         both continue linearly beyond the identified velocity range.
     high_rate_reflex : identify the reflex nonlinearity on the high-rate delayed velocity of
-        data that keep their file's higher rate (below). Off by default: on the lab's pilot
-        trial (1 kHz file, split 70/30) it predicted the held-out part worse than the
-        model-rate velocity (93.49 % against 94.06 %: benchmarks/results/real_pilot.txt),
-        although on the virtual subject it recovers the reflex gain trend (and, on long or
-        clean records, the threshold's) better (benchmarks/results/reflex_1k.txt) and its gain
-        intervals cover the truth (benchmarks/results/uncertainty.txt).
+        data that keep their file's higher rate (below). With ``structure="cv"`` (the default)
+        and the setting not given, it is chosen per record by the same cross-validation
+        (:func:`lpvpc.selection.compare_reflex_paths`; the model rate unless the high rate
+        predicts the left-out levels better by more than a standard error), together with the
+        high-rate velocity basis (Chebyshev 4 or hinge 8) unless one is given. Why per record:
+        on the lab's pilot trial (1 kHz file, split 70/30) the high rate predicted the held-out
+        part worse than the model-rate velocity (93.49 % against 94.06 %:
+        benchmarks/results/real_pilot.txt), while on the virtual subject it recovers the reflex
+        gain trend (and, on long or clean records, the threshold's) better
+        (benchmarks/results/reflex_1k.txt) and its gain intervals cover the truth
+        (benchmarks/results/uncertainty.txt). Given (True or False), or with
+        ``structure="fixed"`` (then False unless given), it stays as given; given True, the
+        rest of the structure is not selected (its candidates are model-rate columns).
     high_rate_velocity_basis, high_rate_velocity_order : family and order in delayed
         velocity of the reflex nonlinearity when ``high_rate_reflex`` and the data keep their file's higher rate
         (1 kHz files loaded at the 100 Hz model rate: :class:`lpvpc.data.HighRate`). The
@@ -149,8 +156,10 @@ class LPVPCEstimator:
         table are recorded in ``model.fit["structure_selection"]``. On the lab's pilot
         trial (first 70 %, leave-one-level-out) it predicted left-out levels at 90.9 %
         VAF against 81.1 % for the fixed settings (benchmarks/results/selection.txt).
+        On data that keep their file's higher rate, the velocity of the reflex nonlinearity
+        (model or high rate, see ``high_rate_reflex``) is a candidate too.
         Selection is skipped, with the reason recorded, on stationary trials, extended
-        models (effects), non-polynomial bases, the high-rate reflex path and records whose
+        models (effects), non-polynomial bases, ``high_rate_reflex=True`` given and records whose
         selection design would exceed ``DESIGN_BUDGET_BYTES``. "fixed": the settings as given.
     structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
         given. None (default): every selected setting named in the call (to the constructor,
@@ -314,6 +323,7 @@ class LPVPCEstimator:
                 data = join_trials(data)
             if self.structure not in ("fixed", "cv"):
                 raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+            _check_reflex_path_settings(self)
             if self.structure == "cv":
                 return self._fit_selected(data)
             try:
@@ -350,14 +360,15 @@ class LPVPCEstimator:
         """structure="cv": a fit at the given settings gives the reflex dynamics; the
         structure is chosen by cross-validation with them held (lpvpc.selection); the
         chosen structure is fitted (its state order the first fit's)."""
-        from .selection import SEARCH, StructureSearch, compare_state_orders, design_columns, search_space
+        from .selection import (REFLEX_PATH_SETTINGS, SEARCH, StructureSearch, compare_state_orders, design_columns,
+                                search_space)
 
         t0 = time.perf_counter()
         given = self._given_settings()
-        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"})
+        unknown = sorted(set(given) - set(SEARCH) - {"irf_lags", "state_order"} - set(REFLEX_PATH_SETTINGS))
         if unknown:
             raise ValueError(f"structure_fixed names settings that are not selected: {unknown}; selected: "
-                             f"{sorted(SEARCH)} (and irf_lags, state_order)")
+                             f"{sorted(SEARCH)} (and irf_lags, state_order, {', '.join(REFLEX_PATH_SETTINGS)})")
         fixed = {"irf_length" if k == "irf_lags" else k for k in given}
         base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
@@ -392,22 +403,26 @@ class LPVPCEstimator:
         # The state order: BIC's at the starting structure, against one lower and one higher
         # (those the first fit tried) scored by CV at the chosen structure, unless it is given.
         order, bic_order, order_cv = m.fit["state_order"], m.fit["state_order"], {}
+        chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
         if self.state_order is None and "state_order" not in fixed:
             neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
-            chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
                                                    self.basis, self.velocity_basis, Segments.of(data, len(y)))
+        path = self._select_reflex_path(data, first, sel.chosen, order, bic_order, chosen_score, fixed)
         t_select = time.perf_counter() - t
         # The chosen structure is fitted at that order, its poles refined from the first fit's
         # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
         # of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": order, **(path.chosen if path else {})}
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
         if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
-        est._fit(data)
+        if path is not None and path.chosen["high_rate_reflex"]:
+            est = self._fit_high_rate_chosen(data, est, path, first, order)
+        else:
+            est._fit(data)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
         est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
@@ -416,6 +431,7 @@ class LPVPCEstimator:
         model.fit["structure_selection"] = {**sel.to_dict(), "seconds": t_select,
                                             "state_order": {"bic": int(bic_order), "chosen": int(order),
                                                             "cv_vaf": {str(k): v for k, v in order_cv.items()}},
+                                            **({"reflex_path": path.to_dict()} if path is not None else {}),
                                             "state_order_from": "BIC at the starting structure" if not order_cv else
                                             "BIC at the starting structure, against one lower and one higher by CV "
                                             "at the chosen structure (one-standard-error rule toward BIC's)"}
@@ -434,9 +450,54 @@ class LPVPCEstimator:
         """Names of the selected settings the caller set: structure_fixed, or those named in the call."""
         if self.structure_fixed is not None:
             return tuple(self.structure_fixed)
-        from .selection import SEARCH
+        from .selection import REFLEX_PATH_SETTINGS, SEARCH
 
-        return tuple(k for k in (*SEARCH, "irf_lags", "state_order") if k in getattr(self, "_given", ()))
+        return tuple(k for k in (*SEARCH, "irf_lags", "state_order", *REFLEX_PATH_SETTINGS)
+                     if k in getattr(self, "_given", ()))
+
+    def _select_reflex_path(self, data, first, chosen, order, bic_order, chosen_score, fixed):
+        """structure="cv" on data that keep their file's higher rate: model-rate or high-rate reflex
+        nonlinearity (and the high-rate velocity basis) by the same folds and rule
+        (:func:`lpvpc.selection.compare_reflex_paths`); None when it is not a candidate (no
+        high-rate signals, or ``high_rate_reflex`` given by the caller)."""
+        from .selection import HIGH_RATE_BASES, SEARCH, StructureSearch, compare_reflex_paths
+
+        high = getattr(data, "high_rate", None)
+        if high is None or "high_rate_reflex" in fixed:
+            return None
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        seg = Segments.of(data, len(y))
+        dynamics = first._order_dynamics[order]
+        if order != bic_order:  # the model-rate score under the chosen order's dynamics
+            chosen_score = StructureSearch(p, y, rho, data.fs, dynamics, self.basis, self.velocity_basis,
+                                           {k: (chosen[k],) for k in SEARCH}, seg).score(chosen)
+        candidates = HIGH_RATE_BASES
+        if {"high_rate_velocity_basis", "high_rate_velocity_order"} & set(fixed):  # the caller's basis only
+            candidates = ((self.high_rate_velocity_basis, int(self.high_rate_velocity_order)),)
+        try:
+            return compare_reflex_paths(p, y, rho, data.fs, chosen, dynamics, chosen_score, high, candidates,
+                                        self.basis, seg)
+        except np.linalg.LinAlgError:  # a high-rate design singular (a very short record): the model rate
+            return None
+
+    def _fit_high_rate_chosen(self, data, est, path, first, order):
+        """The chosen structure on the high-rate path, its pole refinement from the first fit's
+        poles of that order (the reflex dynamics the comparison held). The first fit's subspace
+        step is reused: with the order given and a start, only its record (singular values)
+        is read, not its poles. Not determined (InsufficientExcitationError): the model-rate
+        fit, the reason recorded."""
+        reuse = {"subspace": first.subspace_, "poles": {order: first._order_dynamics[order][0]}}
+        est._reuse = dict(reuse)
+        try:
+            est._fit(data)
+        except InsufficientExcitationError as exc:
+            fallback = LPVPCEstimator(**{**est.get_params(), "high_rate_reflex": False})
+            fallback._reuse = dict(reuse)
+            fallback._fit(data)
+            path.chosen = {"high_rate_reflex": False}
+            path.fallback = f"the high-rate fit was not determined ({exc}): model-rate velocity"
+            return fallback
+        return est
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
@@ -774,6 +835,20 @@ class LPVPCEstimator:
             )
 
 
+def _check_reflex_path_settings(est) -> None:
+    """ValueError naming a bad high-rate setting (before any fit)."""
+    from .basis import FAMILIES
+    from .modelfile import MAX_BASIS_ORDER
+
+    if not isinstance(est.high_rate_reflex, (bool, np.bool_)):
+        raise ValueError(f"high_rate_reflex must be True or False, got {est.high_rate_reflex!r}")
+    if est.high_rate_velocity_basis not in FAMILIES:
+        raise ValueError(f"high_rate_velocity_basis must be one of {FAMILIES}, got {est.high_rate_velocity_basis!r}")
+    order = est.high_rate_velocity_order
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 1 <= order <= MAX_BASIS_ORDER:
+        raise ValueError(f"high_rate_velocity_order must be an integer in 1..{MAX_BASIS_ORDER}, got {order!r}")
+
+
 def _high_rate_input(est, data, rho_basis):
     """The reflex regressor from the data's high-rate signals (:class:`lpvpc.data.HighRate`),
     or None when the data have none (100 Hz files, or loaded with ``target_fs=None``)."""
@@ -935,7 +1010,7 @@ def _check_reflex_gain(model, stacklevel: int) -> None:
         return
     if model.high_rate is not None:
         setting = ("identify with high_rate_velocity_basis='chebyshev', high_rate_velocity_order=4 (held up on the "
-                   "lab's pilot trial) or without high_rate_reflex")
+                   "lab's pilot trial) or with high_rate_reflex=False")
     else:
         setting = "identify with a lower velocity_order"
     k = int(np.argmin(gain))

@@ -72,27 +72,87 @@ def high_rate_input(high, q, reflex_delay, rho_basis, velocity_family, velocity_
     dynamics (bandwidth ~3 Hz) are identified at the model rate as before. Built trial by
     trial (``high.segments``), one column at a time (memory: a few high-rate vectors).
     """
-    from . import equations as eq
-    from .basis import Basis
-    from .data import decimate_signal
-    from .segments import Segments
+    src = HighRateReflexInput(high, q, reflex_delay, velocity_family, velocity_order)
+    return HighRateInput(src(rho_basis), src.dvel, high.scheduling, src.delay, float(high.fs), src.velocity_basis)
 
-    fs_h = float(high.fs)
-    delay = int(round(reflex_delay * fs_h))
-    if delay < 1:
-        raise IdentificationError(f"reflex delay {reflex_delay} s is less than one sample at {fs_h:g} Hz")
-    seg = Segments(high.segments, high.n)
-    dvel = seg.map(eq.delayed_velocity, high.position, fs=fs_h, delay=delay)
-    # The basis spans the central 99 % of the velocities: at 1 kHz the rare extremes of the
-    # servo's step transients (-10..+6 rad/s against +-2.6 for the central 99 % on the virtual
-    # subject) would otherwise set the range and leave the rectifier's kink region (0.2-0.8
-    # rad/s) between a few coarse knots; beyond the range the basis continues linearly.
-    lo, hi = np.percentile(dvel, [VELOCITY_RANGE_PERCENTILE, 100.0 - VELOCITY_RANGE_PERCENTILE])
-    V_b = Basis(velocity_family, int(velocity_order), float(lo), float(max(hi, lo + 1e-9)), "linear")
-    V, G = V_b.evaluate(dvel), rho_basis.evaluate(high.scheduling)
-    cols = [seg.map(lambda x: decimate_signal(x, q), V[:, i] * G[:, j])
-            for i in range(V.shape[1]) for j in range(G.shape[1])]
-    return HighRateInput(np.column_stack(cols), dvel, high.scheduling, delay, fs_h, V_b)
+
+class HighRateReflexInput:
+    """The high-rate path's model-rate U_r as a function of the scheduling basis: the
+    delayed high-rate velocity and its basis are evaluated once, and each call decimates
+    the products with ``rho_basis.evaluate(high.scheduling)`` (structure selection calls it
+    again with the bases an end fold's model would hold: lpvpc.selection).
+
+    >>> from lpvpc.basis import basis_from_data
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=10.0)  # 1 kHz trials
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> src = HighRateReflexInput(data.high_rate, 10, 0.040, "chebyshev", 4)
+    >>> rho_basis = basis_from_data(data.scheduling, "chebyshev", 2)
+    >>> src(rho_basis).shape, src.n_velocity  # model-rate rows; 5 velocity functions x 3
+    ((1000, 15), 5)
+    """
+
+    def __init__(self, high, q, reflex_delay, velocity_family, velocity_order):
+        from . import equations as eq
+        from .basis import Basis
+        from .segments import Segments
+
+        fs_h = float(high.fs)
+        self.delay = int(round(reflex_delay * fs_h))
+        if self.delay < 1:
+            raise IdentificationError(f"reflex delay {reflex_delay} s is less than one sample at {fs_h:g} Hz")
+        self.q, self.scheduling = int(q), high.scheduling
+        self.seg = Segments(high.segments, high.n)
+        self.dvel = self.seg.map(eq.delayed_velocity, high.position, fs=fs_h, delay=self.delay)
+        # The basis spans the central 99 % of the velocities: at 1 kHz the rare extremes of the
+        # servo's step transients (-10..+6 rad/s against +-2.6 for the central 99 % on the virtual
+        # subject) would otherwise set the range and leave the rectifier's kink region (0.2-0.8
+        # rad/s) between a few coarse knots; beyond the range the basis continues linearly.
+        lo, hi = np.percentile(self.dvel, [VELOCITY_RANGE_PERCENTILE, 100.0 - VELOCITY_RANGE_PERCENTILE])
+        self.velocity_basis = Basis(velocity_family, int(velocity_order), float(lo), float(max(hi, lo + 1e-9)),
+                                    "linear")
+        self.V = self.velocity_basis.evaluate(self.dvel)
+        self.n_velocity = self.V.shape[1]
+
+    def __call__(self, rho_basis) -> np.ndarray:
+        G = rho_basis.evaluate(self.scheduling)
+        cols = [self.seg.map(lambda x: sparse_decimated(x, self.q), self.V[:, i] * G[:, j])
+                for i in range(self.V.shape[1]) for j in range(G.shape[1])]
+        return np.column_stack(cols)
+
+
+def sparse_decimated(x, q: int) -> np.ndarray:
+    """``decimate_signal(x, q)`` computed on windows around the stretches where ``x`` is not
+    zero (an end fold's change of basis values is zero but on one level's visits): the same
+    values, since the decimation is a finite FIR with zero padding and ``x`` is zero at both
+    ends (no end-point line to remove), at a fraction of the cost. Mostly non-zero, or
+    non-zero near an end: the whole signal.
+
+    >>> from lpvpc.data import decimate_signal
+    >>> x = np.zeros(20000)
+    >>> x[3000:4500], x[12000:12500] = np.linspace(0.0, 1.0, 1500), 0.3  # two stretches
+    >>> bool(np.allclose(sparse_decimated(x, 10), decimate_signal(x, 10), rtol=0.0, atol=1e-12))
+    True
+    """
+    from .data import decimate_signal
+    from .decimation import FIR_TAPS_PER_FACTOR
+
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    nz = np.flatnonzero(x)
+    margin = 2 * (FIR_TAPS_PER_FACTOR + 2) * q  # beyond every stage's filter reach (in input samples)
+    if nz.size == 0:
+        return np.zeros(-(-n // q))
+    if nz[0] < margin or nz[-1] >= n - margin or nz.size > n // 3:
+        return decimate_signal(x, q)
+    cut = np.flatnonzero(np.diff(nz) > 2 * margin)  # stretches whose windows do not meet
+    out = np.zeros(-(-n // q))
+    for a, b in zip(np.r_[nz[0], nz[cut + 1]], np.r_[nz[cut], nz[-1]] + 1):
+        a0 = (a - margin) // q * q  # a multiple of q: the window's samples k*q are the record's
+        y = decimate_signal(x[a0 : b + margin], q)
+        out[a0 // q : a0 // q + len(y)] = y
+    return out
 
 
 def high_rate_drive(high, q, delay, velocity_basis, rho_basis, Omega):

@@ -196,7 +196,8 @@ class _Design:
     (the scheduling basis on the whole range), and for an end fold, whose training range is
     narrower, its rows' Gram matrices under each extrapolation rule (``end[rule][f]``)."""
 
-    def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments):
+    def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments,
+                 reflex_input=None):
         self.p, self.rho, self.fs, (self.A, self.C, self.bd) = p, rho, fs, dynamics
         self.seg = segments
         self.L_max, self.ni_max, self.nr_max, self.nv_max, self.delays = top
@@ -204,8 +205,12 @@ class _Design:
         lo, hi = float(np.min(rho)), float(np.max(rho))
         self.G_i = Basis(family, self.ni_max, lo, hi)
         self.G_r = Basis(family, self.nr_max, lo, hi)
-        self.V = [basis_from_data(dv, velocity_family, self.nv_max, extrapolation="linear").evaluate(dv)
-                  for dv in (segments.map(eq.delayed_velocity, p, fs=fs, delay=d) for d in self.delays)]
+        # reflex_input (one delay): U_r from a scheduling basis, in place of the model-rate
+        # velocity's (the high-rate path: lpvpc.reflex.HighRateReflexInput, nv_max + 1 velocity functions)
+        self.reflex_input = reflex_input
+        self.V = [None] if reflex_input is not None else [
+            basis_from_data(dv, velocity_family, self.nv_max, extrapolation="linear").evaluate(dv)
+            for dv in (segments.map(eq.delayed_velocity, p, fs=fs, delay=d) for d in self.delays)]
         Gi, Gr = self.G_i.evaluate(rho), self.G_r.evaluate(rho)
         X = self._regressor(Gi, Gr)
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
@@ -224,11 +229,13 @@ class _Design:
                 continue
             for rule in rules:  # an end level: its model's basis spans only the other levels
                 Xe = X[r] + self._change(Gi, Gr, _held_basis(self.G_i, rho, t_lo, t_hi, rule),
-                                         _held_basis(self.G_r, rho, t_lo, t_hi, rule), r)
+                                         _held_basis(self.G_r, rho, t_lo, t_hi, rule), r,
+                                         _Evaluates(lambda x, a=t_lo, b=t_hi, u=rule: _held_basis(self.G_r, x, a, b, u)
+                                                    - self.G_r.evaluate(x)))
                 self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
         del X
 
-    def _change(self, Gi, Gr, Gi_held, Gr_held, r):
+    def _change(self, Gi, Gr, Gi_held, Gr_held, r, reflex_change=None):
         """Rows ``r`` of the regressor's change when the basis values change from (Gi, Gr) to
         the held ones (the regressor is linear in them; they differ only beyond the training
         range, so the reflex filters start from rest at the first such row: a window, not the record)."""
@@ -250,7 +257,11 @@ class _Design:
         col, n_ref = n_lag + Gi.shape[1], (self.nv_max + 1) * Gr.shape[1]
         inside = r >= w0
         k = r[inside] - w0  # the rows within the window
-        if w1 > w0:
+        if self.reflex_input is not None:  # the high-rate inputs' change: over the record (it is linear in
+            # the basis values), then filtered
+            out[:, col : col + n_ref] = reflex_response_regressor(self.reflex_input(reflex_change), self.A, self.C,
+                                                                  self.bd[:-1], self.bd[-1], self.seg)[r]
+        elif w1 > w0:
             for V in self.V:
                 out[inside, col : col + n_ref] = reflex_response_regressor(
                     reflex_input_regressor(V[window], dGr[window]), self.A, self.C, self.bd[:-1], self.bd[-1], seg)[k]
@@ -268,8 +279,9 @@ class _Design:
         X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
         col = n_lag + Gi.shape[1]
         for V in self.V:
-            X[:, col : col + V_cols] = reflex_response_regressor(reflex_input_regressor(V, Gr), self.A, self.C,
-                                                                 self.bd[:-1], self.bd[-1], self.seg)
+            U = reflex_input_regressor(V, Gr) if self.reflex_input is None else self.reflex_input(self.G_r)
+            X[:, col : col + V_cols] = reflex_response_regressor(U, self.A, self.C, self.bd[:-1], self.bd[-1],
+                                                                 self.seg)
             col += V_cols
         return X
 
@@ -289,6 +301,13 @@ class _Design:
                 idx.append(off + v * (self.nr_max + 1) + r)
                 cur.append(zero)
         return np.array(idx), np.array(cur)
+
+
+class _Evaluates:
+    """A basis stand-in whose ``evaluate`` is the given function (held minus full basis values)."""
+
+    def __init__(self, fn):
+        self.evaluate = fn
 
 
 def _mapped(G, b, idx, cur):
@@ -329,7 +348,7 @@ class StructureSearch:
     """
 
     def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None,
-                 segments=None):
+                 segments=None, reflex_input=None):
         self.fs = float(fs)
         self.search = dict(SEARCH if search is None else search)
         self.y = np.asarray(y, dtype=float)
@@ -342,7 +361,7 @@ class StructureSearch:
         self.design = _Design(np.asarray(p, dtype=float), self.y, np.asarray(rho, dtype=float), fs, self.labels,
                               self.n_folds, family, velocity_family, dynamics, top,
                               self.search["scheduling_extrapolation"],
-                              segments if segments is not None else Segments((), len(self.y)))
+                              segments if segments is not None else Segments((), len(self.y)), reflex_input)
         self.yy = np.array([self.y[self.labels == f] @ self.y[self.labels == f] for f in range(self.n_folds)])
         self.sst = float(np.sum((self.y - self.y.mean()) ** 2))
         self._cache = {}
@@ -444,3 +463,129 @@ def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order:
     if best != bic_order and (K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)):
         best = bic_order
     return best, {int(k): float(v.cv_vaf) for k, v in sorted(scores.items())}
+
+
+#: The reflex nonlinearity's velocity when the data keep their file's higher rate
+#: (``data.high_rate``, e.g. 1 kHz files identified at 100 Hz): the model rate's (the
+#: simpler candidate) or the high rate's with each of these (velocity basis family, order):
+#: a piecewise-linear basis that can place the rectifier's kink, and the polynomial one that
+#: held up under the lab's perturbation design (benchmarks/results/lab_perturbation.txt).
+#: At the model rate the velocity basis kind is not a candidate: Chebyshev and Legendre
+#: polynomials of one order span the same functions (the same fit, the same score).
+HIGH_RATE_BASES = (("chebyshev", 4), ("hinge", 8))
+#: The estimator settings of that choice (left as given when the caller sets any of them).
+REFLEX_PATH_SETTINGS = ("high_rate_reflex", "high_rate_velocity_basis", "high_rate_velocity_order")
+
+
+@dataclass
+class PathChoice:
+    """The reflex nonlinearity's velocity chosen by :func:`compare_reflex_paths`: ``chosen``
+    (estimator settings), ``rows`` (settings, parameter count, CV VAF %), model rate first.
+
+    >>> c = PathChoice({"high_rate_reflex": False}, [({"high_rate_reflex": False}, 60, 98.1)], fs_high=1000.0)
+    >>> c.to_dict()["chosen"], c.label(c.chosen)
+    ({'high_rate_reflex': False}, 'model-rate velocity')
+    """
+
+    chosen: dict
+    rows: list
+    fs_high: float
+    fallback: str = ""  # why the chosen high-rate fit was replaced by the model-rate one (identify)
+
+    def label(self, settings: dict) -> str:
+        if not settings["high_rate_reflex"]:
+            return "model-rate velocity"
+        return (f"{self.fs_high:g} Hz velocity, {settings['high_rate_velocity_basis']} "
+                f"{settings['high_rate_velocity_order']}")
+
+    def to_dict(self) -> dict:
+        return {"chosen": dict(self.chosen), "label": self.label(self.chosen), "fs_high": float(self.fs_high),
+                "method": "same folds, one-standard-error rule toward the model-rate velocity, then fewer "
+                          "parameters",
+                **({"fallback": self.fallback} if self.fallback else {}),
+                "table": [{"settings": dict(s), "label": self.label(s), "n_params": int(n), "cv_vaf": float(v)}
+                          for s, n, v in self.rows]}
+
+
+def pick_reflex_path(scored: list) -> dict:
+    """The one-standard-error rule over (settings, :class:`Scored`) pairs of the reflex paths,
+    the model rate (``high_rate_reflex`` False) the simplest, then the high-rate candidates by
+    parameter count: the first within one paired standard error of the best.
+
+    >>> model = ({"high_rate_reflex": False}, Scored({}, 60, np.array([1.00, 1.00, 1.00, 1.00])))
+    >>> hinge = ({"high_rate_reflex": True, "high_rate_velocity_basis": "hinge"},
+    ...          Scored({}, 72, np.array([0.90, 0.91, 0.92, 0.89])))  # better on every fold
+    >>> cheb = ({"high_rate_reflex": True, "high_rate_velocity_basis": "chebyshev"},
+    ...         Scored({}, 60, np.array([0.99, 1.00, 0.97, 1.02])))
+    >>> pick_reflex_path([model, hinge])["high_rate_reflex"]  # the model rate is clearly worse
+    True
+    >>> pick_reflex_path([model, cheb])["high_rate_reflex"]  # within a standard error of the best
+    False
+    >>> fewer = ({**cheb[0]}, Scored({}, 40, cheb[1].fold_sse))  # fewer parameters: the model rate still
+    >>> pick_reflex_path([model, fewer])["high_rate_reflex"]
+    False
+    """
+    best = min((s for _, s in scored), key=lambda s: float(s.fold_sse.sum()))
+    K = len(best.fold_sse)
+
+    def within(s):
+        diff = K * (s.fold_sse - best.fold_sse)
+        return K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)
+
+    simplest = sorted(scored, key=lambda t: (bool(t[0]["high_rate_reflex"]), t[1].n_params))
+    return dict(next(settings for settings, s in simplest if within(s)))
+
+
+def compare_reflex_paths(p, y, rho, fs, chosen: dict, dynamics, model_rate: Scored, high, candidates=HIGH_RATE_BASES,
+                         family="chebyshev", segments=None) -> PathChoice:
+    """Model-rate against high-rate reflex nonlinearity, at the chosen structure: each
+    high-rate candidate (velocity family, order) replaces the reflex columns of ``chosen``
+    (the reflex dynamics ``dynamics`` held, as for every candidate) and is scored on the
+    same folds as ``model_rate`` (the chosen structure's score). The one-standard-error rule
+    toward the simpler path, the model rate (no high-rate signals needed to predict, exports
+    without a model-rate stand-in): it stays unless it is more than one paired standard
+    error worse than the best; then the high-rate candidate with the fewest parameters
+    within one standard error of the best.
+    ``high``: :class:`lpvpc.data.HighRate` of the record (its rate a multiple of ``fs``).
+
+    Why per record: on the virtual subject's 1 kHz files the high-rate velocity recovers the
+    reflex gain trend (benchmarks/results/reflex_1k.txt); on the lab's pilot trial it
+    predicted held-out data worse (benchmarks/results/real_pilot.txt).
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import LPVPCEstimator
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=9, duration=60.0)  # 1 kHz trials
+    >>> d = pair_trials(sim.pt, sim.ut)  # 100 Hz, the 1 kHz signals kept (d.high_rate)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     m = LPVPCEstimator(structure="fixed").fit(d).model_
+    >>> settings = {"irf_length": 0.04, "intrinsic_order": 5, "reflex_order": 2, "velocity_order": 4,
+    ...             "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": "clip"}
+    >>> dyn = (m.A, m.C[None, :], np.append(m.B, m.D))
+    >>> own = StructureSearch(d.position, d.torque, d.scheduling, d.fs, dyn,
+    ...                       search={k: (v,) for k, v in settings.items()}).score(settings)
+    >>> choice = compare_reflex_paths(d.position, d.torque, d.scheduling, d.fs, settings, dyn, own, d.high_rate)
+    >>> [row[0].get("high_rate_velocity_basis", "model rate") for row in choice.rows]
+    ['model rate', 'chebyshev', 'hinge']
+    >>> [n for _, n, _ in choice.rows]  # parameters: 5 velocity functions x 3, 9 x 3 in the reflex
+    [69, 69, 81]
+    >>> choice.chosen in [row[0] for row in choice.rows]
+    True
+    """
+    from .reflex import HighRateReflexInput
+
+    q = int(round(float(high.fs) / float(fs)))
+    scored = [({"high_rate_reflex": False}, model_rate)]
+    for vfam, vorder in candidates:
+        src = HighRateReflexInput(high, q, chosen["reflex_delay"], vfam, vorder)
+        nv = src.n_velocity - 1  # the design's velocity "order": its columns per scheduling function, less one
+        search = {k: (chosen[k],) for k in SEARCH}
+        search["velocity_order"] = (nv,)
+        sc = StructureSearch(p, y, rho, fs, dynamics, family, "chebyshev", search, segments,
+                             reflex_input=src).score({**chosen, "velocity_order": nv})
+        scored.append(({"high_rate_reflex": True, "high_rate_velocity_basis": vfam,
+                        "high_rate_velocity_order": int(vorder)}, sc))
+    pick = pick_reflex_path(scored)
+    return PathChoice(chosen=pick, rows=[(st, s.n_params, s.cv_vaf) for st, s in scored], fs_high=float(high.fs))

@@ -227,3 +227,109 @@ def test_end_fold_rows_from_the_change_in_a_window_equal_a_rebuilt_regressor(rec
             np.testing.assert_allclose(Ge, Xe.T @ Xe, rtol=1e-9, atol=1e-9 * np.abs(Ge).max())
             np.testing.assert_allclose(be, Xe.T @ d.torque[r], rtol=1e-9, atol=1e-9 * np.abs(be).max())
     assert X.shape[1] == D.n_cols
+
+
+# --- the reflex nonlinearity's velocity: model rate or the file's high rate (issue 22) ---------------------------
+
+
+@pytest.fixture(scope="module")
+def record_1k():
+    """A 2-minute record of the virtual subject at 1 kHz, identified at 100 Hz with the 1 kHz signals kept."""
+    sim = simulate_pair("multilevel", seed=9, duration=120.0, fs_out=1000.0)
+    return pair_trials(sim.pt, sim.ut)
+
+
+def _gain_slope_ratio(model):
+    from lpvpc.simulate import SubjectParams
+
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
+    gain, _ = model.reflex_gain_threshold(rho)
+    return np.polyfit(rho, gain, 1)[0] / np.polyfit(rho, SubjectParams().reflex_gain(rho), 1)[0]
+
+
+def test_high_rate_reflex_is_chosen_where_it_predicts_left_out_levels_better(record_1k):
+    """On this record the 1 kHz velocity predicts the left-out levels better than the model rate's
+    by more than a standard error: the default chooses it, and the reflex gain trend follows the
+    truth (the model-rate nonlinearity's is 1.24x on the same subject's files)."""
+    assert record_1k.high_rate is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = LPVPCEstimator().fit(record_1k).model_
+        fixed = LPVPCEstimator(high_rate_reflex=False).fit(record_1k).model_
+    path = model.fit["structure_selection"]["reflex_path"]
+    assert path["chosen"]["high_rate_reflex"] is True and model.high_rate is not None
+    rows = {r["label"]: r["cv_vaf"] for r in path["table"]}
+    assert len(rows) == 3 and max(rows, key=rows.get) != "model-rate velocity"
+    assert rows[path["label"]] > rows["model-rate velocity"]
+    assert model.settings["high_rate_reflex"] is True
+    assert model.settings["high_rate_velocity_basis"] == path["chosen"]["high_rate_velocity_basis"]
+    assert abs(_gain_slope_ratio(model) - 1.0) < 0.2
+    # given, the model rate stays (and the structure is still selected)
+    assert fixed.high_rate is None and "reflex_path" not in fixed.fit["structure_selection"]
+    assert "chosen" in fixed.fit["structure_selection"]
+    assert abs(_gain_slope_ratio(fixed) - 1.0) > abs(_gain_slope_ratio(model) - 1.0)
+
+
+def test_high_rate_reflex_is_no_candidate_without_high_rate_signals():
+    sim = simulate_pair("multilevel", seed=9, duration=60.0, fs_out=100.0)
+    data = pair_trials(sim.pt, sim.ut)
+    assert data.high_rate is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = LPVPCEstimator().fit(data).model_
+    assert "chosen" in model.fit["structure_selection"] and "reflex_path" not in model.fit["structure_selection"]
+    assert model.high_rate is None and model.settings["high_rate_reflex"] is False
+
+
+def test_given_reflex_path_settings_stay_as_given(record_1k):
+    short = record_1k.segment(0, 6000)  # 60 s: enough to select, quicker
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        high = LPVPCEstimator(high_rate_reflex=True).fit(short).model_
+        fixed = LPVPCEstimator(structure="fixed").fit(short).model_
+        cheb = LPVPCEstimator(high_rate_velocity_basis="chebyshev").fit(short).model_
+    # high rate given: the nonlinearity on it, the rest as given (its columns are not the model rate's)
+    assert high.high_rate is not None and high.high_rate.velocity_basis.family == "hinge"
+    assert "high-rate velocity" in high.fit["structure_selection"]["skipped"]
+    assert fixed.high_rate is None and "structure_selection" not in fixed.fit  # structure="fixed": as given
+    # a basis given: the one high-rate candidate is that basis, against the model rate
+    table = cheb.fit["structure_selection"]["reflex_path"]["table"]
+    assert [r["settings"].get("high_rate_velocity_basis") for r in table] == [None, "chebyshev"]
+    assert cheb.settings["high_rate_velocity_basis"] == "chebyshev"
+
+
+def test_bad_reflex_path_settings_are_refused(record, tmp_path):
+    import subprocess
+    import sys
+
+    for bad, match in (({"high_rate_reflex": "yes"}, "high_rate_reflex must be True or False"),
+                       ({"high_rate_velocity_basis": "spline"}, "high_rate_velocity_basis must be one of"),
+                       ({"high_rate_velocity_order": 0}, "high_rate_velocity_order must be an integer in 1..12")):
+        for structure in ("cv", "fixed"):
+            with pytest.raises(ValueError, match=match):
+                LPVPCEstimator(structure=structure, **bad).fit(record)
+    for args, text in ((["--high-rate-velocity-basis", "spline"], "argument --high-rate-velocity-basis: invalid choice"),
+                       (["--high-rate-velocity-order", "40"], "argument --high-rate-velocity-order: invalid choice")):
+        r = subprocess.run([sys.executable, "-m", "lpvpc.cli", "identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o",
+                            str(tmp_path / "m.json"), *args], capture_output=True, text=True)
+        assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr.splitlines()[-1]
+
+
+def test_cli_prints_the_reflex_path_and_keeps_a_written_one(record_1k, tmp_path, capsys):
+    from lpvpc.cli import main
+    from lpvpc.data import write_trial_csv
+
+    sim = simulate_pair("multilevel", seed=9, duration=60.0, fs_out=1000.0)
+    write_trial_csv(sim.pt, tmp_path / "PT.csv")
+    write_trial_csv(sim.ut, tmp_path / "UT.csv")
+    files = ["--pt", str(tmp_path / "PT.csv"), "--ut", str(tmp_path / "UT.csv"), "-o", str(tmp_path / "m.json")]
+    assert main(["identify", *files]) == 0
+    text = capsys.readouterr().out
+    line = next(x for x in text.splitlines() if "reflex nonlinearity by CV" in x)
+    assert "model-rate velocity:" in line and "1000 Hz velocity, hinge 8:" in line
+    assert main(["identify", *files, "--model-rate-reflex"]) == 0
+    text = capsys.readouterr().out
+    assert "reflex nonlinearity by CV" not in text
+    model = json.loads((tmp_path / "m.json").read_text())
+    assert model["settings"]["high_rate_reflex"] is False and "high_rate_reflex" in model["settings"]["structure_fixed"]

@@ -89,7 +89,19 @@ def test_reflex_bias_bound_widens_the_intervals_and_is_stored(model_1k, tmp_path
         LPVPCModel.load(path)
 
 
-def test_model_rate_reflex_intervals_are_marked_biased(model, model_1k):
+@pytest.fixture(scope="module")
+def model_rate(subject, model):
+    """The session's model on the model-rate velocity (the structure selection may have put
+    its nonlinearity on the 1 kHz velocity: then the same files with that path fixed)."""
+    if model.high_rate is None:
+        return model
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return identify(subject["ident"], high_rate_reflex=False)
+
+
+def test_model_rate_reflex_intervals_are_marked_biased(model_rate, model_1k):
+    model = model_rate
     rho = central_rho(model, 3)
     for interval in (model.reflex_gain_interval(rho), model.reflex_threshold_interval(rho)):
         assert interval.biased and interval.note == MODEL_RATE_BIAS_NOTE
@@ -196,12 +208,13 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
         LPVPCModel.load(path)
 
 
-def test_model_rate_threshold_is_not_determined_and_gain_is(model):
-    """The default 100 Hz nonlinearity: the threshold is not observable (smoothed pulses),
+def test_model_rate_threshold_is_not_determined_and_gain_is(model_rate):
+    """The 100 Hz nonlinearity: the threshold is not observable (smoothed pulses),
     the gain is determined and its interval allows for the smoothed knee."""
     from lpvpc.cli import _physical_summary
     from lpvpc.uncertainty import NOT_DETERMINED
 
+    model = model_rate
     rho = central_rho(model)
     g_ok, th_ok = model.reflex_determined(rho)
     assert g_ok.all() and not th_ok.any()
