@@ -16,10 +16,10 @@ threshold.
 
 Rows per family, from the same fits: K, viscosity and inertia with
 - "noise only": estimate +- z * HAC standard error;
-- "neighbouring specifications only": bias-aware for the IRF one lag shorter (K only) and
-  the basis one order higher (:func:`lpvpc.uncertainty.structural_bias_bound`);
+- "neighbouring specifications only": bias-aware for the IRF one lag shorter (not for
+  viscosity) and the basis one order higher (:func:`lpvpc.uncertainty.structural_bias_bound`);
 - "previous rule": the last release's intervals (sum of that bound, with the shorter IRF
-  for viscosity and inertia too, and the spread over every structure within one SE of the
+  for viscosity too, and the spread over every structure within one SE of the
   best cross-validated one), recomputed from the same search;
 - "new intervals" (:func:`lpvpc.uncertainty.intrinsic_interval`): the sum of the
   neighbouring bound and the spread over the near-equivalent structures that differ from
@@ -69,7 +69,7 @@ from _results import write_results  # noqa: E402
 N_POS = 9
 LEVEL = 0.95
 NEW = "new intervals: neighbours + intrinsic near-equivalent structures"
-PREVIOUS = "previous rule: neighbours incl. shorter IRF + every near-equivalent structure"
+PREVIOUS = "previous rule: shorter IRF for viscosity too + every near-equivalent structure"
 QUANTITIES = (("K", "stiffness"), ("viscosity", "viscosity"), ("inertia", "inertia"))
 
 
@@ -85,7 +85,7 @@ def _previous_bounds(model, search, sel, quantity, rho, est):
 
     u = model.uncertainty
     spec = intrinsic_interval_parts(model, quantity, rho)[2]["specification"]
-    if quantity != "stiffness" and u.get("truncation"):
+    if quantity == "viscosity" and u.get("truncation"):
         t = u["truncation"]
         g = _gradients_intrinsic(model, rho, lag_moment_weights(model, quantity, t["lags"]))
         spec = spec + np.abs(g @ np.asarray(t["H"], dtype=float).ravel() - est)
