@@ -182,6 +182,8 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0, files_fs=1000.0)
                 "the model-rate velocity, selection runs)" if files_fs > 100 else "")
              + (". The interval rule was chosen on seeds 0-19 (both file rates): this is the check on fresh seeds"
                 if first_seed >= 20 else ". The interval rule was chosen on these seeds (0-19, both file rates)"), ""]
+    if not opt:  # the main table: the commands of every section of the file first
+        lines[1:1] = ["", COMMANDS]
     summary = []
     for family in families:
         results = []
@@ -233,6 +235,10 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0, files_fs=1000.0)
 
 
 SECTION = "# Also recorded: "
+COMMANDS = ("Commands (OPENBLAS_NUM_THREADS=1, one at a time): nice python benchmarks/bench_coverage_families.py 20 "
+            "(this table: 1 kHz files, seeds 0-19); ... 20 --files-fs 100 (100 Hz files, seeds 0-19); ... 20 "
+            "--first-seed 20 (1 kHz, seeds 20-39: the check); ... 20 --first-seed 20 --files-fs 100 (100 Hz, "
+            "seeds 20-39: the check). Each writes its own section below.")
 
 
 def _merged(lines, options):

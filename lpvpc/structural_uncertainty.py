@@ -30,8 +30,8 @@ holds richer structures that follow the curve more closely. So:
   shifts' largest absolute value) and :func:`lpvpc.uncertainty.intrinsic_interval` adds it
   to the neighbouring-specification bound as the bias bound of its bias-aware critical
   value (Armstrong and Kolesar). The two see different parts of the bias; the larger of
-  the two alone under-covered the kinked K on 100 Hz files (88 %, 1 of 20 seeds fully
-  covered); their sum covers 93-97 % on every family and file rate
+  the two alone under-covered the kinked K on 100 Hz files (88-89 %); their sum covers K
+  at 92.8-97.8 % on every family, file rate and seed range
   (``benchmarks/results/coverage_families.txt``).
 
 identify adds it whenever its selection ran (reusing that search: only the refits);
