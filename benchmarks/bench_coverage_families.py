@@ -2,34 +2,44 @@
 (issue 22, item 3): today's ("standard", which the position basis holds), the textbook sum
 of exponentials with steep ends and a piecewise-linear K with a kink (which it does not).
 
-For each family and seed: simulate a 2-minute multilevel pair at 1 kHz (paired and
-decimated as the loaders do), identify with ``structure='cv'`` and the reflex nonlinearity
-on the 1 kHz velocity (as bench_uncertainty.py measures today; on that path identify skips
-its selection, so the structural term runs its own search: its cost is the whole search),
-then add the structural term (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`).
-Truth at 9 positions over the central 80 % of the identified range: K at the perturbation
-amplitude (SubjectParams.incremental_stiffness), the constant viscosity, reflex gain and
+For each family and seed: simulate a 2-minute multilevel pair (1 kHz files, paired and
+decimated as the loaders do; or 100 Hz files with ``--files-fs 100``), identify with
+``structure='cv'`` and ``high_rate_reflex=True`` (from 1 kHz files the reflex nonlinearity
+on the 1 kHz velocity; identify skips its selection on that path, so the structural term
+runs its own search: its cost is the whole search), then add the structural term
+(:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`). From 1 kHz files the
+same record is also identified at every default (``identify(data)``: the reflex on the
+model-rate velocity, selection runs): rows "defaults". Truth at 9 positions over the
+central 80 % of the identified range: K at the perturbation amplitude
+(SubjectParams.incremental_stiffness), the constant viscosity and inertia, reflex gain and
 threshold.
 
-Rows per family, from the same fits: K and viscosity with
+Rows per family, from the same fits: K, viscosity and inertia with
 - "noise only": estimate +- z * HAC standard error;
-- "before" (today's intervals): bias-aware for the neighbouring specifications (IRF one lag
-  shorter, basis one order higher);
-- "with structures, sum of the two bounds" (the new intervals,
-  :func:`lpvpc.uncertainty.intrinsic_interval`): bias-aware for that bound plus the spread
-  over the structures within one SE of the best cross-validated one;
-- the larger of the two bounds, and their root sum of squares: the alternative rules,
-  recorded to show why they are not used (both under-cover the piecewise K on 100 Hz files);
-and reflex gain and threshold as today's model gives them (this change does not touch
-them). Coverage % pooled over seeds and positions, seeds with every position covered,
-median half-width (absolute and % of the estimate), median |error| %; the cost of the
-structural term against the identification.
+- "neighbouring specifications only": bias-aware for the IRF one lag shorter (not for
+  viscosity) and the basis one order higher (:func:`lpvpc.uncertainty.structural_bias_bound`);
+- "previous rule": the last release's intervals (sum of that bound, with the shorter IRF
+  for viscosity too, and the spread over every structure within one SE of the
+  best cross-validated one), recomputed from the same search;
+- "new intervals" (:func:`lpvpc.uncertainty.intrinsic_interval`): the sum of the
+  neighbouring bound and the spread over the near-equivalent structures that differ from
+  the model's in the intrinsic pathway only;
+- the larger of the two bounds, and their root sum of squares (with the new structure set):
+  the alternative combinations, recorded to show why they are not used;
+and reflex gain and threshold (1 kHz path and defaults). Coverage % pooled over seeds and
+positions (a threshold "not determined by these data" has the whole fitted velocity range
+as its interval: it counts as covered when the truth lies in that range; the columns "not
+determined %" and "coverage where determined" separate it), seeds with every position
+covered, median half-width (absolute and % of the estimate), median |error| %; the cost of
+the structural term against the identification.
+
+The rule was chosen on seeds 0-19 (both file rates); seeds 20-39 (``--first-seed 20``) are
+the check.
 
 Run: nice python benchmarks/bench_coverage_families.py [n_seeds] [--first-seed S] [--files-fs 100] [family ...]
-(default 20 seeds of each family from seed 0; writes benchmarks/results/coverage_families.txt;
-with --first-seed S (a check on fresh seeds: the rule was chosen on seeds 0-19) or --files-fs
-100 (100 Hz files: the reflex on the model-rate velocity, identify's own selection runs) the
-run is recorded as its own section below that table)
+(default 20 seeds of each family from seed 0, 1 kHz files; writes
+benchmarks/results/coverage_families.txt; a run with --first-seed or --files-fs is recorded
+as its own section below the default run's table)
 """
 
 from __future__ import annotations
@@ -48,25 +58,75 @@ sys.path.insert(0, str(ROOT))
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.structural_uncertainty import add_structural_uncertainty, structural_term, structure_search  # noqa: E402
+from lpvpc.structural_uncertainty import (  # noqa: E402
+    _refit_irf, add_structural_uncertainty, near_equivalent, structural_term, structure_search)
 from lpvpc.subject import STIFFNESS_FAMILIES  # noqa: E402
-from lpvpc.uncertainty import bias_aware_critical_value, intrinsic_interval_parts, z_value  # noqa: E402
+from lpvpc.uncertainty import (  # noqa: E402
+    _gradients_intrinsic, bias_aware_critical_value, intrinsic_interval, intrinsic_interval_parts, lag_moment_weights,
+    z_value)
 from _results import write_results  # noqa: E402
 
 N_POS = 9
 LEVEL = 0.95
-NEW = "with structures, sum of the two bounds (the new intervals)"
+NEW = "new intervals: neighbours + intrinsic near-equivalent structures"
+PREVIOUS = "previous rule: shorter IRF for viscosity too + every near-equivalent structure"
+QUANTITIES = (("K", "stiffness"), ("viscosity", "viscosity"), ("inertia", "inertia"))
 
 
-def _bands(est, se, spec, struct):
-    z = z_value(LEVEL)
-    out = {}
-    for name, bias in (("noise only", 0.0 * se), ("before", spec), (NEW, spec + struct),
-                       ("with structures, larger of the two bounds (not used)", np.maximum(spec, struct)),
-                       ("with structures, root sum of squares (not used)", np.hypot(spec, struct))):
-        half = bias_aware_critical_value(bias / np.maximum(se, 1e-300), LEVEL) * se if name != "noise only" else z * se
-        out[name] = (est - half, est + half)
-    return out
+def _half(bias, se):
+    return bias_aware_critical_value(bias / np.maximum(se, 1e-300), LEVEL) * se
+
+
+def _previous_bounds(model, search, sel, quantity, rho, est):
+    """The last release's two bounds: the shorter IRF counted for every quantity, and the
+    largest shift over every structure within one SE of the best (reflex settings too)."""
+    from lpvpc.basis import Basis
+    from lpvpc.structural_uncertainty import _start
+
+    u = model.uncertainty
+    spec = intrinsic_interval_parts(model, quantity, rho)[2]["specification"]
+    if quantity == "viscosity" and u.get("truncation"):
+        t = u["truncation"]
+        g = _gradients_intrinsic(model, rho, lag_moment_weights(model, quantity, t["lags"]))
+        spec = spec + np.abs(g @ np.asarray(t["H"], dtype=float).ravel() - est)
+    start = _start(model)
+    ref = _refit_irf(search, start)
+    near = [s for s in near_equivalent(search, sel) if s.settings != start]
+    if not near:
+        return spec, np.zeros(len(rho))
+    basis = search.design.G_i
+    G = basis.evaluate(np.clip(rho, basis.lo, basis.hi))
+    w = lag_moment_weights(model, quantity, np.arange(-search.design.L_max, search.design.L_max + 1))
+    shifts = np.array([np.einsum("l,lj,rj->r", w, _refit_irf(search, s.settings) - ref, G) for s in near])
+    return spec, np.abs(shifts).max(axis=0)
+
+
+def _intrinsic_rows(rows, model, truth, pair, rho, prefix="", search=None, sel=None):
+    for q, name in QUANTITIES:
+        tr = {"K": truth.incremental_stiffness(rho, pair.truth["perturbation_amplitude"]),
+              "viscosity": np.full(len(rho), truth.viscosity), "inertia": np.full(len(rho), truth.inertia)}[q]
+        est, se, bias = intrinsic_interval_parts(model, name, rho)
+        spec, struct = bias["specification"], bias["structures"]
+        _, lo, hi = intrinsic_interval(model, name, rho, LEVEL)
+        if prefix:  # the defaults: the new intervals only
+            rows[f"{q}, {prefix}{NEW}"] = (est, lo, hi, tr)
+            continue
+        bands = {"noise only": z_value(LEVEL) * se, "neighbouring specifications only": _half(spec, se)}
+        if search is not None:
+            bands[PREVIOUS] = _half(sum(_previous_bounds(model, search, sel, name, rho, est)), se)
+        bands[NEW] = None
+        bands["larger of the two bounds (not used)"] = _half(np.maximum(spec, struct), se)
+        bands["root sum of squares (not used)"] = _half(np.hypot(spec, struct), se)
+        for k, half in bands.items():
+            rows[f"{q}, {k}"] = (est, lo, hi, tr) if half is None else (est, est - half, est + half, tr)
+
+
+def _reflex_rows(rows, model, truth, rho, label):
+    gain, thr = model.reflex_gain_threshold(rho)
+    g_iv, th_iv = model.reflex_gain_interval(rho), model.reflex_threshold_interval(rho)
+    at = f"{label} ({model.nonlinearity_fs:g} Hz velocity)"
+    rows[f"reflex gain, {at}"] = (gain, *g_iv, truth.reflex_gain(rho), g_iv.determined)
+    rows[f"reflex threshold, {at}"] = (thr, *th_iv, truth.reflex_threshold(rho), th_iv.determined)
 
 
 def one_seed(family, seed, files_fs=1000.0):
@@ -92,21 +152,20 @@ def one_seed(family, seed, files_fs=1000.0):
         t = time.perf_counter()
         structural_term(model, d, search, sel)
         t_refit = time.perf_counter() - t
+        defaults = identify(d) if getattr(d, "high_rate", None) is not None else None  # every default
     lo, hi = model.scheduling_range
     rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)
     rows = {}
-    for q, tr in (("K", truth.incremental_stiffness(rho, pair.truth["perturbation_amplitude"])),
-                  ("viscosity", np.full(N_POS, truth.viscosity))):
-        est, se, bias = intrinsic_interval_parts(model, "stiffness" if q == "K" else q, rho)
-        for name, (a, b) in _bands(est, se, bias["specification"], bias["structures"]).items():
-            rows[f"{q}, {name}"] = (est, a, b, tr)
-    gain, thr = model.reflex_gain_threshold(rho)
-    rows["reflex gain"] = (gain, *model.reflex_gain_interval(rho), truth.reflex_gain(rho))
-    rows["reflex threshold"] = (thr, *model.reflex_threshold_interval(rho), truth.reflex_threshold(rho))
+    _intrinsic_rows(rows, model, truth, pair, rho, search=search, sel=sel)
+    _reflex_rows(rows, model, truth, rho, "high_rate_reflex=True" if defaults is not None else "every setting")
+    if defaults is not None:
+        _intrinsic_rows(rows, defaults, truth, pair, rho, prefix="defaults, ")
+        _reflex_rows(rows, defaults, truth, rho, "defaults")
     st = model.uncertainty["structural"]
     return {"rows": rows, "t_ident": t_ident, "t_struct": t_struct, "t_build": t_build, "t_run": t_run,
             "t_refit": t_refit, "t_unc": model.fit["timings_s"]["uncertainty"],
             "n_near": len(st["shifts"]), "n_scored": st["n_scored"],
+            "n_near_all": len([s for s in near_equivalent(search, sel) if s.settings != start]),
             "selection": model.fit.get("structure_selection", {}).get("skipped", "ran")}
 
 
@@ -118,29 +177,38 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0, files_fs=1000.0)
              f"{n_seeds}{opt}{' ' + ' '.join(families) if tuple(families) != STIFFNESS_FAMILIES else ''})", "",
              f"2-minute multilevel pairs at {files_fs:g} Hz (18 dB), model at 100 Hz, identify(structure='cv', "
              f"high_rate_reflex=True: {'the 1 kHz' if files_fs > 100 else 'the model-rate'} velocity); {n_seeds} seeds per family (seeds {first_seed}..{first_seed + n_seeds - 1}), {N_POS} positions per seed over the central 80 % "
-             f"of the identified range; 95 % intervals", ""]
+             f"of the identified range; 95 % intervals"
+             + ("; rows 'defaults': the same records identified at every default (identify(data): the reflex on "
+                "the model-rate velocity, selection runs)" if files_fs > 100 else "")
+             + (". The interval rule was chosen on seeds 0-19 (both file rates): this is the check on fresh seeds"
+                if first_seed >= 20 else ". The interval rule was chosen on these seeds (0-19, both file rates)"), ""]
+    if not opt:  # the main table: the commands of every section of the file first
+        lines[1:1] = ["", COMMANDS]
     summary = []
     for family in families:
         results = []
         for seed in range(first_seed, first_seed + n_seeds):
             r = one_seed(family, seed, files_fs)
             results.append(r)
-            cov = {k: np.mean((lo <= tr) & (tr <= hi)) for k, (est, lo, hi, tr) in r["rows"].items()}
+            cov = {k: np.mean((lo <= tr) & (tr <= hi)) for k, (est, lo, hi, tr, *_) in r["rows"].items()}
             print(f"{family} seed {seed}: " + ", ".join(f"{k} {100 * v:.0f}" for k, v in cov.items())
                   + f"; identify {r['t_ident']:.2f} s, structural {r['t_struct']:.2f} s ({r['n_near']} structures)",
                   flush=True)
         lines += [f"## {family}", "",
                   "| quantity, interval | coverage % (pooled) | seeds with all positions covered | median half-width "
-                  "| median half-width % of estimate | median abs error % |", "|---|---|---|---|---|---|"]
+                  "| median half-width % of estimate | median abs error % | not determined % | coverage % where "
+                  "determined |", "|---|---|---|---|---|---|---|---|"]
         for k in results[0]["rows"]:
             est, lo, hi, tr = (np.concatenate([r["rows"][k][i] for r in results]) for i in range(4))
+            det = np.concatenate([r["rows"][k][4] if len(r["rows"][k]) > 4 else np.ones(N_POS, bool) for r in results])
             inside = (lo <= tr) & (tr <= hi)
             per_seed = sum(bool(np.all((r["rows"][k][1] <= r["rows"][k][3]) & (r["rows"][k][3] <= r["rows"][k][2])))
                            for r in results)
             hw = (hi - lo) / 2
             lines.append(f"| {k} | {100 * inside.mean():.1f} | {per_seed}/{n_seeds} | {np.median(hw):.4g} | "
-                         f"{100 * np.median(hw / np.abs(est)):.1f} | {100 * np.median(np.abs(est / tr - 1)):.1f} |")
-            if k in ("K, before", f"K, {NEW}"):
+                         f"{100 * np.median(hw / np.abs(est)):.1f} | {100 * np.median(np.abs(est / tr - 1)):.1f} | "
+                         f"{100 * np.mean(~det):.0f} | {f'{100 * inside[det].mean():.1f}' if det.any() else '-'} |")
+            if k.endswith(NEW) or k.startswith("reflex") or k.endswith(PREVIOUS):
                 summary.append(f"- {family}: {k}: {100 * inside.mean():.1f} % ({per_seed}/{n_seeds} seeds fully), "
                                f"median half-width {100 * np.median(hw / np.abs(est)):.1f} %")
         t_i = np.array([r["t_ident"] for r in results])
@@ -152,20 +220,25 @@ def main(n_seeds=20, families=STIFFNESS_FAMILIES, first_seed=0, files_fs=1000.0)
                       f"structural term median {np.median(t_s):.2f} s = {100 * np.median(t_s / t_i):.0f} % of "
                       f"identify (max {100 * np.max(t_s / t_i):.0f} %); near-equivalent structures per seed median "
                       f"{np.median([r['n_near'] for r in results]):.0f} of "
-                      f"{np.median([r['n_scored'] for r in results]):.0f} scored; identify's selection: {', '.join(sel)}",
+                      f"{np.median([r['n_scored'] for r in results]):.0f} scored (all within one SE, reflex settings too: median "
+                      f"{np.median([r['n_near_all'] for r in results]):.0f}); identify's selection: {', '.join(sel)}",
                   f"structural term's parts (medians, timed again separately): search regressor and Gram matrices "
                   f"{1000 * parts['t_build']:.0f} ms, coordinate search {1000 * parts['t_run']:.0f} ms, refits of the "
                   f"near-equivalent structures {1000 * parts['t_refit']:.0f} ms (= {100 * parts['t_refit'] / np.median(t_i):.1f} % "
                   f"of identify: the cost when identify's own search is handed over)",
                   ""]
-    lines += ["## Summary (K)", ""] + summary + [
-        "", "units: K N m/rad, viscosity N m s/rad, reflex gain N m s/rad, threshold rad/s",
+    lines += ["## Summary", ""] + summary + [
+        "", "units: K N m/rad, viscosity N m s/rad, inertia kg m^2, reflex gain N m s/rad, threshold rad/s",
         f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
         f"load {load0:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; wall time {(time.time() - t0) / 60:.1f} min"]
     write_results("coverage_families.txt", _merged(lines, opt.strip()), echo=True)
 
 
 SECTION = "# Also recorded: "
+COMMANDS = ("Commands (OPENBLAS_NUM_THREADS=1, one at a time): nice python benchmarks/bench_coverage_families.py 20 "
+            "(this table: 1 kHz files, seeds 0-19); ... 20 --files-fs 100 (100 Hz files, seeds 0-19); ... 20 "
+            "--first-seed 20 (1 kHz, seeds 20-39: the check); ... 20 --first-seed 20 --files-fs 100 (100 Hz, "
+            "seeds 20-39: the check). Each writes its own section below.")
 
 
 def _merged(lines, options):

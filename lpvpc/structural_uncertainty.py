@@ -13,19 +13,26 @@ holds richer structures that follow the curve more closely. So:
 
 - the search runs from the model's structure (the chosen one after ``structure='cv'``),
   with the model's reflex dynamics held, as identify's selection does;
-- each near-equivalent structure and the model's own structure are refitted to the whole
-  record in that same linear problem (the dynamics held: a small solve on the summed
-  per-fold normal equations, no new regressor);
-- the structural term at theta is the largest absolute difference between a
-  near-equivalent structure's quantity and the model structure's refit (the same machinery
-  for both, so the reflex dynamics' refinement does not count as structure);
+- of the structures within one standard error of the best, those that differ from the
+  model's structure in the intrinsic pathway only (:data:`INTRINSIC_SETTINGS`: IRF
+  half-width, position-basis order, elastic curvature term; the reflex settings held at the
+  model's) count: they are the other descriptions of K(theta) the data support. A structure
+  that changes the reflex pathway moves K through the intrinsic/reflex split instead, which
+  the joint covariance of the noise intervals already carries; counted as structure it
+  over-covered (100 % on the sum-of-exponentials K from 1 kHz files, 20 of 20 seeds);
+- each of them and the model's own structure are refitted to the whole record in that same
+  linear problem (the dynamics held: a small solve on the summed per-fold normal
+  equations, no new regressor);
+- the structural term at theta is the largest absolute difference between one of them and
+  the model structure's refit (the same machinery for both, so the reflex dynamics'
+  refinement does not count as structure);
 - :func:`lpvpc.uncertainty.structural_shift` evaluates it at any theta (the stored
   shifts' largest absolute value) and :func:`lpvpc.uncertainty.intrinsic_interval` adds it
-  to the neighbouring-specification bound (IRF one lag shorter, basis one order higher) as
-  the bias bound of its bias-aware critical value (Armstrong and Kolesar). The two see
-  different parts of the bias; the larger of the two alone under-covered the kinked K
-  on 100 Hz files (88 %, 1 of 20 seeds fully covered), their sum covers 93-100 % on every
-  family and path (``benchmarks/results/coverage_families.txt``).
+  to the neighbouring-specification bound as the bias bound of its bias-aware critical
+  value (Armstrong and Kolesar). The two see different parts of the bias; the larger of
+  the two alone under-covered the kinked K on 100 Hz files (88-89 %); their sum covers K
+  at 92.8-97.8 % on every family, file rate and seed range
+  (``benchmarks/results/coverage_families.txt``).
 
 identify adds it whenever its selection ran (reusing that search: only the refits);
 :func:`add_structural_uncertainty` adds it to any other model with intervals.
@@ -38,6 +45,7 @@ Stored in ``model.uncertainty["structural"]`` (the model file round-trips it)::
     shifts        n_s x len(lags) x n_basis: each near-equivalent structure's IRF weights
                   minus the model structure's, refitted alike (N m/rad per sample)
     structures    the near-equivalent structures' settings and CV VAF (%)
+                  (those differing from the model's in INTRINSIC_SETTINGS only)
     n_scored      structures the search scored
 
 Measured coverage on three stiffness families: ``benchmarks/results/coverage_families.txt``.
@@ -47,11 +55,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["add_structural_uncertainty", "structural_term", "structure_search", "near_equivalent"]
+__all__ = ["add_structural_uncertainty", "structural_term", "structure_search", "near_equivalent",
+           "INTRINSIC_SETTINGS"]
 
 METHOD = ("spread of the IRF's quantities over the structures within one standard error of the best "
-          "cross-validated one (leave-one-level-out), each refitted to the record with the reflex dynamics held")
+          "cross-validated one (leave-one-level-out) that differ from the model's in the intrinsic pathway only, "
+          "each refitted to the record with the reflex dynamics held")
 MAX_STRUCTURES = 24  # the near-equivalent structures kept (closest in CV error first)
+#: The search's settings of the intrinsic pathway: the near-equivalent structures that count
+#: differ from the model's in these only (the reflex order, velocity order, delay and
+#: extrapolation held at the model's).
+INTRINSIC_SETTINGS = ("irf_length", "intrinsic_order", "elastic_curvature")
 
 
 def _start(model) -> dict:
@@ -100,11 +114,21 @@ def structure_search(model, data):
     return s, start, fixed
 
 
-def near_equivalent(search, selection) -> list:
+def _intrinsic_only(settings, start) -> bool:
+    """True when ``settings`` differ from ``start`` in :data:`INTRINSIC_SETTINGS` only.
+
+    >>> a = {"intrinsic_order": 4, "reflex_order": 2, "irf_length": 0.03}
+    >>> _intrinsic_only({**a, "intrinsic_order": 6}, a), _intrinsic_only({**a, "reflex_order": 3}, a)
+    (True, False)
+    """
+    return all(v == start.get(k) for k, v in settings.items() if k not in INTRINSIC_SETTINGS)
+
+
+def near_equivalent(search, selection, limit=MAX_STRUCTURES) -> list:
     """The scored structures (lpvpc.selection.Scored) within one standard error of the
     best (the paired standard error over folds of the difference in held-out error, as
-    the one-standard-error rule), closest to the best first (``search`` is not used; kept
-    for symmetry with :func:`structural_term`).
+    the one-standard-error rule), closest to the best first, at most ``limit`` (None: all;
+    ``search`` is not used; kept for symmetry with :func:`structural_term`).
 
     >>> from lpvpc.selection import Scored, Selection
     >>> best = Scored({"order": 5}, 60, np.array([1.0, 1.9, 1.4]), 97.1)  # N m^2 per fold, CV VAF %
@@ -123,7 +147,7 @@ def near_equivalent(search, selection) -> list:
         se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
         if np.mean(diff) <= se:
             out.append(s)
-    return out[:MAX_STRUCTURES]
+    return out if limit is None else out[:limit]
 
 
 def _refit_irf(search, settings) -> np.ndarray:
@@ -173,7 +197,8 @@ def structural_term(model, data, search=None, selection=None) -> dict:
     if search.score(start) is None:
         raise ValueError(f"the model's structure is not one the search can score: {start}")
     ref = _refit_irf(search, start)
-    near = [s for s in near_equivalent(search, selection) if s.settings != start]
+    near = [s for s in near_equivalent(search, selection, limit=None) if s.settings != start
+            and _intrinsic_only(s.settings, start)][:MAX_STRUCTURES]
     shifts = [_refit_irf(search, s.settings) - ref for s in near]
     D = search.design
     return {"method": METHOD, "basis": D.G_i.to_dict(),

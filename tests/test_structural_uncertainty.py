@@ -15,6 +15,7 @@ from lpvpc.identify import identify
 from lpvpc.model import LPVPCModel
 from lpvpc.simulate import SubjectParams, simulate_pair
 from lpvpc.structural_uncertainty import (
+    INTRINSIC_SETTINGS,
     add_structural_uncertainty,
     near_equivalent,
     structural_term,
@@ -93,7 +94,12 @@ def test_the_shift_is_the_largest_difference_to_the_model_structure_refitted_ali
     assert again["shifts"] == structural_term(model, d)["shifts"]  # the same as running it there
     near = near_equivalent(search, sel)
     assert near[0].settings == sel.best  # the best CV structure leads the near-equivalent ones
-    assert len(again["shifts"]) == len([s for s in near if s.settings != start])
+    # those that count change the intrinsic pathway only; the reflex settings are the model's
+    intrinsic = [s for s in near if s.settings != start
+                 and all(v == start[k] for k, v in s.settings.items() if k not in INTRINSIC_SETTINGS)]
+    assert len(again["shifts"]) == len(intrinsic) >= 2
+    assert [x["settings"] for x in again["structures"]] == [s.settings for s in intrinsic]
+    assert len(intrinsic) < len([s for s in near if s.settings != start])  # some near ones changed the reflex
     # by hand for one structure: the shift of K is the sum over lags of the IRF weights' shift
     from lpvpc.basis import Basis
 

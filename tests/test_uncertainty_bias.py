@@ -68,6 +68,32 @@ def test_stiffness_interval_is_bias_aware_with_the_sum_of_both_specification_shi
     assert np.all(hi - lo > hi0 - lo0)
 
 
+def test_the_shorter_irf_bounds_k_and_inertia_not_viscosity(model):
+    """Viscosity weights the IRF by the lag: the shorter IRF's shift of it is the dropped
+    lags' moment arm, not bias (it made its intervals cover 100 % at twice the noise band's
+    width), so its bound is the richer basis's alone; K and inertia keep both."""
+    rho = central_rho(model)
+    d = json.loads(json.dumps(model.to_dict()))
+    d["uncertainty"].pop("truncation")
+    no_trunc = LPVPCModel.from_dict(d)
+    for quantity, value in (("stiffness", model.elastic_stiffness(rho)), ("viscosity", model.viscosity(rho)),
+                            ("inertia", model.inertia(rho))):
+        with_t = structural_bias_bound(model, quantity, rho, value)
+        without = structural_bias_bound(no_trunc, quantity, rho, value)
+        if quantity != "viscosity":
+            assert np.all(with_t > without)
+        else:
+            assert np.array_equal(with_t, without) and np.all(with_t > 0)
+    # the truncation's viscosity shift is large against the noise: it would have dominated
+    from lpvpc.uncertainty import _gradients_intrinsic, intrinsic_interval_parts, lag_moment_weights
+
+    est, se, bias = intrinsic_interval_parts(model, "viscosity", rho)
+    t = model.uncertainty["truncation"]
+    g = _gradients_intrinsic(model, rho, lag_moment_weights(model, "viscosity", t["lags"]))
+    shift = np.abs(g @ np.asarray(t["H"]).ravel() - est)
+    assert np.median(shift / se) > 1.0 and np.median(shift) > np.median(bias["specification"])
+
+
 def test_bias_bound_grows_and_keeps_coverage_when_the_basis_is_too_low(subject, model):
     """Order 3 in position cannot follow the subject's exponential K (errors up to ~6 %):
     the one-order-richer basis sees it, the bound grows and the intervals still cover,
