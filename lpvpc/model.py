@@ -498,12 +498,13 @@ class LPVPCModel:
         """What the K, viscosity and inertia intervals include: the noise, the neighbouring
         specifications' bias bound and, when stored
         (:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`), the spread over
-        the structures cross-validation cannot tell apart. Empty without intervals."""
+        the structures cross-validation cannot tell apart (those that differ in the intrinsic
+        pathway only). Empty without intervals."""
         if not self.uncertainty:
             return []
         terms = ["noise (HAC sandwich)"]
         if self.uncertainty.get("truncation") or self.uncertainty.get("richer_basis"):
-            terms.append("neighbouring specifications (IRF one lag shorter, basis one order higher)")
+            terms.append("neighbouring specifications (IRF one lag shorter: K and inertia; basis one order higher)")
         if self.uncertainty.get("structural"):
             terms.append("near-equivalent structures of the cross-validation")
         return terms
