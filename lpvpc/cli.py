@@ -254,6 +254,20 @@ def _check_effect_names(names) -> tuple:
     return names
 
 
+def _check_allowed_effects(names) -> tuple:
+    """--allow-effect names ("none": no effect is offered to the selection)."""
+    from .selection import cv_effect_problem
+
+    if list(names) == ["none"]:
+        return ()
+    names = _check_effect_names(names)
+    for n in names:
+        problem = cv_effect_problem(n)
+        if problem:
+            raise _UsageError(f"--allow-effect: {problem}")
+    return names
+
+
 def cmd_identify(args) -> int:
     from .identify import LPVPCEstimator
 
@@ -261,6 +275,8 @@ def cmd_identify(args) -> int:
     settings = {k: getattr(args, k) for k in defaults if getattr(args, k, None) is not None}
     if "effects" in settings:
         settings["effects"] = _check_effect_names(settings["effects"])
+    if "allow_effects" in settings:
+        settings["allow_effects"] = _check_allowed_effects(settings["allow_effects"])
     if args.state_order == "auto":
         settings.pop("state_order")
     elif "state_order" in settings:
@@ -306,6 +322,8 @@ def cmd_identify(args) -> int:
         print(line)
     for line in _selection_summary(fit.get("structure_selection")):
         print(line)
+    for line in _relaxation_summary(model):
+        print(line)
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
@@ -340,12 +358,13 @@ def _selection_summary(sel) -> list:
     if not sel:
         return []
     if "skipped" in sel:
-        return [f"structure:   as given (not selected: {sel['skipped']})"]
+        return [f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
     short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
              "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
 
     def text(s):
         return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
+                         f"effects {'+'.join(v) or 'none'}" if k == "effects" else
                          f"{short.get(k, k)} {v}" for k, v in s.items())
 
     lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
@@ -357,7 +376,27 @@ def _selection_summary(sel) -> list:
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
                      + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")")
-    return lines
+    return lines + _effects_cv_summary(sel.get("effects"))
+
+
+def _effects_cv_summary(entry) -> list:
+    """Lines of the allowed effects' choice (lpvpc.identify: on/off candidates of the selection)."""
+    if not entry or not entry.get("allowed"):
+        return []
+    cv = entry.get("cv", {})
+    return [f"effects cv:  {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
+            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}; +{cv[n]['n_params']} parameters)"
+            for n in entry["allowed"] if n in cv]
+
+
+def _relaxation_summary(model) -> list:
+    """Both elastic stiffnesses of a model with stress relaxation, labelled, with units."""
+    entry = (model.fit or {}).get("stiffness")
+    if not entry:
+        return []
+    at = lambda v: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, entry["scheduling"]))  # noqa: E731
+    return [f"stiffness:   {e['label']}: {at(e['values'])} {e['unit']}"
+            for e in (entry["short_range"], entry["relaxed"])]
 
 
 def _physical_summary(model) -> list:
@@ -948,6 +987,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "linearly")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
+    p.add_argument("--allow-effect", dest="allow_effects", action="extend", nargs="+", default=None, metavar="NAME",
+                   help="an effect the cross-validation may switch on (repeatable; default stress_relaxation; "
+                        "'none': no effect)")
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_identify)
 

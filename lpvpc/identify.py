@@ -52,6 +52,9 @@ DESIGN_BUDGET_BYTES = 400e6
 #: against 3.7-6.9 % at the fixed settings; 45-s records 2.2-5.4 % against 2.7-4.9 %;
 #: 60-s records (seeds 0-3, five positions) within 2.5 %, as good or better.
 MIN_SELECTION_S = 45.0
+#: Effects structure="cv" may switch on (``allow_effects``): stress relaxation, on every
+#: record (docs/guide/structure_selection.md, "Effects chosen by cross-validation").
+DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 
 
 def _records_given_settings(init):
@@ -159,8 +162,15 @@ class LPVPCEstimator:
     scheduling_extrapolation : beyond the identified range of the scheduling variable the
         position bases are held at the boundary ("clip", default) or continued along their
         tangent ("linear"; :class:`lpvpc.basis.Basis`).
+    allow_effects : effects of the catalog that structure="cv" may switch on: each is an
+        on/off candidate of the same cross-validation (its columns join the largest
+        regressor; :mod:`lpvpc.selection`), on stationary trials scored on contiguous blocks
+        at the delay BIC chose. Default ``("stress_relaxation",)``; ``()``: none. Only
+        intrinsic effects with static features of the position qualify (ValueError
+        otherwise). Not used with structure="fixed", nor when ``effects`` are given (then
+        the structure is as given), nor on several trials joined.
     effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
-        model; default none). Intrinsic-pathway effects are estimated jointly with the
+        model; default none), always on. Intrinsic-pathway effects are estimated jointly with the
         intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
         after the reflex is identified. The data must carry the signals the effects need.
 
@@ -221,7 +231,9 @@ class LPVPCEstimator:
         structure: str = "cv",
         structure_fixed: tuple | None = None,
         scheduling_extrapolation: str = "clip",
+        allow_effects: tuple = DEFAULT_ALLOWED_EFFECTS,
     ):
+        self.allow_effects = allow_effects
         self.structure = structure
         self.structure_fixed = structure_fixed
         self.scheduling_extrapolation = scheduling_extrapolation
@@ -259,7 +271,7 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation", "allow_effects")
             } | {"structure_fixed": self._given_settings()}  # (a clone keeps what was given)
 
     def resolved_lags(self, fs: float) -> int:
@@ -361,8 +373,12 @@ class LPVPCEstimator:
         fixed = {"irf_length" if k == "irf_lags" else k for k in given}
         base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
+        offered = self._offered_effects(data)
         if reason is not None:
-            return self._fit_unselected(data, base, reason)
+            self._fit_unselected(data, base, reason)
+            if offered and reason.startswith("stationary"):
+                self._choose_stationary_effects(data, base, offered)
+            return self
         first = LPVPCEstimator(**base)
         first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
@@ -375,6 +391,11 @@ class LPVPCEstimator:
                  "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
                  "scheduling_extrapolation": self.scheduling_extrapolation}
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        from .selection import effect_candidates, effect_key, structure_settings
+
+        # allowed effects: on/off candidates, their columns in the largest regressor
+        cands = effect_candidates(offered, p, rho, m.fs, self.basis, max(SEARCH["intrinsic_order"]))
+        start.update({effect_key(n): False for n in cands})
         search = search_space(start, fixed)
         n_cols = design_columns(search, fs)
         if 8.0 * len(y) * n_cols > DESIGN_BUDGET_BYTES:
@@ -385,7 +406,7 @@ class LPVPCEstimator:
         t = time.perf_counter()
         try:
             structures = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                                         self.velocity_basis, search, Segments.of(data, len(y)))
+                                         self.velocity_basis, search, Segments.of(data, len(y)), cands)
             sel = structures.run(start, fixed)
         except np.linalg.LinAlgError as exc:  # e.g. a fold's normal equations singular on a very short record
             return self._fit_unselected(data, base, f"cross-validation failed: {exc}")
@@ -396,12 +417,13 @@ class LPVPCEstimator:
             neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
             chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
-                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)))
+                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)), cands)
         t_select = time.perf_counter() - t
         # The chosen structure is fitted at that order, its poles refined from the first fit's
         # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
         # of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
+        chosen = {**structure_settings(sel.chosen), "irf_lags": None, "state_order": order}
+        chosen["effects"] = tuple(chosen.pop("effects", ()))
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
         if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
@@ -425,10 +447,64 @@ class LPVPCEstimator:
             from .structural_uncertainty import add_structural_uncertainty
 
             add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed))
+        if cands:
+            model.fit["structure_selection"]["effects"] = _effects_cv(structures, sel.chosen, cands)
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self
+
+    def _offered_effects(self, data) -> tuple:
+        """The allowed effects the selection offers on these data: ``allow_effects`` checked
+        (ValueError naming a bad one), minus those forced on; none for several trials joined
+        (effects are identified from one trial)."""
+        from .selection import cv_effect_problem
+
+        names = (self.allow_effects,) if isinstance(self.allow_effects, str) else tuple(self.allow_effects or ())
+        for n in names:
+            problem = cv_effect_problem(n)
+            if problem:
+                raise ValueError(f"allow_effects: {problem}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"allow_effects lists an effect twice: {list(names)}")
+        if len(Segments.of(data, len(np.asarray(data.torque)))) > 1:
+            return ()
+        return tuple(n for n in names if n not in tuple(self.effects or ()))
+
+    def _choose_stationary_effects(self, data, base, offered) -> None:
+        """A stationary trial (one position, no level folds): the allowed effects on or off by
+        the same cross-validation on contiguous blocks, at the structure BIC chose (delay and
+        IRF half-width), its reflex dynamics held; an effect chosen: the trial refitted with it."""
+        from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+
+        m = self.model_
+        fs = m.fs
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        start = {"irf_length": m.settings["irf_lags"] / fs, "intrinsic_order": m.intrinsic_basis.order,
+                 "reflex_order": m.reflex_rho_basis.order, "velocity_order": m.velocity_basis.order,
+                 "reflex_delay": m.delay / fs, "elastic_curvature": m.curvature is not None,
+                 "scheduling_extrapolation": self.scheduling_extrapolation}
+        t = time.perf_counter()
+        cands = effect_candidates(offered, p, rho, fs, self.basis, m.intrinsic_basis.order)
+        search = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                                 self.velocity_basis, {k: (start[k],) for k in SEARCH}, Segments.of(data, len(y)),
+                                 cands)
+        sel = search.run({**start, **{effect_key(n): False for n in cands}}, fixed=set(SEARCH))
+        entry = _effects_cv(search, sel.chosen, cands)
+        entry["seconds"] = time.perf_counter() - t
+        if entry["chosen"]:
+            est = LPVPCEstimator(**{**base, "reflex_delay": start["reflex_delay"], "irf_length": start["irf_length"],
+                                    "stationary_delays": (), "effects": tuple(entry["chosen"])})
+            with warnings.catch_warnings():  # (the stationary warning was given by the first fit)
+                warnings.simplefilter("ignore", StationaryWarning)
+                est.fit(data)
+            est.model_.settings["stationary_delays"] = m.settings["stationary_delays"]  # the delay: BIC's, above
+            if "stationary_delay_bic" in m.fit:
+                est.model_.fit["stationary_delay_bic"] = m.fit["stationary_delay_bic"]
+            est.model_.settings["structure"] = "cv"
+            est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
+            self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
+        self.model_.fit["structure_selection"]["effects"] = entry
 
     def _given_settings(self) -> tuple:
         """Names of the selected settings the caller set: structure_fixed, or those named in the call."""
@@ -648,6 +724,10 @@ class LPVPCEstimator:
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
         }
+        if design is not None and any(fe.name == "stress_relaxation" for fe in model.effects):
+            from .effects import relaxation_stiffness_entry
+
+            model.fit["stiffness"] = relaxation_stiffness_entry(model)  # short-range and relaxed, labelled
         if not bare:
             check_physiology(model)
         self.model_ = model
@@ -970,6 +1050,21 @@ def _provenance(data) -> dict:
         "casadi_version": casadi.__version__,
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def _effects_cv(search, chosen: dict, cands: dict) -> dict:
+    """The record of the allowed effects' choice: which were allowed and chosen, and the CV VAF
+    (%) of the chosen structure with each effect on and off (same folds)."""
+    from .selection import chosen_effects, effect_key
+
+    on = chosen_effects(chosen)
+    table = {}
+    for n in cands:
+        with_, without = (search.score({**chosen, effect_key(n): v}) for v in (True, False))
+        table[n] = {"cv_vaf_on": float(with_.cv_vaf), "cv_vaf_off": float(without.cv_vaf),
+                    "n_params": int(with_.n_params - without.n_params)}
+    return {"allowed": sorted(cands), "chosen": on, "cv": table,
+            "rule": "on/off candidates of the same cross-validation, one-standard-error rule toward fewer parameters"}
 
 
 def identify(data, **settings) -> LPVPCModel:
