@@ -364,14 +364,18 @@ def _selection_summary(sel) -> list:
 
     def text(s):
         return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
-                         f"effects {'+'.join(v) or 'none'}" if k == "effects" else
                          f"{short.get(k, k)} {v}" for k, v in s.items())
 
-    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
+    def effects(row):  # the allowed effects a row switches on (lpvpc.identify: on/off candidates)
+        return "" if "effects" not in row else f", effects {'+'.join(row['effects']) or 'none'}"
+
+    chosen_effects = sel["effects"]["chosen"] if sel.get("effects") else None
+    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}"
+             + ("" if chosen_effects is None else f", effects {'+'.join(chosen_effects) or 'none'}"),
              f"             {'CV VAF %':>9} {'params':>6}  structure"]
     for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
-        mark = "*" if row["settings"] == sel["chosen"] else " "
-        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
+        mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", []) == (chosen_effects or []) else " "
+        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}{effects(row)}")
     orders = sel.get("state_order", {})
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "

@@ -104,16 +104,13 @@ def chosen_effects(settings: dict) -> list:
 
 
 def structure_settings(settings: dict) -> dict:
-    """The settings without the effect switches, the chosen effects as ``effects`` (a list)
-    when the settings have switches: the form identify records and the estimator takes.
+    """The settings without the effect switches (the estimator settings identify records as
+    ``chosen``; the effects are recorded next to them).
 
-    >>> structure_settings({"intrinsic_order": 3, "effect:stress_relaxation": False})
-    {'intrinsic_order': 3, 'effects': []}
+    >>> structure_settings({"intrinsic_order": 3, "effect:stress_relaxation": True})
+    {'intrinsic_order': 3}
     """
-    out = {k: v for k, v in settings.items() if not k.startswith(EFFECT_PREFIX)}
-    if len(out) < len(settings):
-        out["effects"] = chosen_effects(settings)
-    return out
+    return {k: v for k, v in settings.items() if not k.startswith(EFFECT_PREFIX)}
 
 
 def cv_effect_problem(name: str) -> str | None:
@@ -257,7 +254,9 @@ class Selection:
                 "start": _jsonable(structure_settings(self.start)), "chosen_cv_vaf": float(chosen.cv_vaf),
                 "best": _jsonable(structure_settings(self.best)), "fold_kind": self.fold_kind,
                 "n_folds": int(self.n_folds),
-                "table": [{**s.to_dict(), "settings": _jsonable(structure_settings(s.settings))} for s in self.table()],
+                "table": [{**s.to_dict(), "settings": _jsonable(structure_settings(s.settings)),
+                           **({"effects": chosen_effects(s.settings)} if len(structure_settings(s.settings))
+                              < len(s.settings) else {})} for s in self.table()],
                 "n_scored": len(self.scored)}
 
 
