@@ -374,7 +374,8 @@ def _selection_summary(sel) -> list:
              + ("" if chosen_effects is None else f", effects {'+'.join(chosen_effects) or 'none'}"),
              f"             {'CV VAF %':>9} {'params':>6}  structure"]
     for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
-        mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", []) == (chosen_effects or []) else " "
+        mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", chosen_effects or []) == (
+            chosen_effects or []) else " "
         lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}{effects(row)}")
     orders = sel.get("state_order", {})
     if orders.get("cv_vaf"):

@@ -326,6 +326,7 @@ class LPVPCEstimator:
                 data = join_trials(data)
             if self.structure not in ("fixed", "cv"):
                 raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+            self._allowed_effects()  # a bad allow_effects is an error whatever the structure
             if self.structure == "cv":
                 return self._fit_selected(data)
             try:
@@ -376,19 +377,14 @@ class LPVPCEstimator:
         offered = self._offered_effects(data)
         if reason is not None:
             self._fit_unselected(data, base, reason)
-            if offered and reason.startswith("stationary"):
+            if offered and reason.startswith("stationary") and not self.effects:  # (forced effects: as given)
                 self._choose_stationary_effects(data, base, offered)
             return self
-        # With allowed effects the first fit has their columns in the subspace step's intrinsic
-        # regressor, so the reflex dynamics held for every candidate cannot take their torque
-        # (without them a slow reflex pole took part of the relaxation: virtual subject seed 100,
-        # CV gain of the effect +0.19 points, not chosen; with them +1.03, chosen; clean seeds:
-        # the effect's columns take nothing and the choice is unchanged).
-        first = LPVPCEstimator(**{**base, "effects": tuple(offered)} if offered else base)
+        first = LPVPCEstimator(**base)
         first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            first._fit(data, late=False if offered else None)
+            first._fit(data)
         m = first.model_
         fs = m.fs
         start = {"irf_length": m.settings["irf_lags"] / fs, "intrinsic_order": self.intrinsic_order,
@@ -396,11 +392,6 @@ class LPVPCEstimator:
                  "reflex_delay": m.delay / fs, "elastic_curvature": bool(self.elastic_curvature),
                  "scheduling_extrapolation": self.scheduling_extrapolation}
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
-        from .selection import chosen_effects, effect_candidates, effect_key, structure_settings
-
-        # allowed effects: on/off candidates, their columns in the largest regressor
-        cands = effect_candidates(offered, p, rho, m.fs, self.basis, max(SEARCH["intrinsic_order"]))
-        start.update({effect_key(n): False for n in cands})
         search = search_space(start, fixed)
         n_cols = design_columns(search, fs)
         if 8.0 * len(y) * n_cols > DESIGN_BUDGET_BYTES:
@@ -411,7 +402,7 @@ class LPVPCEstimator:
         t = time.perf_counter()
         try:
             structures = StructureSearch(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                                         self.velocity_basis, search, Segments.of(data, len(y)), cands)
+                                         self.velocity_basis, search, Segments.of(data, len(y)))
             sel = structures.run(start, fixed)
         except np.linalg.LinAlgError as exc:  # e.g. a fold's normal equations singular on a very short record
             return self._fit_unselected(data, base, f"cross-validation failed: {exc}")
@@ -422,16 +413,21 @@ class LPVPCEstimator:
             neighbours = {k: v for k, v in first._order_dynamics.items() if abs(k - bic_order) <= 1}
             chosen_score = next(sc for sc in sel.scored if sc.settings == sel.chosen)
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
-                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)), cands)
+                                                   self.basis, self.velocity_basis, Segments.of(data, len(y)))
+        effects_cv, effect_poles = (self._choose_effects(data, base, first, sel.chosen, order, offered)
+                                    if offered else (None, None))
         t_select = time.perf_counter() - t
         # The chosen structure is fitted at that order, its poles refined from the first fit's
         # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
         # of a fit). The starting structure chosen: the same fit, with intervals.
-        chosen = {**structure_settings(sel.chosen), "irf_lags": None, "state_order": order,
-                  "effects": tuple(chosen_effects(sel.chosen))}
+        chosen = {**sel.chosen, "irf_lags": None, "state_order": order}
+        if effects_cv and effects_cv["chosen"]:
+            chosen["effects"] = tuple(effects_cv["chosen"])
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
-        if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
+        if effect_poles is not None and "effects" in chosen:  # from the effects' fit (below)
+            est._reuse["poles"] = {order: effect_poles}
+        elif sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
         est._fit(data)
@@ -452,17 +448,47 @@ class LPVPCEstimator:
             from .structural_uncertainty import add_structural_uncertainty
 
             add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed))
-        if cands:
-            model.fit["structure_selection"]["effects"] = _effects_cv(structures, sel.chosen, cands)
+        if effects_cv:
+            model.fit["structure_selection"]["effects"] = effects_cv
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self
 
-    def _offered_effects(self, data) -> tuple:
-        """The allowed effects the selection offers on these data: ``allow_effects`` checked
-        (ValueError naming a bad one), minus those forced on; none for several trials joined
-        (effects are identified from one trial)."""
+    def _choose_effects(self, data, base, first, chosen, order, offered):
+        """The allowed effects on or off at the chosen structure, scored on the same folds
+        (their columns joined to the chosen structure's in one design: column subsets). The
+        reflex dynamics held come from a fit of the chosen structure with the effects' columns
+        in the subspace step's intrinsic regressor: held from the first fit, a slow reflex pole
+        had taken part of the relaxation and the effect looked useless (virtual subject seed 100:
+        CV gain +0.19 points, not chosen; +1.03 with these dynamics, chosen). Scored after the
+        structure, not inside its search, so a record without the effect gets exactly the model
+        it got before effects were allowed. Returns (record of the choice, the effects' fit's A)
+        or (None, None) when that fit fails (the effects' columns not independent here)."""
+        from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+
+        t = time.perf_counter()
+        fit = LPVPCEstimator(**{**base, **chosen, "irf_lags": None, "state_order": order, "effects": tuple(offered)})
+        fit._reuse = {"bare": True, "subspace": first.subspace_}
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fit._fit(data, late=False)
+        except (LpvpcError, np.linalg.LinAlgError):
+            return None, None
+        e = fit.model_
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        cands = effect_candidates(offered, p, rho, e.fs, self.basis, e.intrinsic_basis.order)
+        search = StructureSearch(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)), self.basis,
+                                 self.velocity_basis, {k: (chosen[k],) for k in SEARCH}, Segments.of(data, len(y)),
+                                 cands)
+        sel = search.run({**chosen, **{effect_key(n): False for n in cands}}, fixed=set(SEARCH))
+        entry = _effects_cv(search, sel.chosen, cands)
+        entry["seconds"] = time.perf_counter() - t
+        return entry, e.A
+
+    def _allowed_effects(self) -> tuple:
+        """``allow_effects`` as a tuple of names, checked (ValueError naming a bad one)."""
         from .selection import cv_effect_problem
 
         names = (self.allow_effects,) if isinstance(self.allow_effects, str) else tuple(self.allow_effects or ())
@@ -472,6 +498,12 @@ class LPVPCEstimator:
                 raise ValueError(f"allow_effects: {problem}")
         if len(set(names)) != len(names):
             raise ValueError(f"allow_effects lists an effect twice: {list(names)}")
+        return names
+
+    def _offered_effects(self, data) -> tuple:
+        """The allowed effects the selection offers on these data: those not forced on; none
+        for several trials joined (effects are identified from one trial)."""
+        names = self._allowed_effects()
         if len(Segments.of(data, len(np.asarray(data.torque)))) > 1:
             return ()
         return tuple(n for n in names if n not in tuple(self.effects or ()))

@@ -36,6 +36,8 @@ intrinsic effect with static features (stress relaxation: the position averaged 
 dynamics are held, so its columns join the largest regressor and the effect on is a
 column subset like any other candidate, scored on the same folds (end folds take the
 extrapolation rule on the effect's basis too); its columns count in the one-SE rule.
+identify switches them at the chosen structure, with reflex dynamics fitted with the
+effects' columns (``LPVPCEstimator._choose_effects``).
 """
 
 from __future__ import annotations
