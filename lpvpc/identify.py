@@ -629,9 +629,13 @@ class LPVPCEstimator:
         if self.effects and len(seg) > 1:
             raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
         if self.effects:  # extended model: the effects' columns join the intrinsic regressor
-            from .effects import EffectDesign, signals_from_data
+            from .effects import EffectDesign, default_signals, signals_from_data
 
-            design = EffectDesign(self.effects, p, rho, fs, lags, G_i, signals_from_data(data),
+            # the data's extra signals only when an effect reads them (the EMG's background
+            # activation costs as much as a fit; stress relaxation reads the position alone)
+            reads = {s for n in self.effects for s in CATALOG[n].signals + CATALOG[n].optional_signals}
+            design = EffectDesign(self.effects, p, rho, fs, lags, G_i,
+                                  signals_from_data(data) if reads else default_signals(rho, fs),
                                   source=getattr(data, "source", "") or "data", late=bool(late))
             Psi_i = np.hstack([Psi_i, design.columns])
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
