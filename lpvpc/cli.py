@@ -390,8 +390,8 @@ def _effects_cv_summary(entry) -> list:
         return []
     cv = entry.get("cv", {})
     return [f"effects cv:  {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
-            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}; +{cv[n]['n_params']} parameters)"
-            for n in entry["allowed"] if n in cv]
+            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}, reflex dynamics of a fit with it; "
+            f"+{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
 
 
 def _relaxation_summary(model) -> list:
@@ -399,9 +399,12 @@ def _relaxation_summary(model) -> list:
     entry = (model.fit or {}).get("stiffness")
     if not entry:
         return []
-    at = lambda v: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, entry["scheduling"]))  # noqa: E731
-    return [f"stiffness:   {e['label']}: {at(e['values'])} {e['unit']}"
-            for e in (entry["short_range"], entry["relaxed"])]
+    def at(e):
+        ok = e.get("determined", [True] * len(e["values"]))
+        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else f"{x:.1f} (not determined by these data) at {p:+.3f}"
+                         for x, p, good in zip(e["values"], entry["scheduling"], ok))
+
+    return [f"stiffness:   {e['label']}: {at(e)} {e['unit']}" for e in (entry["short_range"], entry["relaxed"])]
 
 
 def _physical_summary(model) -> list:

@@ -1196,6 +1196,12 @@ def relaxation_stiffness_entry(model, n: int = 5) -> dict:
     lo, hi = model.scheduling_range
     rho = np.linspace(lo, hi, n) if hi - lo > 1e-6 else np.array([lo])
     short, relaxed = relaxation_stiffnesses(model, rho)
+    # Stress relaxation lowers the torque of a held displacement: a relaxed stiffness outside
+    # (0, short-range] is the averages' steady state extrapolated beyond what the record's
+    # holds show (lab stationary trials, whose perturbation holds last well under the 3-s
+    # average: -20 and 183 N m/rad next to 154 and 156 short-range)
+    plausible = [bool(0.0 < r <= k) for r, k in zip(relaxed, short)]
     return {"scheduling": [float(x) for x in rho], "scheduling_unit": "rad",
             "short_range": {"label": SHORT_RANGE_LABEL, "unit": "N m/rad", "values": [float(x) for x in short]},
-            "relaxed": {"label": RELAXED_LABEL, "unit": "N m/rad", "values": [float(x) for x in relaxed]}}
+            "relaxed": {"label": RELAXED_LABEL, "unit": "N m/rad", "values": [float(x) for x in relaxed],
+                        "determined": plausible}}

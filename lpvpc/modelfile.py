@@ -403,6 +403,9 @@ def _check_stiffness(x, where, problems, d):
             problems.append(f"{where}.{key}.unit must be 'N m/rad', got {_show(k.get('unit'))}")
         values = _array(k.get("values"), f"{where}.{key}.values", problems, 1, [0])
         _shape(values, rho.shape, f"{where}.{key}.values", problems)
+        if "determined" in k and not (isinstance(k["determined"], list) and len(k["determined"]) == len(rho)
+                                      and all(isinstance(b, bool) for b in k["determined"])):
+            problems.append(f"{where}.{key}.determined must be a list of {len(rho)} true/false values")
 
 
 MAX_UNCERTAINTY_PARAMETERS = 1_000  # size p of the stored p x p covariance

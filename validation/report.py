@@ -366,8 +366,8 @@ def _physiology_table(model, level=0.95) -> str:
         from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL
 
         head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
-        for row, k in zip(rows, relaxed):
-            row.insert(2, f"{k:.1f}")
+        for row, k, short in zip(rows, relaxed, K):
+            row.insert(2, f"{k:.1f}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
     if has:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
