@@ -76,7 +76,8 @@ def main(first: int, n: int) -> None:
             entry = m.fit["structure_selection"]["effects"]
             chosen = EFFECT in entry["chosen"]
             counts[subject] += chosen
-            cv = entry["cv"][EFFECT]
+            # (not tried further when the first look, with the first fit's dynamics, showed < 1 % gain)
+            cv = entry["cv"].get(EFFECT, {"cv_vaf_on": float("nan"), "cv_vaf_off": float("nan")})
             v_on, v_off = novel_vaf(m, nv), novel_vaf(m0, nv)
             dv[subject].append(v_on - v_off)
             k = ""
