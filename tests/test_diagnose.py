@@ -64,7 +64,8 @@ SCENARIOS = {
     "reflex_habituation": (("reflex_habituation",), {}, "reflex_habituation", 1),
     "activation_reflex_gain": (("activation_reflex_gain",), {}, "activation_reflex_gain", 0),
     "amplitude_dependent_stiffness": (("amplitude_dependent_stiffness",), {}, "amplitude_dependent_stiffness", 0),
-    "stress_relaxation": (("stress_relaxation",), {}, "stress_relaxation", 0),
+    # (not allowed to the selection, which otherwise chooses it itself: lpvpc.identify allow_effects)
+    "stress_relaxation": (("stress_relaxation",), {"allow_effects": ()}, "stress_relaxation", 0),
     "wrong_reflex_delay": ((), {"reflex_delay": 0.08}, "reflex_delay", 0),
     "irf_too_short": ((), {"irf_lags": 1}, "irf_length", 0),
     "intrinsic_order_too_low": ((), {"intrinsic_order": 2}, "intrinsic_basis_order", 2),
