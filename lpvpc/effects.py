@@ -1192,7 +1192,18 @@ def relaxation_stiffnesses(model, rho):
 
 def relaxation_stiffness_entry(model, n: int = 5) -> dict:
     """The model file's ``fit.stiffness`` entry: both stiffnesses, labelled, with units, at
-    ``n`` positions across the identified range (one on a stationary trial)."""
+    ``n`` positions across the identified range (one on a stationary trial).
+
+    >>> import types
+    >>> from lpvpc.basis import Basis
+    >>> fe = FittedEffect("stress_relaxation", Theta=np.array([[-5.0], [-3.0], [-2.0]]),
+    ...                   basis=Basis("chebyshev", 0, -0.1, -0.1 + 1e-9))
+    >>> model = types.SimpleNamespace(effects=[fe], scheduling_range=(-0.1, -0.1),
+    ...                               elastic_stiffness=lambda r: np.full(len(r), 50.0))
+    >>> e = relaxation_stiffness_entry(model)
+    >>> e["relaxed"]["label"], e["relaxed"]["unit"], e["relaxed"]["values"], e["relaxed"]["determined"]
+    ('relaxed stiffness (steady state, displacement held)', 'N m/rad', [40.0], [True])
+    """
     lo, hi = model.scheduling_range
     rho = np.linspace(lo, hi, n) if hi - lo > 1e-6 else np.array([lo])
     short, relaxed = relaxation_stiffnesses(model, rho)

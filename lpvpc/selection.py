@@ -144,7 +144,15 @@ def effect_candidates(names, p, rho, fs, family="chebyshev", intrinsic_order=5) 
     """The inputs of allowed effects as selection candidates: {name: (features (N, n_f), basis
     in position (lpvpc.basis.Basis), keep its constant function)}, with the effect's own
     basis order (lpvpc.effects.effect_basis) on the record's range. Raises ValueError for an
-    effect that cannot be a candidate (:func:`cv_effect_problem`)."""
+    effect that cannot be a candidate (:func:`cv_effect_problem`).
+
+    >>> p, rho = np.full(500, 0.02), np.linspace(-0.2, 0.1, 500)  # rad: a held displacement, a slow ramp
+    >>> F, basis, constant = effect_candidates(["stress_relaxation"], p, rho, 100.0)["stress_relaxation"]
+    >>> F.shape, basis.order, constant  # the position averaged over 0.3, 1 and 3 s; order 1 in rho
+    ((500, 3), 1, True)
+    >>> round(float(F[-1, 0]), 4)  # rad: the 0.3-s average has caught up with the displacement
+    0.02
+    """
     from .basis import NUMPY, basis_from_data
     from .effects import CATALOG, default_signals, effect_basis, effect_options, record_context
 
