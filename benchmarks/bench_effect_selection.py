@@ -9,8 +9,8 @@ previous default). Printed per seed: whether relaxation was chosen, its CV VAF o
 (%), the novel-trajectory VAF (%) of both fits on a novel trial of the same subject (with
 the effect when the identification record had it), and for a chosen effect the short-range
 and relaxed stiffness at the middle of the range against the truth (relaxed = 60 % of K).
-Seeds 0 and 1 were looked at while the feature was written; seeds 100-109 are the
-untuned set reported.
+Seeds 0, 1, 3, 100-103 and 107 were looked at while the choice was designed; 104-106,
+108 and 109 were not (report them separately).
 
 Run: python benchmarks/bench_effect_selection.py [first_seed n_seeds]
      (default 100 10; writes benchmarks/results/effect_selection.txt)
