@@ -33,6 +33,9 @@ Then what the structure's own settings reach (a wider delay x IRF grid by BIC, f
 state orders), what its residual holds (one extra column family fitted to it: linear
 long-memory, odd and even velocity terms, a slow low-pass of |v|) and in which frequency
 band the package's held-out error exceeds the flexible fit's.
+The first table also says per trial whether the cross-validation chose stress relaxation
+(allowed by default, issue 22) with the short-range and relaxed stiffness, and the held-out
+VAF without it (``allow_effects=()``).
 Writes benchmarks/results/real_stationary.txt.
 
 Run: python benchmarks/bench_real_stationary.py   (skips when the recordings or mat-io are absent)
@@ -380,9 +383,12 @@ def main():
              "# default settings; torque negated; 1 kHz decimated to 100 Hz",
              "# lpvpc: reflex delay = IRF half-width chosen by BIC among 40-80 ms on the first 70 % (delay ms);",
              "# lpvpc 40ms: the fixed 40 ms of moving trials (stationary_delays=(), the previous default)",
+             "# relax: stress relaxation chosen by the cross-validation (contiguous blocks of the first 70 %, one-SE",
+             "# rule; allowed by default); K short: the short-range stiffness (the model's K); K relaxed: the relaxed",
+             "# (steady-state) stiffness when chosen; no relax: held-out VAF with allow_effects=() (before it was allowed)",
              f"{'construction':22} {'trial':6} {'op. rad':>8} {'lpvpc':>7} {'causal':>7} {'40ms':>6} {'flexible':>9} "
              f"{'diff':>6} {'delay ms':>8} {'K N m/rad':>10} {'G N m s/rad':>11} {'K 40ms':>7} {'G 40ms':>7} "
-             f"{'lpvpc s':>8} {'flex s':>7}  note"]
+             f"{'lpvpc s':>8} {'flex s':>7} {'relax':>5} {'K short':>7} {'K relaxed':>9} {'no relax':>8}  note"]
     for construction in CONSTRUCTIONS:
         diffs = []
         for name in NAMES:
@@ -400,6 +406,13 @@ def main():
                 warnings.simplefilter("ignore", StationaryWarning)
                 m40 = identify(d.segment(0, k), stationary_delays=())
             v40 = vaf(d.torque[k:], m40.predict(d.position, d.scheduling, warn=False).total[k:])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", StationaryWarning)
+                m_off = identify(d.segment(0, k), allow_effects=())
+            v_off = vaf(d.torque[k:], m_off.predict(d.position, d.scheduling, warn=False).total[k:])
+            relaxed = m.fit.get("stiffness")
+            relax = (f"{'yes':>5} {relaxed['short_range']['values'][0]:7.1f} {relaxed['relaxed']['values'][0]:9.1f}"
+                     if relaxed else f"{'no':>5} {m.elastic_stiffness([d.scheduling[0]])[0]:7.1f} {'':>9}")
             pf, t_fl = flexible_prediction(trials, construction, name)
             held = d.torque[k:]
             v_pkg, v_fl = vaf(held, two), vaf(held, pf[k:])
@@ -410,7 +423,7 @@ def main():
                          f"{v_fl:9.2f} {v_pkg - v_fl:+6.2f} {1e3 * m.delay / m.fs:8.0f} "
                          f"{m.elastic_stiffness(op)[0]:10.1f} {m.reflex_gain_threshold(op)[0][0]:11.1f} "
                          f"{m40.elastic_stiffness(op)[0]:7.1f} {m40.reflex_gain_threshold(op)[0][0]:7.1f} "
-                         f"{t_pkg:8.2f} {t_fl:7.2f}  {note}")
+                         f"{t_pkg:8.2f} {t_fl:7.2f} {relax} {v_off:8.2f}  {note}")
         lines.append(f"{construction:22} lpvpc - flexible: median {np.median(diffs):+.2f}, worst {min(diffs):+.2f} points; "
                      f"lpvpc at least as good on {sum(x >= 0 for x in diffs)} of {len(diffs)}")
     lines += uncertainty_table(trials)

@@ -256,6 +256,20 @@ def _check_effect_names(names) -> tuple:
     return names
 
 
+def _check_allowed_effects(names) -> tuple:
+    """--allow-effect names ("none": no effect is offered to the selection)."""
+    from .selection import cv_effect_problem
+
+    if list(names) == ["none"]:
+        return ()
+    names = _check_effect_names(names)
+    for n in names:
+        problem = cv_effect_problem(n)
+        if problem:
+            raise _UsageError(f"--allow-effect: {problem}")
+    return names
+
+
 def cmd_identify(args) -> int:
     from .identify import LPVPCEstimator
 
@@ -263,6 +277,8 @@ def cmd_identify(args) -> int:
     settings = {k: getattr(args, k) for k in defaults if getattr(args, k, None) is not None}
     if "effects" in settings:
         settings["effects"] = _check_effect_names(settings["effects"])
+    if "allow_effects" in settings:
+        settings["allow_effects"] = _check_allowed_effects(settings["allow_effects"])
     if args.state_order == "auto":
         settings.pop("state_order")
     elif "state_order" in settings:
@@ -320,6 +336,8 @@ def cmd_identify(args) -> int:
         print(line)
     for line in _selection_summary(fit.get("structure_selection")):
         print(line)
+    for line in _relaxation_summary(model):
+        print(line)
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
@@ -354,7 +372,7 @@ def _selection_summary(sel) -> list:
     if not sel:
         return []
     if "skipped" in sel:
-        return [f"structure:   as given (not selected: {sel['skipped']})"]
+        return [f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
     short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
              "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
 
@@ -362,11 +380,17 @@ def _selection_summary(sel) -> list:
         return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
                          f"{short.get(k, k)} {v}" for k, v in s.items())
 
-    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}",
+    def effects(row):  # the allowed effects a row switches on (lpvpc.identify: on/off candidates)
+        return "" if "effects" not in row else f", effects {'+'.join(row['effects']) or 'none'}"
+
+    chosen_effects = sel["effects"]["chosen"] if sel.get("effects") else None
+    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}"
+             + ("" if chosen_effects is None else f", effects {'+'.join(chosen_effects) or 'none'}"),
              f"             {'CV VAF %':>9} {'params':>6}  structure"]
     for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
-        mark = "*" if row["settings"] == sel["chosen"] else " "
-        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}")
+        mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", chosen_effects or []) == (
+            chosen_effects or []) else " "
+        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}{effects(row)}")
     orders = sel.get("state_order", {})
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
@@ -376,7 +400,30 @@ def _selection_summary(sel) -> list:
         lines.append(f"             reflex nonlinearity by CV: {path['label']} (CV VAF % "
                      + ", ".join(f"{r['label']}: {r['cv_vaf']:.2f}" for r in path["table"]) + ")"
                      + (f"; {path['fallback']}" if path.get("fallback") else ""))
-    return lines
+    return lines + _effects_cv_summary(sel.get("effects"))
+
+
+def _effects_cv_summary(entry) -> list:
+    """Lines of the allowed effects' choice (lpvpc.identify: on/off candidates of the selection)."""
+    if not entry or not entry.get("allowed"):
+        return []
+    cv = entry.get("cv", {})
+    return [f"effects cv:  {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
+            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}, reflex dynamics of a fit with it; "
+            f"+{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
+
+
+def _relaxation_summary(model) -> list:
+    """Both elastic stiffnesses of a model with stress relaxation, labelled, with units."""
+    entry = (model.fit or {}).get("stiffness")
+    if not entry:
+        return []
+    def at(e):
+        ok = e.get("determined", [True] * len(e["values"]))
+        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else f"{x:.1f} (not determined by these data) at {p:+.3f}"
+                         for x, p, good in zip(e["values"], entry["scheduling"], ok))
+
+    return [f"stiffness:   {e['label']}: {at(e)} {e['unit']}" for e in (entry["short_range"], entry["relaxed"])]
 
 
 def _physical_summary(model) -> list:
@@ -992,6 +1039,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "linearly")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
+    p.add_argument("--allow-effect", dest="allow_effects", action="extend", nargs="+", default=None, metavar="NAME",
+                   help="an effect the cross-validation may switch on (repeatable; default stress_relaxation; "
+                        "'none': no effect)")
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_identify)
 

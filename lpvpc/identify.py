@@ -52,6 +52,15 @@ DESIGN_BUDGET_BYTES = 400e6
 #: against 3.7-6.9 % at the fixed settings; 45-s records 2.2-5.4 % against 2.7-4.9 %;
 #: 60-s records (seeds 0-3, five positions) within 2.5 %, as good or better.
 MIN_SELECTION_S = 45.0
+#: Effects structure="cv" may switch on (``allow_effects``): stress relaxation, on every
+#: record (docs/guide/structure_selection.md, "Effects chosen by cross-validation").
+DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
+#: An allowed effect is kept only if, beyond the one-standard-error rule, it lowers the
+#: cross-validated squared error by at least this fraction. Why: with 5-10 folds a tiny but
+#: consistent gain passes the paired rule (stationary virtual subject without relaxation, seed 0:
+#: +0.002 points of CV VAF, chosen), and an effect costs more than its parameters (an extended
+#: model carries no intervals; the FMU gets its states). Set on development seeds 0-1.
+MIN_EFFECT_GAIN = 0.01
 
 
 def _records_given_settings(init):
@@ -168,8 +177,15 @@ class LPVPCEstimator:
     scheduling_extrapolation : beyond the identified range of the scheduling variable the
         position bases are held at the boundary ("clip", default) or continued along their
         tangent ("linear"; :class:`lpvpc.basis.Basis`).
+    allow_effects : effects of the catalog that structure="cv" may switch on: each is an
+        on/off candidate of the same cross-validation (its columns join the largest
+        regressor; :mod:`lpvpc.selection`), on stationary trials scored on contiguous blocks
+        at the delay BIC chose. Default ``("stress_relaxation",)``; ``()``: none. Only
+        intrinsic effects with static features of the position qualify (ValueError
+        otherwise). Not used with structure="fixed", nor when ``effects`` are given (then
+        the structure is as given), nor on several trials joined.
     effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
-        model; default none). Intrinsic-pathway effects are estimated jointly with the
+        model; default none), always on. Intrinsic-pathway effects are estimated jointly with the
         intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
         after the reflex is identified. The data must carry the signals the effects need.
 
@@ -230,7 +246,9 @@ class LPVPCEstimator:
         structure: str = "cv",
         structure_fixed: tuple | None = None,
         scheduling_extrapolation: str = "clip",
+        allow_effects: tuple = DEFAULT_ALLOWED_EFFECTS,
     ):
+        self.allow_effects = allow_effects
         self.structure = structure
         self.structure_fixed = structure_fixed
         self.scheduling_extrapolation = scheduling_extrapolation
@@ -268,7 +286,7 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation")
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation", "allow_effects")
             } | {"structure_fixed": self._given_settings()}  # (a clone keeps what was given)
 
     def resolved_lags(self, fs: float) -> int:
@@ -324,6 +342,7 @@ class LPVPCEstimator:
             if self.structure not in ("fixed", "cv"):
                 raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
             _check_reflex_path_settings(self)
+            self._allowed_effects()  # a bad allow_effects is an error whatever the structure
             if self.structure == "cv":
                 return self._fit_selected(data)
             try:
@@ -372,8 +391,12 @@ class LPVPCEstimator:
         fixed = {"irf_length" if k == "irf_lags" else k for k in given}
         base = {**self.get_params(), "structure": "fixed", "structure_fixed": tuple(sorted(fixed))}
         reason = self._selection_unavailable(data)
+        offered = self._offered_effects(data)
         if reason is not None:
-            return self._fit_unselected(data, base, reason)
+            self._fit_unselected(data, base, reason)
+            if offered and reason.startswith("stationary") and not self.effects:  # (forced effects: as given)
+                self._choose_stationary_effects(data, base, offered)
+            return self
         first = LPVPCEstimator(**base)
         first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings(record=True) as caught:
@@ -409,14 +432,42 @@ class LPVPCEstimator:
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
                                                    self.basis, self.velocity_basis, Segments.of(data, len(y)))
         path = self._select_reflex_path(data, first, sel.chosen, order, bic_order, chosen_score, fixed)
+        effects_cv, effect_poles = None, None
+        if offered:
+            # Cheap first look (the first fit's dynamics, same folds): an effect that does not lower
+            # the CV error by MIN_EFFECT_GAIN even there is not given the extra fit (its cost was
+            # 2.2x the rest of the selection on a clean 2-minute record). Those dynamics took part of
+            # the relaxation, so they understate its gain; the extra fit then decides.
+            look = _effect_gains(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
+                                 self.velocity_basis, Segments.of(data, len(y)), sel.chosen, offered)
+            worth = tuple(n for n in offered if look[n] >= MIN_EFFECT_GAIN)
+            if worth:
+                effects_cv, effect_poles = self._choose_effects(data, {**base, **sel.chosen, "irf_lags": None,
+                                                                       "state_order": order}, sel.chosen, worth)
+            if effects_cv is None:
+                effects_cv = {"allowed": sorted(offered), "chosen": [], "cv": {},
+                              "first_look_gain": {n: float(g) for n, g in look.items()},
+                              "rule": f"not tried further: less than {100 * MIN_EFFECT_GAIN:g} % less CV squared "
+                                      f"error with the first fit's reflex dynamics"}
+            else:
+                effects_cv["first_look_gain"] = {n: float(g) for n, g in look.items()}
         t_select = time.perf_counter() - t
         # The chosen structure is fitted at that order, its poles refined from the first fit's
         # subspace step (the poles do not depend on the structure's columns; MOESP is a quarter
         # of a fit). The starting structure chosen: the same fit, with intervals.
+        if path is not None and path.chosen["high_rate_reflex"] and effects_cv and effects_cv["chosen"]:
+            # an extended model's reflex nonlinearity is fitted at the model rate (_high_rate_input)
+            path.chosen = {"high_rate_reflex": False}
+            path.fallback = (f"an extended model ({', '.join(effects_cv['chosen'])}) keeps the model-rate "
+                             "velocity")
         chosen = {**sel.chosen, "irf_lags": None, "state_order": order, **(path.chosen if path else {})}
+        if effects_cv and effects_cv["chosen"]:
+            chosen["effects"] = tuple(effects_cv["chosen"])
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
-        if sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
+        if effect_poles is not None and "effects" in chosen:  # from the effects' fit (below)
+            est._reuse = {"subspace": effect_poles[1], "poles": {order: effect_poles[0]}}
+        elif sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
         if path is not None and path.chosen["high_rate_reflex"]:
@@ -441,10 +492,106 @@ class LPVPCEstimator:
             from .structural_uncertainty import add_structural_uncertainty
 
             add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed))
+        if effects_cv:
+            model.fit["structure_selection"]["effects"] = effects_cv
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self
+
+    def _choose_effects(self, data, fit_settings, chosen, offered):
+        """The allowed effects on or off at the chosen structure (``chosen``, fitted with
+        ``fit_settings``), scored on the same folds (their columns joined to the structure's in
+        one design: column subsets), the one-standard-error rule and ``MIN_EFFECT_GAIN``. The
+        reflex dynamics held come from a fit of that structure with the effects' columns in
+        the subspace step's intrinsic regressor: held from the first fit, a slow reflex pole
+        had taken part of the relaxation and the effect looked useless (virtual subject seed 100:
+        CV gain +0.19 points, not chosen; +0.95 with these dynamics, chosen). Scored after the
+        structure, not inside its search, so a record without the effect gets exactly the model
+        it got before effects were allowed. Returns (record of the choice, (the effects' fit's A,
+        its subspace step)) or (None, None) when that fit fails (the effects' columns not
+        independent here)."""
+        from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+
+        t = time.perf_counter()
+        fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered)})
+        # its own subspace step: started from the first fit's (no effect columns) the pole refinement
+        # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
+        # 95.25; from its own, 97.19 and 96.13)
+        fit._reuse = {"bare": True}
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fit._fit(data, late=False)
+        except (LpvpcError, np.linalg.LinAlgError):
+            return None, None
+        e = fit.model_
+        p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
+        cands = effect_candidates(offered, p, rho, e.fs, self.basis, e.intrinsic_basis.order)
+        search = StructureSearch(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)), self.basis,
+                                 self.velocity_basis, {k: (chosen[k],) for k in SEARCH}, Segments.of(data, len(y)),
+                                 effects=cands)
+        off = {**chosen, **{effect_key(n): False for n in cands}}
+        pick = search.run(off, fixed=set(SEARCH)).chosen
+        sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
+        if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
+            pick = off
+        entry = _effects_cv(search, pick, cands)
+        entry["rule"] += f", and at least {100 * MIN_EFFECT_GAIN:g} % less held-out squared error"
+        entry["seconds"] = time.perf_counter() - t
+        return entry, (e.A, fit.subspace_)
+
+    def _allowed_effects(self) -> tuple:
+        """``allow_effects`` as a tuple of names, checked (ValueError naming a bad one)."""
+        from .selection import cv_effect_problem
+
+        names = (self.allow_effects,) if isinstance(self.allow_effects, str) else tuple(self.allow_effects or ())
+        for n in names:
+            problem = cv_effect_problem(n)
+            if problem:
+                raise ValueError(f"allow_effects: {problem}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"allow_effects lists an effect twice: {list(names)}")
+        return names
+
+    def _offered_effects(self, data) -> tuple:
+        """The allowed effects the selection offers on these data: those not forced on; none
+        for several trials joined (effects are identified from one trial)."""
+        names = self._allowed_effects()
+        if len(Segments.of(data, len(np.asarray(data.torque)))) > 1:
+            return ()
+        return tuple(n for n in names if n not in tuple(self.effects or ()))
+
+    def _choose_stationary_effects(self, data, base, offered) -> None:
+        """A stationary trial (one position, no level folds): the allowed effects on or off by
+        the same cross-validation on contiguous blocks (:meth:`_choose_effects`), at the
+        structure BIC chose (delay and IRF half-width, state order); an effect chosen: the
+        trial refitted with it at that structure."""
+        m = self.model_
+        fs = m.fs
+        settings = {**base, "reflex_delay": m.delay / fs, "irf_length": m.settings["irf_lags"] / fs,
+                    "stationary_delays": (), "state_order": m.state_order}
+        chosen = {"irf_length": settings["irf_length"], "intrinsic_order": m.intrinsic_basis.order,
+                  "reflex_order": m.reflex_rho_basis.order, "velocity_order": m.velocity_basis.order,
+                  "reflex_delay": settings["reflex_delay"], "elastic_curvature": m.curvature is not None,
+                  "scheduling_extrapolation": self.scheduling_extrapolation}
+        with warnings.catch_warnings():  # (the stationary warning was given by the first fit)
+            warnings.simplefilter("ignore", StationaryWarning)
+            entry, dyn = self._choose_effects(data, settings, chosen, offered)
+            if entry is None:
+                return
+            if entry["chosen"]:
+                est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"])})
+                est._reuse = {"subspace": dyn[1], "poles": {m.state_order: dyn[0]}}
+                est.fit(data)
+                est.model_.settings["stationary_delays"] = m.settings["stationary_delays"]  # the delay: BIC's
+                est.model_.settings["state_order"] = self.state_order  # (chosen by BIC)
+                if "stationary_delay_bic" in m.fit:
+                    est.model_.fit["stationary_delay_bic"] = m.fit["stationary_delay_bic"]
+                est.model_.settings["structure"] = "cv"
+                est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
+                self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
+        self.model_.fit["structure_selection"]["effects"] = entry
 
     def _given_settings(self) -> tuple:
         """Names of the selected settings the caller set: structure_fixed, or those named in the call."""
@@ -564,9 +711,13 @@ class LPVPCEstimator:
         if self.effects and len(seg) > 1:
             raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
         if self.effects:  # extended model: the effects' columns join the intrinsic regressor
-            from .effects import EffectDesign, signals_from_data
+            from .effects import EffectDesign, default_signals, signals_from_data
 
-            design = EffectDesign(self.effects, p, rho, fs, lags, G_i, signals_from_data(data),
+            # the data's extra signals only when an effect reads them (the EMG's background
+            # activation costs as much as a fit; stress relaxation reads the position alone)
+            reads = {s for n in self.effects for s in CATALOG[n].signals + CATALOG[n].optional_signals}
+            design = EffectDesign(self.effects, p, rho, fs, lags, G_i,
+                                  signals_from_data(data) if reads else default_signals(rho, fs),
                                   source=getattr(data, "source", "") or "data", late=bool(late))
             Psi_i = np.hstack([Psi_i, design.columns])
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
@@ -651,7 +802,9 @@ class LPVPCEstimator:
             curvature=curvature,
             settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
                       "stationary_delays": [float(c) for c in self.stationary_delays],  # JSON: lists
-                      "structure_fixed": list(self.structure_fixed or ())},
+                      "structure_fixed": list(self.structure_fixed or ()),
+                      "allow_effects": ([self.allow_effects] if isinstance(self.allow_effects, str)
+                                        else list(self.allow_effects or ()))},
             provenance=_provenance(data),
             conventions=_conventions(data),
         )
@@ -709,6 +862,10 @@ class LPVPCEstimator:
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
         }
+        if design is not None and any(fe.name == "stress_relaxation" for fe in model.effects):
+            from .effects import relaxation_stiffness_entry
+
+            model.fit["stiffness"] = relaxation_stiffness_entry(model)  # short-range and relaxed, labelled
         if not bare:
             check_physiology(model)
         self.model_ = model
@@ -1046,6 +1203,34 @@ def _provenance(data) -> dict:
         "casadi_version": casadi.__version__,
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def _effects_cv(search, chosen: dict, cands: dict) -> dict:
+    """The record of the allowed effects' choice: which were allowed and chosen, and the CV VAF
+    (%) of the chosen structure with each effect on and off (same folds)."""
+    from .selection import chosen_effects, effect_key
+
+    on = chosen_effects(chosen)
+    table = {}
+    for n in cands:
+        with_, without = (search.score({**chosen, effect_key(n): v}) for v in (True, False))
+        table[n] = {"cv_vaf_on": float(with_.cv_vaf), "cv_vaf_off": float(without.cv_vaf),
+                    "n_params": int(with_.n_params - without.n_params)}
+    return {"allowed": sorted(cands), "chosen": on, "cv": table,
+            "rule": "on/off candidates of the same cross-validation, one-standard-error rule toward fewer parameters"}
+
+
+def _effect_gains(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered) -> dict:
+    """{effect: fraction by which it lowers the cross-validated squared error of the structure
+    ``chosen``} with the given reflex dynamics (same folds as the selection)."""
+    from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+
+    cands = effect_candidates(offered, p, rho, fs, family, chosen["intrinsic_order"])
+    search = StructureSearch(p, y, rho, fs, dynamics, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
+                             segments, effects=cands)
+    off = {**chosen, **{effect_key(n): False for n in cands}}
+    sse_off = float(search.score(off).fold_sse.sum())
+    return {n: 1.0 - float(search.score({**off, effect_key(n): True}).fold_sse.sum()) / sse_off for n in cands}
 
 
 def identify(data, **settings) -> LPVPCModel:

@@ -367,10 +367,15 @@ def _check_settings(x, where, problems, d, budget):
                 limit="MAX_DELAY samples")
     if "effects" in s and not isinstance(s["effects"], (list, tuple)):
         problems.append(f"{where}.effects must be a list of effect names")
+    if "allow_effects" in s and not (isinstance(s["allow_effects"], (list, tuple))
+                                     and all(isinstance(n, str) for n in s["allow_effects"])):
+        problems.append(f"{where}.allow_effects must be a list of effect names")
 
 
 def _check_fit(x, where, problems, d, budget):
     f = _dict(x, where, problems)
+    if "stiffness" in f:
+        _check_stiffness(f["stiffness"], f"{where}.stiffness", problems, d)
     if "velocity_p99" in f:
         _number(f["velocity_p99"], f"{where}.velocity_p99", problems)
     if "data_density" in f:  # figures only; its own budget (not FMU parameters)
@@ -385,6 +390,24 @@ def _check_fit(x, where, problems, d, budget):
         _shape(counts, (len(e_r) - 1, len(e_v) - 1), f"{where}.data_density.counts", problems)
         if np.any(counts < 0):
             problems.append(f"{where}.data_density.counts must be non-negative")
+
+
+def _check_stiffness(x, where, problems, d):
+    """``fit.stiffness`` of a model with stress relaxation (lpvpc.effects.relaxation_stiffness_entry):
+    the short-range and relaxed stiffness, each labelled, in N m/rad, at the same positions."""
+    e = _dict(x, where, problems, required=True)
+    rho = _array(e.get("scheduling"), f"{where}.scheduling", problems, 1, [0])
+    for key in ("short_range", "relaxed"):
+        k = _dict(e.get(key), f"{where}.{key}", problems, required=True)
+        if not isinstance(k.get("label"), str) or not k["label"]:
+            problems.append(f"{where}.{key}.label must be a non-empty text")
+        if k.get("unit") != "N m/rad":
+            problems.append(f"{where}.{key}.unit must be 'N m/rad', got {_show(k.get('unit'))}")
+        values = _array(k.get("values"), f"{where}.{key}.values", problems, 1, [0])
+        _shape(values, rho.shape, f"{where}.{key}.values", problems)
+        if "determined" in k and not (isinstance(k["determined"], list) and len(k["determined"]) == len(rho)
+                                      and all(isinstance(b, bool) for b in k["determined"])):
+            problems.append(f"{where}.{key}.determined must be a list of {len(rho)} true/false values")
 
 
 MAX_UNCERTAINTY_PARAMETERS = 1_000  # size p of the stored p x p covariance

@@ -28,6 +28,16 @@ settings until no change lowers the cross-validated error, then picks, among eve
 structure it scored, the one with the fewest parameters whose error is within one
 standard error of the best (the paired standard error over folds of its difference
 from the best: the one-standard-error rule toward the simpler structure).
+
+Effects the caller allows (``effects=`` of :class:`StructureSearch`; identify's
+``allow_effects``) are on/off candidates of the same search, setting ``effect:NAME``: an
+intrinsic effect with static features (stress relaxation: the position averaged over
+0.3, 1 and 3 s, times a basis in position) is linear in its coefficients once the reflex
+dynamics are held, so its columns join the largest regressor and the effect on is a
+column subset like any other candidate, scored on the same folds (end folds take the
+extrapolation rule on the effect's basis too); its columns count in the one-SE rule.
+identify switches them at the chosen structure, with reflex dynamics fitted with the
+effects' columns (``LPVPCEstimator._choose_effects``).
 """
 
 from __future__ import annotations
@@ -72,6 +82,92 @@ def search_space(start: dict, fixed=()) -> dict:
     space = {k: tuple(sorted({*SEARCH[k], start[k]}, key=str)) for k in SEARCH}
     space.update({k: (start[k],) for k in fixed if k in SEARCH})
     return space
+
+
+EFFECT_PREFIX = "effect:"
+
+
+def effect_key(name: str) -> str:
+    """The search's setting that switches an allowed effect on or off.
+
+    >>> effect_key("stress_relaxation")
+    'effect:stress_relaxation'
+    """
+    return EFFECT_PREFIX + name
+
+
+def chosen_effects(settings: dict) -> list:
+    """Names of the effects a structure's settings switch on.
+
+    >>> chosen_effects({"intrinsic_order": 3, "effect:stress_relaxation": True, "effect:drift": False})
+    ['stress_relaxation']
+    """
+    return [k[len(EFFECT_PREFIX):] for k, v in settings.items() if k.startswith(EFFECT_PREFIX) and v]
+
+
+def structure_settings(settings: dict) -> dict:
+    """The settings without the effect switches (the estimator settings identify records as
+    ``chosen``; the effects are recorded next to them).
+
+    >>> structure_settings({"intrinsic_order": 3, "effect:stress_relaxation": True})
+    {'intrinsic_order': 3}
+    """
+    return {k: v for k, v in settings.items() if not k.startswith(EFFECT_PREFIX)}
+
+
+def cv_effect_problem(name: str) -> str | None:
+    """Why the catalog effect ``name`` cannot be a candidate of the selection (None: it can).
+    Candidates are intrinsic effects with static features from the position alone: linear
+    in their coefficients with the reflex held, so their columns join the largest regressor.
+
+    >>> cv_effect_problem("stress_relaxation") is None, cv_effect_problem("drift") is not None
+    (True, True)
+    """
+    from .effects import CATALOG
+
+    e = CATALOG.get(name)
+    if e is None:
+        return f"unknown effect {name!r}; known: {sorted(CATALOG)}"
+    if e.features is None or e.channels is not None or e.uses_reflex or e.signals or e.optional_signals:
+        return (f"effect {name!r} cannot be chosen by the cross-validation (only intrinsic effects with static "
+                f"features of the position alone can: "
+                f"{', '.join(n for n in CATALOG if _eligible(CATALOG[n]))}); to force it on, name it as an effect (effects= in Python, --effect on the command line)")
+    return None
+
+
+def _eligible(e) -> bool:
+    return e.features is not None and e.channels is None and not e.uses_reflex and not e.signals \
+        and not e.optional_signals
+
+
+def effect_candidates(names, p, rho, fs, family="chebyshev", intrinsic_order=5) -> dict:
+    """The inputs of allowed effects as selection candidates: {name: (features (N, n_f), basis
+    in position (lpvpc.basis.Basis), keep its constant function)}, with the effect's own
+    basis order (lpvpc.effects.effect_basis) on the record's range. Raises ValueError for an
+    effect that cannot be a candidate (:func:`cv_effect_problem`).
+
+    >>> p, rho = np.full(500, 0.02), np.linspace(-0.2, 0.1, 500)  # rad: a held displacement, a slow ramp
+    >>> F, basis, constant = effect_candidates(["stress_relaxation"], p, rho, 100.0)["stress_relaxation"]
+    >>> F.shape, basis.order, constant  # the position averaged over 0.3, 1 and 3 s; order 1 in rho
+    ((500, 3), 1, True)
+    >>> round(float(F[-1, 0]), 4)  # rad: the 0.3-s average has caught up with the displacement
+    0.02
+    """
+    from .basis import NUMPY, basis_from_data
+    from .effects import CATALOG, default_signals, effect_basis, effect_options, record_context
+
+    out = {}
+    for name in names:
+        problem = cv_effect_problem(name)
+        if problem:
+            raise ValueError(problem)
+        e = CATALOG[name]
+        sig = default_signals(rho, fs, None)
+        ctx = record_context(np.asarray(p, dtype=float), np.asarray(rho, dtype=float), fs, sig, derived=e.derived)
+        F = np.column_stack([np.asarray(f, dtype=float).reshape(-1) for f in e.features(ctx, NUMPY,
+                                                                                      effect_options(e, sig))])
+        out[name] = (F, effect_basis(e, basis_from_data(rho, family, intrinsic_order)), bool(e.feature_constant))
+    return out
 
 
 def design_columns(search: dict, fs: float) -> int:
@@ -164,10 +260,13 @@ class Selection:
     def to_dict(self) -> dict:
         chosen = next(s for s in self.scored if s.settings == self.chosen)
         return {"method": f"leave-one-{self.fold_kind}-out cross-validation ({self.n_folds} folds), one-standard-error "
-                          f"rule toward fewer parameters", "chosen": _jsonable(self.chosen),
-                "start": _jsonable(self.start), "chosen_cv_vaf": float(chosen.cv_vaf),
-                "best": _jsonable(self.best), "fold_kind": self.fold_kind, "n_folds": int(self.n_folds),
-                "table": [{**s.to_dict(), "settings": _jsonable(s.settings)} for s in self.table()],
+                          f"rule toward fewer parameters", "chosen": _jsonable(structure_settings(self.chosen)),
+                "start": _jsonable(structure_settings(self.start)), "chosen_cv_vaf": float(chosen.cv_vaf),
+                "best": _jsonable(structure_settings(self.best)), "fold_kind": self.fold_kind,
+                "n_folds": int(self.n_folds),
+                "table": [{**s.to_dict(), "settings": _jsonable(structure_settings(s.settings)),
+                           **({"effects": chosen_effects(s.settings)} if len(structure_settings(s.settings))
+                              < len(s.settings) else {})} for s in self.table()],
                 "n_scored": len(self.scored)}
 
 
@@ -197,14 +296,16 @@ class _Design:
     narrower, its rows' Gram matrices under each extrapolation rule (``end[rule][f]``)."""
 
     def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments,
-                 reflex_input=None):
+                 reflex_input=None, effects=None):
         self.p, self.rho, self.fs, (self.A, self.C, self.bd) = p, rho, fs, dynamics
         self.seg = segments
         self.L_max, self.ni_max, self.nr_max, self.nv_max, self.delays = top
         self.delays = list(self.delays)
+        self.effects = dict(effects or {})  # name -> (features, basis, keep constant): columns after the zero one
         lo, hi = float(np.min(rho)), float(np.max(rho))
-        self.G_i = Basis(family, self.ni_max, lo, hi)
-        self.G_r = Basis(family, self.nr_max, lo, hi)
+        top_hi = max(hi, lo + 1e-9)  # a stationary trial: one position
+        self.G_i = Basis(family, self.ni_max, lo, top_hi)
+        self.G_r = Basis(family, self.nr_max, lo, top_hi)
         # reflex_input (one delay): U_r from a scheduling basis, in place of the model-rate
         # velocity's (the high-rate path: lpvpc.reflex.HighRateReflexInput, nv_max + 1 velocity functions)
         self.reflex_input = reflex_input
@@ -232,6 +333,10 @@ class _Design:
                                          _held_basis(self.G_r, rho, t_lo, t_hi, rule), r,
                                          _Evaluates(lambda x, a=t_lo, b=t_hi, u=rule: _held_basis(self.G_r, x, a, b, u)
                                                     - self.G_r.evaluate(x)))
+                for name, (F, eff_basis, const) in self.effects.items():  # the effect's basis takes the rule too
+                    dG = (_held_basis(eff_basis, rho[r], t_lo, t_hi, rule)
+                          - eff_basis.evaluate(rho[r]))[:, 0 if const else 1:]
+                    Xe[:, self.effect_cols[name]] += (F[r][:, :, None] * dG[:, None, :]).reshape(len(r), -1)
                 self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
         del X
 
@@ -241,7 +346,7 @@ class _Design:
         range, so the reflex filters start from rest at the first such row: a window, not the record)."""
         dGi, dGr = Gi_held - Gi, Gr_held - Gr
         changed = np.flatnonzero(np.any(dGi != 0, axis=1) | np.any(dGr != 0, axis=1))
-        out = np.zeros((len(r), self.n_cols))
+        out = np.zeros((len(r), self.n_cols))  # (the effects' change: added by the caller)
         if changed.size == 0:
             return out
         # the window: from the first change (the input is zero before it; rows before it change
@@ -274,7 +379,15 @@ class _Design:
         n_lag = (2 * self.L_max + 1) * Gi.shape[1]
         n_ref = V_cols = (self.nv_max + 1) * Gr.shape[1]
         self.n_cols = n_lag + Gi.shape[1] + len(self.V) * n_ref + 1
+        effect_blocks, self.effect_cols = {}, {}
+        for name, (F, eff_basis, const) in self.effects.items():  # after the zero column: the indices above stay
+            G = eff_basis.evaluate(self.rho)[:, 0 if const else 1:]
+            effect_blocks[name] = (F[:, :, None] * G[:, None, :]).reshape(len(self.p), -1)
+            self.effect_cols[name] = np.arange(self.n_cols, self.n_cols + effect_blocks[name].shape[1])
+            self.n_cols += effect_blocks[name].shape[1]
         X = np.zeros((len(self.p), self.n_cols))
+        for name, block in effect_blocks.items():
+            X[:, self.effect_cols[name]] = block
         X[:, :n_lag] = self.seg.map(intrinsic_regressor, self.p, Gi, lags=two_sided_lags(self.L_max))
         X[:, n_lag : n_lag + Gi.shape[1]] = curvature_regressor(self.p, Gi, basis or self.G_i)
         col = n_lag + Gi.shape[1]
@@ -317,6 +430,11 @@ def _mapped(G, b, idx, cur):
     return Gc, b[..., idx] + b[..., cur]
 
 
+def _zero_column(D) -> int:
+    """Index of the largest regressor's zero column (the curvature share of columns without one)."""
+    return (2 * D.L_max + 1) * (D.ni_max + 1) + (D.ni_max + 1) + len(D.delays) * (D.nv_max + 1) * (D.nr_max + 1)
+
+
 class StructureSearch:
     """Cross-validated scores of structures on one record, given the reflex dynamics.
 
@@ -348,9 +466,14 @@ class StructureSearch:
     """
 
     def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None,
-                 segments=None, reflex_input=None):
+                 segments=None, reflex_input=None, effects=None):
         self.fs = float(fs)
         self.search = dict(SEARCH if search is None else search)
+        # allowed effects (effect_candidates): on/off settings of the same search
+        self.effects = dict(effects or {})
+        for name in self.effects:
+            self.search.setdefault(effect_key(name), (False, True))
+        self.keys = [*SEARCH, *(effect_key(n) for n in self.effects)]
         self.y = np.asarray(y, dtype=float)
         self.labels, self.kind = level_folds(rho, fs)
         self.n_folds = int(self.labels.max()) + 1
@@ -361,7 +484,8 @@ class StructureSearch:
         self.design = _Design(np.asarray(p, dtype=float), self.y, np.asarray(rho, dtype=float), fs, self.labels,
                               self.n_folds, family, velocity_family, dynamics, top,
                               self.search["scheduling_extrapolation"],
-                              segments if segments is not None else Segments((), len(self.y)), reflex_input)
+                              segments if segments is not None else Segments((), len(self.y)), reflex_input,
+                              self.effects)
         self.yy = np.array([self.y[self.labels == f] @ self.y[self.labels == f] for f in range(self.n_folds)])
         self.sst = float(np.sum((self.y - self.y.mean()) ** 2))
         self._cache = {}
@@ -372,12 +496,20 @@ class StructureSearch:
         d = max(1, int(round(settings["reflex_delay"] * self.fs)))
         if L > d or L not in self.lags or d not in self.delays:
             return None
-        key = tuple(sorted((k, settings[k]) for k in SEARCH))
+        on = chosen_effects(settings)
+        if any(n not in self.effects for n in on):
+            return None
+        settings = {**{k: False for k in self.keys if k.startswith(EFFECT_PREFIX)},
+                    **{k: v for k, v in settings.items() if k in SEARCH or k.startswith(EFFECT_PREFIX)}}
+        key = tuple(sorted((k, settings[k]) for k in self.keys))
         if key in self._cache:
             return self._cache[key]
         D = self.design
         idx, cur = D.columns(L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], d,
                              bool(settings["elastic_curvature"]))
+        if on:  # the effects' columns (no curvature share: the zero column)
+            extra = np.concatenate([D.effect_cols[n] for n in on])
+            idx, cur = np.r_[idx, extra], np.r_[cur, np.full(len(extra), _zero_column(D))]
         Gc, bc = _mapped(D.G, D.b, idx, cur)  # (K, n, n), (K, n): each fold's rows
         Gt, bt = Gc.sum(axis=0) - Gc, bc.sum(axis=0) - bc  # each fold's training rows
         s = np.sqrt(np.maximum(np.einsum("kii->ki", Gt), 1e-300))
@@ -393,8 +525,8 @@ class StructureSearch:
     def run(self, start: dict, fixed=(), max_sweeps: int = 3) -> Selection:
         """Coordinate search from ``start`` over the settings not in ``fixed``, then the
         one-standard-error rule over every structure scored."""
-        current = {k: start[k] for k in SEARCH}
-        free = [k for k in SEARCH if k not in fixed]
+        current = {k: start.get(k, False) if k.startswith(EFFECT_PREFIX) else start[k] for k in self.keys}
+        free = [k for k in self.keys if k not in fixed]
         first = self.score(current)
         if first is None:
             raise ValueError(f"the starting structure is not valid for selection: {current}")
@@ -425,7 +557,7 @@ class StructureSearch:
 
 
 def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order: int, bic_score: Scored,
-                         family="chebyshev", velocity_family="chebyshev", segments=None):
+                         family="chebyshev", velocity_family="chebyshev", segments=None, effects=None):
     """The reflex state order by cross-validation: the chosen structure scored (same folds)
     under the reflex dynamics of each other order the first fit tried (``dynamics``: order ->
     (A, C, [B; D])). BIC's order stays unless another predicts the left-out folds better by
@@ -454,8 +586,9 @@ def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order:
     scores = {bic_order: bic_score}
     for order, dyn in dynamics.items():
         if order != bic_order:
+            on = {n: effects[n] for n in chosen_effects(chosen)} if effects else None  # the chosen effects' columns
             search = StructureSearch(p, y, rho, fs, dyn, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
-                                     segments)
+                                     segments, effects=on)
             scores[order] = search.score(chosen)
     best = min(scores, key=lambda k: float(scores[k].fold_sse.sum()))
     K = len(bic_score.fold_sse)

@@ -361,6 +361,13 @@ def _physiology_table(model, level=0.95) -> str:
              cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
     head = ["position rho (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)",
             "reflex gain (N m s/rad)", "reflex threshold (rad/s)"]
+    relaxed = _relaxed_stiffness(model, rho)
+    if relaxed is not None:  # stress relaxation chosen: both stiffnesses, each labelled
+        from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL
+
+        head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
+        for row, k, short in zip(rows, relaxed, K):
+            row.insert(2, f"{k:.1f}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
     if has:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
@@ -373,7 +380,21 @@ def _physiology_table(model, level=0.95) -> str:
                 f"on 100 Hz velocity, reflex threshold 92 % on 1 kHz velocity (on 100 Hz velocity not determined).")
     else:
         note = _no_intervals_note(model)
+    if relaxed is not None:
+        note += (" Stress relaxation was chosen by the structure's cross-validation: right after a displacement the "
+                 "joint resists with the short-range stiffness; held for seconds, part of that torque relaxes and "
+                 "the relaxed stiffness remains.")
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
+
+
+def _relaxed_stiffness(model, rho):
+    """The relaxed (steady-state) stiffness (N m/rad) at ``rho`` of a model with stress
+    relaxation, else None."""
+    if not any(fe.name == "stress_relaxation" for fe in getattr(model, "effects", None) or ()):
+        return None
+    from lpvpc.effects import relaxation_stiffnesses
+
+    return relaxation_stiffnesses(model, rho)[1]
 
 
 def _no_intervals_note(model) -> str:

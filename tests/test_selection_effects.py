@@ -1,0 +1,158 @@
+"""Effects chosen per record by the structure's cross-validation (issue 22, decision 1):
+stress relaxation is an on/off candidate of the default selection. Chosen on a record of
+the virtual subject that has it, not chosen on a clean one (moving and stationary
+records); when chosen, the short-range and relaxed stiffness are in the identify summary,
+the model file (round trip) and the validation report, each labelled, in N m/rad; a bad
+``--allow-effect`` is one line and exit 2.
+
+The records are the files a user would have: simulated, written as CSV by ``lpvpc
+simulate`` and read by ``lpvpc identify``.
+"""
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from lpvpc.cli import main
+from lpvpc.data import pair_trials, stationary_perturbation
+from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffnesses
+from lpvpc.identify import identify
+from lpvpc.model import LPVPCModel
+from lpvpc.modelfile import check_model_dict
+from lpvpc.simulate import simulate_pair
+
+EFFECT = "stress_relaxation"
+SEED = 1  # a development seed (benchmarks/bench_effect_selection.py reports seeds 100-109)
+
+
+def _quiet_identify(data, **settings):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return identify(data, **settings)
+
+
+@pytest.fixture(scope="module")
+def relaxation_run(tmp_path_factory):
+    """``lpvpc simulate`` with stress relaxation, then ``lpvpc identify`` at defaults: (model
+    path, identify's printed summary)."""
+    folder = tmp_path_factory.mktemp("relaxation")
+    sim = folder / "sim"
+    assert main(["simulate", "--out", str(sim), "--seed", str(SEED), "--fs", "100", "--duration", "120",
+                 "--effect", EFFECT, "-q"]) == 0
+    out = folder / "model.json"
+    proc = subprocess.run([sys.executable, "-m", "lpvpc.cli", "identify", "--pt", str(sim / "ident_PT.csv"),
+                           "--ut", str(sim / "ident_UT.csv"), "-o", str(out)], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return out, proc.stdout
+
+
+def test_relaxation_chosen_on_a_record_with_it(relaxation_run):
+    path, _ = relaxation_run
+    model = LPVPCModel.load(path)
+    entry = model.fit["structure_selection"]["effects"]
+    assert entry["allowed"] == [EFFECT] and entry["chosen"] == [EFFECT]
+    assert entry["cv"][EFFECT]["cv_vaf_on"] > entry["cv"][EFFECT]["cv_vaf_off"]
+    assert [fe.name for fe in model.effects] == [EFFECT]
+    # the torque relaxes: the relaxed stiffness is below the short-range one at every position
+    # (the subject keeps 60 % of it)
+    short, relaxed = relaxation_stiffnesses(model, np.linspace(*model.scheduling_range, 5))
+    assert np.all(relaxed < short) and np.all(relaxed > 0.2 * short)
+
+
+def test_summary_shows_both_stiffnesses_labelled(relaxation_run):
+    _, out = relaxation_run
+    lines = out.splitlines()
+    short = [ln for ln in lines if SHORT_RANGE_LABEL in ln]
+    relaxed = [ln for ln in lines if RELAXED_LABEL in ln]
+    assert len(short) == len(relaxed) == 1
+    assert short[0].rstrip().endswith("N m/rad") and relaxed[0].rstrip().endswith("N m/rad")
+    assert any(ln.startswith("effects cv:") and f"{EFFECT} chosen" in ln for ln in lines)
+
+
+def test_model_file_holds_both_stiffnesses_and_round_trips(relaxation_run, tmp_path):
+    path, _ = relaxation_run
+    d = json.loads(path.read_text())
+    entry = d["fit"]["stiffness"]
+    assert entry["short_range"]["label"] == SHORT_RANGE_LABEL and entry["relaxed"]["label"] == RELAXED_LABEL
+    assert entry["short_range"]["unit"] == entry["relaxed"]["unit"] == "N m/rad"
+    model = LPVPCModel.load(path)
+    short, relaxed = relaxation_stiffnesses(model, np.array(entry["scheduling"]))
+    assert np.allclose(entry["short_range"]["values"], short) and np.allclose(entry["relaxed"]["values"], relaxed)
+    again = tmp_path / "again.json"
+    model.save(again)
+    assert json.loads(again.read_text())["fit"]["stiffness"] == entry
+    assert LPVPCModel.load(again).to_dict() == model.to_dict()
+    # a file whose entry is broken is refused, naming the entry
+    bad = json.loads(path.read_text())
+    bad["fit"]["stiffness"]["relaxed"]["values"] = bad["fit"]["stiffness"]["relaxed"]["values"][:-1]
+    with pytest.raises(Exception, match="fit.stiffness.relaxed.values"):
+        check_model_dict(bad)
+    bad = json.loads(path.read_text())
+    bad["fit"]["stiffness"]["short_range"]["unit"] = "N m/deg"
+    with pytest.raises(Exception, match="fit.stiffness.short_range.unit"):
+        check_model_dict(bad)
+
+
+def test_validation_report_table_shows_both_stiffnesses(relaxation_run):
+    from validation.report import _physiology_table
+
+    model = LPVPCModel.load(relaxation_run[0])
+    html = _physiology_table(model)
+    assert f"{SHORT_RANGE_LABEL}, K (N m/rad)" in html and f"{RELAXED_LABEL} (N m/rad)" in html
+
+
+def test_not_chosen_on_a_clean_record():
+    sim = simulate_pair("multilevel", seed=SEED, duration=120.0, fs_out=100.0)
+    model = _quiet_identify(pair_trials(sim.pt, sim.ut))
+    assert model.fit["structure_selection"]["effects"]["chosen"] == []
+    assert not model.effects and "stiffness" not in model.fit
+    assert model.uncertainty  # a model without the effect keeps its intervals
+
+
+@pytest.mark.parametrize("effects, chosen", [((EFFECT,), [EFFECT]), ((), [])])
+def test_stationary_trial_chooses_on_contiguous_blocks(effects, chosen):
+    sim = simulate_pair("stationary", seed=SEED, duration=60.0, fs_out=100.0, effects=effects)
+    model = _quiet_identify(stationary_perturbation(sim.pt))
+    sel = model.fit["structure_selection"]
+    assert sel["skipped"].startswith("stationary") and sel["effects"]["chosen"] == chosen
+    if chosen:  # one operating position: one value each; the subject keeps 60 % (within 25 % of that)
+        e = model.fit["stiffness"]
+        ratio = e["relaxed"]["values"][0] / e["short_range"]["values"][0]
+        assert len(e["scheduling"]) == 1 and 0.45 < ratio < 0.75
+
+
+def test_allow_effects_off_and_structure_fixed_offer_nothing():
+    sim = simulate_pair("stationary", seed=SEED, duration=60.0, fs_out=100.0, effects=(EFFECT,))
+    data = stationary_perturbation(sim.pt)
+    off = _quiet_identify(data, allow_effects=())
+    assert not off.effects and "effects" not in off.fit["structure_selection"]
+    fixed = _quiet_identify(data, structure="fixed")
+    assert not fixed.effects and "structure_selection" not in fixed.fit
+    forced = _quiet_identify(data, effects=(EFFECT,), allow_effects=())  # named by the user: always on
+    assert [fe.name for fe in forced.effects] == [EFFECT] and "stiffness" in forced.fit
+
+
+def test_python_bad_allowed_effect_is_a_clear_error():
+    sim = simulate_pair("stationary", seed=SEED, duration=20.0, fs_out=100.0)
+    data = stationary_perturbation(sim.pt)
+    with pytest.raises(ValueError, match="unknown effect 'bogus'"):
+        identify(data, allow_effects=("bogus",))
+    with pytest.raises(ValueError, match="'drift' cannot be chosen by the cross-validation"):
+        identify(data, allow_effects=("drift",))
+
+
+@pytest.mark.parametrize("name, says", [("bogus", "unknown effect 'bogus'"),
+                                        ("drift", "cannot be chosen by the cross-validation")])
+def test_cli_bad_allowed_effect_is_one_line_exit_2(tmp_path, name, says):
+    proc = subprocess.run([sys.executable, "-m", "lpvpc.cli", "identify", "--pt", str(tmp_path / "missing.csv"),
+                           "--allow-effect", name, "-o", str(tmp_path / "m.json")], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and "Traceback" not in proc.stderr
+    assert not (tmp_path / "m.json").exists()
