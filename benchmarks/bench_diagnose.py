@@ -62,7 +62,26 @@ EFFECT_SEEDS = range(2) if QUICK else range(3) if PERTURBATION != "pralds" else 
 if "--seeds" in sys.argv:
     _h0, _eff = (int(x) for x in sys.argv[sys.argv.index("--seeds") + 1].split(","))
     H0_SEEDS, EFFECT_SEEDS = range(_h0), range(_eff)
+if "--clean" in sys.argv:  # --clean A,B: section 1 alone on clean seeds A..B-1 (printed; with --dump)
+    H0_SEEDS = range(*(int(x) for x in sys.argv[sys.argv.index("--clean") + 1].split(",")))
 RESULTS_FILE = "diagnose.txt" if PERTURBATION == "pralds" else f"diagnose_{PERTURBATION}.txt"
+# --dump PATH: every diagnosed record's candidates (gain, p, availability) and base VAFs appended
+# as JSON lines, so significance rules can be compared on the same fits without refitting.
+DUMP = sys.argv[sys.argv.index("--dump") + 1] if "--dump" in sys.argv else None
+
+
+def dump(section, name, seed, d):
+    if DUMP is None:
+        return
+    import json
+
+    rec = {"design": PERTURBATION, "section": section, "hidden": name, "seed": seed, "vaf": d.vaf,
+           "surrogate_vaf": d.surrogate_vaf, "used": d.design,
+           "candidates": [{"effect": c.effect, "kind": c.kind, "available": bool(c.available),
+                           "gain": float(c.vaf_gain), "p": float(c.p_value), "significant": bool(c.significant),
+                           "rank": i + 1} for i, c in enumerate(d.candidates)]}
+    with open(DUMP, "a") as fh:
+        fh.write(json.dumps(rec) + "\n")
 
 # The issue-23 subject: activation that changes within seconds (0.5 Hz), scaling the
 # elastic torque of perturbations up to 2.5x and the reflex gain up to 2x, in both trials' EMG.
@@ -245,6 +264,7 @@ def detection(say, scenarios, clean_vaf):
             ident, novel = pairs(seed, effects, params=SCENARIO_PARAMS.get(name))
             ladder = improve(ident, novel, settings=settings)
             d = ladder.rungs[0].diagnosis
+            dump("effect", name, seed, d)
             names = [c.effect for c in d.candidates]
             rank = names.index(expected) + 1 if expected in names else None
             c = d.candidates[rank - 1]
@@ -337,6 +357,7 @@ def false_alarms(say, clean_vaf):
         ident, novel = pairs(seed)
         model = identify(ident)
         d = diagnose(model, novel)
+        dump("clean", "none", seed, d)
         clean_vaf[seed] = d.vaf
         top = d.candidates[0]
         alarms += bool(d.significant)
@@ -365,11 +386,11 @@ def main():
     t_all = time.perf_counter()
     clean_vaf = {}
     if ONLY:
-        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
+        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k or ONLY == "all"}
         if chosen:
             detection(say, chosen, clean_vaf)
             update_rows(chosen, lines, target=RESULTS_FILE, section="## 2. Hidden effect: rank, significance, and the improve loop")
-        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k}
+        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k or ONLY == "all"}
         if chosen:
             outside(say, chosen)
             update_rows(chosen, lines, target=RESULTS_FILE, section=SECTION3)
@@ -540,6 +561,11 @@ def speed_only():
     write_results("diagnose_speed.txt", lines)
 
 
+def clean_only():
+    """``--clean A,B``: section 1 alone on seeds A..B-1, printed (recorded through --dump)."""
+    false_alarms(print, {})
+
+
 if __name__ == "__main__":
-    (speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
+    (clean_only() if "--clean" in sys.argv else speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
      else relaxation_why() if "--relaxation-why" in sys.argv else main())
