@@ -239,6 +239,8 @@ def speed(say):
     t0 = time.perf_counter()
     identify(ident)
     say(f"for scale: one identification of the same record {time.perf_counter() - t0:.2f} s")
+    say(f"load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (shared machine: "
+        "times scale with it)")
     say("")
 
 
