@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 
 from lpvpc.data import Trial, pair_trials  # noqa: E402
 from lpvpc.diagnose import diagnose  # noqa: E402
+from lpvpc.diagnose_candidates import SMALL_GAIN, STRONG_EVIDENCE  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.improve import improve  # noqa: E402
 from lpvpc.model import vaf  # noqa: E402
@@ -62,7 +63,26 @@ EFFECT_SEEDS = range(2) if QUICK else range(3) if PERTURBATION != "pralds" else 
 if "--seeds" in sys.argv:
     _h0, _eff = (int(x) for x in sys.argv[sys.argv.index("--seeds") + 1].split(","))
     H0_SEEDS, EFFECT_SEEDS = range(_h0), range(_eff)
+if "--clean" in sys.argv:  # --clean A,B: section 1 alone on clean seeds A..B-1 (printed; with --dump)
+    H0_SEEDS = range(*(int(x) for x in sys.argv[sys.argv.index("--clean") + 1].split(",")))
 RESULTS_FILE = "diagnose.txt" if PERTURBATION == "pralds" else f"diagnose_{PERTURBATION}.txt"
+# --dump PATH: every diagnosed record's candidates (gain, p, availability) and base VAFs appended
+# as JSON lines, so significance rules can be compared on the same fits without refitting.
+DUMP = sys.argv[sys.argv.index("--dump") + 1] if "--dump" in sys.argv else None
+
+
+def dump(section, name, seed, d):
+    if DUMP is None:
+        return
+    import json
+
+    rec = {"design": PERTURBATION, "section": section, "seeds": f"{H0_SEEDS.start}-{H0_SEEDS.stop - 1}", "hidden": name, "seed": seed, "vaf": d.vaf,
+           "surrogate_vaf": d.surrogate_vaf, "used": d.design,
+           "candidates": [{"effect": c.effect, "kind": c.kind, "available": bool(c.available),
+                           "gain": float(c.vaf_gain), "p": float(c.p_value), "significant": bool(c.significant),
+                           "rank": i + 1} for i, c in enumerate(d.candidates)]}
+    with open(DUMP, "a") as fh:
+        fh.write(json.dumps(rec) + "\n")
 
 # The issue-23 subject: activation that changes within seconds (0.5 Hz), scaling the
 # elastic torque of perturbations up to 2.5x and the reflex gain up to 2x, in both trials' EMG.
@@ -219,6 +239,8 @@ def speed(say):
     t0 = time.perf_counter()
     identify(ident)
     say(f"for scale: one identification of the same record {time.perf_counter() - t0:.2f} s")
+    say(f"load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (shared machine: "
+        "times scale with it)")
     say("")
 
 
@@ -245,6 +267,7 @@ def detection(say, scenarios, clean_vaf):
             ident, novel = pairs(seed, effects, params=SCENARIO_PARAMS.get(name))
             ladder = improve(ident, novel, settings=settings)
             d = ladder.rungs[0].diagnosis
+            dump("effect", name, seed, d)
             names = [c.effect for c in d.candidates]
             rank = names.index(expected) + 1 if expected in names else None
             c = d.candidates[rank - 1]
@@ -337,6 +360,7 @@ def false_alarms(say, clean_vaf):
         ident, novel = pairs(seed)
         model = identify(ident)
         d = diagnose(model, novel)
+        dump("clean", "none", seed, d)
         clean_vaf[seed] = d.vaf
         top = d.candidates[0]
         alarms += bool(d.significant)
@@ -349,7 +373,8 @@ def false_alarms(say, clean_vaf):
             f"{dep['vaf_gain']:+.3f} | {dep['p_value']:.1e} | {'YES' if d.signal_finding else 'no'} |")
     say("")
     say(f"seeds with any significant candidate: {alarms} of {len(H0_SEEDS)}; largest top gain {max_gain:+.3f} pp "
-        f"(threshold {d.settings['min_gain']} pp, alpha {d.settings['alpha']} Bonferroni)")
+        f"(threshold {d.settings['min_gain']} pp, or {SMALL_GAIN * d.settings['min_gain']:.2f} pp at a p-value "
+        f"{STRONG_EVIDENCE:g} times smaller; alpha {d.settings['alpha']} Bonferroni)")
     say(f"seeds whose answer names a signal (probe test: the same thresholds, Bonferroni over {len(d.dependence)} "
         f"probes): {named} of {len(H0_SEEDS)}; largest top probe gain {max_probe:+.3f} pp")
     say("")
@@ -365,11 +390,11 @@ def main():
     t_all = time.perf_counter()
     clean_vaf = {}
     if ONLY:
-        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k}
+        chosen = {k: v for k, v in SCENARIOS.items() if ONLY in k or ONLY == "all"}
         if chosen:
             detection(say, chosen, clean_vaf)
             update_rows(chosen, lines, target=RESULTS_FILE, section="## 2. Hidden effect: rank, significance, and the improve loop")
-        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k}
+        chosen = {k: v for k, v in OUT_OF_CATALOG.items() if ONLY in k or ONLY == "all"}
         if chosen:
             outside(say, chosen)
             update_rows(chosen, lines, target=RESULTS_FILE, section=SECTION3)
@@ -540,6 +565,87 @@ def speed_only():
     write_results("diagnose_speed.txt", lines)
 
 
+# Significance rules compared on the same fits (--rules): name -> (min_gain (pp) or None,
+# min_gain as a share of the base's held-out residual variance or None, Bonferroni family
+# "all" or "effects", the small-gain tier (share of min_gain, evidence factor) or None).
+RULES = {
+    "0.15 pp (before)": (0.15, None, "all", None),
+    "0.15 pp, Bonferroni over effects only": (0.15, None, "effects", None),
+    "0.10 pp": (0.10, None, "all", None),
+    "5 % of residual": (None, 0.05, "all", None),
+    "7 % of residual": (None, 0.07, "all", None),
+    "0.15 pp, or 0.09 at p/10 (now)": (0.15, None, "all", (0.6, 10.0)),
+}
+
+
+def _rule_significant(rec, rule):
+    """The candidates of a dumped diagnosis significant under ``rule`` (marginal test, no
+    conditional ranking or leak check: the first candidate named is the largest of them)."""
+    abs_gain, rel_gain, family, tier = rule
+    cands = [c for c in rec["candidates"] if c["available"]]
+    n = max(1, len([c for c in cands if family == "all" or c["kind"] == "effect"]))
+    level = 0.1 / n
+    g0 = abs_gain if abs_gain is not None else rel_gain * (100.0 - rec["surrogate_vaf"])
+    return [c for c in cands if c["p"] <= level and (c["gain"] >= g0 or (
+        tier is not None and c["gain"] >= tier[0] * g0 and c["p"] <= level / tier[1]))]
+
+
+def compare_rules(paths):
+    """``--rules FILE...``: the dumps (--dump) of sections 1 and 2 judged by every rule of RULES.
+    Writes results/diagnose_significance.txt."""
+    import json
+
+    recs = [json.loads(ln) for p in paths for ln in open(p)]
+    expect = {k: v[2] for k, v in SCENARIOS.items()}
+    lines = ["Significance rules compared on the same fits (python benchmarks/bench_diagnose.py --rules "
+             + " ".join(Path(p).name for p in paths) + "; the dumps from --dump runs of sections 1 and 2). "
+             "Marginal test of every candidate: p below 0.1 / n (Bonferroni) and the gain rule; the first "
+             "candidate named is the largest significant one. Cells: clean records with any significant "
+             "candidate / records; hidden effects: the right candidate named first / seeds.", ""]
+    names = list(RULES)
+    lines += ["| design | hidden | seeds | " + " | ".join(names) + " |", "|---" * (3 + len(names)) + "|"]
+    keys = []
+    for r in recs:
+        k = (r["design"], r["hidden"] if r["section"] == "effect" else f"none (clean seeds {r['seeds']})")
+        if k not in keys:
+            keys.append(k)
+    for k in keys:
+        group = [r for r in recs if (r["design"], r["hidden"] if r["section"] == "effect"
+                                     else f"none (clean seeds {r['seeds']})") == k]
+        cells = []
+        for name in names:
+            if group[0]["section"] == "clean":
+                cells.append(f"{sum(bool(_rule_significant(r, RULES[name])) for r in group)}/{len(group)}")
+            else:
+                hit = 0
+                for r in group:
+                    sig = _rule_significant(r, RULES[name])
+                    hit += bool(sig) and max(sig, key=lambda c: c["gain"])["effect"] == expect[r["hidden"]]
+                cells.append(f"{hit}/{len(group)}")
+        lines.append(f"| {k[0]} | {k[1]} | {sorted({r['seed'] for r in group})[0]}-{sorted({r['seed'] for r in group})[-1]} | "
+                     + " | ".join(cells) + " |")
+    lines.append("")
+    for design in dict.fromkeys(r["design"] for r in recs):
+        runs = [r for r in recs if r["design"] == design and r["section"] == "clean"]
+        clean = [(c, r["seed"]) for r in runs for c in r["candidates"] if c["available"]]
+        strong = [(c, r["seed"]) for r in runs for c in r["candidates"] if c["available"]
+                  and c["p"] <= 0.1 / sum(x["available"] for x in r["candidates"]) / 10]
+        for label, pool in (("largest clean gain", clean), ("largest clean gain at p below a tenth of the level", strong)):
+            if pool:
+                c, seed = max(pool, key=lambda t: t[0]["gain"])
+                lines.append(f"{design}: {label} {c['gain']:+.3f} pp ({c['effect']}, p = {c['p']:.1e}, seed {seed}) "
+                             f"over {len(runs)} seeds")
+    for ln in lines:
+        print(ln)
+    write_results("diagnose_significance.txt", lines)
+
+
+def clean_only():
+    """``--clean A,B``: section 1 alone on seeds A..B-1, printed (recorded through --dump)."""
+    false_alarms(print, {})
+
+
 if __name__ == "__main__":
-    (speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
+    (compare_rules(sys.argv[sys.argv.index("--rules") + 1:]) if "--rules" in sys.argv
+     else clean_only() if "--clean" in sys.argv else speed_only() if "--speed" in sys.argv else activation_why() if "--activation-why" in sys.argv
      else relaxation_why() if "--relaxation-why" in sys.argv else main())

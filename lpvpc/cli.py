@@ -292,6 +292,9 @@ def cmd_identify(args) -> int:
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, channel_skew=_channel_skew(args.channel_skew_ms))
     t0 = time.perf_counter()
+    from .effects import with_base_model_activation
+
+    data = with_base_model_activation(data, settings)  # activation as predict estimates it (one extra fit)
     est = LPVPCEstimator(**settings)
     # most fits take a second or two: a line only when this one takes longer
     with _progress_after(IDENTIFY_QUIET_S, f"identify: fitting {data.n} samples at {data.fs:g} Hz"

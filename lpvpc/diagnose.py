@@ -31,7 +31,9 @@ Two questions (see :func:`diagnose`):
    means over 2-s blocks (the residual is coloured, samples are not independent); extra
    parameters are accounted for because every residual is held out. A candidate is
    significant when its p-value is below alpha / n_candidates (Bonferroni, alpha = 0.1) AND
-   its gain is at least ``min_gain`` (0.15) pp: a real but negligible improvement is not an
+   its gain is at least ``min_gain`` (0.15) pp, or 0.6 x min_gain with a p-value ten times
+   below the level (:func:`lpvpc.diagnose_candidates.passes`: effects that carry little
+   torque, such as reflex habituation): a real but negligible improvement is not an
    alarm. (The thresholds were set on the virtual subject; benchmarks/bench_diagnose.py
    records the false-alarm and detection rates they give.)
 

@@ -627,6 +627,29 @@ def with_model_activation(data, model):
     return dataclasses.replace(data, extra=new)
 
 
+def reads_activation(effects) -> bool:
+    """Whether any of the catalog effects ``effects`` reads a background-activation estimate."""
+    wanted = {"activation", "emg_ut"}
+    return any(wanted & (set(CATALOG[n].signals) | set(CATALOG[n].optional_signals)) for n in effects if n in CATALOG)
+
+
+def with_base_model_activation(data, settings):
+    """``data`` ready for identifying a model with ``settings`` (estimator settings): when its
+    effects read the background activation, the estimates computed with the reflex drive of
+    a base model (the same settings without effects; one extra fit) and stored
+    (:func:`with_model_activation`), as predict, diagnose and improve estimate them.
+    Without it the extended model was fitted on the velocity-hinge estimate and
+    evaluated on the drive's. Unchanged otherwise (no such effect, no EMG, estimates stored)."""
+    extra = getattr(data, "extra", None) or {}
+    if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
+            or _has_backgrounds(extra)):
+        return data
+    from .identify import LPVPCEstimator
+
+    base = LPVPCEstimator(**{**settings, "effects": ()}).fit(data).model_
+    return with_model_activation(data, base)
+
+
 def quiet_mask(position, fs, after=QUIET_AFTER_STEP) -> np.ndarray:
     """True where no perturbation movement happened in the last ``after`` s: samples whose
     EMG holds no reflex-evoked burst (the burst comes ~40 ms after a velocity pulse and
@@ -648,6 +671,22 @@ def _slow_time_basis(n, fs, resolution):
     T = max(n / fs, 1e-9)
     k = np.arange(max(1, int(round(T / resolution))) + 1)
     return np.cos(np.pi * np.outer(t, k) / T)
+
+
+def fast_drive(drive, fs, window_s=1.0) -> np.ndarray:
+    """The reflex drive's bursts: ``drive`` less its ``window_s`` moving average, rectified.
+
+    A burst lasts tens of ms; what the drive does over seconds the EMG cannot tell from
+    tonic activation, so only its fast part explains bursts and its slow part is left to
+    the tonic estimate. On the slow movement of a held-out record the model's drive can be
+    mostly slow (73 % of its variance over 1 s on lab_pulses seed 0): fitted whole, the
+    lagged drive took half the unperturbed trial's activation (estimate error 70 %, 11 %
+    with the fast part; bench_diagnose.py --activation-why)."""
+    drive = np.asarray(drive, dtype=float)
+    w = max(1, int(round(window_s * fs)))
+    if len(drive) <= w:
+        return drive
+    return np.maximum(drive - np.convolve(drive, np.ones(w) / w, mode="same"), 0.0)
 
 
 def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_LAG,
@@ -689,7 +728,7 @@ def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_L
     T = _slow_time_basis(n, fs, BURST_TONIC_S)  # the tonic level
     Tg = _slow_time_basis(n, fs, gain_s)  # the bursts' gain
     if drive is not None:  # the model's own reflex drive: delayed, rectified, position-gained already
-        hinges, R = [per_lag(np.asarray(drive, dtype=float))], np.ones((n, 1))
+        hinges, R = [per_lag(fast_drive(drive, fs))], np.ones((n, 1))
     else:
         # the reflex sees the joint's whole velocity: the slow movement's fast transitions fire it too
         joint = np.asarray(position, dtype=float) + (0.0 if scheduling is None else np.asarray(scheduling, dtype=float))

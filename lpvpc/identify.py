@@ -1244,7 +1244,9 @@ def identify(data, **settings) -> LPVPCModel:
     >>> bool(np.all(np.abs(K / SubjectParams().K(np.array([-0.2, 0.0])) - 1) < 0.15))
     True
     """
-    return LPVPCEstimator(**settings).fit(data).model_
+    from .effects import with_base_model_activation  # activation as predict estimates it
+
+    return LPVPCEstimator(**settings).fit(with_base_model_activation(data, settings)).model_
 
 
 def __getattr__(name):

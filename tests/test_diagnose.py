@@ -510,3 +510,17 @@ def test_settings_the_models_cross_validation_chose_are_not_re_decided_on_held_o
     given = identify(ident, irf_lags=1)  # the user's IRF: judged on the held-out record
     c = {c.effect: c for c in diagnose(given, novel).candidates}["irf_length"]
     assert c.available and c.significant
+
+
+def test_amplitude_dependence_is_not_a_candidate_when_every_step_has_one_size():
+    """Under a PRBS every displacement is +-A: amplitude-dependent stiffness cannot be told
+    from stiffness (its columns p|p|, p^3 are A p, A^2 p but for the transitions), so it is
+    not scored, with the reason; under PRALDS (levels of every size) it is."""
+    for design, available in (("prbs", False), ("pralds", True)):
+        ident, held = (pair_trials(p.pt, p.ut) for p in (
+            simulate_pair(kind, seed=3, duration=30.0, fs_out=100.0, perturbation=design)
+            for kind in ("multilevel", "novel")))
+        c = next(c for c in diagnose(identify(ident, structure="fixed"), held).candidates
+                 if c.effect == "amplitude_dependent_stiffness")
+        assert c.available is available, (design, c.reason)
+        assert available or "one size" in c.reason

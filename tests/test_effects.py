@@ -25,7 +25,9 @@ def rich():
     """A 60-s record with every catalog effect switched on (EMG of both trials) and the
     model with every effect identified from it."""
     pair = simulate_pair("multilevel", seed=4, effects=ALL, duration=60.0)
-    data = pair_trials(pair.pt, pair.ut)
+    # the activation estimates identify fits on (a base model's reflex drive), stored in the
+    # data so every test below evaluates the model on what it was fitted with
+    data = fx.with_base_model_activation(pair_trials(pair.pt, pair.ut), {"effects": ALL})
     model = identify(data, effects=ALL)
     return data, model
 
@@ -359,3 +361,25 @@ def test_a_saved_activation_model_predicts_with_the_activation_it_was_fitted_wit
     assert abs(got - as_fitted) < 0.3 < as_fitted - hinges, (got, as_fitted, hinges)
     np.testing.assert_array_equal(record_signals(model, held)["activation"],
                                   fx.signals_from_data(held, model)["activation"])
+
+
+def test_identify_fits_activation_effects_on_the_base_models_drive():
+    """identify (and `lpvpc identify`) with an effect reading the background activation
+    estimate it with a base model's reflex drive first (one extra fit), as predict,
+    diagnose and improve do: the same model as fitting on with_model_activation by hand, not
+    the one fitted on the velocity-hinge estimate; effects that read no activation and
+    records without EMG are fitted as they are."""
+    pair = simulate_pair("multilevel", seed=1, effects=("background_activation",), duration=40.0, fs_out=100.0)
+    data = pair_trials(pair.pt, pair.ut)
+    E = ("background_activation",)
+    got = identify(data, structure="fixed", effects=E)
+    by_hand = identify(fx.with_model_activation(data, identify(data, structure="fixed")), structure="fixed", effects=E)
+    hinges = LPVPCEstimator(structure="fixed", effects=E).fit(data).model_
+    out = [m.predict(data.position, data.scheduling, warn=False, signals=fx.signals_from_data(data, got)).total
+           for m in (got, by_hand, hinges)]
+    np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-9 * np.abs(out[1]).max())
+    assert np.abs(out[0] - out[2]).max() > 1e-3 * np.abs(out[2]).max()
+    assert "emg_background" not in data.extra  # the user's data are left as they were
+    assert fx.with_base_model_activation(data, {"effects": ("drift",)}) is data
+    bare = pair_trials(*(type(t)(t.time, t.position, t.torque, {}, t.name) for t in (pair.pt, pair.ut)))
+    assert fx.with_base_model_activation(bare, {"effects": E}) is bare
