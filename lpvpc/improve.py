@@ -23,7 +23,7 @@ import numpy as np
 
 from .diagnose import Diagnosis, diagnose, format_table
 from .diagnose_candidates import _variant_text
-from .effects import CATALOG, signals_from_data, with_model_activation
+from .effects import CATALOG, reads_activation, signals_from_data, with_model_activation
 from .identify import LPVPCEstimator
 from .model import vaf
 from .progress import report
@@ -153,14 +153,23 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
     current = rung(0, label0, {}, settings, effects)
     # every step changes one thing from the base's structure: the one its cross-validation
     # chose (an extended model is not selected: it would fall back to the default structure)
-    chosen = (current.model.fit.get("structure_selection") or {}).get("chosen")
+    # (its structure, the reflex path and the effects it switched on: a later rung refitted
+    # without them would change two things at once)
+    selected = current.model.fit.get("structure_selection") or {}
+    chosen = selected.get("chosen")
     if chosen:
-        settings = {**settings, **chosen, "state_order": current.model.fit["state_order"], "structure": "fixed"}
+        path = (selected.get("reflex_path") or {}).get("chosen") or {}
+        settings = {**settings, **chosen, **path, "state_order": current.model.fit["state_order"],
+                    "structure": "fixed"}
         current.settings = dict(settings)
+        effects = effects + tuple(e for e in (selected.get("effects") or {}).get("chosen", ()) if e not in effects)
+        if effects != current.effects:
+            current.effects = effects
+            current.label = "base model + " + ", ".join(effects)
     # the background activation from the EMG, its reflex bursts explained by the base model's
     # own reflex drive: computed once, so every rung is fitted and scored on the same estimate
     ident, heldout = (with_model_activation(d, current.model) for d in (ident, heldout))
-    if effects:  # the base's own effects may read the activation: refit on the estimate
+    if reads_activation(effects):  # the base's own effects read the activation: refit on the estimate
         current = rung(0, label0, {}, settings, effects)
     diagnose_rung(current)
     ladder.rungs.append(current)

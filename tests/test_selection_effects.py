@@ -156,3 +156,20 @@ def test_cli_bad_allowed_effect_is_one_line_exit_2(tmp_path, name, says):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and says in lines[0] and "Traceback" not in proc.stderr
     assert not (tmp_path / "m.json").exists()
+
+
+def test_improve_keeps_the_effect_the_base_selection_chose():
+    """``improve`` refits every step at the base model's chosen structure; an effect its
+    selection switched on stays in every step (it had been dropped: two changes in one step)."""
+    from lpvpc.improve import improve
+
+    pairs = [pair_trials(*(lambda s: (s.pt, s.ut))(simulate_pair(kind, seed=s, duration=120.0, fs_out=100.0,
+                                                                  effects=(EFFECT,))))
+             for kind, s in (("multilevel", SEED), ("novel", SEED + 1))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ladder = improve(*pairs, max_steps=1)
+    base = ladder.rungs[0]
+    assert base.model.fit["structure_selection"]["effects"]["chosen"] == [EFFECT]
+    assert base.effects == (EFFECT,) and base.label == f"base model + {EFFECT}"
+    assert all(EFFECT in r.effects and EFFECT in [fe.name for fe in r.model.effects] for r in ladder.rungs)
