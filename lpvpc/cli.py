@@ -292,7 +292,7 @@ def cmd_identify(args) -> int:
     data = _load_data(args, target_fs=target_fs, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, channel_skew=_channel_skew(args.channel_skew_ms))
     t0 = time.perf_counter()
-    from .effects import with_base_model_activation
+    from .identify import with_base_model_activation
 
     data = with_base_model_activation(data, settings)  # activation as predict estimates it (one extra fit)
     est = LPVPCEstimator(**settings)

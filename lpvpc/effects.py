@@ -628,26 +628,13 @@ def with_model_activation(data, model):
 
 
 def reads_activation(effects) -> bool:
-    """Whether any of the catalog effects ``effects`` reads a background-activation estimate."""
+    """Whether any of the catalog effects ``effects`` reads a background-activation estimate.
+
+    >>> reads_activation(("background_activation",)), reads_activation(("stress_relaxation",))
+    (True, False)
+    """
     wanted = {"activation", "emg_ut"}
     return any(wanted & (set(CATALOG[n].signals) | set(CATALOG[n].optional_signals)) for n in effects if n in CATALOG)
-
-
-def with_base_model_activation(data, settings):
-    """``data`` ready for identifying a model with ``settings`` (estimator settings): when its
-    effects read the background activation, the estimates computed with the reflex drive of
-    a base model (the same settings without effects; one extra fit) and stored
-    (:func:`with_model_activation`), as predict, diagnose and improve estimate them.
-    Without it the extended model was fitted on the velocity-hinge estimate and
-    evaluated on the drive's. Unchanged otherwise (no such effect, no EMG, estimates stored)."""
-    extra = getattr(data, "extra", None) or {}
-    if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
-            or _has_backgrounds(extra)):
-        return data
-    from .identify import LPVPCEstimator
-
-    base = LPVPCEstimator(**{**settings, "effects": ()}).fit(data).model_
-    return with_model_activation(data, base)
 
 
 def quiet_mask(position, fs, after=QUIET_AFTER_STEP) -> np.ndarray:
@@ -681,7 +668,13 @@ def fast_drive(drive, fs, window_s=1.0) -> np.ndarray:
     the tonic estimate. On the slow movement of a held-out record the model's drive can be
     mostly slow (73 % of its variance over 1 s on lab_pulses seed 0): fitted whole, the
     lagged drive took half the unperturbed trial's activation (estimate error 70 %, 11 %
-    with the fast part; bench_diagnose.py --activation-why)."""
+    with the fast part; bench_diagnose.py --activation-why).
+
+    >>> slow = np.linspace(0.0, 1.0, 300)  # a ramp over 3 s at 100 Hz: no burst
+    >>> burst = slow.copy(); burst[150:153] += 2.0  # a 30-ms burst on it
+    >>> float(fast_drive(slow, 100.0)[100:200].max()) < 0.01, float(fast_drive(burst, 100.0)[151]) > 1.9
+    (True, True)
+    """
     drive = np.asarray(drive, dtype=float)
     w = max(1, int(round(window_s * fs)))
     if len(drive) <= w:

@@ -1233,6 +1233,31 @@ def _effect_gains(p, y, rho, fs, dynamics, family, velocity_family, segments, ch
     return {n: 1.0 - float(search.score({**off, effect_key(n): True}).fold_sse.sum()) / sse_off for n in cands}
 
 
+def with_base_model_activation(data, settings):
+    """``data`` ready for identifying a model with ``settings`` (estimator settings): when its
+    effects read the background activation, the estimates computed with the reflex drive of
+    a base model (the same settings without effects; one extra fit) and stored
+    (:func:`with_model_activation`), as predict, diagnose and improve estimate them.
+    Without it the extended model was fitted on the velocity-hinge estimate and
+    evaluated on the drive's. Unchanged otherwise (no such effect, no EMG, estimates stored).
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> with_base_model_activation(data, {"effects": ("stress_relaxation",)}) is data  # reads no activation
+    True
+    """
+    from .effects import _has_backgrounds, reads_activation, with_model_activation
+
+    extra = getattr(data, "extra", None) or {}
+    if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
+            or _has_backgrounds(extra)):
+        return data
+    base = LPVPCEstimator(**{**settings, "effects": ()}).fit(data).model_
+    return with_model_activation(data, base)
+
+
 def identify(data, **settings) -> LPVPCModel:
     """Identify an LPV-PC model with the given estimator settings; returns the model.
 
@@ -1244,8 +1269,6 @@ def identify(data, **settings) -> LPVPCModel:
     >>> bool(np.all(np.abs(K / SubjectParams().K(np.array([-0.2, 0.0])) - 1) < 0.15))
     True
     """
-    from .effects import with_base_model_activation  # activation as predict estimates it
-
     return LPVPCEstimator(**settings).fit(with_base_model_activation(data, settings)).model_
 
 

@@ -201,7 +201,8 @@ def test_improve_report(tmp_path):
     assert "nonlinear_viscosity" in ladder.table().splitlines()[1]  # the base rung names the next step
     # the step keeps the structure the base model's cross-validation chose (the extended model is not selected)
     chosen = base.model.fit["structure_selection"]["chosen"]
-    assert final.settings == {**chosen, "state_order": base.model.fit["state_order"], "structure": "fixed"}
+    path = (base.model.fit["structure_selection"].get("reflex_path") or {}).get("chosen", {})  # 1 kHz records
+    assert final.settings == {**chosen, **path, "state_order": base.model.fit["state_order"], "structure": "fixed"}
     assert final.model.settings["intrinsic_order"] == chosen["intrinsic_order"]
     assert final.model.settings["irf_lags"] == round(chosen["irf_length"] * final.model.fs)
     summary = ladder.to_dict()

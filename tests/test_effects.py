@@ -13,6 +13,7 @@ from lpvpc import export
 from lpvpc.cli import main
 from lpvpc.data import pair_trials
 from lpvpc.errors import DataError
+from lpvpc.identify import with_base_model_activation
 from lpvpc.identify import LPVPCEstimator, identify
 from lpvpc.model import LPVPCModel, vaf
 from lpvpc.simulate import simulate_pair, write_dataset
@@ -27,7 +28,7 @@ def rich():
     pair = simulate_pair("multilevel", seed=4, effects=ALL, duration=60.0)
     # the activation estimates identify fits on (a base model's reflex drive), stored in the
     # data so every test below evaluates the model on what it was fitted with
-    data = fx.with_base_model_activation(pair_trials(pair.pt, pair.ut), {"effects": ALL})
+    data = with_base_model_activation(pair_trials(pair.pt, pair.ut), {"effects": ALL})
     model = identify(data, effects=ALL)
     return data, model
 
@@ -380,6 +381,6 @@ def test_identify_fits_activation_effects_on_the_base_models_drive():
     np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-9 * np.abs(out[1]).max())
     assert np.abs(out[0] - out[2]).max() > 1e-3 * np.abs(out[2]).max()
     assert "emg_background" not in data.extra  # the user's data are left as they were
-    assert fx.with_base_model_activation(data, {"effects": ("drift",)}) is data
+    assert with_base_model_activation(data, {"effects": ("drift",)}) is data
     bare = pair_trials(*(type(t)(t.time, t.position, t.torque, {}, t.name) for t in (pair.pt, pair.ut)))
-    assert fx.with_base_model_activation(bare, {"effects": E}) is bare
+    assert with_base_model_activation(bare, {"effects": E}) is bare
