@@ -405,8 +405,8 @@ class LPVPCEstimator:
             return self
         first = LPVPCEstimator(**base)
         first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
+        with warnings.catch_warnings():  # the model kept gives its own warnings
+            warnings.simplefilter("ignore")
             first._fit(data)
         m = first.model_
         fs = m.fs
@@ -517,7 +517,7 @@ class LPVPCEstimator:
         it got before effects were allowed. Returns (record of the choice, (the effects' fit's A,
         its subspace step)) or (None, None) when that fit fails (the effects' columns not
         independent here)."""
-        from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+        from .selection import SEARCH
 
         t = time.perf_counter()
         fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered)})
@@ -533,11 +533,9 @@ class LPVPCEstimator:
             return None, None
         e = fit.model_
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
-        cands = effect_candidates(offered, p, rho, e.fs, self.basis, e.intrinsic_basis.order)
-        search = StructureSearch(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)), self.basis,
-                                 self.velocity_basis, {k: (chosen[k],) for k in SEARCH}, Segments.of(data, len(y)),
-                                 effects=cands)
-        off = {**chosen, **{effect_key(n): False for n in cands}}
+        search, off, cands = _effect_search(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)), self.basis,
+                                            self.velocity_basis, Segments.of(data, len(y)), chosen, offered,
+                                            e.intrinsic_basis.order)
         pick = search.run(off, fixed=set(SEARCH)).chosen
         sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
         if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
@@ -1226,15 +1224,25 @@ def _effects_cv(search, chosen: dict, cands: dict) -> dict:
             "rule": "on/off candidates of the same cross-validation, one-standard-error rule toward fewer parameters"}
 
 
+def _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered, intrinsic_order):
+    """(search, the structure ``chosen`` with every effect off, the effects' columns): a
+    :class:`lpvpc.selection.StructureSearch` held at ``chosen`` with the ``offered`` effects'
+    on/off columns, under the reflex ``dynamics`` (same folds as the selection)."""
+    from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+
+    cands = effect_candidates(offered, p, rho, fs, family, intrinsic_order)
+    search = StructureSearch(p, y, rho, fs, dynamics, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
+                             segments, effects=cands)
+    return search, {**chosen, **{effect_key(n): False for n in cands}}, cands
+
+
 def _effect_gains(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered) -> dict:
     """{effect: fraction by which it lowers the cross-validated squared error of the structure
     ``chosen``} with the given reflex dynamics (same folds as the selection)."""
-    from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
+    from .selection import effect_key
 
-    cands = effect_candidates(offered, p, rho, fs, family, chosen["intrinsic_order"])
-    search = StructureSearch(p, y, rho, fs, dynamics, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
-                             segments, effects=cands)
-    off = {**chosen, **{effect_key(n): False for n in cands}}
+    search, off, cands = _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered,
+                                        chosen["intrinsic_order"])
     sse_off = float(search.score(off).fold_sse.sum())
     return {n: 1.0 - float(search.score({**off, effect_key(n): True}).fold_sse.sum()) / sse_off for n in cands}
 
