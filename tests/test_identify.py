@@ -394,9 +394,11 @@ def test_negative_reflex_gain_warns_with_settings_that_constrain_the_nonlinearit
 
 
 def test_a_missing_effect_that_turns_the_reflex_gain_negative_is_named_as_a_cause():
-    # Seed 5 with a hidden background activation: the base model's reflex gain is negative over
-    # 29 % of the range (-5.1 N m s/rad at -0.23 rad). (Seed 2, -12.9 with the projection's
-    # intrinsic estimate, stays at -4.5 over 6 % with the joint refit: lpvpc.reflex.refit_jointly.)
+    # Seed 5 with a hidden background activation: the fixed structure's reflex gain is negative
+    # over 37 % of the range (-7.0 N m s/rad at -0.18 rad); with the effect in the model it is
+    # positive (2.1 at least). (Seed 2, used before: -12.9 N m s/rad fixed, but its extended
+    # model's activation comes from the default base model, whose IRF the one-standard-error
+    # rule no longer shortens to 20 ms (lpvpc.selection), and that extended gain dips to -20.)
     from lpvpc.errors import PhysiologyWarning
 
     pair = simulate_pair("multilevel", seed=5, effects=("background_activation",))
