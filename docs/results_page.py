@@ -30,6 +30,8 @@ TABLES = {
                       "python benchmarks/bench_reflex_1k.py"),
     "reflex_1k_seeds10-19.txt": ("Reflex gain and threshold trends from 1 kHz files, seeds 10-19 (not tuned on)",
                                  "python benchmarks/bench_reflex_1k.py 10 10"),
+    "reflex_1k_seeds20-29.txt": ("Reflex gain and threshold trends from 1 kHz files, seeds 20-29 (not tuned on)",
+                                 "python benchmarks/bench_reflex_1k.py 10 20"),
     "diagnose_significance.txt": ("Significance rules of the diagnosis compared on the same fits",
                                   "python benchmarks/bench_diagnose.py --rules <dumps of --dump runs>"),
     "reflex_1k_bias.txt": ("Where the 1 kHz reflex bias came from (noise-free records)",

@@ -253,7 +253,10 @@ def test_stress_relaxation_is_fitted_both_ways_and_the_better_fit_kept():
     assert model.fit["vaf"] == pytest.approx(max(ways.values()))
     assert model.fit["effects_after_reflex"] == (ways[True] > ways[False])
     clean, clean_ident = simulate_pair("novel", seed=2), simulate_pair("multilevel", seed=1)
-    clean_model = identify(pair_trials(clean_ident.pt, clean_ident.ut))
+    # the clean subject's model at the extended model's settings (selection is skipped for
+    # extended models); the selected default moves with the selection's rules (novel VAF 97.96 ->
+    # 98.01 % with the IRF kept at the best's and the 1 kHz path's joint refit: issue 22)
+    clean_model = identify(pair_trials(clean_ident.pt, clean_ident.ut), structure="fixed")
     clean_held = pair_trials(clean.pt, clean.ut)
     got = vaf(held.torque, model.predict(held.position, held.scheduling, signals=fx.signals_from_data(held),
                                          warn=False).total)
