@@ -281,9 +281,13 @@ def detection(say, scenarios, clean_vaf):
             ok_rank += rank == 1 or in_model
             ok_vaf += gap <= 1.0
             steps = " -> ".join(r.label for r in ladder.rungs[1:]) or "none"
-            # the floor: the first significant candidate is the hidden effect, or names it in a tie
-            top = d.top
-            ok_first += in_model or (top is not None and expected in (top.effect, top.tied_with))
+            # the floor: the first significant candidate names the hidden effect's pathway and
+            # signal: the effect itself, or tied with it by a rival of the same pathway and signals
+            # (delay or dynamics with position; not activation for trial time)
+            top, want = d.top, next((c for c in d.candidates if c.effect == expected), None)
+            ok_first += in_model or (top is not None and (top.effect == expected or (
+                top.tied_with == expected and want is not None and top.pathway == want.pathway
+                and set(top.signals) == set(want.signals))))
             if in_model:
                 ok_sig += 1
                 say(f"| {name} | {seed} | in the model (chosen by identify) | - | - | - | "
