@@ -262,7 +262,7 @@ def detection(say, scenarios, clean_vaf):
     say("|---|---|---|---|---|---|---|---|---|---|---|---|")
     summary = []
     for name, (effects, settings, expected) in scenarios.items():
-        ok_rank = ok_sig = ok_vaf = 0
+        ok_rank = ok_sig = ok_vaf = ok_first = 0
         for seed in EFFECT_SEEDS:
             ident, novel = pairs(seed, effects, params=SCENARIO_PARAMS.get(name))
             ladder = improve(ident, novel, settings=settings)
@@ -270,25 +270,41 @@ def detection(say, scenarios, clean_vaf):
             dump("effect", name, seed, d)
             names = [c.effect for c in d.candidates]
             rank = names.index(expected) + 1 if expected in names else None
-            c = d.candidates[rank - 1]
+            # identify's cross-validation may choose an allowed effect (stress relaxation) on its own:
+            # then the base model has it, diagnose does not offer it, and the hidden effect is found
+            in_model = rank is None and expected in {fe.name for fe in ladder.rungs[0].model.effects}
             if seed not in clean_vaf:
                 ci, cn = pairs(seed)
                 clean_vaf[seed] = heldout_vaf(identify(ci), cn)
             final = ladder.final.heldout_vaf
             gap = clean_vaf[seed] - final
-            ok_rank += rank == 1
-            ok_sig += bool(c.significant)
+            ok_rank += rank == 1 or in_model
             ok_vaf += gap <= 1.0
             steps = " -> ".join(r.label for r in ladder.rungs[1:]) or "none"
+            # the floor: the first significant candidate names the hidden effect's pathway and
+            # signal: the effect itself, or tied with it by a rival of the same pathway and signals
+            # (delay or dynamics with position; not activation for trial time)
+            top, want = d.top, next((c for c in d.candidates if c.effect == expected), None)
+            ok_first += in_model or (top is not None and (top.effect == expected or (
+                top.tied_with == expected and want is not None and top.pathway == want.pathway
+                and set(top.signals) == set(want.signals))))
+            if in_model:
+                ok_sig += 1
+                say(f"| {name} | {seed} | in the model (chosen by identify) | - | - | - | "
+                    f"{ladder.rungs[0].heldout_vaf:.2f} | {final:.2f} | {clean_vaf[seed]:.2f} | {gap:+.2f} | {steps} | - |")
+                continue
+            c = d.candidates[rank - 1]
+            ok_sig += bool(c.significant)
             say(f"| {name} | {seed} | {rank} | {c.vaf_gain:+.3f} | {c.p_value:.1e} | {'yes' if c.significant else 'no'} | "
                 f"{ladder.rungs[0].heldout_vaf:.2f} | {final:.2f} | {clean_vaf[seed]:.2f} | {gap:+.2f} | {steps} | "
                 f"{_tie(d)} |")
-        summary.append((name, ok_rank, ok_sig, ok_vaf, len(EFFECT_SEEDS)))
+        summary.append((name, ok_rank, ok_sig, ok_first, ok_vaf, len(EFFECT_SEEDS)))
     say("")
-    say("| hidden | ranked first | significant | improved VAF within 1 pp of clean base |")
-    say("|---|---|---|---|")
-    for name, a, b, c, n in summary:
-        say(f"| {name} | {a}/{n} | {b}/{n} | {c}/{n} |")
+    say("| hidden | ranked first | significant | first significant names it (or ties with it) | "
+        "improved VAF within 1 pp of clean base |")
+    say("|---|---|---|---|---|")
+    for name, a, b, f, c, n in summary:
+        say(f"| {name} | {a}/{n} | {b}/{n} | {f}/{n} | {c}/{n} |")
     say("")
 
 

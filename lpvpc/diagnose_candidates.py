@@ -391,19 +391,45 @@ def _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s):
     return best, r1
 
 
-def _prefer_underived(sur, best, r1, scored, min_gain, level, block_s):
+def _prefer_underived(sur, best, r1, scored, min_gain, level, block_s, *, unscored=None, alpha=ALPHA):
     """(candidate, residual) to join the base: ``best``, or its :data:`PREFER_UNDERIVED`
-    rival when the two tie on torque (two-sided p above TIE_P) and the rival passes the
-    same test as ``best``: a reflex-gain change explained equally by trial time and by an
-    EMG-derived signal is named by trial time (the tie is reported either way)."""
+    rival when the two tie on torque (two-sided p above TIE_P): a reflex-gain change
+    explained equally by trial time and by an EMG-derived signal is named by trial time (the
+    tie is reported either way). ``best`` passed the family-wise test, so the reflex gain
+    changes; which of two tied signals carries it is one question more, asked of the rival
+    at the unadjusted level ``alpha`` with a positive gain.
+    ``unscored``: (rival, residual over the same base) when the rival is not among the
+    significant ones (lab pulses, habituation seed 2: activation_reflex_gain +0.20 pp,
+    trial time +0.10 pp at p = 0.06, tie p = 0.19: it was named activation)."""
     rival_name = PREFER_UNDERIVED.get(best.effect)
-    hit = next(((r, res) for r, res in scored if r.effect == rival_name), None)
-    if hit is None or _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:
+    hit = next(((r, res) for r, res in scored if r.effect == rival_name), None) or unscored
+    if hit is None or hit[0].effect != rival_name or _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:
         return best, r1
     r = hit[0]
-    if not passes(r.conditional_gain, r.p_value, min_gain, level):
+    if r.significant:
+        return hit if passes(r.conditional_gain, r.p_value, min_gain, level) else (best, r1)
+    if not (r.conditional_gain > 0 and r.p_value <= alpha):
         return best, r1
+    r.significant = True
+    r.reason = (f"named in place of {best.effect}, tied with it, as not derived from the reflex's own output "
+                f"(alone it does not pass the family-wise test: {r.conditional_gain:+.2f} pp, p = {r.p_value:.1e})")
     return hit
+
+
+def _unscored_rival(sur, best, base, r_base, results, chosen, block_s):
+    """(rival, held-out residual over ``base``) of ``best``'s :data:`PREFER_UNDERIVED` rival
+    when it is not significant on its own (not in the forward selection's pool); else None.
+    Its gain and p-value are made conditional on the candidates ``chosen`` above."""
+    rival = next((r for r in results if r.effect == PREFER_UNDERIVED.get(best.effect)), None)
+    if rival is None or rival.significant or not rival.available or "add" not in getattr(rival, "blocks", {}):
+        return None
+    if not chosen:
+        return rival, rival.residual
+    r1, _ = sur.cv.fit(base + [rival.blocks["add"]])
+    rival.conditional_gain = 100.0 * float(r_base @ r_base - r1 @ r1) / sur.sst
+    rival.t, rival.p_value = paired_test(r_base, r1, sur.fs, block_s)
+    rival.given = tuple(c.effect for c in chosen)
+    return rival, r1
 
 
 def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> list:
@@ -438,15 +464,18 @@ def _conditional_ranking(sur, results, r0, sst, min_gain, level, block_s) -> lis
             break
         best, r1 = max(scored, key=lambda t: t[0].conditional_gain)
         best, r1 = _emg_tie_break(sur, best, r1, scored, min_gain, level, block_s)
-        best, r1 = _prefer_underived(sur, best, r1, scored, min_gain, level, block_s)
         if not passes(best.conditional_gain, best.p_value, min_gain, level):
             for r in pool:
                 r.significant = False
                 r.reason = (f"explained by {', '.join(c.effect for c in chosen)} ranked above: "
                             f"{r.conditional_gain:+.2f} pp given them")
             break
+        best, r1 = _prefer_underived(sur, best, r1, scored, min_gain, level, block_s,
+                                     unscored=_unscored_rival(sur, best, base, r_base, results, chosen, block_s),
+                                     alpha=level * max(1, sum(c.available for c in results)))
         chosen.append(best)
-        pool.remove(best)
+        if best in pool:
+            pool.remove(best)
         if "add" in best.blocks:
             base = base + [best.blocks["add"]]
         else:

@@ -660,6 +660,18 @@ def _slow_time_basis(n, fs, resolution):
     return np.cos(np.pi * np.outer(t, k) / T)
 
 
+def _gain_time_basis(n, fs, resolution):
+    """(n, K + 2) Legendre polynomials of trial time, degrees 0..K + 1 for K = T / ``resolution``:
+    a gain that changes over ``resolution`` s or more, including an exponential decay from
+    the record's start. The cosines of :func:`_slow_time_basis` have zero slope at both ends:
+    a habituating reflex (gain 1 -> 0.33 with a 40-s time constant over 2 minutes) was left
+    16 % too high at the start, its bursts stayed in the tonic estimate, and that estimate then
+    explained the habituation (activation_reflex_gain named first, lab pulses seed 2)."""
+    T = max(n / fs, 1e-9)
+    k = max(1, int(round(T / resolution))) + 1
+    return np.polynomial.legendre.legvander(2.0 * np.arange(n) / max(n - 1, 1) - 1.0, k)
+
+
 def fast_drive(drive, fs, window_s=1.0) -> np.ndarray:
     """The reflex drive's bursts: ``drive`` less its ``window_s`` moving average, rectified.
 
@@ -719,7 +731,7 @@ def reflex_evoked_emg(emg, position, fs, *, scheduling=None, max_lag=BURST_MAX_L
 
     lags = list(range(0, int(round(max_lag * fs)) + 1, step))
     T = _slow_time_basis(n, fs, BURST_TONIC_S)  # the tonic level
-    Tg = _slow_time_basis(n, fs, gain_s)  # the bursts' gain
+    Tg = _gain_time_basis(n, fs, gain_s)  # the bursts' gain
     if drive is not None:  # the model's own reflex drive: delayed, rectified, position-gained already
         hinges, R = [per_lag(fast_drive(drive, fs))], np.ones((n, 1))
     else:
