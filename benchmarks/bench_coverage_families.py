@@ -26,7 +26,9 @@ Rows per family, from the same fits: K, viscosity and inertia with
   the model's in the intrinsic pathway only;
 - the larger of the two bounds, and their root sum of squares (with the new structure set):
   the alternative combinations, recorded to show why they are not used;
-and reflex gain and threshold (1 kHz path and defaults). Coverage % pooled over seeds and
+and reflex gain and threshold (1 kHz path and defaults; where the selection ran, the gain also
+without the reflex structures the selection could not exclude, "previous rule: no reflex
+structures", to show what that term does). Coverage % pooled over seeds and
 positions (a threshold "not determined by these data" has the whole fitted velocity range
 as its interval: it counts as covered when the truth lies in that range; the columns "not
 determined %" and "coverage where determined" separate it), seeds with every position
@@ -44,6 +46,7 @@ as its own section below the default run's table)
 
 from __future__ import annotations
 
+import copy
 import os
 import sys
 import time
@@ -70,6 +73,7 @@ N_POS = 9
 LEVEL = 0.95
 NEW = "new intervals: neighbours + intrinsic near-equivalent structures"
 PREVIOUS = "previous rule: shorter IRF for viscosity too + every near-equivalent structure"
+PREVIOUS_REFLEX = "previous rule: no reflex structures (not used)"
 QUANTITIES = (("K", "stiffness"), ("viscosity", "viscosity"), ("inertia", "inertia"))
 
 
@@ -127,6 +131,11 @@ def _reflex_rows(rows, model, truth, rho, label):
     # the defaults choose the velocity per record: one key for every seed
     at = f"{label} (velocity chosen per record)" if label == "defaults" else f"{label} ({model.nonlinearity_fs:g} Hz velocity)"
     rows[f"reflex gain, {at}"] = (gain, *g_iv, truth.reflex_gain(rho), g_iv.determined)
+    if label != "high_rate_reflex=True":  # selection ran: the same model without the reflex structures it could not exclude
+        bare = copy.deepcopy(model)
+        bare.uncertainty.get("structural", {}).pop("reflex", None)
+        b_iv = bare.reflex_gain_interval(rho)
+        rows[f"reflex gain, {at}, {PREVIOUS_REFLEX}"] = (gain, *b_iv, truth.reflex_gain(rho), b_iv.determined)
     rows[f"reflex threshold, {at}"] = (thr, *th_iv, truth.reflex_threshold(rho), th_iv.determined)
 
 
@@ -164,8 +173,9 @@ def one_seed(family, seed, files_fs=1000.0):
         nan = np.full(len(rho), np.nan)
         for q, _ in QUANTITIES:
             rows[f"{q}, defaults, {NEW}"] = (nan, nan, nan, nan)
-        for q in ("reflex gain", "reflex threshold"):
-            rows[f"{q}, defaults (velocity chosen per record)"] = (nan, nan, nan, nan, np.zeros(len(rho), bool))
+        for q in ("reflex gain", "reflex threshold", f"reflex gain, defaults (velocity chosen per record), {PREVIOUS_REFLEX}"):
+            key = q if q.endswith(PREVIOUS_REFLEX) else f"{q}, defaults (velocity chosen per record)"
+            rows[key] = (nan, nan, nan, nan, np.zeros(len(rho), bool))
     elif defaults is not None:
         _intrinsic_rows(rows, defaults, truth, pair, rho, prefix="defaults, ")
         _reflex_rows(rows, defaults, truth, rho, "defaults")
