@@ -34,6 +34,22 @@ holds richer structures that follow the curve more closely. So:
   at 92.8-97.8 % on every family, file rate and seed range
   (``benchmarks/results/coverage_families.txt``).
 
+The reflex gain has a term of its own (``reflex``; :func:`lpvpc.uncertainty.reflex_interval`
+adds it to the gain's bias bound), stored only when the model's structure was chosen by
+identify's cross-validation. Measured cause of the gain's under-coverage at the defaults
+(76.7 % on the sum-of-exponentials family from 1 kHz files): the one-standard-error rule
+picks the simplest reflex structure within noise of the best, and on the seeds that missed it
+was a constant or linear reflex scheduling basis that cannot follow the gain's exponential
+trend (seed 8: reflex order 0, gain errors +86 % to -42 % across the range). The alternatives
+the selection could not exclude are the reflex scheduling basis one order higher and the
+near-equivalent structures that differ from the model's in :data:`REFLEX_SETTINGS` only; each
+is refitted like the model's own structure, and the largest shift of the rectifier's gain is
+the term. (Intrinsic-only structures moved the gain by 0-2 %: the intrinsic misfit is not
+what leaks. Every near-equivalent structure instead: 93.3 % with a median half-width of
+30.8 % of the gain, against 91.1 % and 26.8 % for the set kept, and 99.4-100 % on the
+explicit 1 kHz path.) A structure the caller fixed, and the explicit
+1 kHz path (selection skipped), get no reflex term.
+
 identify adds it whenever its selection ran (reusing that search: only the refits);
 :func:`add_structural_uncertainty` adds it to any other model with intervals.
 
@@ -47,6 +63,10 @@ Stored in ``model.uncertainty["structural"]`` (the model file round-trips it)::
     structures    the near-equivalent structures' settings and CV VAF (%)
                   (those differing from the model's in INTRINSIC_SETTINGS only)
     n_scored      structures the search scored
+    reflex        (selected structures only) {"rho_basis": the search's reflex scheduling
+                  basis, "reference": the model structure's refit, "structures": [{"settings",
+                  ...}]}, each refit as {"velocity_basis": Basis.to_dict, "coefficients":
+                  n_v x n_r of the nonlinearity scaled by the held dynamics' DC gain (N m)}
 
 Measured coverage on three stiffness families: ``benchmarks/results/coverage_families.txt``.
 """

@@ -39,7 +39,9 @@ Derived quantities:
   against the spread over noise realisations of the same trials (benchmark row "vs
   noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
   shift when the elastic torque's curvature in the intrinsic pathway is free instead of
-  tied to the IRF's K'(theta) (the specification's neighbour);
+  tied to the IRF's K'(theta) (the specification's neighbour); and for the gain, when the
+  structure was selected, :func:`reflex_structural_shift` (the reflex structures the
+  selection could not exclude: ``benchmarks/results/coverage_families.txt``);
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
