@@ -434,8 +434,8 @@ def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
 def structural_shift(model, quantity: str, rho) -> np.ndarray:
     """Largest absolute shift of an intrinsic quantity (its units) at ``rho`` over the
     near-equivalent structures stored by
-    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty`; zeros when the model
-    stores none.
+    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty` (and, for the quantities
+    it names, the stored reflex velocity path's shift); zeros when the model stores none.
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
@@ -460,12 +460,16 @@ def structural_shift(model, quantity: str, rho) -> np.ndarray:
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     st = (getattr(model, "uncertainty", None) or {}).get("structural")
-    if not st or not st["shifts"]:
+    shifts = list(st["shifts"]) if st else []
+    path = (st or {}).get("path")
+    if path and quantity in path["quantities"]:  # the reflex velocity path the selection never compared
+        shifts.append(path["shift"])
+    if not shifts:
         return np.zeros(len(rho))
     basis = Basis.from_dict(st["basis"])
     G = basis.evaluate(np.clip(rho, basis.lo, basis.hi))  # (len(rho), n_basis)
     w = lag_moment_weights(model, quantity, st["lags"])
-    dH = np.asarray(st["shifts"], dtype=float)  # (n_s, n_lags, n_basis)
+    dH = np.asarray(shifts, dtype=float)  # (n_s, n_lags, n_basis)
     return np.max(np.abs(np.einsum("l,slj,rj->sr", w, dH, G)), axis=0)
 
 

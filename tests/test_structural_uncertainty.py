@@ -233,3 +233,35 @@ def test_the_model_file_round_trips_the_reflex_term(simple_reflex, tmp_path):
     a, b = model.reflex_gain_interval(rho), loaded.reflex_gain_interval(rho)
     assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
     assert np.all(reflex_structural_shift(loaded, rho) > 0)
+
+
+def test_the_explicit_1khz_path_counts_the_model_rate_path_for_viscosity(simple_reflex):
+    """high_rate_reflex=True given: the selection never compared the reflex velocity paths, so
+    the viscosity interval spans the model structure refitted with model-rate reflex columns;
+    K's interval is not widened by it. A model whose path the selection chose has no such term."""
+    d, selected, _, rho = simple_reflex
+    assert "path" not in selected.uncertainty["structural"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(d, high_rate_reflex=True)
+    search, start, fixed = structure_search(model, d)
+    add_structural_uncertainty(model, d, search, search.run(start, fixed))
+    st = model.uncertainty["structural"]
+    assert st["path"]["quantities"] == ["viscosity"]
+    # by hand: the shift is the model's viscosity minus that of the model-rate refit of its structure
+    from lpvpc.basis import Basis
+    from lpvpc.structural_uncertainty import _refit_irf
+    from lpvpc.uncertainty import lag_moment_weights
+
+    G = Basis.from_dict(st["basis"]).evaluate(rho)
+    w = lag_moment_weights(model, "viscosity", st["lags"])
+    ref = np.einsum("l,lj,rj->r", w, _refit_irf(search, start), G)
+    shift = np.einsum("l,lj,rj->r", w, np.asarray(st["path"]["shift"]), G)
+    assert np.allclose(ref + shift, model.viscosity(rho), rtol=1e-9, atol=1e-12)
+    assert np.all(structural_shift(model, "viscosity", rho) >= np.abs(shift) - 1e-12)
+    bare = copy.deepcopy(model)
+    bare.uncertainty["structural"].pop("path")
+    a, b = model.viscosity_interval(rho), bare.viscosity_interval(rho)
+    assert np.all(a.upper - a.lower >= b.upper - b.lower) and np.any(a.upper - a.lower > b.upper - b.lower)
+    k, kb = model.elastic_stiffness_interval(rho), bare.elastic_stiffness_interval(rho)
+    assert np.array_equal(k.lower, kb.lower) and np.array_equal(k.upper, kb.upper)
