@@ -39,7 +39,9 @@ Derived quantities:
   against the spread over noise realisations of the same trials (benchmark row "vs
   noise-free identification"). Bias-aware like K's, with :func:`reflex_bias_bound`: the
   shift when the elastic torque's curvature in the intrinsic pathway is free instead of
-  tied to the IRF's K'(theta) (the specification's neighbour);
+  tied to the IRF's K'(theta) (the specification's neighbour); and for the gain, when the
+  structure was selected, :func:`reflex_structural_shift` (the reflex structures the
+  selection could not exclude: ``benchmarks/results/coverage_families.txt``);
 - VAF: moving-block bootstrap of the record (blocks of ``BLOCK_LENGTH``).
 
 The reflex poles (denominator of the companion form that pole refinement returns) join
@@ -432,8 +434,8 @@ def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
 def structural_shift(model, quantity: str, rho) -> np.ndarray:
     """Largest absolute shift of an intrinsic quantity (its units) at ``rho`` over the
     near-equivalent structures stored by
-    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty`; zeros when the model
-    stores none.
+    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty` (and, for the quantities
+    it names, the stored reflex velocity path's shift); zeros when the model stores none.
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
@@ -458,12 +460,16 @@ def structural_shift(model, quantity: str, rho) -> np.ndarray:
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     st = (getattr(model, "uncertainty", None) or {}).get("structural")
-    if not st or not st["shifts"]:
+    shifts = list(st["shifts"]) if st else []
+    path = (st or {}).get("path")
+    if path and quantity in path["quantities"]:  # the reflex velocity path the selection never compared
+        shifts.append(path["shift"])
+    if not shifts:
         return np.zeros(len(rho))
     basis = Basis.from_dict(st["basis"])
     G = basis.evaluate(np.clip(rho, basis.lo, basis.hi))  # (len(rho), n_basis)
     w = lag_moment_weights(model, quantity, st["lags"])
-    dH = np.asarray(st["shifts"], dtype=float)  # (n_s, n_lags, n_basis)
+    dH = np.asarray(shifts, dtype=float)  # (n_s, n_lags, n_basis)
     return np.max(np.abs(np.einsum("l,slj,rj->sr", w, dH, G)), axis=0)
 
 
@@ -642,6 +648,46 @@ def reflex_bias_bound(model, rho):
     return np.abs(g_alt - g), np.abs(th_alt - th)
 
 
+def reflex_structural_shift(model, rho) -> np.ndarray:
+    """Largest absolute shift of the reflex gain (N m s/rad) at ``rho`` over the reflex
+    structures the selection could not exclude, stored by
+    :func:`lpvpc.structural_uncertainty.add_structural_uncertainty` when the model's
+    structure was chosen by cross-validation (``structural["reflex"]``): each one's
+    rectifier fit minus that of the model structure's own refit (the same machinery, the
+    dynamics held). Zeros when none is stored.
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model, fixed = identify(d), identify(d, structure="fixed")
+    >>> rho = np.array([-0.2, 0.0])  # rad
+    >>> bool(np.all(reflex_structural_shift(model, rho) > 0)), reflex_structural_shift(fixed, rho).tolist()
+    (True, [0.0, 0.0])
+    """
+    from .basis import Basis
+    from .reflex import rectifier_fit
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    term = ((getattr(model, "uncertainty", None) or {}).get("structural") or {}).get("reflex")
+    if not term or not term["structures"]:
+        return np.zeros(len(rho))
+    G_r = Basis.from_dict(term["rho_basis"])
+    G = G_r.evaluate(np.clip(rho, G_r.lo, G_r.hi))
+    v, _ = model.rectifier_velocity_grid()
+
+    def gain(entry):
+        C = np.asarray(entry["coefficients"], dtype=float)
+        return rectifier_fit(v, G @ C.T @ Basis.from_dict(entry["velocity_basis"]).evaluate(v).T)[0]
+
+    ref = gain(term["reference"])
+    return np.max(np.abs([gain(s) - ref for s in term["structures"]]), axis=0)
+
+
 #: Monte Carlo draws of the reflex parameters behind the gain and threshold intervals.
 N_REFLEX_DRAWS = 500
 #: A threshold interval wider than this fraction of the velocity range the rectifier is fitted
@@ -738,6 +784,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     g_d, th_d = (x.reshape(N_REFLEX_DRAWS, len(rho)) for x in rectifier_fit(v, curves.reshape(-1, len(v))))
     z = z_value(level)
     bound = list(reflex_bias_bound(model, rho))
+    bound[0] = bound[0] + reflex_structural_shift(model, rho)
     biased = model.reflex_threshold_biased
     if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
         bound[0] = bound[0] + _knee_softness_bound(model, rho)

@@ -16,12 +16,13 @@ from lpvpc.model import LPVPCModel
 from lpvpc.simulate import SubjectParams, simulate_pair
 from lpvpc.structural_uncertainty import (
     INTRINSIC_SETTINGS,
+    REFLEX_SETTINGS,
     add_structural_uncertainty,
     near_equivalent,
     structural_term,
     structure_search,
 )
-from lpvpc.uncertainty import intrinsic_interval_parts, structural_shift
+from lpvpc.uncertainty import intrinsic_interval_parts, reflex_structural_shift, structural_shift
 
 N_POS = 9
 
@@ -146,3 +147,121 @@ def test_a_non_polynomial_basis_is_refused_with_the_reason(piecewise):
     other.settings["basis"] = "gaussian"
     with pytest.raises(ValueError, match="needs polynomial bases.*'gaussian' in position"):
         add_structural_uncertainty(other, d)
+
+
+# ----------------------------------------------------------------- the reflex gain's structural term
+
+
+@pytest.fixture(scope="module")
+def simple_reflex():
+    """1 kHz files of the sum-of-exponentials family, seed 8, identified at every default:
+    the selection's one-standard-error rule picks a constant reflex scheduling basis
+    (reflex_order 0) while the true gain rises about fourfold toward dorsiflexion."""
+    sim = simulate_pair("multilevel", seed=8, fs_out=1000.0, stiffness_family="sum_of_exponentials")
+    d = pair_trials(sim.pt, sim.ut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(d)
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)
+    return d, model, SubjectParams().with_stiffness_family("sum_of_exponentials").reflex_gain(rho), rho
+
+
+def _without_reflex_term(model):
+    bare = copy.deepcopy(model)
+    bare.uncertainty["structural"].pop("reflex")
+    return bare
+
+
+def test_a_reflex_basis_chosen_too_simple_is_covered_through_the_next_richer_one(simple_reflex):
+    d, model, g_true, rho = simple_reflex
+    term = model.uncertainty["structural"]["reflex"]
+    nr = model.settings["reflex_order"]
+    assert nr < 3
+    assert term["structures"][0]["settings"]["reflex_order"] == nr + 1  # the next richer reflex basis comes first
+    for s in term["structures"][1:]:  # the others differ from the model's in the reflex pathway only
+        assert all(v == term["structures"][0]["settings"][k] or k in REFLEX_SETTINGS
+                   for k, v in s["settings"].items())
+    before = _without_reflex_term(model).reflex_gain_interval(rho)
+    after = model.reflex_gain_interval(rho)
+    assert np.all(after.lower <= before.lower) and np.all(after.upper >= before.upper)
+    assert _covered(before, g_true).sum() <= 5  # the trend the constant basis cannot follow
+    assert _covered(after, g_true).sum() >= 8
+    # the threshold's interval does not take the term
+    a, b = model.reflex_threshold_interval(rho), _without_reflex_term(model).reflex_threshold_interval(rho)
+    assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
+
+
+def test_the_reflex_term_refits_the_model_structure_alike(piecewise):
+    """The reference (the model's structure refitted in the search's columns, the dynamics
+    held) gives the model's own gain within a few per cent: the columns are read right."""
+    _, model, _, rho, _ = piecewise
+    term = model.uncertainty["structural"]["reflex"]
+    from lpvpc.basis import Basis
+    from lpvpc.reflex import rectifier_fit
+
+    G = Basis.from_dict(term["rho_basis"]).evaluate(rho)
+    v, _ = model.rectifier_velocity_grid()
+    C = np.asarray(term["reference"]["coefficients"])
+    g_ref = rectifier_fit(v, G @ C.T @ Basis.from_dict(term["reference"]["velocity_basis"]).evaluate(v).T)[0]
+    g = model.reflex_gain_threshold(rho)[0]
+    assert np.max(np.abs(g_ref / g - 1)) < 0.05
+    # the shift is the largest difference of the alternatives' gains to that reference
+    shifts = []
+    for s in term["structures"]:
+        Cs = np.asarray(s["coefficients"])
+        shifts.append(rectifier_fit(v, G @ Cs.T @ Basis.from_dict(s["velocity_basis"]).evaluate(v).T)[0] - g_ref)
+    assert np.allclose(reflex_structural_shift(model, rho), np.abs(shifts).max(axis=0))
+
+
+def test_without_a_selection_there_is_no_reflex_term(simple_reflex):
+    """The term counts the reflex structures the selection could have chosen; a structure
+    the caller fixed (or the 1 kHz path given explicitly, where selection is skipped) has none."""
+    d, _, _, rho = simple_reflex
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for model in (identify(d, high_rate_reflex=True), identify(d, structure="fixed")):
+            add_structural_uncertainty(model, d)
+            assert "reflex" not in model.uncertainty["structural"]
+            assert np.all(reflex_structural_shift(model, rho) == 0)
+
+
+def test_the_model_file_round_trips_the_reflex_term(simple_reflex, tmp_path):
+    _, model, _, rho = simple_reflex
+    model.save(tmp_path / "m.json")
+    loaded = LPVPCModel.load(tmp_path / "m.json")
+    a, b = model.reflex_gain_interval(rho), loaded.reflex_gain_interval(rho)
+    assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
+    assert np.all(reflex_structural_shift(loaded, rho) > 0)
+
+
+def test_the_explicit_1khz_path_counts_the_model_rate_path_for_viscosity(simple_reflex):
+    """high_rate_reflex=True given: the selection never compared the reflex velocity paths, so
+    the viscosity interval spans the model structure refitted with model-rate reflex columns;
+    K's interval is not widened by it. A model whose path the selection chose has no such term."""
+    d, selected, _, rho = simple_reflex
+    assert "path" not in selected.uncertainty["structural"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(d, high_rate_reflex=True)
+    search, start, fixed = structure_search(model, d)
+    add_structural_uncertainty(model, d, search, search.run(start, fixed))
+    st = model.uncertainty["structural"]
+    assert st["path"]["quantities"] == ["viscosity"]
+    # by hand: the shift is the model's viscosity minus that of the model-rate refit of its structure
+    from lpvpc.basis import Basis
+    from lpvpc.structural_uncertainty import _refit_irf
+    from lpvpc.uncertainty import lag_moment_weights
+
+    G = Basis.from_dict(st["basis"]).evaluate(rho)
+    w = lag_moment_weights(model, "viscosity", st["lags"])
+    ref = np.einsum("l,lj,rj->r", w, _refit_irf(search, start), G)
+    shift = np.einsum("l,lj,rj->r", w, np.asarray(st["path"]["shift"]), G)
+    assert np.allclose(ref + shift, model.viscosity(rho), rtol=1e-9, atol=1e-12)
+    assert np.all(structural_shift(model, "viscosity", rho) >= np.abs(shift) - 1e-12)
+    bare = copy.deepcopy(model)
+    bare.uncertainty["structural"].pop("path")
+    a, b = model.viscosity_interval(rho), bare.viscosity_interval(rho)
+    assert np.all(a.upper - a.lower >= b.upper - b.lower) and np.any(a.upper - a.lower > b.upper - b.lower)
+    k, kb = model.elastic_stiffness_interval(rho), bare.elastic_stiffness_interval(rho)
+    assert np.array_equal(k.lower, kb.lower) and np.array_equal(k.upper, kb.upper)
