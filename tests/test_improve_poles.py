@@ -1,5 +1,6 @@
-"""The improve ladder changes one thing per step: each refit starts its reflex poles where the
-model below it ended (lpvpc.improve), as identify's own refit of a selected structure does.
+"""The improve ladder changes one thing per step: each refit also refines its reflex poles from
+where the model below it ended (as identify's own refit of a selected structure does) and keeps
+the better identification fit of that and MOESP's start (lpvpc.improve).
 
 Virtual subject under the PRBS design, reflex habituation hidden; identification on the
 multilevel record of seed 2, held out the novel record of seed 3 (bench_diagnose's case).
