@@ -134,10 +134,22 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
     ladder = Ladder()
     applied = set()
 
-    def rung(index, label, change, st, eff):
+    def rung(index, label, change, st, eff, poles_from=None):
         t0 = time.perf_counter()
         report(f"improve: step {index} ({label}): fitting")
         model = LPVPCEstimator(**st, effects=eff).fit(ident).model_
+        if poles_from is not None:
+            # The reflex poles' refinement from MOESP's start and from where the model below ended
+            # (as identify's own refit of a selected structure starts): the better identification
+            # fit is kept (same parameters). Either alone failed a step: PRBS habituation seed 2
+            # from MOESP's, the base refitted at 94.16 % held out (it holds out 96.21 %) and the
+            # step at 96.12 % was not kept (from the base's poles: fit 97.33, held out 97.36 %);
+            # seed 0 from the base's, the step fitted 96.83 % and held out 95.99 % (MOESP's: 97.15, 96.91 %)
+            est = LPVPCEstimator(**st, effects=eff)
+            est._reuse = {"poles": {int(poles_from.A.shape[0]): np.asarray(poles_from.A, dtype=float)}}
+            below = est.fit(ident).model_
+            if below.fit["vaf"] > model.fit["vaf"]:
+                model = below
         t_fit = time.perf_counter() - t0
         v, rmse, r = _evaluate(model, heldout)
         return Rung(index, label, change, dict(st), tuple(eff), model, v, rmse, model.fit["vaf"], r, fit_time=t_fit)
@@ -170,7 +182,7 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
     # own reflex drive: computed once, so every rung is fitted and scored on the same estimate
     ident, heldout = (with_model_activation(d, current.model) for d in (ident, heldout))
     if reads_activation(effects):  # the base's own effects read the activation: refit on the estimate
-        current = rung(0, label0, {}, settings, effects)
+        current = rung(0, label0, {}, settings, effects, poles_from=current.model)
     diagnose_rung(current)
     ladder.rungs.append(current)
     if progress:
@@ -193,7 +205,7 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         else:
             st.update(top.variant)
             change, label = {"setting": dict(top.variant)}, f"{top.effect}{_variant_text(top.variant)}"
-        new = rung(len(ladder.rungs), label, change, st, eff)
+        new = rung(len(ladder.rungs), label, change, st, eff, poles_from=current.model)
         if new.heldout_vaf < current.heldout_vaf + NO_GAIN:
             new.kept = False
             ladder.rungs.append(new)
