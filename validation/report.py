@@ -375,9 +375,11 @@ def _physiology_table(model, level=0.95) -> str:
                 f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). The intervals of K and "
                 f"viscosity include a bound on the estimator's structural bias; K is the stiffness over the "
                 f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). "
-                f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject (20 "
-                f"seeds, 9 positions each): K 94 %, viscosity 100 %, reflex gain 93 % on 1 kHz velocity and 97 % "
-                f"on 100 Hz velocity, reflex threshold 92 % on 1 kHz velocity (on 100 Hz velocity not determined).")
+                f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject at the "
+                f"default settings from 1 kHz files (three stiffness families, two of them curves the basis cannot "
+                f"hold; 40 seeds each, 9 positions): K 86-99 %, viscosity 87-100 %, reflex gain 85-96 %, reflex "
+                f"threshold 89-100 %; the lowest figures are one family's seeds on which the selection chose stress "
+                f"relaxation (an extended model has no intervals; benchmarks/results/coverage_families.txt).")
     else:
         note = _no_intervals_note(model)
     if relaxed is not None:
