@@ -23,6 +23,7 @@ import functools
 import inspect
 import time
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from .errors import (DataError, IdentificationError, InsufficientExcitationError
                      StationaryWarning)
 from .intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor, two_sided_lags
 from .segments import Segments
+
+if TYPE_CHECKING:  # annotations only: lpvpc.model imports scipy.signal, kept out of import time (above)
+    from .model import LPVPCModel
 
 # scipy-based modules are imported where they are used, so that `lpvpc identify --help`
 # (which reads the estimator's defaults) starts without scipy.signal.
