@@ -35,6 +35,9 @@ from .errors import (DataError, IdentificationError, InsufficientExcitationError
 from .intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor, two_sided_lags
 from .segments import Segments
 
+# why the selection skips a record whose reflex nonlinearity the caller put on the high-rate velocity
+HIGH_RATE_GIVEN = "reflex nonlinearity on the high-rate velocity"
+
 if TYPE_CHECKING:  # annotations only: lpvpc.model imports scipy.signal, kept out of import time (above)
     from .model import LPVPCModel
 
@@ -382,7 +385,7 @@ class LPVPCEstimator:
         if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
             return "non-polynomial basis (the candidates' columns do not nest)"
         if self.high_rate_reflex and getattr(data, "high_rate", None) is not None:
-            return "reflex nonlinearity on the high-rate velocity"
+            return HIGH_RATE_GIVEN
         return None
 
     def _fit_selected(self, data) -> "LPVPCEstimator":
@@ -404,6 +407,12 @@ class LPVPCEstimator:
         offered = self._offered_effects(data)
         if reason is not None:
             self._fit_unselected(data, base, reason)
+            if reason == HIGH_RATE_GIVEN and self.model_.uncertainty:  # nothing selected, but the intervals
+                # still include the structures CV cannot tell apart and the model-rate reflex path
+                # (benchmarks/results/uncertainty.txt: viscosity covered 87.8 % without them)
+                from .structural_uncertainty import add_structural_uncertainty
+
+                add_structural_uncertainty(self.model_, data)
             if offered and reason.startswith("stationary") and not self.effects:  # (forced effects: as given)
                 self._choose_stationary_effects(data, base, offered)
             return self
