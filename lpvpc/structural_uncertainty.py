@@ -160,15 +160,17 @@ def _intrinsic_only(settings, start) -> bool:
     >>> _intrinsic_only({**a, "intrinsic_order": 6}, a), _intrinsic_only({**a, "reflex_order": 3}, a)
     (True, False)
     """
-    return _differs_in(settings, start, INTRINSIC_SETTINGS)
+    return _differs_only_in(settings, start, INTRINSIC_SETTINGS)
 
 
-def _differs_in(settings, start, keys) -> bool:
+def _differs_only_in(settings, start, keys) -> bool:
     """True when ``settings`` differ from ``start`` in ``keys`` only.
 
     >>> a = {"intrinsic_order": 4, "reflex_order": 2, "velocity_order": 4}
-    >>> _differs_in({**a, "reflex_order": 3}, a, REFLEX_SETTINGS), _differs_in({**a, "intrinsic_order": 5}, a, REFLEX_SETTINGS)
-    (True, False)
+    >>> _differs_only_in({**a, "reflex_order": 3}, a, REFLEX_SETTINGS)
+    True
+    >>> _differs_only_in({**a, "intrinsic_order": 5}, a, REFLEX_SETTINGS)
+    False
     """
     return all(v == start.get(k) for k, v in settings.items() if k not in keys)
 
@@ -329,7 +331,7 @@ def _reflex_term(model, search, selection, start) -> dict:
     if start["reflex_order"] + 1 <= D.nr_max and search.score({**start, "reflex_order": start["reflex_order"] + 1}):
         alternatives.append({**start, "reflex_order": start["reflex_order"] + 1})
     alternatives += [s.settings for s in near_equivalent(search, selection, limit=None)
-                     if s.settings != start and _differs_in(s.settings, start, REFLEX_SETTINGS)
+                     if s.settings != start and _differs_only_in(s.settings, start, REFLEX_SETTINGS)
                      and s.settings not in alternatives][: MAX_STRUCTURES - len(alternatives)]
     return {"rho_basis": D.G_r.to_dict(), "reference": _refit_reflex(search, start, family),
             "structures": [{"settings": _plain(s), **_refit_reflex(search, s, family)} for s in alternatives]}
