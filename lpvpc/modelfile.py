@@ -497,6 +497,40 @@ def _check_structural(x, where, problems, budget):
                problems)
     if not isinstance(st.get("structures"), list) or len(st["structures"]) != len(shifts):
         problems.append(f"{where}.structures must list the {len(shifts)} structures of the shifts")
+    if "path" in st:
+        _check_path_shift(st["path"], f"{where}.path", problems, budget, (len(lags), n_b))
+    if "reflex" in st:
+        _check_reflex_structures(st["reflex"], f"{where}.reflex", problems, budget)
+
+
+def _check_path_shift(x, where, problems, budget, shape):
+    """``structural.path``: the IRF shift of the other reflex velocity path, on the term's lags and basis."""
+    from .structural_uncertainty import PATH_QUANTITIES
+
+    p = _dict(x, where, problems, required=True)
+    q = p.get("quantities")
+    if not isinstance(q, list) or not set(q) <= set(PATH_QUANTITIES) or not all(isinstance(k, str) for k in q):
+        problems.append(f"{where}.quantities must be a list drawn from {', '.join(PATH_QUANTITIES)}")
+    _shape(_array(p.get("shift"), f"{where}.shift", problems, 2, budget), shape, f"{where}.shift", problems)
+
+
+def _check_reflex_structures(x, where, problems, budget):
+    """``structural.reflex``: the reflex gain's near-equivalent structures, each a refit of the
+    nonlinearity (n_v x n_r coefficients on its velocity basis and the term's scheduling basis)."""
+    from .structural_uncertainty import MAX_STRUCTURES
+
+    r = _dict(x, where, problems, required=True)
+    n_r = _basis(r.get("rho_basis"), f"{where}.rho_basis", problems)
+    structures = r.get("structures")
+    if not isinstance(structures, list) or len(structures) > MAX_STRUCTURES:
+        problems.append(f"{where}.structures must be a list of at most MAX_STRUCTURES = {MAX_STRUCTURES} refits")
+        raise _Refused
+    for w, e in [(f"{where}.reference", r.get("reference"))] + [(f"{where}.structures[{i}]", e)
+                                                                  for i, e in enumerate(structures)]:
+        e = _dict(e, w, problems, required=True)
+        n_v = _basis(e.get("velocity_basis"), f"{w}.velocity_basis", problems)
+        _shape(_array(e.get("coefficients"), f"{w}.coefficients", problems, 2, budget), (n_v, n_r),
+               f"{w}.coefficients", problems)
 
 
 def _check_effects(x, where, problems, d, budget):

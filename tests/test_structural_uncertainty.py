@@ -234,6 +234,12 @@ def test_the_model_file_round_trips_the_reflex_term(simple_reflex, tmp_path):
     a, b = model.reflex_gain_interval(rho), loaded.reflex_gain_interval(rho)
     assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
     assert np.all(reflex_structural_shift(loaded, rho) > 0)
+    # a hand-edited file whose reflex refits do not match their bases is refused with the place named
+    d = json.loads((tmp_path / "m.json").read_text())
+    d["uncertainty"]["structural"]["reflex"]["structures"][0]["coefficients"][0].append(1.0)
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=r"structural\.reflex\.structures\[0\]\.coefficients has "):
+        LPVPCModel.load(tmp_path / "bad.json")
 
 
 def test_the_explicit_1khz_path_counts_the_model_rate_path_for_viscosity(simple_reflex):
@@ -249,6 +255,10 @@ def test_the_explicit_1khz_path_counts_the_model_rate_path_for_viscosity(simple_
     add_structural_uncertainty(model, d, search, search.run(start, fixed))
     st = model.uncertainty["structural"]
     assert st["path"]["quantities"] == ["viscosity"]
+    bad = json.loads(json.dumps(model.to_dict()))
+    bad["uncertainty"]["structural"]["path"]["quantities"] = ["stiffness?"]
+    with pytest.raises(ModelFileError, match=r"structural\.path\.quantities must be a list drawn from viscosity"):
+        LPVPCModel.from_dict(bad)
     # by hand: the shift is the model's viscosity minus that of the model-rate refit of its structure
     from lpvpc.basis import Basis
     from lpvpc.structural_uncertainty import _refit_irf
