@@ -36,7 +36,7 @@ def _heldout(model, data):
 
 
 @pytest.mark.slow
-def test_wide_reflex_dynamics_step_reaches_the_clean_model(monkeypatch):
+def test_wide_reflex_dynamics_step_reaches_the_clean_model(monkeypatch, tmp_path):
     monkeypatch.setitem(simulate.EFFECTS, "strong_reflex_dynamics", ("wn ratio 3", _strong))
     ident, novel = _pairs(2, ("strong_reflex_dynamics",))
     clean = _heldout(identify(_pairs(2)[0]), _pairs(2)[1])
@@ -58,6 +58,24 @@ def test_wide_reflex_dynamics_step_reaches_the_clean_model(monkeypatch):
     assert joint.fit["vaf"] > held.fit["vaf"] + 0.5
     assert _heldout(joint, novel) > _heldout(held, novel) + 0.5
     assert _heldout(joint, novel) >= clean - 1.0, (_heldout(joint, novel), clean)
+    # the refitted model is the same equations: save/load and the CasADi step agree with numpy
+    import casadi
+
+    from lpvpc import export
+    from lpvpc.model import LPVPCModel
+
+    joint.save(tmp_path / "m.json")
+    n = 2000
+    pos, rho = novel.position[:n], novel.scheduling[:n]
+    ref = joint.predict(pos, rho, warn=False).total
+    assert np.array_equal(LPVPCModel.load(tmp_path / "m.json").predict(pos, rho, warn=False).total, ref)
+    step = casadi.Function.load(str(export.export_casadi(joint, tmp_path / "m.casadi", variant="exact")))
+    out = export.trajectory_function(step, n)(state=np.zeros(step.size1_in("state")),
+                                              **export.replay_inputs(joint, pos, rho, "exact"))
+    tq, lat = np.asarray(out["torque"]).ravel(), export.latency_samples(joint, "exact")
+    if lat:
+        tq, ref = tq[lat:], ref[:-lat]
+    assert np.max(np.abs(tq - ref)) <= 1e-9 * np.max(np.abs(ref))
 
 
 def test_joint_refit_never_worsens_the_fit_and_leaves_a_clean_model_alone():
