@@ -145,8 +145,8 @@ class Effect:
     # Identification fits both ways and keeps the better in-sample fit.
     after_reflex: bool = False
     # A reflex term expanded about the reflex poles: the poles and the nonlinearity are refitted
-    # jointly with its weights before the final solve (:func:`refit_reflex_poles`,
-    # :func:`refit_reflex_drive`), not held at the base fit's (made under LTI dynamics).
+    # jointly with its weights before the final solve (:func:`_refit_reflex_poles`,
+    # :func:`_refit_reflex_drive`), not held at the base fit's (made under LTI dynamics).
     refit_poles: bool = False
 
     @property
@@ -1179,7 +1179,7 @@ def _reflex_solve_rss(design: EffectDesign, model, fixed, y):
     return float(r @ r), float(theta[-1] / scale[-1])
 
 
-def refit_reflex_drive(design: EffectDesign, model, fixed, y, max_iter=20, tol=1e-5) -> dict:
+def _refit_reflex_drive(design: EffectDesign, model, fixed, y, max_iter=20, tol=1e-5) -> dict:
     """Refit the reflex nonlinearity (Omega) jointly with the reflex effects' weights, by
     alternating least squares: the reflex torque is linear in the drive z = U_r Omega for
     given dynamics and effect weights, and linear in the weights for given z. The base fit's
@@ -1224,7 +1224,7 @@ def refit_reflex_drive(design: EffectDesign, model, fixed, y, max_iter=20, tol=1
     return {"rss": history}
 
 
-def refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=0.999) -> dict:
+def _refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=0.999) -> dict:
     """Refit the reflex poles jointly with the weights of the reflex effects (variable
     projection: for each denominator the least squares of ``y`` on ``fixed`` (the intrinsic
     columns), the reflex effects' columns and the base reflex torque; Nelder-Mead over the
@@ -1302,9 +1302,9 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
             # with every effect: its fit rose 94.8 -> 96.1 %, held-out physiology lost)
             for poles in (REFIT_POLES, False):
                 if poles:
-                    refit_reflex_poles(design, model, fixed, y, max_radius=radius)
+                    _refit_reflex_poles(design, model, fixed, y, max_radius=radius)
                 if REFIT_DRIVE and model.high_rate is None:
-                    refit_reflex_drive(design, model, fixed, y)
+                    _refit_reflex_drive(design, model, fixed, y)
                 rss, c = _reflex_solve_rss(design, model, fixed, y)
                 # kept only when the final solve below fits better with it and a base reflex is left
                 if rss < rss_held and MIN_REFLEX_RESCALE < c < 1.0 / MIN_REFLEX_RESCALE:

@@ -1,5 +1,5 @@
 """The position-dependent reflex dynamics step refits the reflex poles and nonlinearity jointly
-with the expansion's weights (lpvpc.effects.refit_reflex_poles, refit_reflex_drive): held at the
+with the expansion's weights (lpvpc.effects.finish_extended_fit): held at the
 base fit's (made under LTI dynamics), a natural frequency that changes ninefold over the range
 stays 1-1.6 points short of the clean model (bench_reflex_dynamics_range).
 
