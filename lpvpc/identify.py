@@ -873,7 +873,8 @@ class LPVPCEstimator:
             "state_orders_failed": {str(m): str(err) for m, err in failed.items()},
             "singular_values": sub.singular_values.tolist(),
             "moesp_poles": [[float(z.real), float(z.imag)] for z in best["moesp_poles"]],
-            "poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(best["A"])],
+            # the model's own: the reflex dynamics effect refits them (lpvpc.effects.finish_extended_fit)
+            "poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(model.A)],
             "stationary": bool(np.ptp(rho) < self.stationary_range),
             "hammerstein_iterations": int(hf.iterations),
             "hammerstein_converged": bool(hf.converged),
