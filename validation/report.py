@@ -378,8 +378,8 @@ def _physiology_table(model, level=0.95) -> str:
                 f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject at the "
                 f"default settings from 1 kHz files (three stiffness families, two of them curves the basis cannot "
                 f"hold; 40 seeds each, 9 positions): K 86-99 %, viscosity 87-100 %, reflex gain 85-96 %, reflex "
-                f"threshold 89-100 %; the lowest figures are one family's seeds on which the selection chose stress "
-                f"relaxation (an extended model has no intervals; benchmarks/results/coverage_families.txt).")
+                f"threshold 89-100 % (benchmarks/results/coverage_families.txt). In a model with stress relaxation the "
+                f"K interval is the short-range stiffness's.")
     else:
         note = _no_intervals_note(model)
     if relaxed is not None:
@@ -402,9 +402,10 @@ def _relaxed_stiffness(model, rho):
 def _no_intervals_note(model) -> str:
     """Why a model has no confidence intervals: what is true of it, and what would give them."""
     if model.effects:
-        return ("No confidence intervals: lpvpc computes them for models without effects only, and this model has "
-                f"{', '.join(fe.name for fe in model.effects)}. The estimates are shown; their spread can be judged "
-                "by identifying the same model from other trials.")
+        return ("No confidence intervals in this model file: it has "
+                f"{', '.join(fe.name for fe in model.effects)} and was identified by an lpvpc that computed intervals "
+                "for models without effects only, or its covariance could not be computed (identification warned "
+                "why). Re-identifying gives them. The estimates are shown.")
     return ("No confidence intervals in this model file: their covariance could not be computed from the "
             "identification data (identification warned why), or the file predates intervals in lpvpc (re-identifying "
             "gives them then). The estimates are shown.")
