@@ -66,9 +66,9 @@ DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: cross-validated squared error by at least this fraction. Why: with 5-10 folds a tiny but
 #: consistent gain passes the paired rule (stationary virtual subject without relaxation, seed 0:
 #: +0.002 points of CV VAF, chosen), and an effect costs more than its parameters (an extended
-#: model carries no intervals; the FMU gets its states). 5 %: on clean 1 kHz records of the
-#: standard and sum-of-exponentials stiffness (seed 3) relaxation was chosen at 1.5 and 2.2 %
-#: (absorbing what the position basis misses, and losing the K intervals), while relaxation
+#: model's K interval is about twice as wide, lpvpc.uncertainty; the FMU gets its states). 5 %: on
+#: clean 1 kHz records of the standard and sum-of-exponentials stiffness (seed 3) relaxation was
+#: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
 #: present gave 16-35 % (benchmarks/results/effect_selection.txt).
 MIN_EFFECT_GAIN = 0.05
 #: The first look (the first fit's dynamics, which take part of a relaxation) screens at a
