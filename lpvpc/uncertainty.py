@@ -428,6 +428,46 @@ def intrinsic_interval_parts(model, quantity: str, rho):
                      "structures": structural_shift(model, quantity, rho)}
 
 
+def relaxed_stiffness_interval(model, rho, level: float = 0.95):
+    """(estimate, lower, upper) arrays (N m/rad) of the relaxed stiffness at ``rho`` (rad) of
+    a model whose one effect is stress relaxation (:func:`lpvpc.effects.relaxation_stiffnesses`):
+    K(rho) plus the relaxation's steady-state term, linear in the base IRF's and the effect's
+    coefficients, so its noise standard error comes from their joint covariance
+    (``parameters.extension``); the structural bias bounds are K's (the relaxed stiffness
+    shares K's impulse response). ValueError for another model.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=1, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut), effects=("stress_relaxation",))
+    >>> est, lower, upper = relaxed_stiffness_interval(model, [0.0])  # N m/rad
+    >>> bool(lower[0] < est[0] < upper[0])
+    True
+    """
+    from .effects import relaxation_stiffnesses
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    u = _stored(model)
+    effects = list(getattr(model, "effects", None) or ())
+    n_e = u["parameters"].get("extension", 0)
+    if [fe.name for fe in effects] != ["stress_relaxation"] or np.size(effects[0].Theta) != n_e:
+        raise ValueError("a relaxed-stiffness interval needs a model whose one effect is stress_relaxation")
+    fe = effects[0]
+    G = fe.basis.evaluate(rho)
+    if not fe.effect.feature_constant:
+        G = G[:, 1:]
+    g = np.hstack([_gradients_intrinsic(model, rho, lag_moment_weights(model, "stiffness")),
+                   np.tile(G, (1, np.shape(fe.Theta)[0]))])  # Theta flattened row by row, as fitted
+    cov = np.asarray(u["covariance"], dtype=float)[: g.shape[1], : g.shape[1]]
+    se = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", g, cov, g), 0.0, None))
+    K, bias = intrinsic_interval_parts(model, "stiffness", rho)[::2]
+    est = relaxation_stiffnesses(model, rho)[1]
+    half = bias_aware_critical_value((bias["specification"] + bias["structures"]) / np.maximum(se, 1e-300),
+                                     level) * se
+    return est, est - half, est + half
+
+
 def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:
     """Bound on the structural bias of an intrinsic quantity at ``rho`` (its units): the sum
     of the absolute shifts of the quantity under the stored neighbouring specifications of

@@ -22,7 +22,8 @@ from lpvpc.errors import ModelFileError
 from lpvpc.identify import LPVPCEstimator, identify
 from lpvpc.model import LPVPCModel
 from lpvpc.simulate import SubjectParams, simulate_pair
-from lpvpc.uncertainty import intrinsic_interval_parts
+from lpvpc.effects import relaxation_stiffnesses
+from lpvpc.uncertainty import intrinsic_interval_parts, relaxed_stiffness_interval
 
 EFFECT = "stress_relaxation"
 TRUTH = SubjectParams()
@@ -126,6 +127,25 @@ def test_summary_and_report_show_the_extended_model_with_intervals(models):
     K = model.elastic_stiffness_interval(np.round(central_rho(model, 5), 2))
     assert f"({K[0][0]:.1f}–{K[1][0]:.1f})" in html  # the K cell carries its interval
     assert "no intervals" not in html and "No confidence intervals" not in html
+    rho = np.round(central_rho(model, 5), 2)
+    (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho), relaxed_stiffness_interval(model, rho)
+    for i in range(len(rho)):  # the relaxed stiffness's interval where it is plausible (0 < relaxed <= short)
+        assert (f"({lo[i]:.1f}–{hi[i]:.1f})" in html) == bool(0 < relaxed[i] <= short[i])
+
+
+def test_relaxed_stiffness_interval_covers_the_truth(record, models):
+    """The relaxed stiffness of the clean subject is its K (nothing relaxes); its interval
+    (joint covariance of the IRF and the relaxation coefficients) covers it and contains
+    the estimate. A base model has none."""
+    sim, _ = record
+    for late in (False, True):
+        model = models[late]
+        rho = central_rho(model)
+        est, lo, hi = relaxed_stiffness_interval(model, rho)
+        assert np.allclose(est, relaxation_stiffnesses(model, rho)[1]) and np.all((lo < est) & (est < hi))
+        assert _covered((lo, hi), TRUTH.incremental_stiffness(rho, sim.truth["perturbation_amplitude"])) >= 8 / 9
+    with pytest.raises(ValueError, match="stress_relaxation"):
+        relaxed_stiffness_interval(models["base"], [0.0])
 
 
 def test_structural_term_counts_the_structure_without_the_effects(record, models):
@@ -186,3 +206,24 @@ def test_effects_that_leave_the_base_pathway_undetermined_give_no_intervals():
                 _check_extension_inflation(R, np.linalg.inv(R), 3, 4)
         else:
             _check_extension_inflation(R, np.linalg.inv(R), 3, 4)
+
+
+def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
+    """On the virtual subject with stress relaxation (40 % of the elastic torque relaxes:
+    held, 60 % of K remains) the relaxed stiffness's interval covers 0.6 K, and the report's
+    relaxed column carries it where the relaxed stiffness is plausible."""
+    from validation.report import _physiology_table
+
+    sim = simulate_pair("multilevel", seed=SEED, fs_out=100.0, effects=(EFFECT,))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(pair_trials(sim.pt, sim.ut), effects=(EFFECT,))
+    rho = central_rho(model)
+    _, lo, hi = relaxed_stiffness_interval(model, rho)
+    assert _covered((lo, hi), 0.6 * TRUTH.incremental_stiffness(rho, sim.truth["perturbation_amplitude"])) >= 8 / 9
+    html = _physiology_table(model)
+    rho5 = np.round(central_rho(model, 5), 2)
+    (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho5), relaxed_stiffness_interval(model, rho5)
+    plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.effects)
+    assert plausible.sum() >= 3
+    assert all((f"({a:.1f}–{b:.1f})" in html) == ok for a, b, ok in zip(lo, hi, plausible))

@@ -366,8 +366,17 @@ def _physiology_table(model, level=0.95) -> str:
         from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL
 
         head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
-        for row, k, short in zip(rows, relaxed, K):
-            row.insert(2, f"{k:.1f}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
+        band = None
+        if has:  # lpvpc.uncertainty.relaxed_stiffness_interval: stress relaxation the model's one effect
+            from lpvpc.uncertainty import relaxed_stiffness_interval
+
+            try:
+                band = relaxed_stiffness_interval(model, rho, level)[1:]
+            except ValueError:
+                band = None
+        for i, (row, k, short) in enumerate(zip(rows, relaxed, K)):
+            ci_k = "" if band is None else f" <span class=\"small\">({band[0][i]:.1f}–{band[1][i]:.1f})</span>"
+            row.insert(2, f"{k:.1f}{ci_k}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
     if has:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
