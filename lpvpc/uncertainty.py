@@ -222,6 +222,16 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     G[n_i + n_w:, n_i + n_w - 1:] = np.eye(n_bd + n_den)
     cov = G @ cov_z @ G.T
     cov = 0.5 * (cov + cov.T)
+    from .modelfile import MAX_ABS_VALUE
+
+    if n_i > n_b and np.abs(cov[n_b:n_i]).max() > MAX_ABS_VALUE:
+        # effect coefficients in tiny units (EMG in V): their block would not fit the model file.
+        # Dropped, the rest is unchanged (the marginal covariance of the base and reflex parameters)
+        keep = np.r_[0:n_b, n_i:len(cov)]
+        cov, extension = cov[np.ix_(keep, keep)], {}
+    if np.abs(cov).max() > MAX_ABS_VALUE:
+        raise np.linalg.LinAlgError(f"the final fit's parameters are not determined (covariance entries up to "
+                                    f"{np.abs(cov).max():.3g}, above the model file's {MAX_ABS_VALUE:g})")
     out = {
         "method": METHOD,
         "block_length_s": block / model.fs,

@@ -227,3 +227,24 @@ def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
     plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.effects)
     assert plausible.sum() >= 3
     assert all((f"({a:.1f}–{b:.1f})" in html) == ok for a, b, ok in zip(lo, hi, plausible))
+
+
+def test_effect_coefficients_too_uncertain_for_the_file_are_marginalised_out(tmp_path):
+    """Background activation's columns are EMG (V) times the IRF's: their coefficients'
+    variances exceed the model file's MAX_ABS_VALUE. Their block is dropped (the base and
+    reflex blocks are the marginal ones either way) and the model saves, loads and keeps
+    its K intervals."""
+    from lpvpc.identification_data import load_identification_data
+    from lpvpc.modelfile import MAX_ABS_VALUE
+
+    sim = simulate_pair("multilevel", seed=0, effects=("background_activation",), duration=60.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = identify(load_identification_data(pt=sim.pt, ut=sim.ut), effects=("background_activation",))
+    assert model.has_intervals and "extension" not in model.uncertainty["parameters"]
+    assert np.abs(np.asarray(model.uncertainty["covariance"])).max() <= MAX_ABS_VALUE
+    path = tmp_path / "m.json"
+    model.save(path)
+    rho = central_rho(model, 3)
+    assert np.array_equal(np.array(LPVPCModel.load(path).elastic_stiffness_interval(rho)),
+                          np.array(model.elastic_stiffness_interval(rho)))
