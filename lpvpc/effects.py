@@ -1286,8 +1286,10 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
     part and every effect jointly with the identified reflex held. Updates ``model``
     (H, H_causal, curvature, effects) in place. ``Psi_i_base``: the base model's intrinsic
     columns (with the elastic curvature tied in, if the model has it), ``Psi_irf`` the IRF's
-    alone (default: the same)."""
+    alone (default: the same). Sets ``design.extension`` = (columns, coefficients) of the
+    effects as the final fit has them (the intervals' full regression: lpvpc.uncertainty)."""
     effects = design.fitted(theta_effects, design.blocks, model.causal_lags, model.causal_derivatives)
+    design.extension = (design.columns, np.asarray(theta_effects, dtype=float))
     if design.reflex_effects or design.late_effects:
         model.effects = []
         if (REFIT_POLES or REFIT_DRIVE) and any(e.refit_poles for e in design.reflex_effects):
@@ -1342,6 +1344,8 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         model.H_causal = causal_irf(design.position, design.fs, model.causal_lags, design.Gi_val,
                                     (Psi_i_base if Psi_irf is None else Psi_irf) @ theta[:n_b], model.causal_derivatives)
         n_e = design.columns.shape[1]
+        n_late = design.late_columns.shape[1]  # the reflex effects' columns scale with Omega (above)
+        design.extension = (np.hstack([design.columns, X_r[:, :n_late], c * X_r[:, n_late:]]), theta[n_b:])
         effects = design.fitted(np.concatenate([theta[n_b: n_b + n_e], theta[n_b + n_e:]]),
                                 design.blocks + blocks_r, model.causal_lags, model.causal_derivatives)
     model.effects = effects

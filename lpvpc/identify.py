@@ -66,9 +66,9 @@ DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: cross-validated squared error by at least this fraction. Why: with 5-10 folds a tiny but
 #: consistent gain passes the paired rule (stationary virtual subject without relaxation, seed 0:
 #: +0.002 points of CV VAF, chosen), and an effect costs more than its parameters (an extended
-#: model carries no intervals; the FMU gets its states). 5 %: on clean 1 kHz records of the
-#: standard and sum-of-exponentials stiffness (seed 3) relaxation was chosen at 1.5 and 2.2 %
-#: (absorbing what the position basis misses, and losing the K intervals), while relaxation
+#: model's K interval is about twice as wide, lpvpc.uncertainty; the FMU gets its states). 5 %: on
+#: clean 1 kHz records of the standard and sum-of-exponentials stiffness (seed 3) relaxation was
+#: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
 #: present gave 16-35 % (benchmarks/results/effect_selection.txt).
 MIN_EFFECT_GAIN = 0.05
 #: The first look (the first fit's dynamics, which take part of a relaxation) screens at a
@@ -836,19 +836,27 @@ class LPVPCEstimator:
                 return model.predict(data, causal=causal, warn=False).total
             return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
 
-        if design is None and not bare:  # intervals (lpvpc.uncertainty); extended models carry none
+        if not bare:  # intervals (lpvpc.uncertainty)
             from .reflex import reflex_regressor
             from .uncertainty import fit_uncertainty
 
             t = time.perf_counter()
+            Psi_u, theta_u, omega_u = Psi_i, best["theta_i"], hf.omega
+            if design is not None:  # extended: the effects' columns as the final fit has them, fitted with
+                # the base ones (whose block of the full covariance is then marginal); the model-rate
+                # nonlinearity, as rescaled there (lpvpc.effects.finish_extended_fit)
+                X_e, theta_e = design.extension
+                Psi_u = np.hstack([Psi_i[:, :n_base], X_e])
+                theta_u, omega_u = np.concatenate([model.H.ravel(), theta_e]), model.Omega.ravel()
             try:
                 model.uncertainty = fit_uncertainty(
-                    model, Psi_i, reflex_regressor(U_r, best["A"], best["C"], seg), y, np.append(hf.b, hf.d),
-                    hf.omega, best["theta_i"], U_r, best["A"], truncated_irf(p, Gi_val, L, seg), segments=seg,
+                    model, Psi_u, reflex_regressor(U_r, best["A"], best["C"], seg), y, np.append(hf.b, hf.d),
+                    omega_u, theta_u, U_r, best["A"], truncated_irf(p, Gi_val, L, seg), segments=seg,
                     richer=richer_basis_irf(p, rho, G_i, lags, seg),
-                    curvature_torque=None if curvature is None else eq.elastic_curvature_torque(p, Gi_val, curvature),
+                    curvature_torque=(None if model.curvature is None
+                                      else eq.elastic_curvature_torque(p, Gi_val, model.curvature)),
                     # the elastic torque's second-order term, free (not tied to the IRF's K')
-                    free_curvature=(p ** 2)[:, None] * Gi_val)
+                    free_curvature=(p ** 2)[:, None] * Gi_val, n_base=n_base)
             except np.linalg.LinAlgError as exc:  # the model stands; only its intervals are missing
                 from .errors import LpvpcWarning
 

@@ -422,8 +422,8 @@ def _check_uncertainty(x, where, problems, d, budget):
         return
     par = _dict(u.get("parameters"), f"{where}.parameters", problems, required=True)
     n = {}
-    for key in ("theta_i", "omega", "bd", "den"):
-        v = par.get(key, 0 if key == "den" else None)
+    for key in ("theta_i", "extension", "omega", "bd", "den"):  # extension: an extended model's effects
+        v = par.get(key, 0 if key in ("den", "extension") else None)
         n[key] = _integer(v, f"{where}.parameters.{key}", problems, 0, MAX_UNCERTAINTY_PARAMETERS,
                           "MAX_UNCERTAINTY_PARAMETERS")
         if n[key] is None:
@@ -438,6 +438,8 @@ def _check_uncertainty(x, where, problems, d, budget):
             problems.append(f"{where}.parameters.{key} = {n[key]} does not match the model ({val})")
     if n["den"] not in (0, m):
         problems.append(f"{where}.parameters.den = {n['den']} must be 0 or the state order {m}")
+    if n["extension"] and not d.get("effects"):
+        problems.append(f"{where}.parameters.extension = {n['extension']} but the model has no effects")
     if problems:
         raise _Refused
     p = sum(n.values())

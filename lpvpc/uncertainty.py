@@ -62,8 +62,10 @@ then raise :class:`~lpvpc.errors.ModelFileError`)::
     richer_basis  {"basis": scheduling basis one order higher, "H": that IRF (N m/rad)}
     curvature_reflex {"omega": n_v * n_r, "bd": m + 1}: the reflex refitted with free elastic
                   curvature columns in the intrinsic pathway (:func:`reflex_bias_bound`)
-    parameters    {"theta_i": n, "omega": n_v * n_r, "bd": m + 1, "den": m or 0}: order of
-                  the covariance (den: reflex denominator coefficients, when refined)
+    parameters    {"theta_i": n, "extension": n_e, "omega": n_v * n_r, "bd": m + 1, "den": m or 0}:
+                  order of the covariance (extension: an extended model's effect coefficients,
+                  fitted with the base ones, absent for a base model; den: reflex denominator
+                  coefficients, when refined)
     covariance    p x p (units of the parameters: theta_i N m/rad, omega 1, bd N m, den 1)
     vaf           {"estimate": %, "lower": %, "upper": %, "level": 0.95}
     reflex_determined {"rho": 9 positions over the identified range (rad), "gain": [bool],
@@ -138,7 +140,7 @@ def _reflex_output(z, bd, den, segments=None):
 
 
 def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=None, truncated=None,
-                    segments=None, richer=None, free_curvature=None, curvature_torque=None) -> dict:
+                    segments=None, richer=None, free_curvature=None, curvature_torque=None, n_base=None) -> dict:
     """The ``uncertainty`` entry of the model file for the fit ``y ~ Psi_i theta_i +
     sum_j bd_j blocks_j omega`` (see the module docstring). Arrays in SI units.
 
@@ -153,6 +155,13 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
     second-order term with free coefficients (the model's are tied to its K'(theta), or
     absent): the final separable least squares refitted with them for the reflex bias
     bound (:func:`reflex_bias_bound`).
+
+    An extended model (lpvpc.effects): ``Psi_i`` holds the base IRF's ``n_base`` columns
+    followed by the effects' columns, fitted together with them (``theta_i`` likewise); the
+    covariance is of that whole regression, so the base parameters' block is their marginal
+    covariance with the effects free, and the neighbouring specifications are refitted to
+    the intrinsic torque with the effects' torque removed. Default ``n_base``: every column
+    is the base IRF's.
 
     :func:`lpvpc.identify.identify` calls it; the model (and its file) keeps the result:
 
@@ -198,27 +207,43 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
             f"the final fit's parameters are not all identified ({int(np.sum(diag > 1e-10 * diag.max()))} of "
             f"{p} directions; a reflex pathway that came out zero leaves its nonlinearity undetermined)")
     Rinv = np.linalg.inv(R)
+    if n_base is not None and Psi_i.shape[1] > n_base:
+        _check_extension_inflation(R, Rinv, int(n_base), Psi_i.shape[1])
     J *= e[:, None]  # in place: J is not needed after R (an N x p copy less)
     S = long_run_covariance(J, block)
     del J
     cov_z = Rinv @ (Rinv.T @ S @ Rinv) @ Rinv.T * (N / max(N - p, 1))  # small-sample dof correction
     n_i, n_w, n_bd, n_den = Psi_i.shape[1], len(omega), len(bd), 0 if den is None else len(den)
+    n_b = n_i if n_base is None else int(n_base)  # the base IRF's columns; the rest: the effects'
+    extension = {"extension": int(n_i - n_b)} if n_i > n_b else {}
     G = np.zeros((n_i + n_w + n_bd + n_den, p))
     G[:n_i, :n_i] = np.eye(n_i)
     G[n_i:n_i + n_w, n_i:n_i + n_w - 1] = T
     G[n_i + n_w:, n_i + n_w - 1:] = np.eye(n_bd + n_den)
     cov = G @ cov_z @ G.T
     cov = 0.5 * (cov + cov.T)
+    from .modelfile import MAX_ABS_VALUE
+
+    if n_i > n_b and np.abs(cov[n_b:n_i]).max() > MAX_ABS_VALUE:
+        # effect coefficients in tiny units (EMG in V): their block would not fit the model file.
+        # Dropped, the rest is unchanged (the marginal covariance of the base and reflex parameters)
+        keep = np.r_[0:n_b, n_i:len(cov)]
+        cov, extension = cov[np.ix_(keep, keep)], {}
+    if np.abs(cov).max() > MAX_ABS_VALUE:
+        raise np.linalg.LinAlgError(f"the final fit's parameters are not determined (covariance entries up to "
+                                    f"{np.abs(cov).max():.3g}, above the model file's {MAX_ABS_VALUE:g})")
     out = {
         "method": METHOD,
         "block_length_s": block / model.fs,
         "n_samples": int(N),
         "dof": int(N - p),
-        "parameters": {"theta_i": int(n_i), "omega": int(n_w), "bd": int(n_bd), "den": int(n_den)},
+        "parameters": {"theta_i": int(n_b), **extension, "omega": int(n_w), "bd": int(n_bd), "den": int(n_den)},
         "covariance": cov.tolist(),
         "vaf": vaf_interval(y, fitted, block),
     }
     y_i = y - X_om @ omega  # the IRF's torque of the fit
+    if n_i > n_b:  # without the effects' torque, which the refitted neighbours cannot hold
+        y_i = y_i - Psi_i[:, n_b:] @ theta_i[n_b:]
     if curvature_torque is not None:
         y_i = y_i - curvature_torque
     if truncated is not None:
@@ -237,6 +262,31 @@ def fit_uncertainty(model, Psi_i, blocks, y, bd, omega, theta_i, U_r=None, A=Non
         except InsufficientExcitationError:  # the columns are already in Psi_i, or p^2 is unexcited
             pass
     return out
+
+
+#: Largest factor by which an extended model's effects, fitted with the base columns, may grow
+#: the base IRF parameters' standard errors (square root of the variance inflation; the
+#: Gram matrix of the final fit). Stress relaxation: 1.13-1.2 on the virtual subject; every
+#: catalog effect at once on a 60-s record (tests/test_effects.py): up to 21, where the HAC
+#: covariance reached 1e10 and K's interval +-1e5 N m/rad.
+MAX_EXTENSION_INFLATION = 5.0
+
+
+def _check_extension_inflation(R, Rinv, n_base, n_i):
+    """Raise LinAlgError when the effects' columns (n_base..n_i of the triangular factor R
+    of the final fit's Jacobian) leave the base IRF parameters undetermined: their standard
+    errors with the effects free exceed those with the effects held by more than
+    :data:`MAX_EXTENSION_INFLATION` (the same parameters, so no scaling matters)."""
+    keep = np.r_[0:n_base, n_i:R.shape[1]]
+    R_k = np.linalg.qr(R[:, keep], mode="r")  # the Gram matrix without the effects' columns
+    held = np.sum(np.linalg.inv(R_k)[:n_base] ** 2, axis=1)
+    free = np.sum(Rinv[:n_base] ** 2, axis=1)
+    worst = float(np.sqrt(np.max(free / held)))
+    if not worst <= MAX_EXTENSION_INFLATION:
+        raise np.linalg.LinAlgError(
+            f"the effects' columns leave the base pathway undetermined: fitted with them, its parameters' "
+            f"standard errors grow up to {worst:.3g}x (more than MAX_EXTENSION_INFLATION = "
+            f"{MAX_EXTENSION_INFLATION:g}); fewer effects, or a longer or better-excited record, give intervals")
 
 
 def _reflex_refit(blocks, Psi, y, omega) -> dict:
@@ -324,17 +374,19 @@ def _stored(model):
 
     u = getattr(model, "uncertainty", None)
     if not u:
-        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, an extended "
-                             "model, or a fit whose parameters were not all identified: see the warning "
-                             "identify gave): re-identify it to get intervals")
+        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, whose extended "
+                             "models had none, or a fit whose parameters were not all identified: see the "
+                             "warning identify gave): re-identify it to get intervals")
     return u
 
 
 def _cov_blocks(model):
+    """(covariance, index where the reflex parameters start, number of omega entries): an
+    extended model's effect coefficients sit between the base IRF's and the reflex's."""
     u = _stored(model)
     cov = np.asarray(u["covariance"], dtype=float)
-    n_i, n_w = u["parameters"]["theta_i"], u["parameters"]["omega"]
-    return cov, n_i, n_w
+    par = u["parameters"]
+    return cov, par["theta_i"] + par.get("extension", 0), par["omega"]
 
 
 def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
@@ -379,11 +431,51 @@ def intrinsic_interval_parts(model, quantity: str, rho):
     cov, n_i, _ = _cov_blocks(model)
     w = lag_moment_weights(model, quantity)
     g = _gradients_intrinsic(model, rho, w)
-    n_base = g.shape[1]  # theta_i beyond the base IRF belongs to effects (not stored here)
+    n_base = g.shape[1]  # the base IRF's block: with effects, their marginal covariance (effects free)
     est = g @ model.H.ravel()
     se = np.sqrt(np.einsum("ij,jk,ik->i", g, cov[:n_base, :n_base], g))
     return est, se, {"specification": structural_bias_bound(model, quantity, rho, est),
                      "structures": structural_shift(model, quantity, rho)}
+
+
+def relaxed_stiffness_interval(model, rho, level: float = 0.95):
+    """(estimate, lower, upper) arrays (N m/rad) of the relaxed stiffness at ``rho`` (rad) of
+    a model whose one effect is stress relaxation (:func:`lpvpc.effects.relaxation_stiffnesses`):
+    K(rho) plus the relaxation's steady-state term, linear in the base IRF's and the effect's
+    coefficients, so its noise standard error comes from their joint covariance
+    (``parameters.extension``); the structural bias bounds are K's (the relaxed stiffness
+    shares K's impulse response). ValueError for another model.
+
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=1, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut), effects=("stress_relaxation",))
+    >>> est, lower, upper = relaxed_stiffness_interval(model, [0.0])  # N m/rad
+    >>> bool(lower[0] < est[0] < upper[0])
+    True
+    """
+    from .effects import relaxation_stiffnesses
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    u = _stored(model)
+    effects = list(getattr(model, "effects", None) or ())
+    n_e = u["parameters"].get("extension", 0)
+    if [fe.name for fe in effects] != ["stress_relaxation"] or np.size(effects[0].Theta) != n_e:
+        raise ValueError("a relaxed-stiffness interval needs a model whose one effect is stress_relaxation")
+    fe = effects[0]
+    G = fe.basis.evaluate(rho)
+    if not fe.effect.feature_constant:
+        G = G[:, 1:]
+    g = np.hstack([_gradients_intrinsic(model, rho, lag_moment_weights(model, "stiffness")),
+                   np.tile(G, (1, np.shape(fe.Theta)[0]))])  # Theta flattened row by row, as fitted
+    cov = np.asarray(u["covariance"], dtype=float)[: g.shape[1], : g.shape[1]]
+    se = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", g, cov, g), 0.0, None))
+    K, bias = intrinsic_interval_parts(model, "stiffness", rho)[::2]
+    est = relaxation_stiffnesses(model, rho)[1]
+    half = bias_aware_critical_value((bias["specification"] + bias["structures"]) / np.maximum(se, 1e-300),
+                                     level) * se
+    return est, est - half, est + half
 
 
 def structural_bias_bound(model, quantity: str, rho, est) -> np.ndarray:

@@ -259,23 +259,25 @@ def test_improve_report_shows_the_physiology_of_each_step_and_no_repository_path
         assert "benchmarks/" not in where and "README" not in where and "/work/" not in where
 
 
-def test_validation_report_of_a_model_with_effects_says_why_it_has_no_intervals(files, tmp_path, capsys):
+def test_validation_report_of_a_model_with_effects_shows_its_intervals(files, tmp_path, capsys):
+    """An extended model carries intervals like a base model (issue 22): the report's table
+    shows them and the figures draw their bands."""
     from lpvpc.model import LPVPCModel
     from lpvpc.validation import validate
 
     model = tmp_path / "effect.json"
     assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "--effect", "nonlinear_viscosity",
                  "-o", model], capsys)[0] == 0
-    assert not LPVPCModel.load(model).has_intervals
+    loaded = LPVPCModel.load(model)
+    assert loaded.has_intervals and [fe.name for fe in loaded.effects] == ["nonlinear_viscosity"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
         result = validate(model, files["pt"], files["ut"], tmp_path / "report")
     page = (tmp_path / "report" / "report.html").read_text()
     text = _report_text(page)
-    assert "older lpvpc" not in text and "re-identify to get them" not in text
-    assert "No confidence intervals: lpvpc computes them for models without effects only" in text
-    assert "nonlinear_viscosity" in text
-    assert "its confidence band" not in text and "with confidence bands" not in text  # Fig. 4 and 5A draw none
+    assert "No confidence intervals" not in text and "In brackets: 95% confidence intervals" in text
+    K = loaded.elastic_stiffness_interval([0.0])
+    assert "–" in text and np.isfinite(K[0]).all()  # the table's intervals (en dash between the bounds)
     assert "benchmarks/" not in page and "README" not in page
     assert result.metrics["vaf"] > 80
 

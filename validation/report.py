@@ -366,8 +366,17 @@ def _physiology_table(model, level=0.95) -> str:
         from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL
 
         head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
-        for row, k, short in zip(rows, relaxed, K):
-            row.insert(2, f"{k:.1f}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
+        band = None
+        if has:  # lpvpc.uncertainty.relaxed_stiffness_interval: stress relaxation the model's one effect
+            from lpvpc.uncertainty import relaxed_stiffness_interval
+
+            try:
+                band = relaxed_stiffness_interval(model, rho, level)[1:]
+            except ValueError:
+                band = None
+        for i, (row, k, short) in enumerate(zip(rows, relaxed, K)):
+            ci_k = "" if band is None else f" <span class=\"small\">({band[0][i]:.1f}–{band[1][i]:.1f})</span>"
+            row.insert(2, f"{k:.1f}{ci_k}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
     if has:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
@@ -377,9 +386,9 @@ def _physiology_table(model, level=0.95) -> str:
                 f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). "
                 f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject at the "
                 f"default settings from 1 kHz files (three stiffness families, two of them curves the basis cannot "
-                f"hold; 40 seeds each, 9 positions): K 86-99 %, viscosity 87-100 %, reflex gain 85-96 %, reflex "
-                f"threshold 89-100 %; the lowest figures are one family's seeds on which the selection chose stress "
-                f"relaxation (an extended model has no intervals; benchmarks/results/coverage_families.txt).")
+                f"hold; 40 seeds each, 9 positions): K 91-99 %, viscosity 93-100 %, reflex gain 92-96 %, reflex "
+                f"threshold 96-100 % (see the user guide's page on confidence intervals). In a model with stress relaxation the "
+                f"K interval is the short-range stiffness's.")
     else:
         note = _no_intervals_note(model)
     if relaxed is not None:
@@ -402,9 +411,10 @@ def _relaxed_stiffness(model, rho):
 def _no_intervals_note(model) -> str:
     """Why a model has no confidence intervals: what is true of it, and what would give them."""
     if model.effects:
-        return ("No confidence intervals: lpvpc computes them for models without effects only, and this model has "
-                f"{', '.join(fe.name for fe in model.effects)}. The estimates are shown; their spread can be judged "
-                "by identifying the same model from other trials.")
+        return ("No confidence intervals in this model file: it has "
+                f"{', '.join(fe.name for fe in model.effects)} and was identified by an lpvpc that computed intervals "
+                "for models without effects only, or its covariance could not be computed (identification warned "
+                "why). Re-identifying gives them. The estimates are shown.")
     return ("No confidence intervals in this model file: their covariance could not be computed from the "
             "identification data (identification warned why), or the file predates intervals in lpvpc (re-identifying "
             "gives them then). The estimates are shown.")
