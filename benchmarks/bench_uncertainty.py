@@ -92,7 +92,7 @@ def one_seed(seed, files_fs=1000.0):
     g_d, th_d = model_d.reflex_gain_threshold(rho)
     if model_d.has_intervals:
         gi_d, thi_d = model_d.reflex_gain_interval(rho), model_d.reflex_threshold_interval(rho)
-    else:  # an allowed effect was chosen: no intervals, counted as not covered
+    else:  # no intervals (an effect left the base pathway undetermined): counted as not covered
         nan = np.full(len(rho), np.nan)
         gi_d = thi_d = Interval(nan, nan, determined=np.zeros(len(rho), bool))
     g_dc, th_dc = model_dc.reflex_gain_threshold(rho)
