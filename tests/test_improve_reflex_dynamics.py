@@ -54,6 +54,8 @@ def test_wide_reflex_dynamics_step_reaches_the_clean_model(monkeypatch, tmp_path
     assert joint.A.shape == held.A.shape and np.shape(joint.Omega) == np.shape(held.Omega)
     assert np.max(np.abs(np.linalg.eigvals(joint.A))) < 1.0
     assert not np.allclose(np.linalg.eigvals(joint.A), np.linalg.eigvals(held.A))
+    # the intervals are those of the refitted model: their regression reproduces its fit
+    assert abs(joint.uncertainty["vaf"]["estimate"] - joint.fit["vaf"]) < 0.01
     # the summary's poles are the refitted model's, not those of the fit before the refit
     assert np.allclose(np.sort_complex([complex(*z) for z in joint.fit["poles"]]), np.sort_complex(np.linalg.eigvals(joint.A)))
     # measured: held 95.77 % held out (fit 95.67), joint 96.95 % (96.90); clean 97.34 %
