@@ -28,8 +28,11 @@ Two questions (see :func:`diagnose`):
    and predict the held-out fold (blocked cross-validation, K = 10): the held-out VAF gain
    pools all folds. Significance: the paired, one-sided test of the mean of
    d(k) = r_base(k)^2 - r_candidate(k)^2 over held-out samples, with the variance from
-   means over 2-s blocks (the residual is coloured, samples are not independent); extra
-   parameters are accounted for because every residual is held out. A candidate is
+   means over 2-s blocks (the residual is coloured, samples are not independent), and the
+   Wilcoxon signed-rank test on the same block means: the smaller p, doubled (one block that
+   swings the other way takes the t test's power, an effect confined to a few blocks the
+   signed rank's; :func:`lpvpc.diagnose_cv.robust_paired_test`); extra parameters are accounted
+   for because every residual is held out. A candidate is
    significant when its p-value is below alpha / n_candidates (Bonferroni, alpha = 0.1) AND
    its gain is at least ``min_gain`` (0.15) pp, or 0.6 x min_gain with a p-value ten times
    below the level (:func:`lpvpc.diagnose_candidates.passes`: effects that carry little
@@ -71,7 +74,7 @@ import numpy as np
 from .diagnose_candidates import (ALPHA, EMG_MIN_CHANGE, EMG_TIE, EMG_TREND_P, LEAK_R2, MIN_GAIN,  # noqa: F401
                                   PREFER_UNDERIVED, TIE_P, TIES, CandidateResult, _variant_text,
                                   reflex_leak, score_candidates, signal_leaks)
-from .diagnose_cv import BLOCK_S, FIXED_RIDGE, FOLDS, RIDGE, BlockCV, _r, paired_test  # noqa: F401
+from .diagnose_cv import BLOCK_S, FIXED_RIDGE, FOLDS, RIDGE, BlockCV, _r, paired_test, robust_paired_test  # noqa: F401
 from .diagnose_report import candidates_html, diagnosis_html, format_table, write_report  # noqa: F401
 from .diagnose_signals import FORMS, TIME_KNOT_S, candidate_signals, signal_dependence, time_basis  # noqa: F401
 from .diagnose_surrogate import Surrogate
@@ -362,6 +365,7 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         candidates=results, dependence=dep, where=where,
         settings={"folds": folds, "min_gain": min_gain, "alpha": alpha, "block_s": block_s, "design": design,
                   "leak_r2": LEAK_R2,
-                  "test": "paired one-sided t on held-out squared residuals, 2-s batch means, Bonferroni over candidates"},
+                  "test": ("paired one-sided test on held-out squared residuals, 2-s batch means: t or Wilcoxon "
+                           "signed rank, the smaller p doubled; Bonferroni over candidates")},
         timings=timings, residual=resid, prediction=pred.total, design=sur.design, design_reason=reason,
         coverage=cov, leaks=leaks, base_residual=r0)

@@ -15,7 +15,8 @@ import pytest
 from lpvpc import simulate
 from lpvpc.cli import build_parser, cmd_diagnose, cmd_improve, main
 from lpvpc.data import Trial, pair_trials
-from lpvpc.diagnose import BlockCV, diagnose, paired_test, write_report
+from lpvpc.diagnose import BlockCV, diagnose, paired_test, robust_paired_test, write_report
+from lpvpc.diagnose_candidates import passes
 from lpvpc.effects import signals_from_data
 from lpvpc.identify import identify
 from lpvpc.improve import Ladder, Rung, improve
@@ -185,6 +186,38 @@ def test_paired_test():
     assert t > 5 and p < 1e-6
     t, p = paired_test(r0, r0 + 0.05 * rng.standard_normal(6000), 100.0)
     assert p > 1e-3
+
+
+
+def test_robust_paired_test_keeps_its_power_when_one_block_swings_the_other_way():
+    # a candidate better by 6 % of the squared residual in 59 of 60 2-s blocks, much worse in
+    # one (a slow signal extrapolated into a held-out fold): the batch-means t test loses it
+    rng = np.random.default_rng(1)
+    r0 = rng.standard_normal(12000)
+    r1 = 0.97 * r0
+    r1[5000:5200] = 2.0 * r0[5000:5200]
+    t, p_plain = paired_test(r0, r1, 100.0)
+    t_robust, p_robust, p_mean = robust_paired_test(r0, r1, 100.0)
+    assert t_robust == t and p_mean == p_plain and p_plain > 0.1 and p_robust < 1e-6
+    # an improvement confined to the first 6 s (habituation-like): the signed rank sees few
+    # blocks, the t test carries it; the robust p is at most twice the t test's (Bonferroni)
+    r1 = r0.copy()
+    r1[:600] = 0.1 * r0[:600]
+    p_plain, p_robust = paired_test(r0, r1, 100.0)[1], robust_paired_test(r0, r1, 100.0)[1]
+    assert p_robust == pytest.approx(min(1.0, 2 * p_plain))
+    # no improvement (a candidate fitting noise): not significant either way
+    for seed in range(5):
+        r1 = r0 + 0.05 * np.random.default_rng(10 + seed).standard_normal(12000)
+        assert robust_paired_test(r0, r1, 100.0)[1] > 0.5
+
+
+def test_small_gains_are_judged_on_the_mean_test_alone():
+    # a gain between 0.6 and 1 x min_gain needs the t test's p ten times below the level:
+    # a signed-rank p that small (most blocks improve a little) is not enough
+    assert passes(0.12, 5e-4, 0.15, 1e-2)
+    assert not passes(0.12, 5e-4, 0.15, 1e-2, p_mean=5e-3)
+    assert passes(0.12, 5e-4, 0.15, 1e-2, p_mean=5e-4)
+    assert passes(0.2, 5e-3, 0.15, 1e-2, p_mean=0.2)  # a large gain: the robust p decides
 
 
 def test_improve_report(tmp_path):
