@@ -19,6 +19,9 @@ Causes of the relaxing subject's K bias (issue 22):
 nice python benchmarks/bench_relaxed_stiffness.py --causes [seeds, e.g. 0,1,2,3]  (writes
 benchmarks/results/relaxed_stiffness_causes.txt). The relaxation term's settings are varied
 in place (catalog entry, averaging times, or the exact truth feature); a diagnostic only.
+LPVPC_REAL_DATA=/path/to/real nice python benchmarks/bench_relaxed_stiffness.py --real  (the
+same single averaging times on the lab's five stationary trials, means removed, first 70 %
+identified, last 30 % predicted; writes benchmarks/results/relaxed_stiffness_real.txt).
 """
 
 from __future__ import annotations
@@ -190,6 +193,46 @@ def causes(seeds):
     write_results("relaxed_stiffness_causes.txt", lines, echo=True)
 
 
+def real_trials():
+    """Short-range and relaxed stiffness, fit and held-out VAF on the lab's stationary trials,
+    stress relaxation forced: the shipped averages and each single time of TIME_GRID (order 0:
+    one position)."""
+    import lpvpc.effects as effects_module
+    from lpvpc.effects import relaxation_stiffnesses
+    from lpvpc.model import vaf
+
+    import bench_real_stationary as real
+    from real_data import require
+
+    t0 = time.time()
+    trials = real.load(require("experimental_data.mat"))
+    shipped = effects_module.RELAXATION_TIMES
+    variants = [("0.3, 1, 3 s (shipped)", shipped)] + [(f"{t:g} s", (t,)) for t in TIME_GRID]
+    lines = ["# Stress relaxation's time on the lab's stationary trials (LPVPC_REAL_DATA=... nice python "
+             "benchmarks/bench_relaxed_stiffness.py --real)", "",
+             "experimental_data.mat, means removed (lpvpc.data.stationary_perturbation), torque negated, 100 Hz; "
+             "identify(first 70 %, effects=('stress_relaxation',)) with the averaging times varied; held-out: the "
+             "last 30 %. Cells: short-range K / relaxed stiffness (N m/rad), fit VAF / held-out VAF (%).", "",
+             "| trial | " + " | ".join(v for v, _ in variants) + " |", "|---" * (len(variants) + 1) + "|"]
+    for name in real.NAMES:
+        d, k = real.split(trials, "means removed", name)
+        cells = []
+        for _, times in variants:
+            model = _fit_variant(d.segment(0, k), times=times)
+            effects_module.RELAXATION_TIMES = tuple(times)  # the model does not store its times
+            try:
+                short, relaxed = relaxation_stiffnesses(model, [d.scheduling[0]])
+                held = vaf(d.torque[k:], model.predict(d, warn=False).total[k:])
+            finally:
+                effects_module.RELAXATION_TIMES = shipped
+            cells.append(f"{short[0]:.0f} / {relaxed[0]:.0f}, {model.fit['vaf']:.2f} / {held:.2f}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        print(lines[-1], flush=True)
+    lines += ["", f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
+                  f"wall time {(time.time() - t0) / 60:.1f} min"]
+    write_results("relaxed_stiffness_real.txt", lines, echo=True)
+
+
 def eq_memory(x, alpha):
     from lpvpc.equations import relaxation_memory
 
@@ -197,7 +240,9 @@ def eq_memory(x, alpha):
 
 
 if __name__ == "__main__":
-    if len(sys.argv) > 1 and sys.argv[1] == "--causes":
+    if len(sys.argv) > 1 and sys.argv[1] == "--real":
+        real_trials()
+    elif len(sys.argv) > 1 and sys.argv[1] == "--causes":
         causes([int(s) for s in (sys.argv[2] if len(sys.argv) > 2 else "0,1,2,3").split(",")])
     else:
         main(int(sys.argv[1]) if len(sys.argv) > 1 else 8)
