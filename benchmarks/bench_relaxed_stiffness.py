@@ -38,10 +38,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from lpvpc.data import pair_trials  # noqa: E402
+from lpvpc.equations import relaxation_memory  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
 from lpvpc.uncertainty import relaxed_stiffness_interval  # noqa: E402
-from _results import write_results  # noqa: E402
+from _results import RESULTS, write_results  # noqa: E402
 
 EFFECT = "stress_relaxation"
 RELAXED_FRACTION = 0.6  # of K, what a held displacement keeps on the relaxing subject (lpvpc.simulated_effects)
@@ -83,7 +84,13 @@ def main(n_seeds=8):
             print(lines[-1], flush=True)
     lines += ["", f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
                   f"wall time {(time.time() - t0) / 60:.1f} min"]
-    write_results("relaxed_stiffness.txt", lines, echo=True)
+    # the file's hand-written sections (from its first "## " heading on: the causes' analysis)
+    # stay below the new table
+    old = RESULTS / "relaxed_stiffness.txt"
+    text = old.read_text() if old.exists() else ""
+    if "\n## " in text:
+        lines += [""] + text[text.index("\n## ") + 1:].rstrip("\n").split("\n")
+    write_results(old, lines, echo=True)
 
 
 # --------------------------------------------------------------------------- causes (issue 22)
@@ -155,12 +162,12 @@ def causes(seeds):
                 theta = np.asarray(data.position, dtype=float) + theta_slow
                 alpha = 1.0 - np.exp(-1.0 / (0.6 * data.fs))
                 # scaled by a nominal 100 N m/rad so that its coefficient is about -40 (40 % relaxes)
-                kw = {"oracle": eq_memory(params.elastic_torque(theta) - params.elastic_torque(theta_slow), alpha) / 100.0,
-                      "joined": True}
+                relaxing = params.elastic_torque(theta) - params.elastic_torque(theta_slow)
+                kw = {"oracle": relaxation_memory(relaxing, alpha) / 100.0, "joined": True}
             model = _fit_variant(data, **kw)
             rows[name].append(_k_errors(model, pair))
-            if not kw:  # as shipped: which of the two fits was kept
-                late_kept.append(seed) if model.fit.get("effects_after_reflex") else None
+            if not kw and model.fit.get("effects_after_reflex"):  # as shipped: the after-reflex fit kept
+                late_kept.append(seed)
             print(f"seed {seed} | {name} | K error % {np.round(rows[name][-1][0], 1).tolist()}", flush=True)
         # one averaging time chosen per record by the in-sample fit (what a per-record search would do)
         fits = [(_fit_variant(data, times=(t,), order=3, joined=True), t) for t in TIME_GRID]
@@ -231,12 +238,6 @@ def real_trials():
     lines += ["", f"conditions: CPUs {os.cpu_count()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
                   f"wall time {(time.time() - t0) / 60:.1f} min"]
     write_results("relaxed_stiffness_real.txt", lines, echo=True)
-
-
-def eq_memory(x, alpha):
-    from lpvpc.equations import relaxation_memory
-
-    return relaxation_memory(x, alpha)
 
 
 if __name__ == "__main__":
