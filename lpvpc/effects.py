@@ -1033,6 +1033,8 @@ def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, 
 
 def effect_options(effect: Effect, signals: dict, model_like=None) -> dict:
     opts = {s: True for s in effect.optional_signals if s in signals}
+    if "relaxation" in effect.derived:  # saved with the model: its Theta rows are per time constant
+        opts["relaxation_times_s"] = [float(t) for t in RELAXATION_TIMES]
     if effect.uses_reflex and model_like is not None:
         A = np.atleast_2d(np.asarray(model_like.A, dtype=float))
         kappa = np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(model_like.B, dtype=float))

@@ -578,6 +578,14 @@ def _check_effects(x, where, problems, d, budget):
             if not ok:
                 problems.append(f"{w}.options.{key}: not a finite number, flag, name or short list of numbers")
                 raise _Refused
+        if "relaxation" in eff.derived and "relaxation_times_s" in opts:  # absent in older files: the same times
+            from .effects import RELAXATION_TIMES
+
+            if opts["relaxation_times_s"] != [float(t) for t in RELAXATION_TIMES]:
+                problems.append(f"{w}.options.relaxation_times_s = {_show(opts['relaxation_times_s'])} s, but this "
+                                f"lpvpc computes the relaxation memory with {list(RELAXATION_TIMES)} s: re-identify "
+                                "the model with this version")
+                raise _Refused
         if eff.uses_reflex:
             if not (opts.get("m") == m and _is_int(opts.get("m")) and isinstance(opts.get("kappa"), list)
                     and len(opts["kappa"]) == m and _is_number(opts.get("c_kappa"))):

@@ -12,7 +12,7 @@ from lpvpc import equations as eq
 from lpvpc import export
 from lpvpc.cli import main
 from lpvpc.data import pair_trials
-from lpvpc.errors import DataError
+from lpvpc.errors import DataError, ModelFileError
 from lpvpc.identify import with_base_model_activation
 from lpvpc.identify import LPVPCEstimator, identify
 from lpvpc.model import LPVPCModel, vaf
@@ -101,6 +101,13 @@ def test_extended_model_save_load_round_trip(rich, tmp_path, model_file):
     a = model.predict(data.position, data.scheduling, signals=sig, warn=False).total
     b = loaded.predict(data.position, data.scheduling, signals=sig, warn=False).total
     assert np.array_equal(a, b)
+    # the relaxation memory's time constants are saved: a file made with others is refused, not mispredicted
+    k = [e["name"] for e in d["effects"]].index("stress_relaxation")
+    assert d["effects"][k]["options"]["relaxation_times_s"] == list(fx.RELAXATION_TIMES)
+    d["effects"][k]["options"]["relaxation_times_s"] = [0.6]
+    path.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=r"relaxation_times_s = \[0\.6\] s, but this lpvpc computes"):
+        LPVPCModel.load(path)
 
 
 @pytest.mark.parametrize("variant", ["sampled", "causal", "exact"])
