@@ -78,6 +78,16 @@ TABLES = {
                                 "python benchmarks/bench_diagnose.py --relaxation-why"),
     "diagnose_speed.txt": ("Diagnosis speed", "python benchmarks/bench_diagnose.py --speed"),
     "fuzz_model.txt": ("Fuzzing the model-file loader", "python benchmarks/bench_fuzz_model.py"),
+    "effect_size.txt": ("Torque each simulated effect carries, per perturbation design",
+                        "python benchmarks/bench_effect_size.py 3"),
+    "reflex_dynamics_range_prbs.txt": ("Reflex dynamics changing ninefold: what the improve ladder missed",
+                                       "python benchmarks/bench_reflex_dynamics_range.py --seeds 0,5"),
+    "relaxed_stiffness.txt": ("Intervals of a model with stress relaxation",
+                              "nice python benchmarks/bench_relaxed_stiffness.py 20"),
+    "relaxed_stiffness_causes.txt": ("Stress relaxation on a relaxing subject: causes of the K bias",
+                                     "nice python benchmarks/bench_relaxed_stiffness.py --causes 0,1,2,3"),
+    "relaxed_stiffness_real.txt": ("Stress relaxation's time on the lab's stationary trials (real data)",
+                                   "LPVPC_REAL_DATA=../shared/real nice python benchmarks/bench_relaxed_stiffness.py --real"),
 }
 
 
