@@ -187,6 +187,9 @@ def test_selected_relaxation_on_a_clean_record_keeps_covering_intervals():
     assert _covered(model.elastic_stiffness_interval(rho), K_true) >= 8 / 9
     assert _covered(model.viscosity_interval(rho), truth.viscosity) >= 8 / 9
     assert _covered(model.reflex_gain_interval(rho), truth.reflex_gain(rho)) >= 8 / 9
+    from validation.report import _physiology_table
+
+    assert "Stress relaxation was chosen by the structure's cross-validation" in _physiology_table(model)
 
 
 def test_effects_that_leave_the_base_pathway_undetermined_give_no_intervals():
@@ -222,6 +225,7 @@ def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
     _, lo, hi = relaxed_stiffness_interval(model, rho)
     assert _covered((lo, hi), 0.6 * TRUTH.incremental_stiffness(rho, sim.truth["perturbation_amplitude"])) >= 8 / 9
     html = _physiology_table(model)
+    assert "Stress relaxation was asked for" in html  # forced, not chosen by the cross-validation
     rho5 = np.round(central_rho(model, 5), 2)
     (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho5), relaxed_stiffness_interval(model, rho5)
     plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.effects)

@@ -392,9 +392,11 @@ def _physiology_table(model, level=0.95) -> str:
     else:
         note = _no_intervals_note(model)
     if relaxed is not None:
-        note += (" Stress relaxation was chosen by the structure's cross-validation: right after a displacement the "
-                 "joint resists with the short-range stiffness; held for seconds, part of that torque relaxes and "
-                 "the relaxed stiffness remains.")
+        chosen = "stress_relaxation" in (((model.fit or {}).get("structure_selection") or {}).get("effects")
+                                         or {}).get("chosen", ())
+        how = "was chosen by the structure's cross-validation" if chosen else "was asked for (effects=)"
+        note += (f" Stress relaxation {how}: right after a displacement the joint resists with the short-range "
+                 "stiffness; held for seconds, part of that torque relaxes and the relaxed stiffness remains.")
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
 
 
