@@ -679,12 +679,21 @@ class LPVPCEstimator:
         predicts better (novel VAF 97.7-97.9 against 97.1-97.6 %); on the lab's stationary
         trial z_pf the slow columns took the reflex's slow response there (fit VAF 86.2 %
         against 87.0 %)."""
-        self._fit(data, late=False)
+        def fit(late):  # its warnings, told only for the fit kept (each fit warns alike, in other numbers)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self._fit(data, late=late)
+            return caught
+
+        told_early = fit(False)
         early = (self.model_, self.subspace_, self.n_features_)
-        self._fit(data, late=True)
+        told = fit(True)
         total = early[0].fit["timings_s"]["total"] + self.model_.fit["timings_s"]["total"]
         if early[0].fit["vaf"] > self.model_.fit["vaf"]:
             self.model_, self.subspace_, self.n_features_ = early
+            told = told_early
+        for w in told:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         self.model_.fit["effects_after_reflex"] = self.model_ is not early[0]
         self.model_.fit["timings_s"]["total"] = total  # both fits
         return self

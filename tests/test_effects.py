@@ -394,3 +394,17 @@ def test_identify_fits_activation_effects_on_the_base_models_drive():
     assert with_base_model_activation(data, {"effects": ("drift",)}) is data
     bare = pair_trials(*(type(t)(t.time, t.position, t.torque, {}, t.name) for t in (pair.pt, pair.ut)))
     assert with_base_model_activation(bare, {"effects": E}) is bare
+
+
+def test_a_model_fitted_both_ways_tells_its_warnings_once(rich):
+    """Effects that may join after the reflex are fitted both ways (identify keeps the better);
+    each fit warns alike in its own numbers: only the kept fit's warnings are told. (Every
+    effect at once leaves the base pathway undetermined on 60 s: no intervals, one warning.)"""
+    import warnings
+
+    data, _ = rich
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = identify(data, effects=ALL)
+    told = [str(w.message) for w in caught if "no confidence intervals" in str(w.message)]
+    assert not model.has_intervals and len(told) == 1, told
