@@ -1231,7 +1231,7 @@ def _refit_reflex_drive(design: EffectDesign, model, fixed, y, max_iter=20, tol=
     return {"rss": history}
 
 
-def _refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=0.999) -> dict:
+def _refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=None) -> dict:
     """Refit the reflex poles jointly with the weights of the reflex effects (variable
     projection: for each denominator the least squares of ``y`` on ``fixed`` (the intrinsic
     columns), the reflex effects' columns and the base reflex torque; Nelder-Mead over the
@@ -1245,10 +1245,10 @@ def _refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=0.999)
     import scipy.signal
 
     from .linalg import orthonormal_range
+    from .subspace import STABLE_POLE_RADIUS, companion_form
 
-    A0 = np.atleast_2d(np.asarray(model.A, dtype=float))
-    m = A0.shape[0]
-    num, den = scipy.signal.ss2tf(A0, np.asarray(model.B, dtype=float).reshape(-1, 1),
+    max_radius = STABLE_POLE_RADIUS if max_radius is None else max_radius
+    num, den = scipy.signal.ss2tf(np.atleast_2d(np.asarray(model.A, dtype=float)), np.asarray(model.B, dtype=float).reshape(-1, 1),
                                   np.asarray(model.C, dtype=float).reshape(1, -1), np.zeros((1, 1)))
     b, den0 = num[0][1:], den[1:]  # observable canonical form: B holds the numerator's coefficients
     Q0 = orthonormal_range(fixed)
@@ -1256,11 +1256,9 @@ def _refit_reflex_poles(design: EffectDesign, model, fixed, y, max_radius=0.999)
     z = model.reflex_drive(design.position, design.scheduling)
     trial = copy.copy(model)
 
-    def canonical(a):
-        A = np.zeros((m, m))
-        A[:, 0] = -a
-        A[:-1, 1:] = np.eye(m - 1)
-        return A, np.eye(1, m).ravel()
+    def canonical(a):  # (A, C) as the model stores them
+        A, C = companion_form(a)
+        return A, C.ravel()
 
     def rss(a):
         if np.max(np.abs(np.roots(np.r_[1.0, a]))) >= max_radius:

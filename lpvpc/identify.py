@@ -851,17 +851,17 @@ class LPVPCEstimator:
 
             t = time.perf_counter()
             Psi_u, theta_u, omega_u = Psi_i, best["theta_i"], hf.omega
-            A_u, C_u, bd_u = best["A"], best["C"], np.append(hf.b, hf.d)
             if design is not None:  # extended: the effects' columns as the final fit has them, fitted with
                 # the base ones (whose block of the full covariance is then marginal); the model-rate
-                # nonlinearity and reflex dynamics as refitted there (lpvpc.effects.finish_extended_fit)
+                # nonlinearity as refitted there (lpvpc.effects.finish_extended_fit)
                 X_e, theta_e = design.extension
                 Psi_u = np.hstack([Psi_i[:, :n_base], X_e])
                 theta_u, omega_u = np.concatenate([model.H.ravel(), theta_e]), model.Omega.ravel()
-                A_u, C_u, bd_u = model.A, np.reshape(model.C, (1, -1)), np.append(model.B, model.D)
+            # the model's reflex dynamics: the base fit's, or as an effect refitted them
+            A_u, C_u = model.A, np.reshape(model.C, (1, -1))
             try:
                 model.uncertainty = fit_uncertainty(
-                    model, Psi_u, reflex_regressor(U_r, A_u, C_u, seg), y, bd_u,
+                    model, Psi_u, reflex_regressor(U_r, A_u, C_u, seg), y, np.append(model.B, model.D),
                     omega_u, theta_u, U_r, A_u, truncated_irf(p, Gi_val, L, seg), segments=seg,
                     richer=richer_basis_irf(p, rho, G_i, lags, seg),
                     curvature_torque=(None if model.curvature is None

@@ -372,11 +372,8 @@ def add_structural_uncertainty(model, data, search=None, selection=None):
     >>> bool(np.all(wide.upper - wide.lower >= narrow.upper - narrow.lower))
     True
     """
-    from .errors import ModelFileError
+    from .uncertainty import _stored
 
-    if not getattr(model, "uncertainty", None):  # what the interval methods would say
-        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, whose extended models "
-                             "had none, or a fit whose parameters were not all identified): re-identify it to get "
-                             "intervals")
+    _stored(model)  # ModelFileError, as the interval methods say, when the model carries no uncertainty
     model.uncertainty["structural"] = structural_term(model, data, search, selection)
     return model
