@@ -372,8 +372,12 @@ def add_structural_uncertainty(model, data, search=None, selection=None):
     >>> bool(np.all(wide.upper - wide.lower >= narrow.upper - narrow.lower))
     True
     """
-    from .uncertainty import _stored
+    from .errors import ModelFileError
 
-    _stored(model)  # ModelFileError, as the interval methods say, when the model carries no uncertainty
+    if not getattr(model, "uncertainty", None):  # what the interval methods would say (lpvpc.uncertainty
+        # imports this module's constants through lpvpc.modelfile: its _stored cannot be called here)
+        raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, whose extended models "
+                             "had none, or a fit whose parameters were not all identified): re-identify it to get "
+                             "intervals")
     model.uncertainty["structural"] = structural_term(model, data, search, selection)
     return model
