@@ -80,7 +80,11 @@ FRICTION_SCALES = (0.01, 0.03, 0.1)  # rad/s: velocity scales of the smoothed fr
 DIRECTION_V_MIN = 0.05  # rad/s: slower movement does not change the remembered direction
 DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the latch
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
-RELAXATION_TIMES = (0.3, 1.0, 3.0)  # s: time constants of the stress-relaxation memory
+# s: time constants of the stress-relaxation memory when nothing chose them (the diagnosis's
+# candidate, structure="fixed"); identify's cross-validation chooses a record's own
+# (lpvpc.selection.RELAXATION_VARIANTS) and the fitted effect stores them (options
+# "relaxation_times_s"), which its prediction, CasADi step and FMU then use
+RELAXATION_TIMES = (0.3, 1.0, 3.0)
 QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
 ACTIVATION_CUTOFF = (0.5, 3.0)  # Hz: range of the background activation estimate's low-pass (activation_cutoff)
 BURST_MAX_LAG = 0.15  # s: the EMG's reflex-evoked part is explained by the stretch velocity 0..this long ago
@@ -103,8 +107,8 @@ class Context:
     (N, 1) columns). Attributes: ``rho``, ``position`` and ``velocity`` (perturbation, rad,
     rad/s), the extra
     inputs of :data:`SIGNALS` that were given, ``direction`` (slow-movement memory, -1..1),
-    ``relaxation`` (list: the perturbation position's exponential averages over
-    :data:`RELAXATION_TIMES`, rad),
+    ``relaxation`` (list: the perturbation position's exponential averages over the
+    relaxation times, :func:`relaxation_times`, rad),
     ``x`` (list of m reflex states), ``z`` (reflex drive), ``w`` (list of m second-cascade
     states), ``reflex_shift`` ({delay step j in samples: the model's reflex torque with the
     delay d + j minus that with the delay d})."""
@@ -285,7 +289,7 @@ CATALOG: dict[str, Effect] = {
             # Order 1: the relaxing stiffness may change with position like K does, in a line;
             # the lab's stationary trials (one position each) need order 0 only.
             feature_order=1,
-            feature_names=lambda opt: [f"position averaged over {t:g} s" for t in RELAXATION_TIMES],
+            feature_names=lambda opt: [f"position averaged over {t:g} s" for t in relaxation_times(opt)],
             # Joined in the subspace step, the 3-s average took the slow part of the reflex
             # response on a lab stationary trial (z_pf: fit VAF 86.5 -> 86.2 % with it, 87.0
             # with the reflex held); on the virtual subject joining it there predicts better.
@@ -929,11 +933,29 @@ def shifted_reflex_torques(model, position, scheduling, steps) -> dict:
     return {j: torque(int(model.delay) + j) - t0 for j in steps}
 
 
+def relaxation_times(options=None) -> tuple:
+    """Time constants (s) of a stress-relaxation term: those its options store (a fitted
+    effect's, chosen per record), else :data:`RELAXATION_TIMES` (files from before the choice).
+
+    >>> relaxation_times({"relaxation_times_s": [0.6]}), relaxation_times()
+    ((0.6,), (0.3, 1.0, 3.0))
+    """
+    times = (options or {}).get("relaxation_times_s")
+    return tuple(float(t) for t in times) if times else RELAXATION_TIMES
+
+
+def model_relaxation_times(model) -> tuple:
+    """The relaxation times of a model's stress_relaxation term (:func:`relaxation_times`)."""
+    fe = next((f for f in getattr(model, "effects", None) or () if "relaxation" in f.effect.derived), None)
+    return relaxation_times(fe.options if fe is not None else None)
+
+
 def record_context(position, scheduling, fs, signals, *, velocity=None, derived=(), reflex=None,
-                   reflex_shift=None) -> Context:
+                   reflex_shift=None, relaxation=RELAXATION_TIMES) -> Context:
     """numpy Context for a record: (N, 1) columns. ``reflex`` = (A, B, C, z) when the
     reflex-derived signals are needed, ``reflex_shift`` ({j: array}, from
-    :func:`shifted_reflex_torques`) when the shifted-delay ones are."""
+    :func:`shifted_reflex_torques`) when the shifted-delay ones are; ``relaxation``: the
+    averaging times (s) of the relaxation memory."""
     col = lambda a: np.asarray(a, dtype=float).reshape(-1, 1)  # noqa: E731
     vel = eq.velocity(position, fs) if velocity is None else velocity
     ctx = {"rho": col(scheduling), "velocity": col(vel), "position": col(position)}
@@ -943,7 +965,7 @@ def record_context(position, scheduling, fs, signals, *, velocity=None, derived=
         ctx["direction"] = col(eq.direction_memory(signals["scheduling_velocity"], DIRECTION_V_MIN,
                                                    DIRECTION_V_WIDTH, direction_alpha(fs)))
     if "relaxation" in derived:
-        ctx["relaxation"] = [col(eq.relaxation_memory(position, smoothing_alpha(tau, fs))) for tau in RELAXATION_TIMES]
+        ctx["relaxation"] = [col(eq.relaxation_memory(position, smoothing_alpha(tau, fs))) for tau in relaxation]
     if "reflex" in derived:
         A, B, C, z = reflex
         X = eq.state_trajectory(A, B, z)
@@ -992,7 +1014,7 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
         velocity = v_est if velocity is None else velocity
         acceleration = a_est if acceleration is None else acceleration
     ctx = record_context(position, scheduling, model.fs, sig, velocity=velocity, derived=derived, reflex=reflex,
-                         reflex_shift=shift)
+                         reflex_shift=shift, relaxation=model_relaxation_times(model))
     lags = model.causal_lags if causal else model.lags
     Gi = model.intrinsic_basis.evaluate(scheduling)
     out = {fe.name: (fe.effect.pathway, np.zeros(n)) for fe in model.effects}
@@ -1031,10 +1053,10 @@ def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, 
     return irf, static
 
 
-def effect_options(effect: Effect, signals: dict, model_like=None) -> dict:
+def effect_options(effect: Effect, signals: dict, model_like=None, relaxation=RELAXATION_TIMES) -> dict:
     opts = {s: True for s in effect.optional_signals if s in signals}
     if "relaxation" in effect.derived:  # saved with the model: its Theta rows are per time constant
-        opts["relaxation_times_s"] = [float(t) for t in RELAXATION_TIMES]
+        opts["relaxation_times_s"] = [float(t) for t in relaxation]
     if effect.uses_reflex and model_like is not None:
         A = np.atleast_2d(np.asarray(model_like.A, dtype=float))
         kappa = np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(model_like.B, dtype=float))
@@ -1053,14 +1075,15 @@ def channel_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
     return Basis(family=rho_basis.family, order=effect.channel_order, lo=rho_basis.lo, hi=rho_basis.hi)
 
 
-def effect_basis(effect: Effect, rho_basis: Basis) -> Basis | None:
+def effect_basis(effect: Effect, rho_basis: Basis, order: int | None = None) -> Basis | None:
     """The rho basis of an effect's static features (same family and range as the
-    intrinsic basis, the effect's own order; order 0 with an order-0 intrinsic basis: a
-    stationary trial, one operating position, cannot determine their position dependence)."""
+    intrinsic basis, the effect's own order unless ``order`` is given; order 0 with an
+    order-0 intrinsic basis: a stationary trial, one operating position, cannot determine
+    their position dependence)."""
     if effect.features is None:
         return None
     family = rho_basis.family
-    order = 0 if rho_basis.order == 0 else effect.feature_order
+    order = 0 if rho_basis.order == 0 else (effect.feature_order if order is None else int(order))
     return Basis(family=family, order=order, lo=rho_basis.lo, hi=rho_basis.hi)
 
 
@@ -1077,14 +1100,15 @@ class EffectDesign:
     estimated coefficients into :class:`FittedEffect` terms.
 
     ``lags`` and ``intrinsic_basis`` are the model's; ``signals`` the extra channels
-    (:func:`signals_from_data`). Intrinsic-pathway columns are built at once
+    (:func:`signals_from_data`); ``relaxation``: (averaging times in s, position-weight
+    order or None for the catalog's) of a stress-relaxation term. Intrinsic-pathway columns are built at once
     (``columns``, ``blocks``); reflex-pathway ones need an identified model
     (:meth:`reflex_columns`). ``late``: effects marked ``after_reflex`` go to the final
     joint solve (``late_columns``) instead of the intrinsic columns.
     """
 
     def __init__(self, effects, position, scheduling, fs, lags, intrinsic_basis: Basis, signals: dict,
-                 *, source="data", late=False):
+                 *, source="data", late=False, relaxation=(RELAXATION_TIMES, None)):
         self.names = check_effects(effects)
         self.position = np.asarray(position, dtype=float)
         self.scheduling = np.asarray(scheduling, dtype=float)
@@ -1100,9 +1124,13 @@ class EffectDesign:
         self.late_effects = [e for e in self.effects if not e.uses_reflex and late and e.after_reflex]
         self.reflex_effects = [e for e in self.effects if e.uses_reflex]
         derived = {d for e in self.intrinsic_effects + self.late_effects for d in e.derived}
-        self._ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=derived)
-        self.options = {e.name: effect_options(e, self.signals) for e in self.intrinsic_effects + self.late_effects}
-        self.bases = {e.name: effect_basis(e, intrinsic_basis) for e in self.effects}
+        times, order = relaxation  # the stress-relaxation term's averaging times (s) and position-weight order
+        self._ctx = record_context(self.position, self.scheduling, self.fs, self.signals, derived=derived,
+                                   relaxation=times)
+        self.options = {e.name: effect_options(e, self.signals, relaxation=times)
+                        for e in self.intrinsic_effects + self.late_effects}
+        self.bases = {e.name: effect_basis(e, intrinsic_basis, order if "relaxation" in e.derived else None)
+                      for e in self.effects}
         self.channel_bases = {e.name: channel_basis(e, intrinsic_basis) for e in self.effects}
         self.channel_values = {n: (self.Gi_val if b is None else b.evaluate(self.scheduling))
                                for n, b in self.channel_bases.items()}

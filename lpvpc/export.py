@@ -174,9 +174,9 @@ def _effect_states(model) -> list:
     if "direction" in derived:
         names += ["direction_latched", "direction_smoothed"]
     if "relaxation" in derived:
-        from .effects import RELAXATION_TIMES
+        from .effects import model_relaxation_times
 
-        names += [f"relaxation_average[{tau:g} s]" for tau in RELAXATION_TIMES]
+        names += [f"relaxation_average[{tau:g} s]" for tau in model_relaxation_times(model)]
     if "reflex" in derived:
         names += [f"reflex_cascade[{i}]" for i in range(int(model.A.shape[0]))]
     for j in model_reflex_delay_steps(model):  # the reflex re-run at the delay d + j
@@ -472,7 +472,7 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
         k += 2
     if any(s.startswith("relaxation_average") for s in states):
         ctx["relaxation"] = []
-        for tau in fx.RELAXATION_TIMES:
+        for tau in fx.model_relaxation_times(model):
             average = fx.eq.relaxation_step(eff_state[k], p_j, fx.smoothing_alpha(tau, model.fs))
             ctx["relaxation"].append(average)
             nxt.append(average)

@@ -71,6 +71,8 @@ DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
 #: present gave 16-35 % (benchmarks/results/effect_selection.txt).
 MIN_EFFECT_GAIN = 0.05
+#: Fits of the effects' dynamics at most (the catalog's terms, then the terms chosen under them).
+MAX_EFFECT_PASSES = 2
 #: The first look (the first fit's dynamics, which take part of a relaxation) screens at a
 #: lower bar: it showed 4-10 % on records with relaxation.
 FIRST_LOOK_GAIN = 0.01
@@ -196,7 +198,13 @@ class LPVPCEstimator:
         at the delay BIC chose. Default ``("stress_relaxation",)``; ``()``: none. Only
         intrinsic effects with static features of the position qualify (ValueError
         otherwise). Not used with structure="fixed", nor when ``effects`` are given (then
-        the structure is as given), nor on several trials joined.
+        the structure is as given), nor on several trials joined. Stress relaxation's
+        averaging time and position-weight order are chosen with it
+        (:data:`lpvpc.selection.RELAXATION_VARIANTS`).
+    relaxation_times, relaxation_order : a stress-relaxation term's averaging times (s) and
+        the order of its position weights. None (default): chosen by the cross-validation
+        when it switches the effect on, else :data:`lpvpc.effects.RELAXATION_TIMES` and the
+        catalog's order (1). The model stores its times (its effect's options).
     effects : names of effects from :data:`lpvpc.effects.CATALOG` to include (an extended
         model; default none), always on. Intrinsic-pathway effects are estimated jointly with the
         intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
@@ -260,8 +268,12 @@ class LPVPCEstimator:
         structure_fixed: tuple | None = None,
         scheduling_extrapolation: str = "clip",
         allow_effects: tuple = DEFAULT_ALLOWED_EFFECTS,
+        relaxation_times: tuple | None = None,
+        relaxation_order: int | None = None,
     ):
         self.allow_effects = allow_effects
+        self.relaxation_times = relaxation_times
+        self.relaxation_order = relaxation_order
         self.structure = structure
         self.structure_fixed = structure_fixed
         self.scheduling_extrapolation = scheduling_extrapolation
@@ -299,7 +311,8 @@ class LPVPCEstimator:
             "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
             "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
             "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation", "allow_effects")
+            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation", "allow_effects",
+            "relaxation_times", "relaxation_order")
             } | {"structure_fixed": self._given_settings()}  # (a clone keeps what was given)
 
     def resolved_lags(self, fs: float) -> int:
@@ -451,7 +464,7 @@ class LPVPCEstimator:
             order, order_cv = compare_state_orders(p, y, rho, fs, sel.chosen, neighbours, bic_order, chosen_score,
                                                    self.basis, self.velocity_basis, Segments.of(data, len(y)))
         path = self._select_reflex_path(data, first, sel.chosen, order, bic_order, chosen_score, fixed)
-        effects_cv, effect_poles = None, None
+        effects_cv, effect_poles, effect_structures = None, None, None
         if offered:
             # Cheap first look (the first fit's dynamics, same folds): an effect that does not lower
             # the CV error by FIRST_LOOK_GAIN even there is not given the extra fit (its cost was
@@ -461,7 +474,7 @@ class LPVPCEstimator:
                                  self.velocity_basis, Segments.of(data, len(y)), sel.chosen, offered)
             worth = tuple(n for n in offered if look[n] >= FIRST_LOOK_GAIN)
             if worth:
-                effects_cv, effect_poles = self._choose_effects(data, {**base, **sel.chosen, "irf_lags": None,
+                effects_cv, effect_poles, effect_structures = self._choose_effects(data, {**base, **sel.chosen, "irf_lags": None,
                                                                        "state_order": order}, sel.chosen, worth)
             if effects_cv is None:
                 effects_cv = {"allowed": sorted(offered), "chosen": [], "cv": {},
@@ -482,10 +495,18 @@ class LPVPCEstimator:
         chosen = {**sel.chosen, "irf_lags": None, "state_order": order, **(path.chosen if path else {})}
         if effects_cv and effects_cv["chosen"]:
             chosen["effects"] = tuple(effects_cv["chosen"])
+            chosen.update(effects_cv["settings"])  # e.g. the relaxation's times and order
+            if self.state_order is None and "state_order" not in fixed:  # BIC again, with the effects' columns:
+                # the order chosen without them can hold a slow pole that took the relaxation (virtual
+                # subject seed 1, 100 Hz: order 3, K +19 %; BIC with them: order 2, K within 3 %)
+                chosen["state_order"] = None
         est = LPVPCEstimator(**{**base, **chosen})
         est._reuse = {"subspace": first.subspace_}
-        if effect_poles is not None and "effects" in chosen:  # from the effects' fit (below)
-            est._reuse = {"subspace": effect_poles[1], "poles": {order: effect_poles[0]}}
+        if effect_poles is not None and "effects" in chosen:  # the effects' own subspace step
+            # (the first fit's poles take part of a relaxation), unless their terms changed since
+            A_e = effect_poles[0]
+            est._reuse = ({"subspace": effect_poles[1], "poles": {A_e.shape[0]: A_e}}
+                          if effects_cv["settings"] == effect_poles[2] else {})
         elif sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
             est._reuse["poles"] = {order: first._order_dynamics[order][0]}
@@ -510,7 +531,8 @@ class LPVPCEstimator:
             # neighbours are scored too (cached scores reused), and the near-equivalent ones refitted
             from .structural_uncertainty import add_structural_uncertainty
 
-            add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed))
+            add_structural_uncertainty(model, data, structures, structures.run(sel.chosen, fixed),
+                                       effect_structures if "effects" in chosen else None)
         if effects_cv:
             model.fit["structure_selection"]["effects"] = effects_cv
         model.fit["timings_s"]["selection"] = t_select
@@ -527,36 +549,57 @@ class LPVPCEstimator:
         had taken part of the relaxation and the effect looked useless (virtual subject seed 100:
         CV gain +0.19 points, not chosen; +0.95 with these dynamics, chosen). Scored after the
         structure, not inside its search, so a record without the effect gets exactly the model
-        it got before effects were allowed. Returns (record of the choice, (the effects' fit's A,
-        its subspace step)) or (None, None) when that fit fails (the effects' columns not
-        independent here)."""
-        from .selection import SEARCH
+        it got before effects were allowed. A chosen variant other than the catalog's term
+        (another relaxation time) is scored again under dynamics fitted with it
+        (``MAX_EFFECT_PASSES``). Returns (record of the choice, (the last effects' fit's A, its
+        subspace step, the terms it was fitted with), for the structural term: {"gain",
+        "variants"} or None when no effect is chosen), or (None, None, None) when that fit
+        fails (the effects' columns not independent here)."""
+        from .selection import SEARCH, chosen_effects, effect_settings
 
         t = time.perf_counter()
-        fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered)})
-        # its own subspace step: started from the first fit's (no effect columns) the pole refinement
-        # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
-        # 95.25; from its own, 97.19 and 96.13)
-        fit._reuse = {"bare": True}
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                fit._fit(data, late=False)
-        except (LpvpcError, np.linalg.LinAlgError):
-            return None, None
-        e = fit.model_
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
-        search, off, cands = _effect_search(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)), self.basis,
-                                            self.velocity_basis, Segments.of(data, len(y)), chosen, offered,
-                                            e.intrinsic_basis.order)
-        pick = search.run(off, fixed=set(SEARCH)).chosen
-        sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
-        if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
-            pick = off
-        entry = _effects_cv(search, pick, cands)
+        terms, tried = {}, []  # the effects' terms of the fit whose dynamics are held (first: the catalog's)
+        while True:
+            fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered), **terms})
+            if terms and self.state_order is None:  # BIC's order with the chosen terms (_fit_selected)
+                fit.state_order = None
+            # its own subspace step: started from the first fit's (no effect columns) the pole refinement
+            # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
+            # 95.25; from its own, 97.19 and 96.13)
+            fit._reuse = {"bare": True}
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    fit._fit(data, late=False)
+            except (LpvpcError, np.linalg.LinAlgError):
+                return None, None, None
+            e = fit.model_
+            search, off, cands = _effect_search(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)),
+                                                self.basis, self.velocity_basis, Segments.of(data, len(y)), chosen,
+                                                offered, e.intrinsic_basis.order)
+            pick = search.run(off, fixed=set(SEARCH)).chosen
+            sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
+            if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
+                pick = off
+            tried.append(terms)
+            picked = effect_settings(pick, cands)
+            # A term other than the catalog's (another relaxation time) is scored again under dynamics
+            # fitted with it: the catalog's three times' fit favoured a shorter time (virtual subject,
+            # 100 Hz, truth 0.6 s: 0.45 s on 5 of 6 seeds)
+            if not chosen_effects(pick) or picked in tried or len(tried) == MAX_EFFECT_PASSES:
+                break
+            terms = picked
+        entry = _effects_cv(search, pick, cands, off)
         entry["rule"] += f", and at least {100 * MIN_EFFECT_GAIN:g} % less held-out squared error"
+        entry["passes"] = [{k: (list(v) if isinstance(v, tuple) else v) for k, v in x.items()} for x in tried]
+        effects = None
+        if chosen_effects(pick):  # for the structural term of the intervals
+            from .structural_uncertainty import effect_variant_shifts
+
+            effects = {"gain": 1.0 - sse_on / sse_off, "variants": effect_variant_shifts(search, pick, cands)}
         entry["seconds"] = time.perf_counter() - t
-        return entry, (e.A, fit.subspace_)
+        return entry, (e.A, fit.subspace_, terms), effects
 
     def _allowed_effects(self) -> tuple:
         """``allow_effects`` as a tuple of names, checked (ValueError naming a bad one)."""
@@ -594,12 +637,15 @@ class LPVPCEstimator:
                   "scheduling_extrapolation": self.scheduling_extrapolation}
         with warnings.catch_warnings():  # (the stationary warning was given by the first fit)
             warnings.simplefilter("ignore", StationaryWarning)
-            entry, dyn = self._choose_effects(data, settings, chosen, offered)
+            entry, dyn, _ = self._choose_effects(data, settings, chosen, offered)
             if entry is None:
                 return
             if entry["chosen"]:
-                est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"])})
-                est._reuse = {"subspace": dyn[1], "poles": {m.state_order: dyn[0]}}
+                est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]})
+                if entry["settings"] and self.state_order is None:  # BIC's order with them (_fit_selected)
+                    est.state_order = None
+                if entry["settings"] == dyn[2]:
+                    est._reuse = {"subspace": dyn[1], "poles": {dyn[0].shape[0]: dyn[0]}}
                 est.fit(data)
                 est.model_.settings["stationary_delays"] = m.settings["stationary_delays"]  # the delay: BIC's
                 est.model_.settings["state_order"] = self.state_order  # (chosen by BIC)
@@ -737,14 +783,16 @@ class LPVPCEstimator:
         if self.effects and len(seg) > 1:
             raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
         if self.effects:  # extended model: the effects' columns join the intrinsic regressor
-            from .effects import EffectDesign, default_signals, signals_from_data
+            from .effects import RELAXATION_TIMES, EffectDesign, default_signals, signals_from_data
 
             # the data's extra signals only when an effect reads them (the EMG's background
             # activation costs as much as a fit; stress relaxation reads the position alone)
             reads = {s for n in self.effects for s in CATALOG[n].signals + CATALOG[n].optional_signals}
             design = EffectDesign(self.effects, p, rho, fs, lags, G_i,
                                   signals_from_data(data) if reads else default_signals(rho, fs),
-                                  source=getattr(data, "source", "") or "data", late=bool(late))
+                                  source=getattr(data, "source", "") or "data", late=bool(late),
+                                  relaxation=(tuple(self.relaxation_times or RELAXATION_TIMES),
+                                              self.relaxation_order))
             Psi_i = np.hstack([Psi_i, design.columns])
         self._check_counts(len(y), Psi_i.shape[1], U_r.shape[1])
         # Fail before the expensive subspace step. The pivoted QR runs on the regressors'
@@ -1247,19 +1295,26 @@ def _provenance(data) -> dict:
     }
 
 
-def _effects_cv(search, chosen: dict, cands: dict) -> dict:
-    """The record of the allowed effects' choice: which were allowed and chosen, and the CV VAF
-    (%) of the chosen structure with each effect on and off (same folds)."""
-    from .selection import chosen_effects, effect_key
+def _effects_cv(search, chosen: dict, cands: dict, off: dict) -> dict:
+    """The record of the allowed effects' choice: which were allowed and chosen, the chosen
+    variants' estimator settings, and the CV VAF (%) of the chosen structure with each effect
+    off and on (its chosen variant, else its best; every variant's under ``variants``), same
+    folds."""
+    from .selection import chosen_effects, effect_key, effect_settings
 
     on = chosen_effects(chosen)
     table = {}
     for n in cands:
-        with_, without = (search.score({**chosen, effect_key(n): v}) for v in (True, False))
-        table[n] = {"cv_vaf_on": float(with_.cv_vaf), "cv_vaf_off": float(without.cv_vaf),
-                    "n_params": int(with_.n_params - without.n_params)}
-    return {"allowed": sorted(cands), "chosen": on, "cv": table,
-            "rule": "on/off candidates of the same cross-validation, one-standard-error rule toward fewer parameters"}
+        without = search.score({**chosen, effect_key(n): False})
+        scores = {v: search.score({**chosen, effect_key(n): v}) for v in cands[n]}
+        v_on = chosen[effect_key(n)] if n in on else max(scores, key=lambda v: scores[v].cv_vaf)
+        table[n] = {"cv_vaf_on": float(scores[v_on].cv_vaf), "cv_vaf_off": float(without.cv_vaf),
+                    "n_params": int(scores[v_on].n_params - without.n_params)}
+        if len(scores) > 1:
+            table[n].update(variant=v_on, variants={str(v): float(sc.cv_vaf) for v, sc in scores.items()})
+    return {"allowed": sorted(cands), "chosen": on, "settings": effect_settings(chosen, cands), "cv": table,
+            "rule": "off or one of its variants, candidates of the same cross-validation, one-standard-error rule "
+                    "toward fewer parameters"}
 
 
 def _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered, intrinsic_order):
@@ -1281,8 +1336,9 @@ def _effect_gains(p, y, rho, fs, dynamics, family, velocity_family, segments, ch
 
     search, off, cands = _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered,
                                         chosen["intrinsic_order"])
-    sse_off = float(search.score(off).fold_sse.sum())
-    return {n: 1.0 - float(search.score({**off, effect_key(n): True}).fold_sse.sum()) / sse_off for n in cands}
+    sse_off = float(search.score(off).fold_sse.sum())  # each effect's best variant
+    return {n: 1.0 - min(float(search.score({**off, effect_key(n): v}).fold_sse.sum()) for v in cands[n]) / sse_off
+            for n in cands}
 
 
 def with_base_model_activation(data, settings):

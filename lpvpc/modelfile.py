@@ -48,6 +48,7 @@ MAX_COEFFICIENTS = 4_000  # identified coefficients in all arrays (each becomes 
 MAX_ABS_VALUE = 1e9  # magnitude of any coefficient and basis range bound (SI units)
 MIN_BASIS_SPAN = 1e-10  # hi - lo of a basis range
 MAX_SPECTRAL_RADIUS = 1.0  # reflex dynamics A: all eigenvalues strictly inside the unit circle
+MAX_RELAXATION_S = 60.0  # s: a stress-relaxation averaging time (tissue relaxation: 0.1-10 s)
 MAX_ITEMS = 1_000_000  # JSON values in the whole file
 
 POSITION_UNITS = ("rad", "deg")
@@ -578,13 +579,12 @@ def _check_effects(x, where, problems, d, budget):
             if not ok:
                 problems.append(f"{w}.options.{key}: not a finite number, flag, name or short list of numbers")
                 raise _Refused
-        if "relaxation" in eff.derived and "relaxation_times_s" in opts:  # absent in older files: the same times
-            from .effects import RELAXATION_TIMES
-
-            if opts["relaxation_times_s"] != [float(t) for t in RELAXATION_TIMES]:
-                problems.append(f"{w}.options.relaxation_times_s = {_show(opts['relaxation_times_s'])} s, but this "
-                                f"lpvpc computes the relaxation memory with {list(RELAXATION_TIMES)} s: re-identify "
-                                "the model with this version")
+        if "relaxation" in eff.derived and "relaxation_times_s" in opts:  # absent in older files: RELAXATION_TIMES
+            times = opts["relaxation_times_s"]
+            if not (isinstance(times, list) and times and all(_is_number(t) and 0.0 < t <= MAX_RELAXATION_S
+                                                              for t in times)):
+                problems.append(f"{w}.options.relaxation_times_s = {_show(times)}: needs a list of averaging times "
+                                f"in s, each in (0, {MAX_RELAXATION_S:g}]")
                 raise _Refused
         if eff.uses_reflex:
             if not (opts.get("m") == m and _is_int(opts.get("m")) and isinstance(opts.get("kappa"), list)

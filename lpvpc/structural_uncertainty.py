@@ -103,6 +103,13 @@ METHOD = ("spread of the IRF's quantities over the structures within one standar
           "cross-validated one (leave-one-level-out) that differ from the model's in the intrinsic pathway only, "
           "each refitted to the record with the reflex dynamics held")
 MAX_STRUCTURES = 24  # the near-equivalent structures kept (closest in CV error first)
+#: An effect chosen by identify's selection that lowered the CV squared error by at least this
+#: fraction (twice identify's bar, MIN_EFFECT_GAIN) is established: the structure without it no
+#: longer counts as near-equivalent. Below it, the effect won narrowly (clean sum-of-exponentials
+#: records, 1 kHz, seeds 8 and 16: 6.5 and 8.3 %) and its columns trade with the IRF; a subject that
+#: relaxes gave 16-35 % (benchmarks/results/effect_selection.txt), where counting the structure
+#: without it made K's interval span short-range and relaxed stiffness alike (half-width 31-33 %).
+ESTABLISHED_EFFECT_GAIN = 0.10
 #: The search's settings of the intrinsic pathway: the near-equivalent structures that count
 #: differ from the model's in these only (the reflex order, velocity order, delay and
 #: extrapolation held at the model's).
@@ -222,8 +229,7 @@ def _refit(search, settings):
     fs = search.fs
     L = max(1, int(round(settings["irf_length"] * fs)))
     d = max(1, int(round(settings["reflex_delay"] * fs)))
-    idx, cur = D.columns(L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], d,
-                         bool(settings["elastic_curvature"]))
+    idx, cur = search.columns(settings)
     G, b = _mapped(D.G.sum(axis=0), D.b.sum(axis=0), idx, cur)
     s = np.sqrt(np.maximum(np.diag(G), 1e-300))
     return np.linalg.solve(G / np.outer(s, s) + RIDGE * np.eye(len(idx)), b / s) / s, L, d
@@ -260,10 +266,13 @@ def _refit_reflex(search, settings, velocity_family="chebyshev") -> dict:
     return {"velocity_basis": basis.to_dict(), "coefficients": (dc * om).tolist()}
 
 
-def structural_term(model, data, search=None, selection=None) -> dict:
+def structural_term(model, data, search=None, selection=None, effects=None) -> dict:
     """The ``structural`` entry of ``model.uncertainty`` (module docstring) from ``data``,
     the record the model was identified from. ``search``/``selection``: a search already
-    run on these data with these dynamics (identify's), else one is run here.
+    run on these data with these dynamics (identify's), else one is run here. ``effects``:
+    of a model whose effects identify's selection chose, {"gain": the fraction by which they
+    lowered the CV squared error, "variants": [(settings, CV VAF, IRF shift)] of
+    :func:`effect_variant_shifts`}.
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
@@ -292,7 +301,15 @@ def structural_term(model, data, search=None, selection=None) -> dict:
             and _intrinsic_only(s.settings, start)][:MAX_STRUCTURES - (H_model is not None)]
     shifts = [_refit_irf(search, s.settings) - ref for s in near]
     structures = [{"settings": _plain(s.settings), "cv_vaf": float(s.cv_vaf)} for s in near]
-    if H_model is not None:  # an extended model: its structure without the effects (see the module docstring)
+    for settings, cv_vaf, shift in (effects or {}).get("variants", ()):  # the effect's other terms CV could not
+        # exclude (another relaxation time): zero-padded to the search's lags and basis
+        L, n = (shift.shape[0] - 1) // 2, shift.shape[1]
+        padded = np.zeros_like(ref)
+        padded[D.L_max - L : D.L_max + L + 1, :n] = shift
+        shifts.append(padded)
+        structures.append({"settings": settings, "cv_vaf": float(cv_vaf)})
+    if H_model is not None and (effects is None or effects["gain"] < ESTABLISHED_EFFECT_GAIN):
+        # an extended model whose effect did not win clearly: its structure without the effects
         shifts.append(ref - H_model)
         structures.append({"settings": {**_plain(start), "effects": []}, "cv_vaf": float(search.score(start).cv_vaf)})
     out = {"method": METHOD, "basis": D.G_i.to_dict(),
@@ -307,6 +324,56 @@ def structural_term(model, data, search=None, selection=None) -> dict:
         if H is not None:
             out["path"] = {"quantities": list(PATH_QUANTITIES), "shift": (H - ref).tolist()}
     return out
+
+
+def effect_variant_shifts(search, chosen: dict, candidates: dict) -> list:
+    """[(settings, CV VAF %, IRF shift)] of the chosen effects' other variants (another
+    relaxation time: :data:`lpvpc.selection.RELAXATION_VARIANTS`) within one standard error
+    of the best of them (paired over folds, as the one-standard-error rule), each refitted to
+    the whole record in identify's effect search (``search``, held at the structure
+    ``chosen`` with its effects' values; ``candidates``: lpvpc.selection.effect_candidates)
+    minus the chosen one's: (2 L + 1, n_i + 1), the structure's lags and basis; and, a
+    single time chosen, the grid's times next to it whatever their score. The relaxation's
+    time trades with K and the data hardly tell the times apart (virtual subject, truth
+    0.6 s, 100 Hz: 0.45 s chosen on 5 of 6 seeds, by the CV and by the in-sample fit alike,
+    0.01-0.04 points of VAF from 0.6 s, consistently over folds, so one standard error did
+    not reach it on 2 seeds, while K was 6-11 % apart): the time is known to the grid's
+    resolution at best."""
+    from .selection import chosen_effects, effect_key
+
+    ref = _refit_irf_own(search, chosen)
+    scored, grid_neighbours = {}, []
+    for name in chosen_effects(chosen):
+        values = list(candidates[name])
+        for value in values:
+            settings = {**chosen, effect_key(name): value}
+            scored[_key(settings)] = (settings, search.score(settings))
+        singles = [v for v in values if isinstance(v, str) and "+" not in v.split(" s,")[0]]
+        if chosen[effect_key(name)] in singles:
+            i = singles.index(chosen[effect_key(name)])
+            grid_neighbours += [_key({**chosen, effect_key(name): singles[j]}) for j in (i - 1, i + 1)
+                                if 0 <= j < len(singles)]
+    best = max((sc for _, sc in scored.values()), key=lambda sc: sc.cv_vaf)
+    K = len(best.fold_sse)
+    out = []
+    for settings, sc in scored.values():
+        diff = K * (sc.fold_sse - best.fold_sse)
+        se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
+        if settings != chosen and (np.mean(diff) <= se or _key(settings) in grid_neighbours):
+            out.append((_plain(settings), sc.cv_vaf, _refit_irf_own(search, settings) - ref))
+    return sorted(out, key=lambda x: -x[1])[:MAX_STRUCTURES]
+
+
+def _key(settings):
+    return tuple(sorted((k, str(v)) for k, v in settings.items()))
+
+
+def _refit_irf_own(search, settings) -> np.ndarray:
+    """A structure's IRF weights refitted to the whole record (:func:`_refit`) in its own
+    lags and basis: (2 L + 1, n_i + 1)."""
+    theta, L, _ = _refit(search, settings)
+    ni = settings["intrinsic_order"]
+    return theta[: (2 * L + 1) * (ni + 1)].reshape(2 * L + 1, ni + 1)
 
 
 def _model_irf(model, D):
@@ -353,7 +420,7 @@ def _reflex_term(model, search, selection, start) -> dict:
             "structures": [{"settings": _plain(s), **_refit_reflex(search, s, family)} for s in alternatives]}
 
 
-def add_structural_uncertainty(model, data, search=None, selection=None):
+def add_structural_uncertainty(model, data, search=None, selection=None, effects=None):
     """Store :func:`structural_term` in ``model.uncertainty`` (the model's intrinsic
     intervals then include it) and return the model. Requires a model with intervals.
 
@@ -379,5 +446,5 @@ def add_structural_uncertainty(model, data, search=None, selection=None):
         raise ModelFileError("this model carries no uncertainty (identified by an older lpvpc, whose extended models "
                              "had none, or a fit whose parameters were not all identified): re-identify it to get "
                              "intervals")
-    model.uncertainty["structural"] = structural_term(model, data, search, selection)
+    model.uncertainty["structural"] = structural_term(model, data, search, selection, effects)
     return model

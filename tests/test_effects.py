@@ -101,12 +101,17 @@ def test_extended_model_save_load_round_trip(rich, tmp_path, model_file):
     a = model.predict(data.position, data.scheduling, signals=sig, warn=False).total
     b = loaded.predict(data.position, data.scheduling, signals=sig, warn=False).total
     assert np.array_equal(a, b)
-    # the relaxation memory's time constants are saved: a file made with others is refused, not mispredicted
+    # the relaxation memory's time constants are saved with the term: times that do not match its
+    # coefficients, or are not times, are refused, not mispredicted
     k = [e["name"] for e in d["effects"]].index("stress_relaxation")
     assert d["effects"][k]["options"]["relaxation_times_s"] == list(fx.RELAXATION_TIMES)
     d["effects"][k]["options"]["relaxation_times_s"] = [0.6]
     path.write_text(json.dumps(d))
-    with pytest.raises(ModelFileError, match=r"relaxation_times_s = \[0\.6\] s, but this lpvpc computes"):
+    with pytest.raises(ModelFileError, match=r"stress_relaxation.*Theta"):
+        LPVPCModel.load(path)
+    d["effects"][k]["options"]["relaxation_times_s"] = [0.3, -1.0, 3.0]
+    path.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=r"relaxation_times_s = .*needs a list of averaging times in s"):
         LPVPCModel.load(path)
 
 

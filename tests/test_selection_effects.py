@@ -64,6 +64,50 @@ def test_relaxation_chosen_on_a_record_with_it(relaxation_run):
     assert np.all(relaxed < short) and np.all(relaxed > 0.2 * short)
 
 
+def test_relaxation_time_chosen_stored_and_exported(relaxation_run, tmp_path):
+    """The relaxation's time is chosen per record from the grid (the subject's is 0.6 s; K
+    trades with it), stored with the term, and the exported step averages over that time."""
+    from lpvpc import export
+    from lpvpc.effects import model_relaxation_times
+    from lpvpc.selection import RELAXATION_VARIANTS, variant_label
+    from lpvpc.simulate import SubjectParams
+
+    path, _ = relaxation_run
+    model = LPVPCModel.load(path)
+    entry = model.fit["structure_selection"]["effects"]
+    times = model_relaxation_times(model)
+    label = variant_label(times, model.effects[0].basis.order)
+    assert entry["cv"][EFFECT]["variant"] == label
+    assert set(entry["cv"][EFFECT]["variants"]) == {variant_label(t, o) for t, o in RELAXATION_VARIANTS}
+    assert 0.3 <= times[0] <= 1.0 and len(times) == 1  # one time near the subject's 0.6 s
+    # accuracy against the virtual subject: short-range K, and its interval carries the time's spread
+    sim = simulate_pair("multilevel", seed=SEED, fs_out=100.0, effects=(EFFECT,))
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 9)
+    K = SubjectParams().incremental_stiffness(rho, sim.truth["perturbation_amplitude"])
+    assert np.max(np.abs(model.elastic_stiffness(rho) / K - 1)) < 0.15
+    k_lo, k_hi = model.elastic_stiffness_interval(rho)
+    assert np.mean((k_lo <= K) & (K <= k_hi)) >= 0.75
+    structures = model.uncertainty["structural"]["structures"]
+    assert any(s["settings"].get(f"effect:{EFFECT}", label) != label for s in structures)
+    # the CasADi step averages over the model's own time: it reproduces numpy's prediction
+    import casadi
+
+    n = 3000
+    pos, sched = (np.asarray(sim.pt.position[:n]) - np.asarray(sim.ut.position[:n]),
+                                 np.asarray(sim.ut.position[:n]))
+    step = casadi.Function.load(str(export.export_casadi(model, tmp_path / "m.casadi", variant="exact")))
+    out = export.trajectory_function(step, n)(state=np.zeros(step.size1_in("state")),
+                                              **export.replay_inputs(model, pos, sched, "exact"))
+    ref = model.predict(pos, sched, warn=False).total
+    lat = export.latency_samples(model, "exact")
+    tq = np.asarray(out["torque"]).ravel()
+    if lat:
+        tq, ref = tq[lat:], ref[:-lat]
+    assert np.max(np.abs(tq - ref)) <= 1e-9 * np.max(np.abs(ref))
+    assert f"relaxation_average[{times[0]:g} s]" in json.loads((tmp_path / "m.casadi.json").read_text())["state_layout"]
+
+
 def test_summary_shows_both_stiffnesses_labelled(relaxation_run):
     _, out = relaxation_run
     lines = out.splitlines()
