@@ -2,9 +2,11 @@
 short-range stiffness K (lpvpc.model.LPVPCModel.elastic_stiffness_interval) and the relaxed
 stiffness (lpvpc.uncertainty.relaxed_stiffness_interval), against the virtual subject's truth.
 
-Two subjects, 2-minute multilevel pairs at 100 Hz (18 dB), stress relaxation forced
-(``identify(data, effects=("stress_relaxation",))``: the selection is skipped, so the
-intervals have no structural term):
+Two paths: identify at the defaults (stress relaxation allowed: on or off and its term, one
+averaging time of a grid or the catalog's three, chosen by the cross-validation; the
+intervals' structural term included) and forced (``identify(data,
+effects=("stress_relaxation",))``: the catalog's term, the selection skipped, no structural
+term). Two subjects, 2-minute multilevel pairs at 100 Hz (18 dB):
 - clean (no relaxation): short-range = relaxed = K (SubjectParams.incremental_stiffness);
 - relaxing (simulate_pair(effects=("stress_relaxation",)): 40 % of the elastic torque relaxes
   with a 0.6 s time constant): short-range K, relaxed 0.6 K.

@@ -32,12 +32,14 @@ shorter than the best's (K(theta) is the IRF's sum over lags: a truncated IRF bi
 which the torque CV hardly sees).
 
 Effects the caller allows (``effects=`` of :class:`StructureSearch`; identify's
-``allow_effects``) are on/off candidates of the same search, setting ``effect:NAME``: an
-intrinsic effect with static features (stress relaxation: the position averaged over
-0.3, 1 and 3 s, times a basis in position) is linear in its coefficients once the reflex
-dynamics are held, so its columns join the largest regressor and the effect on is a
-column subset like any other candidate, scored on the same folds (end folds take the
-extrapolation rule on the effect's basis too); its columns count in the one-SE rule.
+``allow_effects``) are candidates of the same search, setting ``effect:NAME``: off, or one
+of the effect's variants (stress relaxation: the position averaged over one time of a grid
+with order-3 weights in position, or over 0.3, 1 and 3 s with order-1 weights,
+:data:`RELAXATION_VARIANTS`). An intrinsic effect with static features is linear in its
+coefficients once the reflex dynamics are held, so every variant's columns join the
+largest regressor and each is a column subset like any other candidate, scored on the same
+folds (end folds take the extrapolation rule on the effect's basis too); its columns count
+in the one-SE rule.
 identify switches them at the chosen structure, with reflex dynamics fitted with the
 effects' columns (``LPVPCEstimator._choose_effects``).
 """
