@@ -213,9 +213,10 @@ def effect_candidates(names, p, rho, fs, family="chebyshev", intrinsic_order=5) 
             ctx = record_context(p, rho, fs, sig, derived=e.derived, **extra)
             F = np.column_stack([np.asarray(f, dtype=float).reshape(-1)
                                  for f in e.features(ctx, NUMPY, effect_options(e, sig, **extra))])
-            value = True if times is None else variant_label(times, order)
-            settings = {} if times is None else {"relaxation_times": tuple(times), "relaxation_order": int(order)}
-            out[name][value] = (F, effect_basis(e, rho_basis, order), bool(e.feature_constant), settings)
+            basis = effect_basis(e, rho_basis, order)  # (order 0 on a stationary trial, whatever asked)
+            value = True if times is None else variant_label(times, basis.order)
+            settings = {} if times is None else {"relaxation_times": tuple(times), "relaxation_order": basis.order}
+            out[name].setdefault(value, (F, basis, bool(e.feature_constant), settings))
     return out
 
 
