@@ -397,7 +397,8 @@ def _selection_summary(sel) -> list:
     orders = sel.get("state_order", {})
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
-                     + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")")
+                     + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")"
+                     + (f"; with the effects, BIC's: {orders['with_effects']}" if "with_effects" in orders else ""))
     path = sel.get("reflex_path")
     if path:  # data that keep their file's higher rate: which velocity the reflex nonlinearity sees
         lines.append(f"             reflex nonlinearity by CV: {path['label']} (CV VAF % "
@@ -411,9 +412,17 @@ def _effects_cv_summary(entry) -> list:
     if not entry or not entry.get("allowed"):
         return []
     cv = entry.get("cv", {})
+
+    def term(c):  # an effect with several terms (stress relaxation's averaging times): the one shown
+        if "variant" not in c:
+            return ""
+        others = sorted(((v, x) for v, x in c["variants"].items() if v != c["variant"]), key=lambda t: -t[1])[:2]
+        return (f", term {c['variant']} of {len(c['variants'])} (next: "
+                + ", ".join(f"{v} {x:.2f}" for v, x in others) + ")")
+
     return [f"effects cv:  {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
-            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}, reflex dynamics of a fit with it; "
-            f"+{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
+            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}{term(cv[n])}, reflex dynamics of a fit with "
+            f"it; +{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
 
 
 def _relaxation_summary(model) -> list:

@@ -538,6 +538,8 @@ class LPVPCEstimator:
                                        effect_structures if "effects" in chosen else None)
         if effects_cv:
             model.fit["structure_selection"]["effects"] = effects_cv
+            if "effects" in chosen and chosen["state_order"] is None:  # BIC's order again, with the effects
+                model.fit["structure_selection"]["state_order"]["with_effects"] = int(model.state_order)
         model.fit["timings_s"]["selection"] = t_select
         model.fit["timings_s"]["total"] = time.perf_counter() - t0
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_

@@ -394,9 +394,15 @@ def _physiology_table(model, level=0.95) -> str:
     if relaxed is not None:
         chosen = "stress_relaxation" in (((model.fit or {}).get("structure_selection") or {}).get("effects")
                                          or {}).get("chosen", ())
+        from lpvpc.effects import model_relaxation_times
+
         how = "was chosen by the structure's cross-validation" if chosen else "was asked for (effects=)"
-        note += (f" Stress relaxation {how}: right after a displacement the joint resists with the short-range "
-                 "stiffness; held for seconds, part of that torque relaxes and the relaxed stiffness remains.")
+        times = " and ".join(f"{t:g}" for t in model_relaxation_times(model))
+        note += (f" Stress relaxation {how} (the position averaged over {times} s): right after a displacement the "
+                 "joint resists with the short-range stiffness; held for seconds, part of that torque relaxes and the "
+                 "relaxed stiffness remains. The short-range stiffness trades with that time, which a record hardly "
+                 "determines" + ("; its interval counts the neighbouring times." if chosen else
+                                 ": with an effect asked for, the interval does not count that."))
     return _table(head, rows) + f"<p class=\"small\">{note}</p>"
 
 
