@@ -1101,8 +1101,8 @@ class EffectDesign:
 
     ``lags`` and ``intrinsic_basis`` are the model's; ``signals`` the extra channels
     (:func:`signals_from_data`); ``relaxation``: (averaging times in s, position-weight
-    order or None for the catalog's) of a stress-relaxation term. Intrinsic-pathway columns are built at once
-    (``columns``, ``blocks``); reflex-pathway ones need an identified model
+    order or None for the catalog's) of a stress-relaxation term. Intrinsic-pathway columns
+    are built at once (``columns``, ``blocks``); reflex-pathway ones need an identified model
     (:meth:`reflex_columns`). ``late``: effects marked ``after_reflex`` go to the final
     joint solve (``late_columns``) instead of the intrinsic columns.
     """

@@ -471,12 +471,12 @@ class LPVPCEstimator:
             # 2.2x the rest of the selection on a clean 2-minute record). Those dynamics took part of
             # the relaxation, so they understate its gain; the extra fit then decides.
             look, look_terms = _effect_gains(p, y, rho, fs, (m.A, m.C[None, :], np.append(m.B, m.D)), self.basis,
-                                 self.velocity_basis, Segments.of(data, len(y)), sel.chosen, offered)
+                                             self.velocity_basis, Segments.of(data, len(y)), sel.chosen, offered)
             worth = tuple(n for n in offered if look[n] >= FIRST_LOOK_GAIN)
             if worth:
-                effects_cv, effect_poles, effect_structures = self._choose_effects(data, {**base, **sel.chosen, "irf_lags": None,
-                                                                       "state_order": order}, sel.chosen, worth,
-                                                                                         look_terms)
+                fit_settings = {**base, **sel.chosen, "irf_lags": None, "state_order": order}
+                effects_cv, effect_poles, effect_structures = self._choose_effects(data, fit_settings, sel.chosen,
+                                                                                   worth, look_terms)
             if effects_cv is None:
                 effects_cv = {"allowed": sorted(offered), "chosen": [], "cv": {},
                               "first_look_gain": {n: float(g) for n, g in look.items()},
@@ -555,11 +555,12 @@ class LPVPCEstimator:
         CV gain +0.19 points, not chosen; +0.95 with these dynamics, chosen). Scored after the
         structure, not inside its search, so a record without the effect gets exactly the model
         it got before effects were allowed. The effects' fit uses ``terms`` (the first look's
-        best variants; the catalog's when None); a variant chosen other than those (another
-        relaxation time) is scored again under dynamics fitted with it (``MAX_EFFECT_PASSES``). Returns (record of the choice, (the last effects' fit's A, its
-        subspace step, the terms it was fitted with), for the structural term: {"gain",
-        "variants"} or None when no effect is chosen), or (None, None, None) when that fit
-        fails (the effects' columns not independent here)."""
+        best variants; the catalog's when None); when the best variant under its dynamics is
+        another (another relaxation time), the dynamics are refitted with that one, until the
+        best was already fitted (at most ``MAX_EFFECT_PASSES`` fits). Returns (record of the
+        choice, (the last effects' fit's A, its subspace step, the terms it was fitted with),
+        for the structural term: {"gain", "variants"} or None when no effect is chosen), or
+        (None, None, None) when a fit fails (the effects' columns not independent here)."""
         from .selection import SEARCH, chosen_effects, effect_key
 
         t = time.perf_counter()
@@ -586,6 +587,8 @@ class LPVPCEstimator:
             search, off, cands = _effect_search(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)),
                                                 self.basis, self.velocity_basis, Segments.of(data, len(y)), chosen,
                                                 offered, e.intrinsic_basis.order)
+            if not terms:  # the catalog's term: named as the candidate with its columns (the loop compares them)
+                terms = _catalog_terms(cands, e.intrinsic_basis)
             pick = search.run(off, fixed=set(SEARCH)).chosen
             sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
             if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
@@ -604,7 +607,7 @@ class LPVPCEstimator:
             if best_terms in tried or len(tried) == MAX_EFFECT_PASSES:
                 break
             terms = best_terms
-        entry = _effects_cv(search, pick, cands, off)
+        entry = _effects_cv(search, pick, cands)
         entry["rule"] += f", and at least {100 * MIN_EFFECT_GAIN:g} % less held-out squared error"
         entry["passes"] = [{k: (list(v) if isinstance(v, tuple) else v) for k, v in x.items()} for x in tried]
         effects = None
@@ -1309,7 +1312,21 @@ def _provenance(data) -> dict:
     }
 
 
-def _effects_cv(search, chosen: dict, cands: dict, off: dict) -> dict:
+def _catalog_terms(cands: dict, intrinsic_basis) -> dict:
+    """The estimator settings of the candidates (lpvpc.selection.effect_candidates) whose
+    columns are the catalog's own terms (stress relaxation: lpvpc.effects.RELAXATION_TIMES at
+    the catalog's order in position), {} when none is."""
+    from .effects import CATALOG, RELAXATION_TIMES, effect_basis
+
+    out = {}
+    for name, by_value in cands.items():
+        order = effect_basis(CATALOG[name], intrinsic_basis).order
+        out.update(next((c[3] for c in by_value.values() if c[3].get("relaxation_times") == tuple(RELAXATION_TIMES)
+                         and c[1].order == order), {}))
+    return out
+
+
+def _effects_cv(search, chosen: dict, cands: dict) -> dict:
     """The record of the allowed effects' choice: which were allowed and chosen, the chosen
     variants' estimator settings, and the CV VAF (%) of the chosen structure with each effect
     off and on (its chosen variant, else its best; every variant's under ``variants``), same
