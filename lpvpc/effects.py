@@ -945,7 +945,13 @@ def relaxation_times(options=None) -> tuple:
 
 
 def model_relaxation_times(model) -> tuple:
-    """The relaxation times of a model's stress_relaxation term (:func:`relaxation_times`)."""
+    """The relaxation times of a model's stress_relaxation term (:func:`relaxation_times`).
+
+    >>> import types
+    >>> fe = FittedEffect("stress_relaxation", options={"relaxation_times_s": [0.45]})
+    >>> model_relaxation_times(types.SimpleNamespace(effects=[fe]))  # s: chosen for its record
+    (0.45,)
+    """
     fe = next((f for f in getattr(model, "effects", None) or () if "relaxation" in f.effect.derived), None)
     return relaxation_times(fe.options if fe is not None else None)
 
