@@ -337,51 +337,34 @@ def structural_term(model, data, search=None, selection=None, effects=None) -> d
 def effect_variant_shifts(search, chosen: dict, candidates: dict) -> list:
     """[(settings, CV VAF %, IRF shift)] of the chosen effects' other variants (another
     relaxation time: :data:`lpvpc.selection.RELAXATION_VARIANTS`) within one standard error
-    of the best of them (paired over folds, as the one-standard-error rule), each refitted to
-    the whole record in identify's effect search (``search``, held at the structure
-    ``chosen`` with its effects' values; ``candidates``: lpvpc.selection.effect_candidates)
-    minus the chosen one's: (2 L + 1, n_i + 1), the structure's lags and basis; and, a
-    single time chosen, the grid's times next to it whatever their score. The relaxation's
-    time trades with K and the data hardly tell the times apart (virtual subject, truth
-    0.6 s, 100 Hz: 0.45 s chosen on 5 of 6 seeds, by the CV and by the in-sample fit alike,
-    0.01-0.04 points of VAF from 0.6 s, consistently over folds, so one standard error did
-    not reach it on 2 seeds, while K was 6-11 % apart): the time is known to the grid's
-    resolution at best."""
-    from .selection import chosen_effects, effect_key
+    of the best of them (:func:`near_equivalent`), each refitted to the whole record in
+    identify's effect search (``search``, held at the structure ``chosen`` with its effects'
+    values, so its largest IRF is the structure's; ``candidates``:
+    lpvpc.selection.effect_candidates) minus the chosen one's; and, a single time chosen,
+    the grid's times next to it whatever their score. The relaxation's time trades with K and
+    the data hardly tell the times apart (virtual subject, truth 0.6 s, 100 Hz: 0.45 s chosen
+    on 5 of 6 seeds, by the CV and by the in-sample fit alike, 0.01-0.04 points of VAF from
+    0.6 s, consistently over folds, so one standard error did not reach it on 2 seeds, while
+    K was 6-11 % apart): the time is known to the grid's resolution at best."""
+    from .selection import Selection, chosen_effects, effect_key
 
-    ref = _refit_irf_own(search, chosen)
-    scored, grid_neighbours = {}, []
+    ref = _refit_irf(search, chosen)
+    scored, neighbours = [], []
     for name in chosen_effects(chosen):
-        values = list(candidates[name])
-        for value in values:
-            settings = {**chosen, effect_key(name): value}
-            scored[_key(settings)] = (settings, search.score(settings))
-        singles = [v for v in values if isinstance(v, str) and "+" not in v.split(" s,")[0]]
-        if chosen[effect_key(name)] in singles:
-            i = singles.index(chosen[effect_key(name)])
-            grid_neighbours += [_key({**chosen, effect_key(name): singles[j]}) for j in (i - 1, i + 1)
-                                if 0 <= j < len(singles)]
-    best = max((sc for _, sc in scored.values()), key=lambda sc: sc.cv_vaf)
-    K = len(best.fold_sse)
-    out = []
-    for settings, sc in scored.values():
-        diff = K * (sc.fold_sse - best.fold_sse)
-        se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
-        if settings != chosen and (np.mean(diff) <= se or _key(settings) in grid_neighbours):
-            out.append((_plain(settings), sc.cv_vaf, _refit_irf_own(search, settings) - ref))
-    return sorted(out, key=lambda x: -x[1])[:MAX_STRUCTURES]
-
-
-def _key(settings):
-    return tuple(sorted((k, str(v)) for k, v in settings.items()))
-
-
-def _refit_irf_own(search, settings) -> np.ndarray:
-    """A structure's IRF weights refitted to the whole record (:func:`_refit`) in its own
-    lags and basis: (2 L + 1, n_i + 1)."""
-    theta, L, _ = _refit(search, settings)
-    ni = settings["intrinsic_order"]
-    return theta[: (2 * L + 1) * (ni + 1)].reshape(2 * L + 1, ni + 1)
+        by_value = candidates[name]
+        scored += [search.score({**chosen, effect_key(name): v}) for v in by_value]
+        singles = sorted((c[3]["relaxation_times"][0], v) for v, c in by_value.items()
+                         if len(c[3].get("relaxation_times", ())) == 1)
+        values = [v for _, v in singles]
+        if chosen[effect_key(name)] in values:
+            i = values.index(chosen[effect_key(name)])
+            neighbours += [{**chosen, effect_key(name): values[j]} for j in (i - 1, i + 1) if 0 <= j < len(values)]
+    near = near_equivalent(None, Selection(chosen=chosen, start=chosen, fold_kind="", n_folds=len(scored[0].fold_sse),
+                                           scored=scored), limit=None)
+    near_ids = {id(sc) for sc in near}  # (Scored holds arrays: compared by identity)
+    out = [sc for sc in scored if sc.settings != chosen and (id(sc) in near_ids or sc.settings in neighbours)]
+    return [(_plain(sc.settings), sc.cv_vaf, _refit_irf(search, sc.settings) - ref)
+            for sc in sorted(out, key=lambda sc: -sc.cv_vaf)][:MAX_STRUCTURES]
 
 
 def _model_irf(model, D):

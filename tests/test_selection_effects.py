@@ -85,9 +85,10 @@ def test_relaxation_time_chosen_stored_and_exported(relaxation_run, tmp_path):
     lo, hi = model.scheduling_range
     rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 9)
     K = SubjectParams().incremental_stiffness(rho, sim.truth["perturbation_amplitude"])
-    assert np.max(np.abs(model.elastic_stiffness(rho) / K - 1)) < 0.15
+    # (the catalog's three times, forced: K worst -43 % on this seed, relaxed_stiffness_causes.txt; now 1-3 %)
+    assert np.max(np.abs(model.elastic_stiffness(rho) / K - 1)) < 0.06
     k_lo, k_hi = model.elastic_stiffness_interval(rho)
-    assert np.mean((k_lo <= K) & (K <= k_hi)) >= 0.75
+    assert np.all((k_lo <= K) & (K <= k_hi))
     structures = model.uncertainty["structural"]["structures"]
     assert any(s["settings"].get(f"effect:{EFFECT}", label) != label for s in structures)
     # the CasADi step averages over the model's own time: it reproduces numpy's prediction
