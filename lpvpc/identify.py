@@ -601,9 +601,8 @@ class LPVPCEstimator:
             # left seed 18 off)
             best_terms = {}
             for n, by_value in cands.items():
-                scores = {v: search.score({**pick, effect_key(n): v}).cv_vaf for v in by_value}
-                best_terms.update(by_value[pick[effect_key(n)] if pick[effect_key(n)] else
-                                           max(scores, key=scores.get)][3])
+                v = pick[effect_key(n)] or max(by_value, key=lambda u: search.score({**pick, effect_key(n): u}).cv_vaf)
+                best_terms.update(by_value[v][3])
             if best_terms in tried or len(tried) == MAX_EFFECT_PASSES:
                 break
             terms = best_terms
