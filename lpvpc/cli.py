@@ -375,7 +375,8 @@ def _selection_summary(sel) -> list:
     if not sel:
         return []
     if "skipped" in sel:
-        return [f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
+        return ([f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
+                + _effects_cv_summary(sel.get("relaxation_term"), "relaxation:  forced on, its term by CV:"))
     short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
              "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
 
@@ -407,8 +408,9 @@ def _selection_summary(sel) -> list:
     return lines + _effects_cv_summary(sel.get("effects"))
 
 
-def _effects_cv_summary(entry) -> list:
-    """Lines of the allowed effects' choice (lpvpc.identify: on/off candidates of the selection)."""
+def _effects_cv_summary(entry, head="effects cv: ") -> list:
+    """Lines of the allowed effects' choice (lpvpc.identify: on/off candidates of the selection),
+    or of a forced stress relaxation's term (``head``)."""
     if not entry or not entry.get("allowed"):
         return []
     cv = entry.get("cv", {})
@@ -420,7 +422,7 @@ def _effects_cv_summary(entry) -> list:
         return (f", term {c['variant']} of {len(c['variants'])} (next: "
                 + ", ".join(f"{v} {x:.2f}" for v, x in others) + ")")
 
-    return [f"effects cv:  {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
+    return [f"{head} {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
             f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}{term(cv[n])}, reflex dynamics of a fit with "
             f"it; +{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
 

@@ -71,6 +71,8 @@ DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
 #: present gave 16-35 % (benchmarks/results/effect_selection.txt).
 MIN_EFFECT_GAIN = 0.05
+#: Why structure="cv" fits forced effects as given (then only stress relaxation's term is chosen).
+EXTENDED_GIVEN = "extended model (effects)"
 #: Fits of the effects' dynamics at most (each with the best terms under the previous one's).
 MAX_EFFECT_PASSES = 3
 #: The first look (the first fit's dynamics, which take part of a relaxation) screens at a
@@ -394,7 +396,7 @@ class LPVPCEstimator:
             return (f"record of {len(rho) / float(data.fs):.0f} s, shorter than {MIN_SELECTION_S:.0f} s: too short for "
                     f"the cross-validation to choose reliably")
         if self.effects:
-            return "extended model (effects)"
+            return EXTENDED_GIVEN
         if self.basis not in ("chebyshev", "legendre") or self.velocity_basis not in ("chebyshev", "legendre"):
             return "non-polynomial basis (the candidates' columns do not nest)"
         if self.high_rate_reflex and getattr(data, "high_rate", None) is not None:
@@ -428,6 +430,9 @@ class LPVPCEstimator:
                 add_structural_uncertainty(self.model_, data)
             if offered and reason.startswith("stationary") and not self.effects:  # (forced effects: as given)
                 self._choose_stationary_effects(data, base, offered)
+            if reason == EXTENDED_GIVEN and tuple(self.effects) == ("stress_relaxation",) \
+                    and self.relaxation_times is None and self.relaxation_order is None:
+                self._choose_forced_relaxation_term(data, base)
             return self
         first = LPVPCEstimator(**base)
         first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
@@ -545,7 +550,7 @@ class LPVPCEstimator:
         self.model_, self.subspace_, self.n_features_ = model, est.subspace_, est.n_features_
         return self
 
-    def _choose_effects(self, data, fit_settings, chosen, offered, terms=None):
+    def _choose_effects(self, data, fit_settings, chosen, offered, terms=None, forced=False):
         """The allowed effects on or off at the chosen structure (``chosen``, fitted with
         ``fit_settings``), scored on the same folds (their columns joined to the structure's in
         one design: column subsets), the one-standard-error rule and ``MIN_EFFECT_GAIN``. The
@@ -586,12 +591,15 @@ class LPVPCEstimator:
             e = fit.model_
             search, off, cands = _effect_search(p, y, rho, e.fs, (e.A, e.C[None, :], np.append(e.B, e.D)),
                                                 self.basis, self.velocity_basis, Segments.of(data, len(y)), chosen,
-                                                offered, e.intrinsic_basis.order)
+                                                offered, e.intrinsic_basis.order, on_only=forced)
             if not terms:  # the catalog's term: named as the candidate with its columns (the loop compares them)
                 terms = _catalog_terms(cands, e.intrinsic_basis)
-            pick = search.run(off, fixed=set(SEARCH)).chosen
+            # forced: the search starts at the fitted terms and never scores the effects off
+            start = {**off, **{effect_key(n): v for n, by in cands.items() for v, c in by.items()
+                               if c[3] == terms}} if forced else off
+            pick = search.run(start, fixed=set(SEARCH)).chosen
             sse_on, sse_off = (float(search.score(x).fold_sse.sum()) for x in (pick, off))
-            if sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain: not worth an effect
+            if not forced and sse_on > (1.0 - MIN_EFFECT_GAIN) * sse_off:  # a consistent but negligible gain
                 pick = off
             tried.append(terms)
             # The best term under these dynamics (the chosen one, else the best-scoring), if not
@@ -724,6 +732,39 @@ class LPVPCEstimator:
             path.fallback = f"the high-rate fit was not determined ({exc}): model-rate velocity"
             return fallback
         return est
+
+    def _choose_forced_relaxation_term(self, data, base) -> None:
+        """Stress relaxation forced (``effects=("stress_relaxation",)``, its term not given),
+        the structure as given: its term (lpvpc.selection.RELAXATION_VARIANTS) chosen as when
+        the selection switches the effect on (:meth:`_choose_effects`, the effect held on),
+        the model refitted with it (as forced: both ways), its intervals counting the terms the
+        data could not exclude. Why: with the catalog's three times a relaxing virtual subject's
+        K was 8.5 % off (median) and its interval covered it at 30.6 %
+        (benchmarks/results/relaxed_stiffness.txt)."""
+        m = self.model_
+        if not {self.basis, self.velocity_basis} <= {"chebyshev", "legendre"}:
+            return  # (the candidates' columns nest only in polynomial bases)
+        fs = m.fs
+        settings = {**base, "reflex_delay": m.delay / fs, "irf_length": m.settings["irf_lags"] / fs, "irf_lags": None}
+        chosen = {"irf_length": settings["irf_length"], "intrinsic_order": m.intrinsic_basis.order,
+                  "reflex_order": m.reflex_rho_basis.order, "velocity_order": m.velocity_basis.order,
+                  "reflex_delay": settings["reflex_delay"], "elastic_curvature": m.curvature is not None,
+                  "scheduling_extrapolation": self.scheduling_extrapolation}
+        entry, _, structures = self._choose_effects(data, settings, chosen, tuple(self.effects), forced=True)
+        if entry is None or not entry["chosen"]:
+            return
+        entry["rule"] = ("the effect forced on: its term among the variants by the same cross-validation, "
+                         "one-standard-error rule toward fewer parameters")
+        if entry["settings"] != _catalog_terms_of(m):
+            est = LPVPCEstimator(**{**base, **entry["settings"]}).fit(data)
+            est.model_.settings["structure"] = "cv"
+            est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
+            self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
+        self.model_.fit["structure_selection"]["relaxation_term"] = entry
+        if self.model_.uncertainty:  # the terms the data could not exclude count in K's interval
+            from .structural_uncertainty import add_structural_uncertainty
+
+            add_structural_uncertainty(self.model_, data, effects={**structures, "gain": 1.0})
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
@@ -1311,6 +1352,15 @@ def _provenance(data) -> dict:
     }
 
 
+def _catalog_terms_of(model) -> dict:
+    """The estimator settings of a model's stress-relaxation term as the selection names them
+    (lpvpc.selection.effect_candidates): its times and its weights' order in position."""
+    from .effects import model_relaxation_times
+
+    fe = next(f for f in model.effects if f.name == "stress_relaxation")
+    return {"relaxation_times": model_relaxation_times(model), "relaxation_order": fe.basis.order}
+
+
 def _catalog_terms(cands: dict, intrinsic_basis) -> dict:
     """The estimator settings of the candidates (lpvpc.selection.effect_candidates) whose
     columns are the catalog's own terms (stress relaxation: lpvpc.effects.RELAXATION_TIMES at
@@ -1347,15 +1397,19 @@ def _effects_cv(search, chosen: dict, cands: dict) -> dict:
                     "toward fewer parameters"}
 
 
-def _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered, intrinsic_order):
+def _effect_search(p, y, rho, fs, dynamics, family, velocity_family, segments, chosen, offered, intrinsic_order,
+                   on_only=False):
     """(search, the structure ``chosen`` with every effect off, the effects' columns): a
     :class:`lpvpc.selection.StructureSearch` held at ``chosen`` with the ``offered`` effects'
-    on/off columns, under the reflex ``dynamics`` (same folds as the selection)."""
+    columns (off or one of their variants; ``on_only``: their variants only), under the reflex
+    ``dynamics`` (same folds as the selection)."""
     from .selection import SEARCH, StructureSearch, effect_candidates, effect_key
 
     cands = effect_candidates(offered, p, rho, fs, family, intrinsic_order)
-    search = StructureSearch(p, y, rho, fs, dynamics, family, velocity_family, {k: (chosen[k],) for k in SEARCH},
-                             segments, effects=cands)
+    space = {k: (chosen[k],) for k in SEARCH}
+    if on_only:
+        space.update({effect_key(n): tuple(cands[n]) for n in cands})
+    search = StructureSearch(p, y, rho, fs, dynamics, family, velocity_family, space, segments, effects=cands)
     return search, {**chosen, **{effect_key(n): False for n in cands}}, cands
 
 

@@ -178,6 +178,13 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         if effects != current.effects:
             current.effects = effects
             current.label = "base model + " + ", ".join(effects)
+    # the stress-relaxation term the base's cross-validation chose (the catalog's, refitted, would
+    # change the base too)
+    term = {k: current.model.settings[k] for k in ("relaxation_times", "relaxation_order")
+            if current.model.settings.get(k) is not None}
+    if term:
+        settings = {**settings, **term}
+        current.settings = dict(settings)
     # the background activation from the EMG, its reflex bursts explained by the base model's
     # own reflex drive: computed once, so every rung is fitted and scored on the same estimate
     ident, heldout = (with_model_activation(d, current.model) for d in (ident, heldout))

@@ -261,7 +261,9 @@ def test_stress_relaxation_is_fitted_both_ways_and_the_better_fit_kept():
     data, held = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
     ways = {late: LPVPCEstimator(effects=("stress_relaxation",))._fit(data, late=late).model_.fit["vaf"]
             for late in (False, True)}
-    model = identify(data, effects=("stress_relaxation",))
+    # the catalog's term given (forced alone, its term would be chosen first: the same two ways after)
+    model = identify(data, effects=("stress_relaxation",), relaxation_times=fx.RELAXATION_TIMES,
+                     relaxation_order=fx.CATALOG["stress_relaxation"].feature_order)
     assert model.fit["vaf"] == pytest.approx(max(ways.values()))
     assert model.fit["effects_after_reflex"] == (ways[True] > ways[False])
     clean, clean_ident = simulate_pair("novel", seed=2), simulate_pair("multilevel", seed=1)
@@ -275,6 +277,9 @@ def test_stress_relaxation_is_fitted_both_ways_and_the_better_fit_kept():
     # the base model without the effect (by default the selection may choose it: issue 22)
     base = vaf(held.torque, identify(data, allow_effects=()).predict(held, warn=False).total)
     ref = vaf(clean_held.torque, clean_model.predict(clean_held, warn=False).total)
+    assert got > base + 0.3 and got > ref - 0.3, (got, base, ref)
+    chosen = identify(data, effects=("stress_relaxation",))  # its term chosen
+    got = vaf(held.torque, chosen.predict(held.position, held.scheduling, warn=False).total)
     assert got > base + 0.3 and got > ref - 0.3, (got, base, ref)
 
 
