@@ -755,7 +755,7 @@ class LPVPCEstimator:
             return
         entry["rule"] = ("the effect forced on: its term among the variants by the same cross-validation, "
                          "one-standard-error rule toward fewer parameters")
-        if entry["settings"] != _catalog_terms_of(m):
+        if entry["settings"] != _relaxation_term_of(m):
             est = LPVPCEstimator(**{**base, **entry["settings"]}).fit(data)
             est.model_.settings["structure"] = "cv"
             est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
@@ -764,6 +764,7 @@ class LPVPCEstimator:
         if self.model_.uncertainty:  # the terms the data could not exclude count in K's interval
             from .structural_uncertainty import add_structural_uncertainty
 
+            # (forced: the structure without the effect is no alternative, as for an effect that won clearly)
             add_structural_uncertainty(self.model_, data, effects={**structures, "gain": 1.0})
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
@@ -1352,7 +1353,7 @@ def _provenance(data) -> dict:
     }
 
 
-def _catalog_terms_of(model) -> dict:
+def _relaxation_term_of(model) -> dict:
     """The estimator settings of a model's stress-relaxation term as the selection names them
     (lpvpc.selection.effect_candidates): its times and its weights' order in position."""
     from .effects import model_relaxation_times
