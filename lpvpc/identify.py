@@ -652,13 +652,9 @@ class LPVPCEstimator:
         structure BIC chose (delay and IRF half-width, state order); an effect chosen: the
         trial refitted with it at that structure."""
         m = self.model_
-        fs = m.fs
-        settings = {**base, "reflex_delay": m.delay / fs, "irf_length": m.settings["irf_lags"] / fs,
+        chosen = _fitted_structure(m, self.scheduling_extrapolation)
+        settings = {**base, "reflex_delay": chosen["reflex_delay"], "irf_length": chosen["irf_length"],
                     "stationary_delays": (), "state_order": m.state_order}
-        chosen = {"irf_length": settings["irf_length"], "intrinsic_order": m.intrinsic_basis.order,
-                  "reflex_order": m.reflex_rho_basis.order, "velocity_order": m.velocity_basis.order,
-                  "reflex_delay": settings["reflex_delay"], "elastic_curvature": m.curvature is not None,
-                  "scheduling_extrapolation": self.scheduling_extrapolation}
         with warnings.catch_warnings():  # (the stationary warning was given by the first fit)
             warnings.simplefilter("ignore", StationaryWarning)
             entry, dyn, _ = self._choose_effects(data, settings, chosen, offered)
@@ -744,12 +740,8 @@ class LPVPCEstimator:
         m = self.model_
         if not {self.basis, self.velocity_basis} <= {"chebyshev", "legendre"}:
             return  # (the candidates' columns nest only in polynomial bases)
-        fs = m.fs
-        settings = {**base, "reflex_delay": m.delay / fs, "irf_length": m.settings["irf_lags"] / fs, "irf_lags": None}
-        chosen = {"irf_length": settings["irf_length"], "intrinsic_order": m.intrinsic_basis.order,
-                  "reflex_order": m.reflex_rho_basis.order, "velocity_order": m.velocity_basis.order,
-                  "reflex_delay": settings["reflex_delay"], "elastic_curvature": m.curvature is not None,
-                  "scheduling_extrapolation": self.scheduling_extrapolation}
+        chosen = _fitted_structure(m, self.scheduling_extrapolation)
+        settings = {**base, "reflex_delay": chosen["reflex_delay"], "irf_length": chosen["irf_length"], "irf_lags": None}
         entry, _, structures = self._choose_effects(data, settings, chosen, tuple(self.effects), forced=True)
         if entry is None or not entry["chosen"]:
             return
@@ -1351,6 +1343,25 @@ def _provenance(data) -> dict:
         "casadi_version": casadi.__version__,
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def _fitted_structure(model, scheduling_extrapolation) -> dict:
+    """A fitted model's structure in the selection's settings (lpvpc.selection.SEARCH): the
+    orders of its bases as fitted (a stationary trial's intrinsic basis: 0, whatever asked).
+
+    >>> import types
+    >>> from lpvpc.basis import Basis
+    >>> b = Basis("chebyshev", 3, -0.2, 0.1)
+    >>> m = types.SimpleNamespace(fs=100.0, settings={"irf_lags": 4}, delay=4, curvature=None, intrinsic_basis=b,
+    ...                           reflex_rho_basis=b, velocity_basis=b)
+    >>> _fitted_structure(m, "clip")["irf_length"], _fitted_structure(m, "clip")["reflex_delay"]
+    (0.04, 0.04)
+    """
+    fs = model.fs
+    return {"irf_length": model.settings["irf_lags"] / fs, "intrinsic_order": model.intrinsic_basis.order,
+            "reflex_order": model.reflex_rho_basis.order, "velocity_order": model.velocity_basis.order,
+            "reflex_delay": model.delay / fs, "elastic_curvature": model.curvature is not None,
+            "scheduling_extrapolation": scheduling_extrapolation}
 
 
 def _relaxation_term_of(model) -> dict:
