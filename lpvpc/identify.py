@@ -372,20 +372,44 @@ class LPVPCEstimator:
             _check_reflex_path_settings(self)
             self._allowed_effects()  # a bad allow_effects is an error whatever the structure
             if self.structure == "cv":
-                return self._fit_selected(data)
-            try:
-                return self._fit(data)
-            except InsufficientExcitationError as exc:
-                if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
-                    raise
-                from dataclasses import replace
+                self._fit_selected(data)
+            else:
+                try:
+                    self._fit(data)
+                except InsufficientExcitationError as exc:
+                    if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
+                        raise
+                    from dataclasses import replace
 
-                from .errors import LpvpcWarning
+                    from .errors import LpvpcWarning
 
-                warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz velocity "
-                              f"({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold is biased)",
-                              LpvpcWarning, stacklevel=2)
-                return self._fit(replace(data, high_rate=None))
+                    warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz "
+                                  f"velocity ({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold "
+                                  f"is biased)", LpvpcWarning, stacklevel=2)
+                    self._fit(replace(data, high_rate=None))
+            self._record_channel_skew(data)
+            return self
+
+    def _record_channel_skew(self, data) -> None:
+        """The channel skew the fitted model sees in its data (lpvpc.channel_skew.scan_channel_skew,
+        about one least-squares solve), in ``model.fit["channel_skew"]``, with a warning naming
+        the fix when lining the channels up would remove at least MIN_RESIDUAL_REDUCTION of the
+        residual variance. Not for the fits inside identify, nor for data already aligned."""
+        meta = getattr(data, "meta", {}) or {}
+        if getattr(self, "_reuse", {}).get("bare") or not getattr(self, "_scan_skew", True) \
+                or "channel_skew_s" in meta or "position_delay_s" in meta or not hasattr(data, "meta"):
+            return
+        from .channel_skew import scan_channel_skew
+        from .errors import LpvpcWarning
+
+        found = scan_channel_skew(self.model_, data)
+        self.model_.fit["channel_skew"] = found.to_dict()
+        if found.chosen:
+            warnings.warn(f"the torque channel lags the position channel by about {found.chosen * 1e3:.2f} ms (a "
+                          f"recording artefact: lining them up removes {100 * found.residual_reduction:.1f} % of the "
+                          f"residual variance); load the files with channel_skew={found.chosen:.5f} "
+                          f"(lpvpc.channel_skew.load_aligned; the CLI's identify does it by default) and identify again",
+                          LpvpcWarning, stacklevel=3)
 
     def _selection_unavailable(self, data) -> str | None:
         """Why the structure cannot be selected on these data (None: it can)."""
@@ -661,7 +685,7 @@ class LPVPCEstimator:
             if entry is None:
                 return
             if entry["chosen"]:
-                est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]})
+                est = _inner(LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]}))
                 if entry["settings"] and self.state_order is None:  # BIC's order with them (_fit_selected)
                     est.state_order = None
                 if entry["settings"] == dyn[2]:
@@ -748,7 +772,7 @@ class LPVPCEstimator:
         entry["rule"] = ("the effect forced on: its term among the variants by the same cross-validation, "
                          "one-standard-error rule toward fewer parameters")
         if entry["settings"] != _relaxation_term_of(m):
-            est = LPVPCEstimator(**{**base, **entry["settings"]}).fit(data)
+            est = _inner(LPVPCEstimator(**{**base, **entry["settings"]})).fit(data)
             est.model_.settings["structure"] = "cv"
             est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
             self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
@@ -761,7 +785,7 @@ class LPVPCEstimator:
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
-        est = LPVPCEstimator(**base).fit(data)
+        est = _inner(LPVPCEstimator(**base)).fit(data)
         est.model_.settings["structure"] = "cv"
         est.model_.fit["structure_selection"] = {"skipped": reason}
         self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
@@ -1028,7 +1052,8 @@ class LPVPCEstimator:
             delays.setdefault(max(1, int(round(float(c) * fs))), float(c))
         fits, failed = {}, {}
         for c in delays.values():
-            est = LPVPCEstimator(**{**self.get_params(), "reflex_delay": c, "irf_length": c, "stationary_delays": ()})
+            est = _inner(LPVPCEstimator(**{**self.get_params(), "reflex_delay": c, "irf_length": c,
+                                           "stationary_delays": ()}))
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 try:
@@ -1130,6 +1155,12 @@ class LPVPCEstimator:
                 f"({n_intrinsic} intrinsic, {n_reflex} reflex nonlinearity); need at least {need} "
                 f"(reduce basis orders, IRF lags or MOESP horizon, or record longer)"
             )
+
+
+def _inner(est):
+    """``est`` as a fit inside another (no channel-skew scan: the outer fit scans its own model)."""
+    est._scan_skew = False
+    return est
 
 
 def _check_reflex_path_settings(est) -> None:
@@ -1464,7 +1495,7 @@ def with_base_model_activation(data, settings):
     if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
             or _has_backgrounds(extra)):
         return data
-    base = LPVPCEstimator(**{**settings, "effects": ()}).fit(data).model_
+    base = _inner(LPVPCEstimator(**{**settings, "effects": ()})).fit(data).model_
     return with_model_activation(data, base)
 
 

@@ -255,6 +255,21 @@ class LPVPCModel:
 
         return model_signals(self)
 
+    def _check_alignment(self, data) -> None:
+        """Warn when the model was identified on records lined up for a late torque channel
+        (``conventions["channel_skew_s"]``, lpvpc.channel_skew) and ``data`` were not lined up
+        the same: the prediction would be compared with a torque that lags it."""
+        from .errors import LpvpcWarning
+
+        skew = float(self.conventions.get("channel_skew_s", 0.0) or 0.0)
+        meta = getattr(data, "meta", {}) or {}
+        done = float(meta.get("channel_skew_s", 0.0) or 0.0) + float(meta.get("position_delay_s", 0.0) or 0.0)
+        if skew and abs(done - skew) > 1e-7:
+            warnings.warn(f"this model was identified on records whose position was delayed by {skew * 1e3:.2f} ms to "
+                          f"line up a late torque channel; these data were lined up by {done * 1e3:.2f} ms: load them "
+                          f"with channel_skew={skew:.5f} to compare with the torque the rig records (lpvpc predict and "
+                          f"validate do)", LpvpcWarning, stacklevel=4)
+
     def predict(self, position, scheduling=None, *, causal: bool = False, velocity=None, acceleration=None,
                 warn: bool = True, signals: dict | None = None) -> Prediction:
         """Torque (N m) for a perturbation position record (rad) and its scheduling record
@@ -289,6 +304,8 @@ class LPVPCModel:
                                   reflex=np.concatenate([q.reflex for q in parts]),
                                   out_of_range_fraction=float(np.dot(n, [q.out_of_range_fraction for q in parts]) / n.sum()))
             high = self._high_rate_of(position)
+            if warn:
+                self._check_alignment(position)
             position, scheduling, signals = self._unpack_data(position, signals)
         else:
             high = None

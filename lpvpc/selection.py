@@ -368,13 +368,13 @@ class _Design:
         rows = [np.flatnonzero(labels == f) for f in range(n_folds)]
         # each fold's Gram matrix summed over its contiguous runs: views of X, no row copies
         self.G = np.zeros((n_folds, self.n_cols, self.n_cols))
-        self.b = np.zeros((n_folds, self.n_cols))
+        self.b = np.zeros((n_folds, self.n_cols) + np.shape(y)[1:])  # (several outputs: a column each)
         cuts = np.r_[0, np.flatnonzero(np.diff(labels)) + 1, len(labels)]
         for a, c in zip(cuts[:-1], cuts[1:]):
             self.G[labels[a]] += X[a:c].T @ X[a:c]
             self.b[labels[a]] += X[a:c].T @ y[a:c]
         self.end = {rule: {} for rule in rules}
-        for f, r in enumerate(rows):
+        for f, r in enumerate(rows if n_folds > 1 else ()):  # (one fold: the whole record, no end folds)
             train = rho[labels != f]
             t_lo, t_hi = float(np.min(train)), float(np.max(train))
             if t_lo <= lo and t_hi >= hi:
@@ -465,6 +465,45 @@ class _Design:
                 idx.append(off + v * (self.nr_max + 1) + r)
                 cur.append(zero)
         return np.array(idx), np.array(cur)
+
+
+def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", velocity_family="chebyshev",
+                  segments=None) -> np.ndarray:
+    """In-sample VAF (%) of the structure ``settings`` (lpvpc.selection.SEARCH's keys) with the
+    reflex ``dynamics`` held (as in :class:`StructureSearch`), fitted by least squares to each
+    column of ``Y`` (N, k): one regressor and one Gram matrix for every output, so k outputs
+    cost about one (lpvpc.channel_skew scans shifted torques with it).
+
+    >>> import warnings
+    >>> from lpvpc.data import pair_trials
+    >>> from lpvpc.identify import identify
+    >>> from lpvpc.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     m = identify(d, structure="fixed")
+    >>> settings = {"irf_length": 0.04, "intrinsic_order": 5, "reflex_order": 2, "velocity_order": 4,
+    ...             "reflex_delay": 0.04, "elastic_curvature": True, "scheduling_extrapolation": "clip"}
+    >>> noise = np.random.default_rng(0).standard_normal(d.n)
+    >>> v = in_sample_vaf(d.position, np.c_[d.torque, noise], d.scheduling, d.fs, (m.A, m.C[None, :],
+    ...                   np.append(m.B, m.D)), settings)
+    >>> bool(v[0] > 95.0), bool(v[1] < 5.0)  # the torque is fitted, white noise hardly
+    (True, True)
+    """
+    Y = np.asarray(Y, dtype=float)
+    Y = Y[:, None] if Y.ndim == 1 else Y
+    L = max(1, int(round(settings["irf_length"] * fs)))
+    d = max(1, int(round(settings["reflex_delay"] * fs)))
+    top = (L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], [d])
+    D = _Design(np.asarray(p, dtype=float), Y, np.asarray(rho, dtype=float), float(fs), np.zeros(len(Y), int), 1,
+                family, velocity_family, dynamics, top, (), segments if segments is not None else Segments((), len(Y)))
+    idx, cur = D.columns(L, top[1], top[2], top[3], d, bool(settings["elastic_curvature"]))
+    G, b = _mapped(D.G[0], D.b[0].T, idx, cur)  # b: (k, columns)
+    s = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    theta = (np.linalg.solve(G / np.outer(s, s) + RIDGE * np.eye(len(idx)), (b / s).T) / s[:, None]).T
+    sse = np.einsum("ij,ij->j", Y, Y) - 2.0 * np.einsum("ki,ki->k", theta, b) + np.einsum("ki,ij,kj->k", theta, G, theta)
+    return 100.0 * (1.0 - sse / np.sum((Y - Y.mean(axis=0)) ** 2, axis=0))
 
 
 class _Evaluates:

@@ -127,3 +127,80 @@ def test_load_aligned_passes_a_given_skew_through(subject):
     a = load_aligned(pt=subject.pt, ut=subject.ut, channel_skew=1e-3)
     b = load_identification_data(pt=subject.pt, ut=subject.ut, channel_skew=1e-3)
     assert np.array_equal(a.position, b.position) and a.meta["channel_skew_s"] == 1e-3
+
+
+@pytest.fixture(scope="module")
+def late_files(subject, tmp_path_factory):
+    """The subject's 1 kHz trials written as CSV files with the torque channel one sample (1 ms) late."""
+    from lpvpc.data import write_trial_csv
+
+    d = tmp_path_factory.mktemp("late")
+    for name, trial in (("PT", subject.pt), ("UT", subject.ut)):
+        write_trial_csv(shifted(trial), d / f"{name}.csv")
+    return d / "PT.csv", d / "UT.csv"
+
+
+def test_identify_scans_its_record_and_names_a_late_torque(subject, late_files):
+    """Every identify scans its own record (one regressor, the model's structure and reflex
+    dynamics held): the 1 ms late torque is found (a warning naming the fix); the record as
+    simulated shows none and gets no warning; loaded lined up as found, the fit is better and
+    the data are not scanned again (already aligned)."""
+    import warnings
+
+    from lpvpc.errors import LpvpcWarning
+    from lpvpc.identify import identify
+
+    late = load_identification_data(pt=late_files[0], ut=late_files[1])
+    with pytest.warns(LpvpcWarning, match=r"lags the position channel by about .* channel_skew="):
+        m_late = identify(late)
+    found = m_late.fit["channel_skew"]
+    print(f"late: {found['estimate_s'] * 1e3:.2f} ms, {100 * found['residual_reduction']:.1f} %")
+    assert 0.5e-3 < found["chosen_s"] < 2e-3 and found["residual_reduction"] > 1.5 * MIN_RESIDUAL_REDUCTION
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        clean = identify(pair_trials(subject.pt, subject.ut))
+    assert clean.fit["channel_skew"]["chosen_s"] == 0.0
+    assert clean.fit["channel_skew"]["residual_reduction"] < 0.5 * MIN_RESIDUAL_REDUCTION
+    assert not [w for w in caught if "lags the position channel" in str(w.message)]
+    aligned = load_aligned(pt=late_files[0], ut=late_files[1])
+    assert aligned.meta["channel_skew_s"] == pytest.approx(found["chosen_s"], abs=1e-4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = identify(aligned)
+    assert "channel_skew" not in m.fit and not [w for w in caught if "lags the position" in str(w.message)]
+    assert m.conventions["channel_skew_s"] == aligned.meta["channel_skew_s"]
+    assert m.fit["vaf"] > m_late.fit["vaf"] + 0.03
+    # predicting records not lined up like the model's: a warning naming the skew to load them with
+    with pytest.warns(LpvpcWarning, match="channel_skew="):
+        m.predict(late)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LpvpcWarning)
+        m.predict(aligned)
+
+
+def test_a_peak_at_the_grid_end_is_no_skew():
+    """A fit that still improves at the end of the candidates is a model mismatch, not a skew:
+    nothing is chosen, however much of the residual the end removes."""
+    from lpvpc.channel_skew import ChannelSkew
+
+    cand = np.array([-2.0, -1.0, 0.0, 1.0, 2.0]) * 1e-3
+    rising = ChannelSkew(2e-3, cand, np.array([90.0, 91.0, 92.0, 93.0, 94.0]))
+    peaked = ChannelSkew(1e-3, cand, np.array([90.0, 91.0, 92.0, 94.0, 93.0]))
+    assert rising.residual_reduction > MIN_RESIDUAL_REDUCTION and rising.chosen == 0.0
+    assert peaked.chosen == 1e-3
+
+
+def test_cli_identify_lines_up_a_late_torque_by_default(late_files, tmp_path, capsys):
+    """lpvpc identify (no --channel-skew-ms): the fit's scan finds the late torque, the files are
+    reloaded lined up at 1 kHz and refitted, the model records the skew and the summary says so;
+    --channel-skew-ms 0 keeps the record as it is."""
+    pt, ut = late_files
+    assert cli_main(["identify", "--pt", str(pt), "--ut", str(ut), "-o", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr()
+    model = LPVPCModel.load(tmp_path / "m.json")
+    assert 0.5e-3 < model.conventions["channel_skew_s"] < 2e-3
+    assert "skew:        torque channel +" in out.out and "removing" in out.out
+    assert "lags the position channel" not in out.err  # undone, so no advice to undo it
+    assert cli_main(["identify", "--pt", str(pt), "--ut", str(ut), "-o", str(tmp_path / "m0.json"),
+                     "--channel-skew-ms", "0"]) == 0
+    assert "channel_skew_s" not in LPVPCModel.load(tmp_path / "m0.json").conventions
