@@ -295,9 +295,9 @@ def cmd_identify(args) -> int:
         warnings.simplefilter("always")
         est = _identified(data, settings)
     if skew == "auto" and "channel_skew" in est.model_.fit:  # (the fit scanned its record for a skew)
-        from .channel_skew import ChannelSkew, _from_dict
+        from .skew_scan import skew_from_dict
 
-        found = ChannelSkew(**_from_dict(est.model_.fit["channel_skew"]))
+        found = skew_from_dict(est.model_.fit["channel_skew"])
         if found.chosen:  # the files again, lined up at their own rate, and the fit again
             data = _load_data(args, **load, channel_skew=found.chosen)
             caught = []

@@ -467,6 +467,25 @@ class _Design:
         return np.array(idx), np.array(cur)
 
 
+def fitted_structure(model, scheduling_extrapolation) -> dict:
+    """A fitted model's structure in the selection's settings (lpvpc.selection.SEARCH): the
+    orders of its bases as fitted (a stationary trial's intrinsic basis: 0, whatever asked).
+
+    >>> import types
+    >>> from lpvpc.basis import Basis
+    >>> b = Basis("chebyshev", 3, -0.2, 0.1)
+    >>> m = types.SimpleNamespace(fs=100.0, settings={"irf_lags": 4}, delay=4, curvature=None, intrinsic_basis=b,
+    ...                           reflex_rho_basis=b, velocity_basis=b)
+    >>> fitted_structure(m, "clip")["irf_length"], fitted_structure(m, "clip")["reflex_delay"]
+    (0.04, 0.04)
+    """
+    fs = model.fs
+    return {"irf_length": model.settings["irf_lags"] / fs, "intrinsic_order": model.intrinsic_basis.order,
+            "reflex_order": model.reflex_rho_basis.order, "velocity_order": model.velocity_basis.order,
+            "reflex_delay": model.delay / fs, "elastic_curvature": model.curvature is not None,
+            "scheduling_extrapolation": scheduling_extrapolation}
+
+
 def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", velocity_family="chebyshev",
                   segments=None) -> np.ndarray:
     """In-sample VAF (%) of the structure ``settings`` (lpvpc.selection.SEARCH's keys) with the
