@@ -418,11 +418,6 @@ def main():
             v_pkg, v_fl = vaf(held, two), vaf(held, pf[k:])
             diffs.append(v_pkg - v_fl)
             note = "LTI (StationaryWarning)" if any(issubclass(w.category, StationaryWarning) for w in caught) else ""
-            scan = m.fit.get("channel_skew")  # identify's scan for a late torque channel (lpvpc.channel_skew)
-            if scan:
-                note += (f"{'; ' if note else ''}skew scan {scan['estimate_s'] * 1e3:+.2f} ms removing "
-                         f"{100 * scan['residual_reduction']:.2f} %: " + (f"found {scan['chosen_s'] * 1e3:+.2f} ms"
-                                                                          if scan["chosen_s"] else "none"))
             op = [d.scheduling[0]]
             lines.append(f"{construction:22} {name:6} {pos.mean():+8.3f} {v_pkg:7.2f} {vaf(held, cau):7.2f} {v40:6.2f} "
                          f"{v_fl:9.2f} {v_pkg - v_fl:+6.2f} {1e3 * m.delay / m.fs:8.0f} "

@@ -37,8 +37,7 @@ from .identification_data import SINC_HALF_WIDTH, check_channel_skew, delayed  #
 from .skew_scan import (CANDIDATES, MIN_RESIDUAL_REDUCTION, ChannelSkew, _candidates, _peak,  # noqa: F401
                         scan_channel_skew, skew_from_dict)
 
-__all__ = ["delayed", "delay_position", "ChannelSkew", "estimate_channel_skew", "scan_channel_skew", "load_aligned",
-           "MIN_RESIDUAL_REDUCTION", "CANDIDATES"]
+__all__ = ["delay_position", "estimate_channel_skew", "load_aligned"]  # (ChannelSkew, the scan: lpvpc.skew_scan)
 
 
 

@@ -67,7 +67,8 @@ class ChannelSkew:
     def interior(self) -> bool:
         """Whether the best candidate lies inside the grid: a skew shows as a peak; a fit that
         still improves at the grid's end shows a model mismatch, not a skew (the lab's stationary
-        trial z_df2: -2 ms, the end, 2.4 % of the residual; lining up by it cost 1 point held out)."""
+        trial z_df2, scanned before stationary records were left out: -2 ms, the end, 2.4 % of the
+        residual; lining up by it cost 1 point held out)."""
         return 0 < int(np.argmax(self.scores)) < len(self.scores) - 1
 
     def to_dict(self) -> dict:
