@@ -34,7 +34,6 @@ from .errors import (DataError, IdentificationError, InsufficientExcitationError
                      StationaryWarning)
 from .intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor, two_sided_lags
 from .segments import Segments
-from .selection import fitted_structure
 
 # why the selection skips a record whose reflex nonlinearity the caller put on the high-rate velocity
 HIGH_RATE_GIVEN = "reflex nonlinearity on the high-rate velocity"
@@ -682,6 +681,8 @@ class LPVPCEstimator:
         structure BIC chose (delay and IRF half-width, state order); an effect chosen: the
         trial refitted with it at that structure."""
         m = self.model_
+        from .selection import fitted_structure  # (here: the CLI's --help imports identify, not scipy)
+
         chosen = fitted_structure(m, self.scheduling_extrapolation)
         settings = {**base, "reflex_delay": chosen["reflex_delay"], "irf_length": chosen["irf_length"],
                     "stationary_delays": (), "state_order": m.state_order}
@@ -770,6 +771,8 @@ class LPVPCEstimator:
         m = self.model_
         if not {self.basis, self.velocity_basis} <= {"chebyshev", "legendre"}:
             return  # (the candidates' columns nest only in polynomial bases)
+        from .selection import fitted_structure  # (here: the CLI's --help imports identify, not scipy)
+
         chosen = fitted_structure(m, self.scheduling_extrapolation)
         settings = {**base, "reflex_delay": chosen["reflex_delay"], "irf_length": chosen["irf_length"], "irf_lags": None}
         entry, _, structures = self._choose_effects(data, settings, chosen, tuple(self.effects), forced=True)
