@@ -372,6 +372,20 @@ def virtual_scan_lines(seeds=range(3)) -> list:
                     effects.append(f"seed {seed}: " + ", ".join(f"{a:.2f} -> {b:.2f}" for a, b in zip(*res)))
         lines.append(f"  {name:38} " + "; ".join(cells))
         lines += [f"      {e}" for e in effects]
+    from lpvpc.simulated_effects import EFFECTS
+
+    lines.append("the same on records with each hidden effect of the virtual subject's catalog (1 kHz files, seeds 0, 1; "
+                 "'not scanned': the selection took an effect into the model)")
+    for eff in EFFECTS:
+        cells = []
+        for seed in (0, 1):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                p = simulate_pair("multilevel", seed=seed, effects=(eff,))
+                scan = identify(pair_trials(p.pt, p.ut)).fit.get("channel_skew")
+            cells.append("not scanned" if scan is None else f"{scan['estimate_s'] * 1e3:+.2f} "
+                         f"({100 * scan['residual_reduction']:.2f}) -> {scan['chosen_s'] * 1e3:.2f}")
+        lines.append(f"  {eff:38} " + "; ".join(cells))
     return lines
 
 

@@ -324,14 +324,17 @@ def cmd_identify(args) -> int:
     from .channel_skew import MIN_RESIDUAL_REDUCTION
 
     choice = data.meta.get("channel_skew_choice")
-    if "channel_skew_s" in data.meta or choice:
-        skew = data.meta.get("channel_skew_s", 0.0)
-        how = (f"estimated {choice['estimate_s'] * 1e3:+.2f} ms, removing {100 * choice['residual_reduction']:.1f} % of "
-               f"the residual variance" + ("" if skew else f" (< {100 * MIN_RESIDUAL_REDUCTION:g} %: not applied)")
-               ) if choice else "given"
-        print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how})"
-              + ("; position delayed by it at the file's rate (recorded in the model: predict does the same)"
-                 if skew else ""))
+    skew = data.meta.get("channel_skew_s", 0.0)
+    if skew:
+        how = (f"found by the fit's scan: removes {100 * choice['residual_reduction']:.1f} % of the residual variance"
+               if choice else "given")
+        print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how}); position delayed by it at the "
+              f"file's rate (recorded in the model: predict does the same)")
+    elif choice:
+        print(f"skew:        none (the fit's scan: lining up by {choice['estimate_s'] * 1e3:+.2f} ms would remove "
+              f"{100 * choice['residual_reduction']:.1f} % of the residual variance"
+              + (f", under {100 * MIN_RESIDUAL_REDUCTION:g} %)" if choice["residual_reduction"] < MIN_RESIDUAL_REDUCTION
+                 else ", at the end of the candidates: a misfit, not a skew)"))
     if data.meta.get("stationary"):
         ops = data.meta.get("operating_points", [data.meta.get("operating_point")])
         print(f"stationary:  no UT trial; operating point {', '.join(f'{x:+.4f}' for x in ops)} rad "

@@ -199,7 +199,7 @@ def test_cli_identify_lines_up_a_late_torque_by_default(late_files, tmp_path, ca
     out = capsys.readouterr()
     model = LPVPCModel.load(tmp_path / "m.json")
     assert 0.5e-3 < model.conventions["channel_skew_s"] < 2e-3
-    assert "skew:        torque channel +" in out.out and "removing" in out.out
+    assert "skew:        torque channel +" in out.out and "found by the fit's scan" in out.out
     assert "lags the position channel" not in out.err  # undone, so no advice to undo it
     assert cli_main(["identify", "--pt", str(pt), "--ut", str(ut), "-o", str(tmp_path / "m0.json"),
                      "--channel-skew-ms", "0"]) == 0
