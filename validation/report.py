@@ -470,6 +470,13 @@ def _html(m: dict, figs: dict, model) -> str:
                  f"<code>{_e(prov['data_files']['pt']['path'])}</code> / <code>{_e(prov['data_files']['ut']['path'])}"
                  f"</code>, {m['n_samples']} samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
 
+    skew = float(model.conventions.get("channel_skew_s", 0.0) or 0.0)
+    if skew:  # the records were lined up as at identification (lpvpc.channel_skew): say so before any figure
+        parts.append(f"<p class=\"small\">Channel skew: the rig's torque channel lags its position channel by "
+                     f"{skew * 1e3:.2f} ms (found or given at identification, recorded in the model); these records' "
+                     f"position was delayed by it at the file's rate before every comparison below. The FMU applies "
+                     f"no delay: in a loop it answers the true angle at once.</p>")
+
     # A scientist reads the physiology first, then how well the model predicts and where it
     # fails, then the software checks; provenance last.
     top, physiology, prediction, software = [], [], [], []
