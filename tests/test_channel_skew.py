@@ -114,6 +114,11 @@ def test_model_records_the_skew_and_predict_reuses_it(subject, tmp_path):
     from lpvpc.validation.harness import load_record  # validate's loading: the same alignment
 
     assert np.array_equal(load_record(model, npt, nut).measured.position, data.position)
+    # the validation report says the records were lined up, before any figure
+    assert main(["validate", d / "m.json", "--pt", npt, "--ut", nut, "--report", d / "report"]) == 0
+    html = (d / "report" / "report.html").read_text()
+    assert "Channel skew: the rig's torque channel lags its position channel by 1.00 ms" in html
+    assert html.index("Channel skew") < html.index("<img")
 
 
 @pytest.mark.parametrize("value", ["25", "abc", "nan"])
