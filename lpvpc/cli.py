@@ -83,7 +83,8 @@ CLI_SYNTAX = (
     (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
     # a keyword, not a field of a file ("conventions.torque_sign")
     (r"(?<![.\w])(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
-     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter)\b(='?([\w.+-]+)'?)?",
+     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter|relaxation_times|relaxation_order)"
+     r"\b(='?([\w.+-]+)'?)?",
      lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
     # a message that gave both syntaxes: once
     (r"\((--[^,()]+), \1\)", r"(\1)"),
@@ -277,6 +278,8 @@ def cmd_identify(args) -> int:
         settings["effects"] = _check_effect_names(settings["effects"])
     if "allow_effects" in settings:
         settings["allow_effects"] = _check_allowed_effects(settings["allow_effects"])
+    if "relaxation_times" in settings:
+        settings["relaxation_times"] = tuple(settings["relaxation_times"])
     if args.state_order == "auto":
         settings.pop("state_order")
     elif "state_order" in settings:
@@ -286,6 +289,12 @@ def cmd_identify(args) -> int:
 
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags"
                                             or k in REFLEX_PATH_SETTINGS)
+    from .identify import LPVPCEstimator
+
+    try:  # a bad setting in one line, before any file is read
+        LPVPCEstimator(**settings).check_settings()
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
     target_fs = None if args.fs == 0 else args.fs
     skew = _channel_skew(args.channel_skew_ms)
     load = dict(target_fs=target_fs, position_unit=args.position_unit, torque_sign=args.torque_sign)
@@ -1081,6 +1090,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-effect", dest="allow_effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="an effect the cross-validation may switch on (repeatable; default stress_relaxation; "
                         "'none': no effect)")
+    p.add_argument("--relaxation-times", dest="relaxation_times", type=_positive_float, nargs="+", default=None,
+                   metavar="S", help="stress relaxation's averaging times in s (default: chosen per record by the "
+                                     "cross-validation among single times of 0.3-3 s and the catalog's 0.3 1 3)")
+    p.add_argument("--relaxation-order", dest="relaxation_order", type=int, default=None, metavar="N",
+                   help="order in position of stress relaxation's weights (default: with the times)")
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_identify)
 

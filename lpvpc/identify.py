@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import math
 import time
 import warnings
 from typing import TYPE_CHECKING
@@ -367,10 +368,7 @@ class LPVPCEstimator:
                 from .data import join_trials
 
                 data = join_trials(data)
-            if self.structure not in ("fixed", "cv"):
-                raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
-            _check_reflex_path_settings(self)
-            self._allowed_effects()  # a bad allow_effects is an error whatever the structure
+            self.check_settings()
             if self.structure == "cv":
                 self._fit_selected(data)
             else:
@@ -415,6 +413,26 @@ class LPVPCEstimator:
                           f"residual variance); load the files with channel_skew={found.chosen:.5f} "
                           f"(lpvpc.channel_skew.load_aligned; the CLI's identify does it by default) and identify again",
                           LpvpcWarning, stacklevel=3)
+
+    def check_settings(self) -> None:
+        """ValueError naming the first bad setting, before any data are read (fit calls it;
+        the CLI calls it before loading files, to answer in one line).
+
+        >>> LPVPCEstimator(intrinsic_order=-1).check_settings()
+        Traceback (most recent call last):
+        ...
+        ValueError: intrinsic_order must be an integer in 0..12, got -1
+        """
+        from .modelfile import MAX_BASIS_ORDER
+
+        if self.structure not in ("fixed", "cv"):
+            raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
+        for name in ("intrinsic_order", "reflex_order", "velocity_order"):
+            order = getattr(self, name)
+            if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 0 <= order <= MAX_BASIS_ORDER:
+                raise ValueError(f"{name} must be an integer in 0..{MAX_BASIS_ORDER}, got {order!r}")
+        _check_reflex_path_settings(self)
+        self._allowed_effects()  # a bad allow_effects is an error whatever the structure
 
     def _selection_unavailable(self, data) -> str | None:
         """Why the structure cannot be selected on these data (None: it can)."""
@@ -1184,6 +1202,28 @@ def _check_reflex_path_settings(est) -> None:
     order = est.high_rate_velocity_order
     if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 1 <= order <= MAX_BASIS_ORDER:
         raise ValueError(f"high_rate_velocity_order must be an integer in 1..{MAX_BASIS_ORDER}, got {order!r}")
+    _check_relaxation_settings(est)
+
+
+def _check_relaxation_settings(est) -> None:
+    """ValueError naming a bad stress-relaxation term (before any fit): the times must be what a
+    model file can hold (a saved model is loaded again), the order a basis order."""
+    from .modelfile import MAX_BASIS_ORDER, MAX_RELAXATION_S
+
+    times = est.relaxation_times
+    if times is not None:
+        try:
+            values = [float(t) for t in times]
+        except (TypeError, ValueError):
+            values = None
+        if not values or not all(math.isfinite(t) and 0.0 < t <= MAX_RELAXATION_S for t in values) \
+                or len(set(values)) != len(values):
+            raise ValueError(f"relaxation_times must be one or more different averaging times in s, each in "
+                             f"(0, {MAX_RELAXATION_S:g}], got {times!r}")
+    order = est.relaxation_order
+    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
+                              or not 0 <= order <= MAX_BASIS_ORDER):
+        raise ValueError(f"relaxation_order must be an integer in 0..{MAX_BASIS_ORDER}, got {order!r}")
 
 
 def _high_rate_input(est, data, rho_basis):

@@ -306,6 +306,16 @@ def test_usage_errors(model_file, capsys, tmp_path):
     assert not (tmp_path / "s").exists()  # refused before anything is written
     status, _, err = _run(["export", model_file], capsys)
     assert status == 2 and "nothing to export" in _one_error_line(err)
+    # estimator settings argparse cannot check: one line naming the option, before any file is read
+    # (the files do not exist: the setting is refused first)
+    for option, words in ((["--intrinsic-order", "-1"], "--intrinsic-order must be an integer in 0..12, got -1"),
+                          (["--relaxation-times", "100"], "--relaxation-times must be one or more different averaging "
+                                                          "times in s, each in (0, 60], got (100.0,)"),
+                          (["--relaxation-times", "0.6", "0.6"], "different averaging times"),
+                          (["--relaxation-order", "-1"], "--relaxation-order must be an integer in 0..12")):
+        status, _, err = _run(["identify", "--pt", tmp_path / "none_PT.csv", "--ut", tmp_path / "none_UT.csv",
+                               "-o", tmp_path / "m.json", *option], capsys)
+        assert status == 2 and words in _one_error_line(err), err
 
 
 def test_subprocess_exit_status_and_one_line(model_file, small_pair, tmp_path):
@@ -435,3 +445,15 @@ def test_identify_stationary_trial_says_it_fits_the_lti_cascade(capsys, tmp_path
     # one operating point: the summary gives one value each, not a range from a point to itself
     summary = {ln.split(":")[0]: ln for ln in out.splitlines() if ln.startswith(("viscosity:", "reflex gain:"))}
     assert set(summary) == {"viscosity", "reflex gain"} and not any(".." in ln for ln in summary.values()), out
+
+
+def test_relaxation_term_options_reach_the_model(run_dir, tmp_path, capsys):
+    """--relaxation-times and --relaxation-order fix stress relaxation's term: the model file
+    carries those times and that order (without them the term is chosen per record)."""
+    data = run_dir / "data"
+    status, out, _ = _run(["identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv",
+                           "-o", tmp_path / "r.json", "--effect", "stress_relaxation", "--relaxation-times", "0.6",
+                           "--relaxation-order", "2"], capsys)
+    assert status == 0 and "stress_relaxation" in out
+    fe = next(f for f in LPVPCModel.load(tmp_path / "r.json").effects if f.name == "stress_relaxation")
+    assert fe.options["relaxation_times_s"] == [0.6] and fe.basis.order == 2
