@@ -13,7 +13,7 @@ delayed by it). This module finds it from the record itself:
   the residual variance (the virtual subject without skew: 0; its torque 1 ms late: ~1.3 ms);
 - :func:`scan_channel_skew`: the same peak from one fitted model, its structure and reflex
   dynamics held, its least squares solved once per candidate on the torque shifted by it (one
-  regressor for every candidate: ~0.05 s for a 2-minute record against ~11 fits). identify runs
+  regressor for every candidate: ~15 ms, 1 % of an identify, against ~11 fits). identify runs
   it on every record it fits (``model.fit["channel_skew"]``) and warns when it finds a skew;
 - :func:`load_aligned`: load files with the skew given, or found (``"auto"``: one identify
   and its scan), undone at the file's rate. The CLI's identify does this by default.

@@ -300,14 +300,13 @@ def cmd_identify(args) -> int:
     load = dict(target_fs=target_fs, position_unit=args.position_unit, torque_sign=args.torque_sign)
     data = _load_data(args, **load, channel_skew=0.0 if skew == "auto" else skew)
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:  # the first fit's: shown unless it is redone
-        warnings.simplefilter("always")
+    with warnings.catch_warnings(record=True) as caught:  # the first fit's (as filtered): shown unless it is redone
         est = _identified(data, settings)
-    if skew == "auto" and "channel_skew" in est.model_.fit:  # (the fit scanned its record for a skew)
+    if "channel_skew" in est.model_.fit:  # (the fit scanned its record for a skew)
         from .skew_scan import skew_from_dict
 
         found = skew_from_dict(est.model_.fit["channel_skew"])
-        if found.chosen:  # the files again, lined up at their own rate, and the fit again
+        if found.chosen and skew == "auto":  # the files again, lined up at their own rate, and the fit again
             data = _load_data(args, **load, channel_skew=found.chosen)
             caught = []
             est = _identified(data, settings)
@@ -339,6 +338,10 @@ def cmd_identify(args) -> int:
                if choice else "given")
         print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how}); position delayed by it at the "
               f"file's rate (recorded in the model: predict does the same)")
+    elif choice and choice["chosen_s"]:  # found, but --channel-skew-ms 0 said not to line up
+        print(f"skew:        none applied (--channel-skew-ms 0); the fit's scan finds the torque channel "
+              f"{choice['chosen_s'] * 1e3:+.2f} ms behind position (lining up would remove "
+              f"{100 * choice['residual_reduction']:.1f} % of the residual variance)")
     elif choice:
         print(f"skew:        none (the fit's scan: lining up by {choice['estimate_s'] * 1e3:+.2f} ms would remove "
               f"{100 * choice['residual_reduction']:.1f} % of the residual variance"

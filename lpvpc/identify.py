@@ -389,7 +389,7 @@ class LPVPCEstimator:
             return self
 
     def _record_channel_skew(self, data) -> None:
-        """The channel skew the fitted model sees in its data (lpvpc.channel_skew.scan_channel_skew,
+        """The channel skew the fitted model sees in its data (lpvpc.skew_scan.scan_channel_skew,
         about one least-squares solve), in ``model.fit["channel_skew"]``, with a warning naming
         the fix when lining the channels up would remove at least MIN_RESIDUAL_REDUCTION of the
         residual variance. Not for the fits inside identify, nor for data already aligned."""

@@ -268,7 +268,7 @@ class LPVPCModel:
             warnings.warn(f"this model was identified on records whose position was delayed by {skew * 1e3:.2f} ms to "
                           f"line up a late torque channel; these data were lined up by {done * 1e3:.2f} ms: load them "
                           f"with channel_skew={skew:.5f} to compare with the torque the rig records (lpvpc predict and "
-                          f"validate do)", LpvpcWarning, stacklevel=4)
+                          f"validate do)", LpvpcWarning, stacklevel=3)
 
     def predict(self, position, scheduling=None, *, causal: bool = False, velocity=None, acceleration=None,
                 warn: bool = True, signals: dict | None = None) -> Prediction:

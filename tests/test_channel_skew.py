@@ -209,3 +209,4 @@ def test_cli_identify_lines_up_a_late_torque_by_default(late_files, tmp_path, ca
     assert cli_main(["identify", "--pt", str(pt), "--ut", str(ut), "-o", str(tmp_path / "m0.json"),
                      "--channel-skew-ms", "0"]) == 0
     assert "channel_skew_s" not in LPVPCModel.load(tmp_path / "m0.json").conventions
+    assert "skew:        none applied (--channel-skew-ms 0); the fit's scan finds" in capsys.readouterr().out
