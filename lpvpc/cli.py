@@ -853,10 +853,17 @@ def cmd_improve(args) -> int:
     target_fs = None if args.fs == 0 else args.fs
     check_report_folder(args.report, ("improve.md",), args.force)
     kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit)
+    from .channel_skew import load_aligned
     from .data import load_identification_data
 
-    ident = load_identification_data(pt=args.pt, ut=args.ut, target_fs=target_fs, **kw)
-    held = load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut, target_fs=ident.fs, **kw)
+    # a late torque channel lined up in both records as identify does (the rig's: found on the identification record)
+    ident = load_aligned(pt=args.pt, ut=args.ut, target_fs=target_fs, channel_skew=_channel_skew(args.channel_skew_ms),
+                         **kw)
+    skew = ident.meta.get("channel_skew_s", 0.0)
+    held = load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut, target_fs=ident.fs, channel_skew=skew,
+                                    **kw)
+    if skew:
+        print(f"skew:      torque channel {skew * 1e3:+.2f} ms behind position, lined up in both records", flush=True)
 
     def show(r):
         head = "step  model" if r.index == 0 else None
@@ -1241,6 +1248,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at (default 100; 0 keeps the file's rate)")
+    p.add_argument("--channel-skew-ms", metavar="MS|auto",
+                   help="the torque channel's lag behind the position channel in ms, undone in both records at the "
+                        "files' rate; auto (default): found as identify finds it, on the identification record "
+                        "(one extra fit); 0: none")
     _add_time_unit_arg(p, default="s")
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_improve)

@@ -210,3 +210,14 @@ def test_cli_identify_lines_up_a_late_torque_by_default(late_files, tmp_path, ca
                      "--channel-skew-ms", "0"]) == 0
     assert "channel_skew_s" not in LPVPCModel.load(tmp_path / "m0.json").conventions
     assert "skew:        none applied (--channel-skew-ms 0); the fit's scan finds" in capsys.readouterr().out
+
+
+def test_cli_improve_lines_up_both_records(late_files, tmp_path, capsys):
+    """lpvpc improve finds the late torque on the identification record, as identify does, and
+    lines up the held-out record by the same skew; its final model records it."""
+    pt, ut = late_files
+    assert cli_main(["improve", "--pt", str(pt), "--ut", str(ut), "--heldout-pt", str(pt), "--heldout-ut", str(ut),
+                     "--report", str(tmp_path / "improve"), "--max-steps", "1", "-o", str(tmp_path / "f.json")]) == 0
+    out = capsys.readouterr().out
+    assert "skew:      torque channel +" in out and "lined up in both records" in out
+    assert 0.5e-3 < LPVPCModel.load(tmp_path / "f.json").conventions["channel_skew_s"] < 2e-3
