@@ -221,3 +221,20 @@ def test_cli_improve_lines_up_both_records(late_files, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "skew:      torque channel +" in out and "lined up in both records" in out
     assert 0.5e-3 < LPVPCModel.load(tmp_path / "f.json").conventions["channel_skew_s"] < 2e-3
+
+
+def test_stationary_records_and_models_with_effects_are_not_scanned(subject):
+    """Where the scan's regressor is not the model's (a stationary trial's LTI fit, a model with
+    an effect) it took the misfit for a skew on the virtual subject: those fits are not scanned."""
+    import warnings
+
+    from lpvpc.identify import identify
+
+    sim = simulate_pair("stationary", seed=0, duration=40.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        still = identify(load_identification_data(pt=sim.pt, stationary=True))
+        extended = identify(pair_trials(subject.pt, subject.ut), effects=("nonlinear_viscosity",))
+        plain = identify(pair_trials(subject.pt, subject.ut), structure="fixed")
+    assert "channel_skew" not in still.fit and "channel_skew" not in extended.fit
+    assert "channel_skew" in plain.fit  # (the same record without the effect is scanned)
