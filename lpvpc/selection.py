@@ -491,7 +491,7 @@ def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", v
     """In-sample VAF (%) of the structure ``settings`` (lpvpc.selection.SEARCH's keys) with the
     reflex ``dynamics`` held (as in :class:`StructureSearch`), fitted by least squares to each
     column of ``Y`` (N, k): one regressor and one Gram matrix for every output, so k outputs
-    cost about one (lpvpc.channel_skew scans shifted torques with it).
+    cost about one (lpvpc.skew_scan scans shifted torques with it).
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
