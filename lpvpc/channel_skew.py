@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .identification_data import SINC_HALF_WIDTH, check_channel_skew, delayed  # noqa: F401
-from .skew_scan import (CANDIDATES, MIN_RESIDUAL_REDUCTION, ChannelSkew, _candidates, _peak,  # noqa: F401
+from .identification_data import check_channel_skew, delayed
+from .skew_scan import (MIN_RESIDUAL_REDUCTION, ChannelSkew, _candidates, _peak,  # noqa: F401
                         scan_channel_skew, skew_from_dict)
 
 __all__ = ["delay_position", "estimate_channel_skew", "load_aligned"]  # (ChannelSkew, the scan: lpvpc.skew_scan)
