@@ -1150,7 +1150,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "CasADi and the model FMU, co-simulate the model FMU with the actuator FMU, and "
                                    "write DIR/report.html, DIR/metrics.json, DIR/figures and the co-simulation "
                                    "set-up as DIR/cosimulation.ssp (SSP 1.0). Exit status 1 when a "
-                                   "threshold fails, 2 for bad input.")
+                                   "threshold fails, 2 for bad input. The co-simulation drives both trials, so "
+                                   "it needs them as recorded; a single PT-minus-UT file (perturbation, torque "
+                                   "and scheduling columns) is predicted offline and in the causal form by "
+                                   "'lpvpc predict MODEL.json DATA [--causal]'.")
     p.add_argument("model", metavar="MODEL.json")
     p.add_argument("--pt", required=True, metavar="PT", help="held-out perturbed trial (CSV or .mat)")
     p.add_argument("--ut", required=True, metavar="UT", help="held-out unperturbed trial on the same trajectory")
