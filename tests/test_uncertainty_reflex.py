@@ -89,6 +89,38 @@ def test_reflex_bias_bound_widens_the_intervals_and_is_stored(model_1k, tmp_path
         LPVPCModel.load(path)
 
 
+def test_the_knee_rounding_widens_the_threshold_interval_on_its_own_side_only(model_1k, monkeypatch):
+    """The velocity basis's rounding of the knee has a known sign (estimate minus truth within
+    [0, shift]): the threshold interval reaches further by it on that side and no further on
+    the other, where a bias of unknown sign would widen both."""
+    import lpvpc.uncertainty as unc
+
+    rho = central_rho(model_1k, 9)
+    v = model_1k.rectifier_velocity_grid()[0]
+    real = unc._basis_resolution_shift
+
+    def with_shift(value):
+        def shifted(model, rho_, gain, th):
+            g_shift, _ = real(model, rho_, gain, th)
+            return g_shift, np.full(len(rho_), value)
+        monkeypatch.setattr(unc, "_basis_resolution_shift", shifted)
+        (g_lo, _), (lo, hi) = unc.reflex_interval(model_1k, rho)
+        return np.asarray(g_lo), np.asarray(lo), np.asarray(hi)
+
+    g0, lo0, hi0 = with_shift(0.0)
+    g_up, lo_up, hi_up = with_shift(0.1)  # the estimate above the truth by up to 0.1 rad/s
+    below = lo0 - 0.1 > v[0] + 1e-9  # not clipped at the fitted range's ends
+    above = hi0 + 0.1 < v[-6] - 1e-9
+    assert below.any() and above.any()
+    # most of the shift: a bias on one side only needs a one-sided critical value (1.64, not 1.96)
+    assert np.all(lo_up[below] <= lo0[below] - 0.05), (lo0 - lo_up)[below]
+    assert np.all(hi_up <= hi0 + 1e-12), hi_up - hi0
+    _, lo_dn, hi_dn = with_shift(-0.1)  # below the truth: the mirror image
+    assert np.all(hi_dn[above] >= hi0[above] + 0.05), (hi_dn - hi0)[above]
+    assert np.all(lo_dn >= lo0 - 1e-12), lo0 - lo_dn
+    assert np.array_equal(g_up, g0)  # the gain's interval does not take the threshold's shift
+
+
 @pytest.fixture(scope="module")
 def model_rate(subject, model):
     """The session's model on the model-rate velocity (the structure selection may have put
