@@ -487,11 +487,13 @@ def fitted_structure(model, scheduling_extrapolation) -> dict:
 
 
 def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", velocity_family="chebyshev",
-                  segments=None) -> np.ndarray:
+                  segments=None, edge: int = 0) -> np.ndarray:
     """In-sample VAF (%) of the structure ``settings`` (lpvpc.selection.SEARCH's keys) with the
     reflex ``dynamics`` held (as in :class:`StructureSearch`), fitted by least squares to each
     column of ``Y`` (N, k): one regressor and one Gram matrix for every output, so k outputs
-    cost about one (lpvpc.skew_scan scans shifted torques with it).
+    cost about one (lpvpc.skew_scan scans shifted torques with it). ``edge``: samples at each
+    trial's start and end left out of the fit and the score (where the record-edge rules
+    stand in for samples the record does not have).
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
@@ -515,12 +517,18 @@ def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", v
     L = max(1, int(round(settings["irf_length"] * fs)))
     d = max(1, int(round(settings["reflex_delay"] * fs)))
     top = (L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], [d])
-    D = _Design(np.asarray(p, dtype=float), Y, np.asarray(rho, dtype=float), float(fs), np.zeros(len(Y), int), 1,
-                family, velocity_family, dynamics, top, (), segments if segments is not None else Segments((), len(Y)))
+    segments = segments if segments is not None else Segments((), len(Y))
+    labels = np.zeros(len(Y), int)  # 0: fitted and scored; 1: a trial's edge, left out
+    for a, b in segments:
+        if b - a > 4 * edge:  # (a trial too short to spare them keeps its edges)
+            labels[a:a + edge] = labels[b - edge:b] = 1
+    D = _Design(np.asarray(p, dtype=float), Y, np.asarray(rho, dtype=float), float(fs), labels, 1 + int(labels.any()),
+                family, velocity_family, dynamics, top, (), segments)
     idx, cur = D.columns(L, top[1], top[2], top[3], d, bool(settings["elastic_curvature"]))
     G, b = _mapped(D.G[0], D.b[0].T, idx, cur)  # b: (k, columns)
     s = np.sqrt(np.maximum(np.diag(G), 1e-300))
     theta = (np.linalg.solve(G / np.outer(s, s) + RIDGE * np.eye(len(idx)), (b / s).T) / s[:, None]).T
+    Y = Y[labels == 0]
     sse = np.einsum("ij,ij->j", Y, Y) - 2.0 * np.einsum("ki,ki->k", theta, b) + np.einsum("ki,ij,kj->k", theta, G, theta)
     return 100.0 * (1.0 - sse / np.sum((Y - Y.mean(axis=0)) ** 2, axis=0))
 
