@@ -131,7 +131,6 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     loader); several files (identify) are joined as trials of one identification; the
     channel skew (s or "auto") undone at the files' rate (lpvpc.channel_skew)."""
     from .channel_skew import load_aligned
-    from .matfiles import parse_channel_options
 
     data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
     stationary = getattr(args, "stationary", False)
@@ -154,10 +153,7 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
                               "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
         if len(pts) != len(uts):
             raise _UsageError(f"{len(pts)} --pt but {len(uts)} --ut: give the trials in PT/UT pairs")
-    try:
-        channels = parse_channel_options(getattr(args, "channel", None))
-    except ValueError as exc:
-        raise _UsageError(f"--channel: {exc}") from None
+    channels = _channel_options(args)
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
               variable=getattr(args, "variable", None), channels=channels or None,
               time_unit=getattr(args, "time_unit", None) or time_unit or "s", channel_skew=channel_skew)
@@ -752,6 +748,7 @@ def cmd_validate(args) -> int:
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
     check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
+    channels = _channel_options(args)
     settings = CosimSettings(coupling=args.coupling)
     result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,
                       actuator_fmu=args.actuator_fmu, actuator_parameters=dict(args.actuator_param),
@@ -760,7 +757,7 @@ def cmd_validate(args) -> int:
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, time_unit=args.time_unit,
                       command_line=" ".join([PROG, *sys.argv[1:]]),
-                      whole_joint=args.whole_joint)
+                      whole_joint=args.whole_joint, variable=args.variable, channels=channels)
     m = result.metrics
     ag = m["route_agreement"]
     sched = m["scheduling"]
@@ -978,6 +975,26 @@ def _add_time_unit_arg(p, default):
                                                                         "; a saved model's as at identification") + ")")
 
 
+def _channel_options(args) -> dict | None:
+    """--channel ROLE=NAME options as {role: name} (None when none are given)."""
+    from .matfiles import parse_channel_options
+
+    try:
+        return parse_channel_options(getattr(args, "channel", None)) or None
+    except ValueError as exc:
+        raise _UsageError(f"--channel: {exc}") from None
+
+
+def _add_file_choice_args(p):
+    """--variable and --channel: which .mat variable and which columns or channels hold each role."""
+    p.add_argument("--variable", metavar="NAME",
+                   help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
+    p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
+                   help="channel of a .mat file or column of a CSV file for a role (position, torque, scheduling, "
+                        "time, emg, command), e.g. --channel torque=tq1, --channel 'scheduling=sv.Ankle Position "
+                        "(rad)' or --channel 'torque=Torque (N m)' (repeatable)")
+
+
 def _add_data_args(p, what, several: bool = False):
     """DATA | --pt/--ut | --pt --stationary, and the .mat choices; ``several``: repeatable
     (trials of one identification)."""
@@ -992,13 +1009,8 @@ def _add_data_args(p, what, several: bool = False):
     p.add_argument("--stationary", action="store_true",
                    help="DATA or --pt alone: a perturbed trial around one fixed operating position recorded "
                         "without UT; the operating point is its mean position (and torque)")
-    p.add_argument("--variable", metavar="NAME",
-                   help="variable to read in .mat files, e.g. an nldat object (or write FILE.mat:NAME)")
     _add_time_unit_arg(p, default=None)
-    p.add_argument("--channel", action="append", default=[], metavar="ROLE=NAME",
-                   help="channel of a .mat file or column of a CSV file for a role (position, torque, scheduling, "
-                        "time, emg, command), e.g. --channel torque=tq1, --channel 'scheduling=sv.Ankle Position "
-                        "(rad)' or --channel 'torque=Torque (N m)' (repeatable)")
+    _add_file_choice_args(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1184,6 +1196,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
     _add_convention_args(p, from_model=True)
     _add_time_unit_arg(p, default=None)
+    _add_file_choice_args(p)
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_validate)
 

@@ -448,3 +448,30 @@ def test_record_without_command_and_100hz_record(full, short, model, tmp_path):
     r = validate(model, paths["PT"], paths["UT"], tmp_path / "1024", **kw).metrics
     assert r["provenance"]["record_fs"] == pytest.approx(1000.0) and r["provenance"]["record_fs_file"] == pytest.approx(1024.0)
     assert r["vaf_cosim"] == pytest.approx(at_1k["vaf_cosim"], abs=0.1)
+
+
+def test_other_column_names_are_read_with_channel_options(full, short, model_file, tmp_path):
+    """A lab's own column names: without --channel the missing role is named (one line, exit
+    2); with --channel the record validates as the package's own names do."""
+    paths = {}
+    for key in ("PT", "UT"):
+        lines = short[key].read_text().splitlines()
+        header = lines[0].split(",")
+        assert header[:3] == ["time", "position", "torque"], header
+        lines[0] = ",".join(["t (s)", "Ankle angle (rad)", "Torque (N m)", *header[3:]])
+        paths[key] = tmp_path / f"{key}_lab.csv"
+        paths[key].write_text("\n".join(lines) + "\n")
+    base = ["validate", model_file, "--pt", paths["PT"], "--ut", paths["UT"]]
+    rc, _, err = _run([*base, "--report", tmp_path / "r0"])
+    _one_line_error(rc, err, "position")
+    fmus = full["report"] / "fmus"
+    rc, out, err = _run([*base, "--report", tmp_path / "r", "--channel", "time=t (s)", "--channel",
+                         "position=Ankle angle (rad)", "--channel", "torque=Torque (N m)",
+                         "--fmu", fmus / "model_exact_fmi2.fmu", "--actuator-fmu", fmus / "actuator_fmi2.fmu"])
+    assert rc == 0, err
+    named = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    rc, _, err = _run(["validate", model_file, "--pt", short["PT"], "--ut", short["UT"], "--report", tmp_path / "own",
+                       "--fmu", fmus / "model_exact_fmi2.fmu", "--actuator-fmu", fmus / "actuator_fmi2.fmu"])
+    assert rc == 0, err
+    own = json.loads((tmp_path / "own" / "metrics.json").read_text())
+    assert named["vaf"] == pytest.approx(own["vaf"], abs=1e-9) and named["n_samples"] == own["n_samples"]

@@ -97,9 +97,11 @@ class ValidationResult:
 # --------------------------------------------------------------------------- inputs
 
 
-def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None) -> Record:
-    """Load the held-out PT and UT trials (with the model's file conventions unless given)
-    and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
+def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None, variable=None,
+                channels=None) -> Record:
+    """Load the held-out PT and UT trials (with the model's file conventions unless given;
+    ``variable`` and ``channels`` for .mat variables and other column names, as in
+    :func:`lpvpc.data.load_trial`) and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
     is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
     identification does. DataError for unequal lengths, a rate below the model's, and any
     bad sample."""
@@ -116,7 +118,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
         else:
             # degrees read as rad would make every figure of the report meaningless: refused
             trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
-                                     degrees="refuse"))
+                                     variable=variable, channels=channels, degrees="refuse"))
             files[role] = {"path": str(src), "sha256": file_sha256(src)}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
@@ -305,7 +307,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
              torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
-             whole_joint=None) -> ValidationResult:
+             whole_joint=None, variable=None, channels=None) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
 
@@ -326,7 +328,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     fs/2; off, the actuators' faster motion reaches the model sampled, not anti-aliased.
     ``whole_joint``: a :class:`lpvpc.whole_joint.WholeJointModel` (or its JSON path) built on
     this model, validated on the PT trial's total torque as well (:mod:`validation.whole_joint`;
-    a report section and ``metrics["whole_joint"]``). Returns a :class:`ValidationResult`
+    a report section and ``metrics["whole_joint"]``). ``variable`` and ``channels``: the .mat
+    variable and the column or channel names of the record's files (:func:`load_record`). Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
@@ -341,7 +344,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if not isinstance(model, LPVPCModel):
         model_path = Path(model)
         model = LPVPCModel.load(model_path)
-    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit)
+    record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
+                         variable=variable, channels=channels)
     meas = record.measured
     signals = record_signals(model, meas)  # extended model: the record's extra channels, for every route
     given_fmu = None
