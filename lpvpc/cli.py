@@ -657,6 +657,7 @@ def _trial_with_conventions(path, args, conv):
     return load_trial(path, position_unit=args.position_unit or conv.get("position_unit", "rad"),
                       time_unit=args.time_unit or conv.get("time_unit", "s"),
                       torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)),
+                      variable=args.variable, channels=_channel_options(args),
                       degrees="refuse")  # a model is fitted to it
 
 
@@ -722,7 +723,7 @@ def _position_delay(args, wj, conv) -> float:
         raise _UsageError("--position-delay-ms auto estimates the delay from the PT and UT trials: give --pt")
     data = load_identification_data(
         pt=args.pt, ut=args.ut, target_fs=wj.fs, position_unit=args.position_unit or conv.get("position_unit", "rad"),
-        time_unit=args.time_unit or conv.get("time_unit", "s"),
+        time_unit=args.time_unit or conv.get("time_unit", "s"), variable=args.variable, channels=_channel_options(args),
         torque_sign=float(args.torque_sign if args.torque_sign is not None else conv.get("torque_sign", 1)))
     return CL.estimate_channel_skew(data).delay
 
@@ -849,7 +850,8 @@ def cmd_improve(args) -> int:
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
     check_report_folder(args.report, ("improve.md",), args.force)
-    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit)
+    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit,
+              variable=args.variable, channels=_channel_options(args))
     from .channel_skew import load_aligned
     from .data import load_identification_data
 
@@ -1227,6 +1229,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(a measurement artefact, undone for the fit only); auto: estimated from --pt and --ut")
     _add_convention_args(p, from_model=True)
     _add_time_unit_arg(p, default=None)
+    _add_file_choice_args(p)
     p.set_defaults(func=cmd_whole_joint)
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
@@ -1269,6 +1272,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "files' rate; auto (default): found as identify finds it, on the identification record "
                         "(one extra fit); 0: none")
     _add_time_unit_arg(p, default="s")
+    _add_file_choice_args(p)
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_improve)
     return parser

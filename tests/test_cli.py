@@ -457,3 +457,32 @@ def test_relaxation_term_options_reach_the_model(run_dir, tmp_path, capsys):
     assert status == 0 and "stress_relaxation" in out
     fe = next(f for f in LPVPCModel.load(tmp_path / "r.json").effects if f.name == "stress_relaxation")
     assert fe.options["relaxation_times_s"] == [0.6] and fe.basis.order == 2
+
+
+def test_every_command_that_reads_trials_takes_the_file_choices():
+    """The loaders' errors tell a user with other column names to give --channel: every command
+    that reads a recording has it (and --variable for .mat files)."""
+    from lpvpc.cli import COMMAND_IO, build_parser
+
+    sub = next(a for a in build_parser()._actions if a.choices and "identify" in a.choices).choices
+    readers = [name for name, io in COMMAND_IO.items() if {"--pt", "--ut", "DATA"} & set(io.inputs)]
+    assert {"identify", "predict", "validate", "diagnose", "improve", "whole-joint"} <= set(readers)
+    for name in readers:
+        options = {o for a in sub[name]._actions for o in a.option_strings}
+        assert {"--channel", "--variable"} <= options, name
+
+
+def test_whole_joint_reads_other_column_names_with_channel(model_file, run_dir, tmp_path, capsys):
+    ut = run_dir / "data" / "ident_UT.csv"
+    lines = ut.read_text().splitlines()
+    lines[0] = lines[0].replace("time,position,torque", "t (s),Ankle angle (rad),Torque (N m)", 1)
+    renamed = tmp_path / "UT_lab.csv"
+    renamed.write_text("\n".join(lines) + "\n")
+    status, _, err = _run(["whole-joint", model_file, "--ut", renamed, "-o", tmp_path / "w0.json"], capsys)
+    assert status == 2 and "--channel" in err
+    for out, path, extra in (("w.json", renamed, ["--channel", "time=t (s)", "--channel", "position=Ankle angle (rad)",
+                                                   "--channel", "torque=Torque (N m)"]), ("own.json", ut, [])):
+        status, _, err = _run(["whole-joint", model_file, "--ut", path, "-o", tmp_path / out, *extra], capsys)
+        assert status == 0, err
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("w.json", "own.json"))
+    assert a["quasi_static"] == b["quasi_static"]
