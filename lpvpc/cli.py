@@ -179,7 +179,7 @@ COMMAND_IO = {
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
                              files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
                              make_folders=("--fmu",)),
-    "validate": CommandIO(inputs={"MODEL": "model", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
+    "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
     "diagnose": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json"},
@@ -748,6 +748,13 @@ def cmd_validate(args) -> int:
             raise
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
+    if args.data and (args.pt or args.ut):
+        raise _UsageError("give either DATA or --pt and --ut, not both")
+    if not args.data and not (args.pt and args.ut):
+        raise _UsageError("missing --ut: give the held-out unperturbed trial with --ut UT" if args.pt else
+                          "missing --pt: give the held-out perturbed trial with --pt PT" if args.ut else
+                          "missing DATA or --pt and --ut: give the held-out perturbed and unperturbed trials as "
+                          "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
     check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
     channels = _channel_options(args)
     settings = CosimSettings(coupling=args.coupling)
@@ -758,7 +765,7 @@ def cmd_validate(args) -> int:
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, time_unit=args.time_unit,
                       command_line=" ".join([PROG, *sys.argv[1:]]),
-                      whole_joint=args.whole_joint, variable=args.variable, channels=channels)
+                      whole_joint=args.whole_joint, variable=args.variable, channels=channels, data=args.data)
     m = result.metrics
     ag = m["route_agreement"]
     sched = m["scheduling"]
@@ -1164,13 +1171,15 @@ def build_parser() -> argparse.ArgumentParser:
                                    "CasADi and the model FMU, co-simulate the model FMU with the actuator FMU, and "
                                    "write DIR/report.html, DIR/metrics.json, DIR/figures and the co-simulation "
                                    "set-up as DIR/cosimulation.ssp (SSP 1.0). Exit status 1 when a "
-                                   "threshold fails, 2 for bad input. The co-simulation drives both trials, so "
-                                   "it needs them as recorded; a single PT-minus-UT file (perturbation, torque "
-                                   "and scheduling columns) is predicted offline and in the causal form by "
-                                   "'lpvpc predict MODEL.json DATA [--causal]'.")
+                                   "threshold fails, 2 for bad input.")
     p.add_argument("model", metavar="MODEL.json")
-    p.add_argument("--pt", required=True, metavar="PT", help="held-out perturbed trial (CSV or .mat)")
-    p.add_argument("--ut", required=True, metavar="UT", help="held-out unperturbed trial on the same trajectory")
+    p.add_argument("data", nargs="?", metavar="DATA",
+                   help="instead of --pt/--ut: one PT - UT file with perturbation position, torque and a scheduling "
+                        "column; the co-simulation drives the scheduling as UT and the scheduling plus the "
+                        "perturbation as PT, and loads the PT actuator with the model's torque only (the file has "
+                        "no UT torque)")
+    p.add_argument("--pt", metavar="PT", help="held-out perturbed trial (CSV or .mat)")
+    p.add_argument("--ut", metavar="UT", help="held-out unperturbed trial on the same trajectory")
     p.add_argument("--report", required=True, metavar="DIR", help="folder for report.html, metrics.json, figures/")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")

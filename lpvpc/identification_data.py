@@ -387,14 +387,8 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
     found without options). ``channel_skew`` as in :func:`pair_trials`.
     """
-    _check_settings(position_unit, torque_sign)
     skew = check_channel_skew(channel_skew)
-    path, variable = _path_and_variable(path, variable)
-    table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
-                              channels=channels)
-    _refuse_single_trial(table, path)
-    trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
-    trial = _to_si(trial, position_unit, torque_sign, str(path), time_unit)
+    trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit)
     fs_file = float(trial.fs)
     trial = _aligned(trial, skew)  # at the file's rate, before decimation
     trial = to_multiple_rate(trial, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
@@ -410,6 +404,49 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     high = HighRate(trial.position, trial.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
     return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
                             high_rate=high)
+
+
+def _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees="warn"):
+    """(Trial in SI units at the file's rate with a ``scheduling`` channel, path) of a PT - UT file
+    (``degrees``: as in :func:`load_trial`)."""
+    _check_settings(position_unit, torque_sign)
+    path, variable = _path_and_variable(path, variable)
+    table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
+                              channels=channels)
+    _refuse_single_trial(table, path)
+    trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
+    if degrees == "refuse":
+        _refuse_degrees([trial], position_unit)
+    return _to_si(trial, position_unit, torque_sign, str(path), time_unit), path
+
+
+def perturbation_file_trials(path, *, position_unit: str = "rad", torque_sign: float = 1.0, variable=None,
+                             channels=None, time_unit: str = "s", degrees: str = "warn") -> tuple[Trial, Trial]:
+    """The PT and UT trials behind a PT - UT file (:func:`load_perturbation_file`'s columns), at
+    the file's rate, for what needs the two trials (the validation's co-simulation drives an
+    actuator with each): UT = the scheduling position, PT = the scheduling plus the perturbation
+    position with the perturbation torque. The UT torque is not in such a file: the UT trial's
+    torque is zero, so :func:`pair_trials` of the two gives back the file's perturbation data.
+    ``degrees`` as in :func:`load_trial`.
+
+    >>> t = np.arange(2000) / 1000.0
+    >>> rng = np.random.default_rng(1)
+    >>> pert = 0.03 * np.sign(np.sin(2 * np.pi * 4 * t))
+    >>> rows = np.c_[t, pert, 40 * pert + 0.1 * rng.standard_normal(2000), 0.1 * np.sin(t)]
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "pert.csv"
+    >>> np.savetxt(path, rows, delimiter=",", header="time,position,torque,scheduling", comments="")
+    >>> pt, ut = perturbation_file_trials(path)
+    >>> bool(np.allclose(pt.position - ut.position, pert)), float(np.abs(ut.torque).max())
+    (True, 0.0)
+    """
+    trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees)
+    rho = np.asarray(trial.channels["scheduling"], dtype=float)
+    emg = {"emg": trial.channels["emg"]} if "emg" in trial.channels else {}
+    emg_ut = {"emg": trial.channels["emg_ut"]} if "emg_ut" in trial.channels else {}
+    pt = Trial(trial.time, rho + trial.position, np.asarray(trial.torque, dtype=float), emg, f"{trial.name} (PT)")
+    ut = Trial(trial.time.copy(), rho.copy(), np.zeros(len(rho)), emg_ut, f"{trial.name} (UT: its scheduling)")
+    return pt, ut
 
 
 def _refuse_single_trial(table, path) -> None:

@@ -475,3 +475,36 @@ def test_other_column_names_are_read_with_channel_options(full, short, model_fil
     assert rc == 0, err
     own = json.loads((tmp_path / "own" / "metrics.json").read_text())
     assert named["vaf"] == pytest.approx(own["vaf"], abs=1e-9) and named["n_samples"] == own["n_samples"]
+
+
+def test_a_pt_minus_ut_file_validates_like_its_two_trials(full, short, model_file, tmp_path):
+    """One PT - UT file with a scheduling column (the lab pilot's format) as DATA: its two
+    trials rebuilt (UT = the scheduling, PT = scheduling + perturbation), the same offline and
+    FMU prediction as the PT and UT files, the co-simulation loading the PT actuator with the
+    model's torque only (the file has no UT torque), and the report says so. Mixed with --pt,
+    or with a whole-joint model (which needs the PT trial's total torque): one line, exit 2."""
+    pt, ut = short["PT_raw"], short["UT_raw"]
+    data = tmp_path / "pert.csv"
+    write_trial_csv(Trial(pt.time, pt.position - ut.position, pt.torque - ut.torque, {"scheduling": ut.position}),
+                    data)
+    fmus = full["report"] / "fmus"
+    given = ["--fmu", fmus / "model_exact_fmi2.fmu", "--actuator-fmu", fmus / "actuator_fmi2.fmu"]
+    rc, out, err = _run(["validate", model_file, data, "--report", tmp_path / "d", *given])
+    assert rc == 0, err
+    rc, _, err = _run(["validate", model_file, "--pt", short["PT_nocmd"], "--ut", short["UT_nocmd"], "--report",
+                       tmp_path / "two", *given])
+    assert rc == 0, err
+    d, two = (json.loads((tmp_path / f / "metrics.json").read_text()) for f in ("d", "two"))
+    assert d["vaf"] == pytest.approx(two["vaf"], abs=1e-6) and d["vaf_fmu"] == pytest.approx(two["vaf_fmu"], abs=1e-6)
+    assert d["cosim"]["settings"]["load"] == "model" and two["cosim"]["settings"]["load"] == "measured_ut+model"
+    assert d["vaf_cosim"] > d["vaf_fmu"] - 1.0
+    assert set(d["provenance"]["data_files"]) == {"data"}
+    assert "one PT - UT file" in (tmp_path / "d" / "report.html").read_text()
+    rc, _, err = _run(["validate", model_file, data, "--pt", short["PT"], "--report", tmp_path / "x"])
+    _one_line_error(rc, err, "either DATA or --pt and --ut")
+    rc, _, err = _run(["validate", model_file, "--pt", short["PT"], "--report", tmp_path / "x"])
+    _one_line_error(rc, err, "missing --ut")
+    wj = tmp_path / "wj.json"
+    assert main(["whole-joint", str(model_file), "--ut", str(short["UT"]), "-o", str(wj)]) == 0
+    rc, _, err = _run(["validate", model_file, data, "--report", tmp_path / "y", "--whole-joint", wj])
+    _one_line_error(rc, err, "total torque")

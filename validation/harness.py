@@ -25,13 +25,14 @@ import platform
 import sys
 import time
 import warnings
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from lpvpc import equations as eq
-from lpvpc.data import RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials, to_multiple_rate
+from lpvpc.data import (RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials, perturbation_file_trials,
+                        split_variable, to_multiple_rate)
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
@@ -66,8 +67,13 @@ class Record:
     pt: Trial
     ut: Trial
     measured: object  # lpvpc.data.PerturbationData at the model rate
-    files: dict  # role -> {"path", "sha256"}
+    files: dict  # role ("pt", "ut"; or "data": one PT - UT file) -> {"path", "sha256"}
     fs_file: float | None = None  # the files' own rate when pt/ut were resampled from it
+
+    @property
+    def ut_torque_known(self) -> bool:
+        """False for a PT - UT file: its UT trial is rebuilt from the scheduling, torque unknown."""
+        return "data" not in self.files
 
     @property
     def fs(self) -> float:
@@ -98,10 +104,12 @@ class ValidationResult:
 
 
 def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None, variable=None,
-                channels=None) -> Record:
+                channels=None, data=None) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given;
     ``variable`` and ``channels`` for .mat variables and other column names, as in
-    :func:`lpvpc.data.load_trial`) and pair them at the model's rate. A rate that is not a multiple of the model's (1024 Hz)
+    :func:`lpvpc.data.load_trial`) and pair them at the model's rate. ``data`` instead of
+    ``pt`` and ``ut``: one PT - UT file with a scheduling column, its two trials rebuilt
+    (:func:`lpvpc.data.perturbation_file_trials`: the UT torque unknown, zero). A rate that is not a multiple of the model's (1024 Hz)
     is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
     identification does. DataError for unequal lengths, a rate below the model's, and any
     bad sample."""
@@ -111,7 +119,14 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     time_unit = time_unit or conv.get("time_unit", "s")
     files = {}
     trials = []
-    for role, src in (("pt", pt), ("ut", ut)):
+    if data is not None:
+        if pt is not None or ut is not None:
+            raise DataError("give either the PT and UT trials or one PT - UT file, not both", source=str(data))
+        trials = list(perturbation_file_trials(data, position_unit=position_unit, torque_sign=torque_sign,
+                                               time_unit=time_unit, variable=variable, channels=channels,
+                                               degrees="refuse"))
+        files["data"] = {"path": str(data), "sha256": file_sha256(split_variable(data)[0])}
+    for role, src in (() if data is not None else (("pt", pt), ("ut", ut))):
         if isinstance(src, Trial):
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
@@ -119,7 +134,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
             # degrees read as rad would make every figure of the report meaningless: refused
             trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
                                      variable=variable, channels=channels, degrees="refuse"))
-            files[role] = {"path": str(src), "sha256": file_sha256(src)}
+            files[role] = {"path": str(src), "sha256": file_sha256(split_variable(src)[0])}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
     pt_t, ut_t = (to_multiple_rate(tr, model.fs) for tr in trials)
@@ -307,7 +322,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
              torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
-             whole_joint=None, variable=None, channels=None) -> ValidationResult:
+             whole_joint=None, variable=None, channels=None, data=None) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
 
@@ -329,7 +344,11 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     ``whole_joint``: a :class:`lpvpc.whole_joint.WholeJointModel` (or its JSON path) built on
     this model, validated on the PT trial's total torque as well (:mod:`validation.whole_joint`;
     a report section and ``metrics["whole_joint"]``). ``variable`` and ``channels``: the .mat
-    variable and the column or channel names of the record's files (:func:`load_record`). Returns a :class:`ValidationResult`
+    variable and the column or channel names of the record's files (:func:`load_record`).
+    ``data`` instead of ``pt`` and ``ut`` (None): one PT - UT file with a scheduling column
+    (the lab pilot's format); its UT torque is unknown, so the co-simulation loads the PT
+    actuator with the model's torque only (``CosimSettings.load`` "model"), and a whole-joint
+    model, which needs the PT trial's total torque, is refused. Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
@@ -344,8 +363,13 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if not isinstance(model, LPVPCModel):
         model_path = Path(model)
         model = LPVPCModel.load(model_path)
+    if data is not None and whole_joint is not None:
+        raise DataError("a whole-joint model is validated on the PT trial's total torque, which a PT - UT file does "
+                        "not have: give the PT and UT trials", source=str(data))
     record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
-                         variable=variable, channels=channels)
+                         variable=variable, channels=channels, data=data)
+    if not record.ut_torque_known and settings.load == "measured_ut+model":  # no UT torque to load the actuators with
+        settings = replace(settings, load="model")
     meas = record.measured
     signals = record_signals(model, meas)  # extended model: the record's extra channels, for every route
     given_fmu = None

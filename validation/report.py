@@ -466,9 +466,16 @@ def _html(m: dict, figs: dict, model) -> str:
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
              f"<title>lpvpc validation report</title><style>{_CSS}</style></head><body>"]
     parts.append("<h1>Validation report</h1>")
-    parts.append(f"<p class=\"small\">model <code>{_e(prov['model_hash'][:12])}</code> on "
-                 f"<code>{_e(prov['data_files']['pt']['path'])}</code> / <code>{_e(prov['data_files']['ut']['path'])}"
-                 f"</code>, {m['n_samples']} samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
+    files = prov["data_files"]
+    on = (f"<code>{_e(files['data']['path'])}</code> (PT - UT)" if "data" in files else
+          f"<code>{_e(files['pt']['path'])}</code> / <code>{_e(files['ut']['path'])}</code>")
+    parts.append(f"<p class=\"small\">model <code>{_e(prov['model_hash'][:12])}</code> on {on}, {m['n_samples']} "
+                 f"samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
+    if "data" in files:  # the two trials the co-simulation drives, rebuilt: say so before any figure
+        parts.append("<p class=\"small\">The record is one PT - UT file: the actuators are driven with its "
+                     "scheduling position (UT) and the scheduling plus the perturbation position (PT). Its UT torque "
+                     "is not in the file, so the co-simulation loads the PT actuator with the model's torque "
+                     "only.</p>")
 
     skew = float(model.conventions.get("channel_skew_s", 0.0) or 0.0)
     if skew:  # the records were lined up as at identification (lpvpc.channel_skew): say so before any figure
@@ -684,8 +691,9 @@ def _html(m: dict, figs: dict, model) -> str:
             ["model file", _e(prov["model_file"])],
             ["model hash (sha256 of equations and coefficients)", f"<code>{_e(prov['model_hash'])}</code>"],
             ["hash of the model's identification data", f"<code>{_e(prov['model_data_hash'])}</code>"],
-            ["PT file (sha256)", f"{_e(prov['data_files']['pt']['path'])}<br><code>{_e(prov['data_files']['pt']['sha256'])}</code>"],
-            ["UT file (sha256)", f"{_e(prov['data_files']['ut']['path'])}<br><code>{_e(prov['data_files']['ut']['sha256'])}</code>"],
+            *[[f"{label} file (sha256)", f"{_e(prov['data_files'][role]['path'])}<br>"
+                                         f"<code>{_e(prov['data_files'][role]['sha256'])}</code>"]
+              for role, label in (("pt", "PT"), ("ut", "UT"), ("data", "PT - UT")) if role in prov["data_files"]],
             ["held-out data hash (PT-UT at the model rate)", f"<code>{_e(prov['data_hash'])}</code>"],
             ["record", f"{prov['record_samples']} samples at {prov['record_fs']:g} Hz"
                        + (f" (resampled from the files' {prov['record_fs_file']:g} Hz)" if prov.get("record_fs_file") else "")
