@@ -109,10 +109,10 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     ``variable`` and ``channels`` for .mat variables and other column names, as in
     :func:`lpvpc.data.load_trial`) and pair them at the model's rate. ``data`` instead of
     ``pt`` and ``ut``: one PT - UT file with a scheduling column, its two trials rebuilt
-    (:func:`lpvpc.data.perturbation_file_trials`: the UT torque unknown, zero). A rate that is not a multiple of the model's (1024 Hz)
-    is first resampled to the largest multiple below it (lpvpc.data.to_multiple_rate), as
-    identification does. DataError for unequal lengths, a rate below the model's, and any
-    bad sample."""
+    (:func:`lpvpc.data.perturbation_file_trials`: the UT torque unknown, zero). A rate that
+    is not a multiple of the model's (1024 Hz) is first resampled to the largest multiple
+    below it (lpvpc.data.to_multiple_rate), as identification does. DataError for unequal
+    lengths, a rate below the model's, and any bad sample."""
     conv = model.conventions or {}
     position_unit = position_unit or conv.get("position_unit", "rad")
     torque_sign = float(torque_sign if torque_sign is not None else conv.get("torque_sign", 1.0))
@@ -126,7 +126,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
                                                time_unit=time_unit, variable=variable, channels=channels,
                                                degrees="refuse"))
         files["data"] = {"path": str(data), "sha256": file_sha256(split_variable(data)[0])}
-    for role, src in (() if data is not None else (("pt", pt), ("ut", ut))):
+    for role, src in ((("pt", pt), ("ut", ut)) if data is None else ()):
         if isinstance(src, Trial):
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
