@@ -883,7 +883,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     z = z_value(level)
     bound = list(reflex_bias_bound(model, rho))  # |bias| <= bound, either sign
     bound[0] = bound[0] + reflex_structural_shift(model, rho)
-    shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth within [0, shift]
+    shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth between 0 and shift
     biased = model.reflex_threshold_biased
     if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
         bound[0] = bound[0] + _knee_softness_bound(model, rho)
