@@ -181,8 +181,8 @@ def run(outdir) -> int:
     _say(f"  toward dorsiflexion the gain {trend(G)} (truth: {trend(G_true)}) and the threshold "
          f"{trend(th)} (truth: {trend(th_true)})")
     if not model.reflex_threshold_biased:
-        _say("  (nonlinearity identified on the files' 1 kHz delayed velocity; over 10 seeds the gain trend is\n"
-             "   within 20 % on 6, the threshold trend the least certain: the documentation's results page)")
+        _say("  (nonlinearity identified on the files' 1 kHz delayed velocity; over 30 seeds the gain trend is\n"
+             "   within 20 % on 30, the threshold trend the least certain: the documentation's results page)")
     else:
         _say("  (nonlinearity identified on the 100 Hz delayed velocity, the default: the threshold trend is biased;\n"
              "   identify(..., high_rate_reflex=True) uses the files' 1 kHz velocity; see the documentation's results page)")
