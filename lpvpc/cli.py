@@ -748,10 +748,16 @@ def cmd_validate(args) -> int:
             raise
         raise LpvpcError("the validation harness is not available in this installation (package 'validation' "
                          "missing)") from None
-    if args.data and (args.pt or args.ut):
+    if args.stationary:
+        if args.data and not (args.pt or args.ut):  # DATA --stationary: the stationary trial's file itself
+            args.data, args.pt = None, args.data
+        if args.data or args.ut or not args.pt:
+            raise _UsageError("--stationary validates one perturbed trial, DATA or --pt, recorded without UT")
+    elif args.data and (args.pt or args.ut):
         raise _UsageError("give either DATA or --pt and --ut, not both")
-    if not args.data and not (args.pt and args.ut):
-        raise _UsageError("missing --ut: give the held-out unperturbed trial with --ut UT" if args.pt else
+    elif not args.data and not (args.pt and args.ut):
+        raise _UsageError("missing --ut: give the held-out unperturbed trial with --ut UT, or --stationary if the PT "
+                          "trial was recorded around one fixed position without a UT trial" if args.pt else
                           "missing --pt: give the held-out perturbed trial with --pt PT" if args.ut else
                           "missing DATA or --pt and --ut: give the held-out perturbed and unperturbed trials as "
                           "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
@@ -765,7 +771,8 @@ def cmd_validate(args) -> int:
                       route_tolerance=args.route_tolerance, position_unit=args.position_unit,
                       torque_sign=args.torque_sign, time_unit=args.time_unit,
                       command_line=" ".join([PROG, *sys.argv[1:]]),
-                      whole_joint=args.whole_joint, variable=args.variable, channels=channels, data=args.data)
+                      whole_joint=args.whole_joint, variable=args.variable, channels=channels, data=args.data,
+                      stationary=args.stationary)
     m = result.metrics
     ag = m["route_agreement"]
     sched = m["scheduling"]
@@ -1180,6 +1187,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "no UT torque)")
     p.add_argument("--pt", metavar="PT", help="held-out perturbed trial (CSV or .mat)")
     p.add_argument("--ut", metavar="UT", help="held-out unperturbed trial on the same trajectory")
+    p.add_argument("--stationary", action="store_true",
+                   help="DATA or --pt alone: a perturbed trial around one fixed operating position recorded "
+                        "without UT; the UT actuator holds its mean position, loaded by its mean torque")
     p.add_argument("--report", required=True, metavar="DIR", help="folder for report.html, metrics.json, figures/")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")

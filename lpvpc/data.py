@@ -25,7 +25,7 @@ from .decimation import (FIR_ATTENUATION_DB, FIR_TAPS_PER_FACTOR, MAX_STAGE_FACT
     decimate_trial, decimation_factor, multiple_rate, resample_trial, to_multiple_rate)
 from .identification_data import (MIN_PERTURBATION_VARIANCE, STATIONARY_MAX_SPAN, STATIONARY_WINDOW,
     HighRate, PerturbationData, join_trials, load_identification_data, load_perturbation_file, pair_trials,
-    perturbation_file_trials, stationary_perturbation, write_perturbation_csv)
+    perturbation_file_trials, stationary_perturbation, stationary_ut, write_perturbation_csv)
 from .matfiles import split_variable
 from .readers import PERTURBATION_EMG, load_trial
 from .trial import (ANGLE_CHANNELS, GRID_TOLERANCE, JITTER_TOLERANCE, OPTIONAL_CHANNELS, RATE_TOLERANCE,

@@ -483,6 +483,26 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float =
     >>> data.fs, round(data.meta["operating_point"], 3), bool(np.ptp(data.scheduling) == 0.0)
     (100.0, -0.1, True)
     """
+    ut = stationary_ut(pt)
+    op, tq0 = float(ut.position[0]), float(ut.torque[0])
+    out = pair_trials(pt, ut, target_fs=target_fs, channel_skew=channel_skew)
+    out.source = f"{pt.name or 'PT'} (stationary at {op:+.4f} rad)"
+    out.meta.update(stationary=True, operating_point=op, torque_offset=tq0)
+    return out
+
+
+def stationary_ut(pt: Trial) -> Trial:
+    """The UT trial a stationary experiment (one perturbed trial around a fixed operating
+    position, no UT recorded) stands for: the PT trial's mean position and mean torque,
+    constant (:func:`stationary_perturbation`; the validation's co-simulation drives an
+    actuator with it). DataError for a bad trial or one whose slow mean position moves.
+
+    >>> t = np.arange(3000) / 1000.0
+    >>> pt = Trial(t, -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t)), np.full(3000, 2.0))
+    >>> ut = stationary_ut(pt)
+    >>> round(float(ut.position[0]), 3), float(np.ptp(ut.position)), float(ut.torque[0])
+    (-0.1, 0.0, 2.0)
+    """
     problems = trial_problems(pt)
     if problems:
         raise DataError(problems, source=pt.name or "PT")
@@ -493,13 +513,9 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float =
             raise DataError([f"not a stationary trial: its {STATIONARY_WINDOW:g}-s mean position spans "
                              f"{np.ptp(slow):.3f} rad (more than {STATIONARY_MAX_SPAN:g} rad for one operating "
                              f"position); give the UT trial recorded with it instead"], source=pt.name or "PT")
-    op, tq0 = float(np.mean(pt.position)), float(np.mean(pt.torque))
-    ut = Trial(np.asarray(pt.time, dtype=float), np.full(len(pt.time), op), np.full(len(pt.time), tq0), {},
-               "constant operating point")
-    out = pair_trials(pt, ut, target_fs=target_fs, channel_skew=channel_skew)
-    out.source = f"{pt.name or 'PT'} (stationary at {op:+.4f} rad)"
-    out.meta.update(stationary=True, operating_point=op, torque_offset=tq0)
-    return out
+    n = len(pt.time)
+    return Trial(np.asarray(pt.time, dtype=float), np.full(n, float(np.mean(pt.position))),
+                 np.full(n, float(np.mean(pt.torque))), {}, "constant operating point")
 
 
 def join_trials(trials) -> PerturbationData:

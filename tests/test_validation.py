@@ -23,7 +23,7 @@ from report_browser import assert_layout_ok, check_page
 
 from lpvpc.cli import build_parser, cmd_validate, main
 from lpvpc.data import Trial, decimate_trial, write_trial_csv
-from lpvpc.errors import FMUError
+from lpvpc.errors import DataError, FMUError
 from lpvpc.model import LPVPCModel, vaf
 from lpvpc.validation import CosimSettings, validate
 from lpvpc.validation.cosim import ActuatorDrive, _check_finite, run_cosimulation
@@ -508,3 +508,32 @@ def test_a_pt_minus_ut_file_validates_like_its_two_trials(full, short, model_fil
     assert main(["whole-joint", str(model_file), "--ut", str(short["UT"]), "-o", str(wj)]) == 0
     rc, _, err = _run(["validate", model_file, data, "--report", tmp_path / "y", "--whole-joint", wj])
     _one_line_error(rc, err, "total torque")
+
+
+def test_a_stationary_trial_validates_alone(full, tmp_path):
+    """A trial around one fixed position recorded without UT (--stationary), as identify and
+    predict read it: the UT actuator holds the trial's mean position, loaded by its mean torque;
+    the offline VAF is predict's. With --ut, or with a whole-joint model: one line, exit 2."""
+    from lpvpc.simulate import simulate_pair
+
+    pt = simulate_pair("stationary", seed=2, duration=40.0).pt
+    k = int(0.7 * len(pt.time))
+    first, held = tmp_path / "a.csv", tmp_path / "b.csv"
+    write_trial_csv(Trial(pt.time[:k], pt.position[:k], pt.torque[:k], {}), first)
+    write_trial_csv(Trial(pt.time[k:] - pt.time[k], pt.position[k:], pt.torque[k:], {}), held)
+    m = tmp_path / "m.json"
+    assert main(["identify", "--pt", str(first), "--stationary", "-o", str(m), "-q"]) == 0
+    rc, _, err = _run(["validate", m, "--pt", held, "--stationary", "--report", tmp_path / "r",
+                       "--actuator-fmu", full["report"] / "fmus" / "actuator_fmi2.fmu"])
+    assert rc == 0, err
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert main(["predict", str(m), "--pt", str(held), "--stationary", "--json", str(tmp_path / "p.json"), "-q"]) == 0
+    assert metrics["vaf"] == pytest.approx(json.loads((tmp_path / "p.json").read_text())["vaf"], abs=1e-9)
+    assert metrics["vaf_cosim"] > metrics["vaf_fmu"] - 1.0 and metrics["vaf"] > 90.0
+    assert metrics["provenance"]["data_files"]["ut"]["sha256"] is None
+    rc, _, err = _run(["validate", m, "--pt", held, "--ut", held, "--stationary", "--report", tmp_path / "x"])
+    _one_line_error(rc, err, "--stationary validates one perturbed trial")
+    rc, _, err = _run(["validate", m, "--pt", held, "--report", tmp_path / "x"])
+    _one_line_error(rc, err, "missing --ut", "--stationary")
+    with pytest.raises(DataError, match="whole-joint model follows the UT trial"):  # refused before anything is read
+        validate(m, held, None, tmp_path / "y", stationary=True, whole_joint=tmp_path / "any.json")

@@ -32,7 +32,7 @@ import numpy as np
 
 from lpvpc import equations as eq
 from lpvpc.data import (RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials, perturbation_file_trials,
-                        split_variable, to_multiple_rate)
+                        split_variable, stationary_ut, to_multiple_rate)
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export import latency_samples
 from lpvpc.model import LPVPCModel
@@ -104,12 +104,14 @@ class ValidationResult:
 
 
 def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None, variable=None,
-                channels=None, data=None) -> Record:
+                channels=None, data=None, stationary: bool = False) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given;
     ``variable`` and ``channels`` for .mat variables and other column names, as in
     :func:`lpvpc.data.load_trial`) and pair them at the model's rate. ``data`` instead of
     ``pt`` and ``ut``: one PT - UT file with a scheduling column, its two trials rebuilt
-    (:func:`lpvpc.data.perturbation_file_trials`: the UT torque unknown, zero). A rate that
+    (:func:`lpvpc.data.perturbation_file_trials`: the UT torque unknown, zero). ``stationary``:
+    ``pt`` recorded around one fixed position without a UT trial, which stands for the PT
+    trial's mean position and torque (:func:`lpvpc.data.stationary_ut`). A rate that
     is not a multiple of the model's (1024 Hz) is first resampled to the largest multiple
     below it (lpvpc.data.to_multiple_rate), as identification does. DataError for unequal
     lengths, a rate below the model's, and any bad sample."""
@@ -126,7 +128,10 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
                                                time_unit=time_unit, variable=variable, channels=channels,
                                                degrees="refuse"))
         files["data"] = {"path": str(data), "sha256": file_sha256(split_variable(data)[0])}
-    for role, src in ((("pt", pt), ("ut", ut)) if data is None else ()):
+    if stationary and (ut is not None or data is not None):
+        raise DataError("a stationary trial is validated alone: give it as the PT trial, without a UT trial or a PT - UT "
+                        "file", source=str(pt))
+    for role, src in ((("pt", pt),) if stationary else (("pt", pt), ("ut", ut)) if data is None else ()):
         if isinstance(src, Trial):
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
@@ -135,6 +140,9 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
             trials.append(load_trial(src, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
                                      variable=variable, channels=channels, degrees="refuse"))
             files[role] = {"path": str(src), "sha256": file_sha256(split_variable(src)[0])}
+    if stationary:
+        trials.append(stationary_ut(trials[0]))
+        files["ut"] = {"path": "none: stationary, the PT trial's mean position and torque", "sha256": None}
     fs_file = trials[0].fs
     # e.g. 1024 Hz: the record at 1000 Hz, as identification reads it
     pt_t, ut_t = (to_multiple_rate(tr, model.fs) for tr in trials)
@@ -322,7 +330,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
              torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
-             whole_joint=None, variable=None, channels=None, data=None) -> ValidationResult:
+             whole_joint=None, variable=None, channels=None, data=None, stationary: bool = False) -> ValidationResult:
     """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
     (paths or :class:`lpvpc.data.Trial`) and write the report into ``report_dir``.
 
@@ -348,7 +356,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     ``data`` instead of ``pt`` and ``ut`` (None): one PT - UT file with a scheduling column
     (the lab pilot's format); its UT torque is unknown, so the co-simulation loads the PT
     actuator with the model's torque only (``CosimSettings.load`` "model"), and a whole-joint
-    model, which needs the PT trial's total torque, is refused. Returns a :class:`ValidationResult`
+    model, which needs the PT trial's total torque, is refused. ``stationary``: ``pt`` alone,
+    recorded around one fixed position (:func:`load_record`). Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
@@ -366,8 +375,11 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     if data is not None and whole_joint is not None:
         raise DataError("a whole-joint model is validated on the PT trial's total torque, which a PT - UT file does "
                         "not have: give the PT and UT trials", source=str(data))
+    if stationary and whole_joint is not None:
+        raise DataError("a whole-joint model follows the UT trial's slow movement, which a stationary trial does not "
+                        "have: validate it on a PT and UT pair", source=str(pt))
     record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
-                         variable=variable, channels=channels, data=data)
+                         variable=variable, channels=channels, data=data, stationary=stationary)
     if not record.ut_torque_known and settings.load == "measured_ut+model":  # no UT torque to load the actuators with
         settings = replace(settings, load="model")
     meas = record.measured
