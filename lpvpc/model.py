@@ -232,6 +232,14 @@ class LPVPCModel:
         return (self.intrinsic_basis.lo, self.intrinsic_basis.hi)
 
     @property
+    def one_position(self) -> bool:
+        """Whether the identified range is one operating position (narrower than 1 urad: a
+        stationary trial's model). Nothing varies with position there: tables and figures show
+        that one position, and a record elsewhere is not out of range for it."""
+        lo, hi = self.scheduling_range
+        return hi - lo < 1e-6
+
+    @property
     def beyond_range(self) -> str:
         """What the model does with scheduling outside its identified range, in words (its
         scheduling bases' extrapolation rule, chosen by cross-validation by default)."""

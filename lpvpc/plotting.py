@@ -98,7 +98,7 @@ def _legend_outside(ax, **kw):
 
 def _positions(model, n):
     lo, hi = model.scheduling_range
-    return np.linspace(lo, hi, n)
+    return np.array([lo]) if model.one_position else np.linspace(lo, hi, n)
 
 
 def _position_colours(n):
@@ -191,8 +191,13 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
       scheduling variable seen at identification;
     - "curves": gain vs frequency for ``positions`` positions (the curves start at K(rho));
     - "surface": the paper's 3-D surface; ``ax`` must be a 3-D axes or None.
+
+    A stationary trial's model (one operating position, :attr:`LPVPCModel.one_position`) is
+    drawn as "curves": its one curve; there is no position axis.
     """
     freqs = np.linspace(0.0, model.fs / 2, n_freq)
+    if model.one_position and kind in ("image", "surface"):
+        kind = "curves"
     if kind == "curves":
         ax = _new_axes(ax)
         rho = _positions(model, positions)

@@ -513,7 +513,8 @@ def test_a_pt_minus_ut_file_validates_like_its_two_trials(full, short, model_fil
 def test_a_stationary_trial_validates_alone(full, tmp_path):
     """A trial around one fixed position recorded without UT (--stationary), as identify and
     predict read it: the UT actuator holds the trial's mean position, loaded by its mean torque;
-    the offline VAF is predict's. With --ut, or with a whole-joint model: one line, exit 2."""
+    the offline VAF is predict's; the report shows its one operating position. With --ut: one
+    line, exit 2; with a whole-joint model: refused before anything is read."""
     from lpvpc.simulate import simulate_pair
 
     pt = simulate_pair("stationary", seed=2, duration=40.0).pt
@@ -531,6 +532,10 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
     assert metrics["vaf"] == pytest.approx(json.loads((tmp_path / "p.json").read_text())["vaf"], abs=1e-9)
     assert metrics["vaf_cosim"] > metrics["vaf_fmu"] - 1.0 and metrics["vaf"] > 90.0
     assert metrics["provenance"]["data_files"]["ut"]["sha256"] is None
+    # one operating position: nothing varies with position, so nothing is out of range and one row is tabulated
+    assert metrics["scheduling"]["out_of_range_fraction"] > 0 and not metrics["scheduling"]["flagged"]
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert "At the one operating position" in page and "Outside the identified range" not in page
     rc, _, err = _run(["validate", m, "--pt", held, "--ut", held, "--stationary", "--report", tmp_path / "x"])
     _one_line_error(rc, err, "--stationary validates one perturbed trial")
     rc, _, err = _run(["validate", m, "--pt", held, "--report", tmp_path / "x"])

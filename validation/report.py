@@ -321,8 +321,11 @@ window.addEventListener('load', function () {
 
 
 def _table_positions(model, n=5):
-    """``n`` positions (rad) over the central 80 % of the identified range, rounded to 0.01."""
+    """``n`` positions (rad) over the central 80 % of the identified range, rounded to 0.01;
+    the one operating position of a stationary trial's model."""
     lo, hi = model.scheduling_range
+    if model.one_position:
+        return np.array([lo])
     return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
 
 
@@ -330,6 +333,9 @@ def _physiology_sentence(model) -> str:
     rho = np.array(model.scheduling_range)
     K = model.elastic_stiffness(rho)
     g, _ = model.reflex_gain_threshold(rho)
+    if model.one_position:  # a stationary trial's model: nothing varies with position
+        return (f"At the one operating position of its identification, {rho[0]:+.2f} rad (+ = dorsiflexion), the "
+                f"elastic stiffness is {K[0]:.0f} N m/rad and the reflex gain {g[0]:.1f} N m s/rad.")
     trend = "rises" if K[1] > K[0] else "falls"
     return (f"Elastic stiffness {trend} from {K[0]:.0f} N m/rad at {rho[0]:+.2f} rad to {K[1]:.0f} N m/rad at "
             f"{rho[1]:+.2f} rad (+ = dorsiflexion); the reflex gain goes from {g[0]:.1f} to {g[1]:.1f} N m s/rad "
@@ -601,13 +607,17 @@ def _html(m: dict, figs: dict, model) -> str:
     # physiology
     physiology.append("<h3>Intrinsic stiffness (Fig. 4)</h3>")
     K = model.elastic_stiffness(np.array(model.scheduling_range))
-    physiology.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; the "
-                 f"elastic stiffness K(rho) goes from {K[0]:.0f} N m/rad at {model.scheduling_range[0]:+.2f} rad to "
-                 f"{K[1]:.0f} N m/rad at {model.scheduling_range[1]:+.2f} rad.</p>")
+    span = (f"at its one operating position ({model.scheduling_range[0]:+.2f} rad) the elastic stiffness is "
+            f"{K[0]:.0f} N m/rad" if model.one_position else
+            f"the elastic stiffness K(rho) goes from {K[0]:.0f} N m/rad at {model.scheduling_range[0]:+.2f} rad to "
+            f"{K[1]:.0f} N m/rad at {model.scheduling_range[1]:+.2f} rad")
+    physiology.append(f"<p class=\"what\">The intrinsic gain of the identified model over frequency and position; "
+                      f"{span}.</p>")
     physiology.append(_img(figs["fig4_intrinsic_gain.png"], _caption("fig4_intrinsic_gain.png", model)))
     physiology.append("<h3>Reflex pathway (Fig. 5)</h3>")
     physiology.append(f"<p class=\"what\">The reflex static nonlinearity (steady torque for a constant delayed stretch "
-                 f"velocity) at five positions{', with confidence bands' if model.has_intervals else ''}, and the "
+                 f"velocity) {'at its one operating position' if model.one_position else 'at five positions'}"
+                 f"{', with confidence bands' if model.has_intervals else ''}, and the "
                  f"impulse response of the reflex dynamics (order "
                  f"{model.state_order}, delay {1e3 * model.delay / model.fs:.0f} ms).</p>")
     physiology.append(_img(figs["fig5a_reflex_nonlinearity.png"], _caption("fig5a_reflex_nonlinearity.png", model)))
@@ -618,7 +628,9 @@ def _html(m: dict, figs: dict, model) -> str:
     o = s["out_of_range"]
     prediction.append(f"<p class=\"what\">The held-out record spans [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
                  f"against the identified [{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad; "
-                 f"{100 * s['out_of_range_fraction']:.2f} % of it lies outside, where the error is shown separately.</p>")
+                 f"{100 * s['out_of_range_fraction']:.2f} % of it lies outside, where the error is shown separately."
+                 + (" The model was identified at one operating position and does not vary with position, so the "
+                    "record is not out of range for it." if model.one_position else "") + "</p>")
     rows = []
     for k, label in (("numpy", "offline"), ("fmu", "FMU replay"), ("cosim", "co-simulation")):
         i_, o_ = s["in_range"][k], o[k]
