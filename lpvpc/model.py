@@ -235,7 +235,7 @@ class LPVPCModel:
     def one_position(self) -> bool:
         """Whether the identified range is one operating position (narrower than 1 urad: a
         stationary trial's model). Nothing varies with position there: tables and figures show
-        that one position, and a record elsewhere is not out of range for it."""
+        that one position."""
         lo, hi = self.scheduling_range
         return hi - lo < 1e-6
 

@@ -499,7 +499,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         "note": "the causal form the FMU runs against the identified two-sided model"}
 
     sched = cmp.scheduling_summary(meas.scheduling, model.scheduling_range, y, preds)
-    sched["flagged"] = bool(sched["out_of_range_fraction"] > 0) and not model.one_position
+    sched["flagged"] = bool(sched["out_of_range_fraction"] > 0)
 
     pert_pos_meas = meas.position
     track = {

@@ -512,7 +512,17 @@ def _html(m: dict, figs: dict, model) -> str:
     rows = [[_e(ch["name"]), _num(ch["value"], "{:.4g}"), _num(ch["threshold"], "{:.4g}"), pf(ch["pass"])]
             for ch in m["checks"]]
     software.append(_table(["check", "value", "threshold", "result"], rows))
-    if s["flagged"]:
+    if s["flagged"] and model.one_position:  # a stationary trial's model: how far the record is from its position
+        o = s["out_of_range"]["numpy"]
+        away = 1e3 * max(abs(s["heldout_range"][0] - s["identified_range"][0]),
+                         abs(s["heldout_range"][1] - s["identified_range"][1]))
+        top.append(f"<p class=\"flag\"><b>Away from the identified position:</b> the model was identified at one "
+                   f"operating position, {s['identified_range'][0]:+.3f} rad, and does not vary with position; the "
+                   f"held-out record's scheduling variable lies up to {away:.1f} mrad from it "
+                   f"([{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad). Where the ankle differs "
+                   f"from that position, the model cannot follow. Offline RMSE {_num(o['rmse'], '{:.3f}')} N m, "
+                   f"VAF {_num(o['vaf'])} %.</p>")
+    elif s["flagged"]:
         o, i = s["out_of_range"]["numpy"], s["in_range"]["numpy"]
         top.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
                      f"of the held-out samples ({o['n']}) have a scheduling variable outside the identified range "
@@ -629,8 +639,8 @@ def _html(m: dict, figs: dict, model) -> str:
     prediction.append(f"<p class=\"what\">The held-out record spans [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
                  f"against the identified [{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad; "
                  f"{100 * s['out_of_range_fraction']:.2f} % of it lies outside, where the error is shown separately."
-                 + (" The model was identified at one operating position and does not vary with position, so the "
-                    "record is not out of range for it." if model.one_position else "") + "</p>")
+                 + (" The model was identified at one operating position and does not vary with position: it "
+                    "answers every position as it does that one." if model.one_position else "") + "</p>")
     rows = []
     for k, label in (("numpy", "offline"), ("fmu", "FMU replay"), ("cosim", "co-simulation")):
         i_, o_ = s["in_range"][k], o[k]
