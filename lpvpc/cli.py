@@ -155,7 +155,7 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
             raise _UsageError(f"{len(pts)} --pt but {len(uts)} --ut: give the trials in PT/UT pairs")
     channels = _channel_options(args)
     kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs,
-              variable=getattr(args, "variable", None), channels=channels or None,
+              variable=getattr(args, "variable", None), channels=channels,
               time_unit=getattr(args, "time_unit", None) or time_unit or "s", channel_skew=channel_skew)
 
     def one(items):  # a single file as itself, several as a list (trials of one identification)

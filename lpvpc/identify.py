@@ -423,14 +423,10 @@ class LPVPCEstimator:
         ...
         ValueError: intrinsic_order must be an integer in 0..12, got -1
         """
-        from .modelfile import MAX_BASIS_ORDER
-
         if self.structure not in ("fixed", "cv"):
             raise ValueError(f"structure must be 'fixed' or 'cv', got {self.structure!r}")
         for name in ("intrinsic_order", "reflex_order", "velocity_order"):
-            order = getattr(self, name)
-            if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 0 <= order <= MAX_BASIS_ORDER:
-                raise ValueError(f"{name} must be an integer in 0..{MAX_BASIS_ORDER}, got {order!r}")
+            _check_basis_order(name, getattr(self, name))
         _check_reflex_path_settings(self)
         self._allowed_effects()  # a bad allow_effects is an error whatever the structure
 
@@ -1208,7 +1204,7 @@ def _check_reflex_path_settings(est) -> None:
 def _check_relaxation_settings(est) -> None:
     """ValueError naming a bad stress-relaxation term (before any fit): the times must be what a
     model file can hold (a saved model is loaded again), the order a basis order."""
-    from .modelfile import MAX_BASIS_ORDER, MAX_RELAXATION_S
+    from .modelfile import MAX_RELAXATION_S
 
     times = est.relaxation_times
     if times is not None:
@@ -1220,10 +1216,16 @@ def _check_relaxation_settings(est) -> None:
                 or len(set(values)) != len(values):
             raise ValueError(f"relaxation_times must be one or more different averaging times in s, each in "
                              f"(0, {MAX_RELAXATION_S:g}], got {times!r}")
-    order = est.relaxation_order
-    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
-                              or not 0 <= order <= MAX_BASIS_ORDER):
-        raise ValueError(f"relaxation_order must be an integer in 0..{MAX_BASIS_ORDER}, got {order!r}")
+    if est.relaxation_order is not None:
+        _check_basis_order("relaxation_order", est.relaxation_order)
+
+
+def _check_basis_order(name, order) -> None:
+    """ValueError unless ``order`` is an integer basis order a model file can hold."""
+    from .modelfile import MAX_BASIS_ORDER
+
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or not 0 <= order <= MAX_BASIS_ORDER:
+        raise ValueError(f"{name} must be an integer in 0..{MAX_BASIS_ORDER}, got {order!r}")
 
 
 def _high_rate_input(est, data, rho_basis):

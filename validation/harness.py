@@ -119,19 +119,19 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     position_unit = position_unit or conv.get("position_unit", "rad")
     torque_sign = float(torque_sign if torque_sign is not None else conv.get("torque_sign", 1.0))
     time_unit = time_unit or conv.get("time_unit", "s")
+    if stationary and (ut is not None or data is not None):
+        raise DataError("a stationary trial is validated alone: give it as the PT trial, without a UT trial or a PT - UT "
+                        "file", source=str(pt))
+    if data is not None and (pt is not None or ut is not None):
+        raise DataError("give either the PT and UT trials or one PT - UT file, not both", source=str(data))
     files = {}
     trials = []
     if data is not None:
-        if pt is not None or ut is not None:
-            raise DataError("give either the PT and UT trials or one PT - UT file, not both", source=str(data))
         trials = list(perturbation_file_trials(data, position_unit=position_unit, torque_sign=torque_sign,
                                                time_unit=time_unit, variable=variable, channels=channels,
                                                degrees="refuse"))
         files["data"] = {"path": str(data), "sha256": file_sha256(split_variable(data)[0])}
-    if stationary and (ut is not None or data is not None):
-        raise DataError("a stationary trial is validated alone: give it as the PT trial, without a UT trial or a PT - UT "
-                        "file", source=str(pt))
-    for role, src in ((("pt", pt),) if stationary else (("pt", pt), ("ut", ut)) if data is None else ()):
+    for role, src in () if data is not None else (("pt", pt),) if stationary else (("pt", pt), ("ut", ut)):
         if isinstance(src, Trial):
             trials.append(src)
             files[role] = {"path": src.name or role, "sha256": None}
