@@ -331,12 +331,15 @@ class LPVPCModel:
         lo, hi = self.scheduling_range
         outside = float(np.mean((scheduling < lo) | (scheduling > hi))) if len(scheduling) else 0.0
         if outside > 0 and warn:
-            warnings.warn(
-                f"{100 * outside:.2f} % of scheduling values lie outside the identified range "
-                f"[{lo:.4f}, {hi:.4f}] rad; the model is {self.beyond_range} there",
-                OutOfRangeWarning,
-                stacklevel=2,
-            )
+            if self.one_position:  # "outside [op, op]" says nothing: say how far, and that the model cannot follow
+                away = 1e3 * float(np.max(np.abs(scheduling - lo)))
+                text = (f"the model was identified at one operating position ({lo:+.4f} rad) and does not vary "
+                        f"with position; this record's scheduling lies up to {away:.1f} mrad from it, where the "
+                        f"ankle may differ")
+            else:
+                text = (f"{100 * outside:.2f} % of scheduling values lie outside the identified range "
+                        f"[{lo:.4f}, {hi:.4f}] rad; the model is {self.beyond_range} there")
+            warnings.warn(text, OutOfRangeWarning, stacklevel=2)
         lags, H = (self.causal_lags, self.H_causal) if causal else (self.lags, self.H)
         if causal:  # whole-record differences by the model's stencil, unless given
             v_est, a_est = (eq.derivatives(position, self.fs, self.causal_derivatives)
