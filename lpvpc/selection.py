@@ -486,6 +486,22 @@ def fitted_structure(model, scheduling_extrapolation) -> dict:
             "scheduling_extrapolation": scheduling_extrapolation}
 
 
+def trial_edges(segments, n: int, edge: int) -> np.ndarray:
+    """Bool mask (n,) of each trial's first and last ``edge`` samples (``segments``: the
+    trials' (start, stop) pairs, empty for one trial): where a model's IRF lags and reflex delay
+    reach past the trial and the record-edge rules stand in. A trial too short to spare them
+    (not longer than 4 ``edge``) keeps its edges.
+
+    >>> trial_edges([(0, 10), (10, 30)], 30, 3).nonzero()[0].tolist()  # the first trial is too short
+    [10, 11, 12, 27, 28, 29]
+    """
+    mask = np.zeros(n, bool)
+    for a, b in (list(segments) or [(0, n)]):
+        if b - a > 4 * edge:
+            mask[a:a + edge] = mask[b - edge:b] = True
+    return mask
+
+
 def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", velocity_family="chebyshev",
                   segments=None, edge: int = 0) -> np.ndarray:
     """In-sample VAF (%) of the structure ``settings`` (lpvpc.selection.SEARCH's keys) with the
@@ -518,10 +534,7 @@ def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", v
     d = max(1, int(round(settings["reflex_delay"] * fs)))
     top = (L, settings["intrinsic_order"], settings["reflex_order"], settings["velocity_order"], [d])
     segments = segments if segments is not None else Segments((), len(Y))
-    labels = np.zeros(len(Y), int)  # 0: fitted and scored; 1: a trial's edge, left out
-    for a, b in segments:
-        if b - a > 4 * edge:  # (a trial too short to spare them keeps its edges)
-            labels[a:a + edge] = labels[b - edge:b] = 1
+    labels = trial_edges(segments, len(Y), edge).astype(int)  # 0: fitted and scored; 1: a trial's edge, left out
     D = _Design(np.asarray(p, dtype=float), Y, np.asarray(rho, dtype=float), float(fs), labels, 1 + int(labels.any()),
                 family, velocity_family, dynamics, top, (), segments)
     idx, cur = D.columns(L, top[1], top[2], top[3], d, bool(settings["elastic_curvature"]))

@@ -96,6 +96,17 @@ def _candidates(candidates) -> np.ndarray:
     return cand
 
 
+def edge_samples(settings: dict, fs: float) -> int:
+    """Samples at each trial's start and end that a skew estimate leaves out for a structure
+    ``settings`` (its ``irf_length`` and ``reflex_delay``, s) at ``fs`` Hz: the IRF's half-width,
+    the reflex delay and the fractional-delay filter's reach (:func:`delayed`).
+
+    >>> edge_samples({"irf_length": 0.04, "reflex_delay": 0.04}, 100.0)
+    25
+    """
+    return SINC_HALF_WIDTH + 1 + int(round(settings["irf_length"] * fs)) + int(round(settings["reflex_delay"] * fs))
+
+
 def scan_channel_skew(model, data, candidates=None) -> ChannelSkew:
     """The channel skew a fitted ``model`` sees in its identification ``data``: for each
     candidate delay (s; default :data:`CANDIDATES`) the in-sample VAF of the model's structure
@@ -105,9 +116,9 @@ def scan_channel_skew(model, data, candidates=None) -> ChannelSkew:
     is the parabola's peak as in :func:`estimate_channel_skew`. One regressor serves every
     candidate (:func:`lpvpc.selection.in_sample_vaf`), so the scan costs about one least-squares
     solve. Each trial's first and last samples are left out (see the comment below). The
-    dynamics are not refitted per candidate: the estimate reads 0.2-0.3 ms later than the
-    refitting one on the virtual subject and 0.13 ms on the lab's pilot trial (either way under
-    the threshold without a skew: benchmarks/results/real_pilot.txt).
+    dynamics are not refitted per candidate: the estimate reads 0.13-0.29 ms later than the
+    refitting one (scored without the same edges) on the virtual subject and 0.09 ms on the lab's
+    pilot trial (either way under the threshold without a skew: benchmarks/results/real_pilot.txt).
 
     >>> import warnings
     >>> from lpvpc.data import pair_trials
@@ -139,8 +150,7 @@ def scan_channel_skew(model, data, candidates=None) -> ChannelSkew:
     # end values. Kept, a trial's first samples decided the scan: a 60-s virtual record without
     # a skew cut into 4 trials read -1.2 ms, removing 2.3 % of the residual (a skew found);
     # the uncut record -0.3 ms; without those samples both read +0.5 ms, removing 0.6 %
-    edge = (SINC_HALF_WIDTH + 1 + int(round(settings["irf_length"] * data.fs))
-            + int(round(settings["reflex_delay"] * data.fs)))
+    edge = edge_samples(settings, data.fs)
     scores = in_sample_vaf(data.position, Y, data.scheduling, data.fs, dynamics, settings, model.intrinsic_basis.family,
                            model.velocity_basis.family, seg, edge=edge)
     return ChannelSkew(delay=_peak(cand, scores), candidates=cand, scores=scores)
