@@ -491,7 +491,8 @@ def _physical_summary(model) -> list:
     thr = [f"{t:.3f}" if ok else NOT_DETERMINED for t, ok in zip(thr, th_ok)]
     if len(rho) == 1:  # a stationary trial: one operating point, one value each
         viscosity = f"B {B[0]:.2f} N m s/rad"
-        reflex = f"{gain[0]} N m s/rad; threshold {thr[0]} rad/s{bias}"
+        g_text = f"{gain[0]} N m s/rad" if g_ok[0] else gain[0]  # (no unit after "not determined")
+        reflex = f"{g_text}; threshold " + (f"{thr[0]} rad/s{bias}" if th_ok[0] else f"{NOT_DETERMINED}{bias}")
     else:
         viscosity = f"B {B.min():.2f}..{B.max():.2f} N m s/rad"
         reflex = (f"{gain[0]} at {rho[0]:+.3f} .. {gain[-1]} at {rho[-1]:+.3f} N m s/rad; threshold "
@@ -790,9 +791,13 @@ def cmd_validate(args) -> int:
           f"{cos['tracking']['perturbation_position_vaf']:.3f} %")
     if sched["flagged"]:
         o = sched["out_of_range"]["numpy"]
-        print(f"range:       {100 * sched['out_of_range_fraction']:.2f} % of the record outside the identified "
-              f"scheduling range [{sched['identified_range'][0]:+.3f}, {sched['identified_range'][1]:+.3f}] rad "
-              f"(offline RMSE there {o['rmse']:.3g} N m)")
+        if sched["one_position"]:  # "outside [op, op]" says nothing: how far from the one position
+            print(f"range:       identified at one operating position, {sched['identified_range'][0]:+.3f} rad; the "
+                  f"record lies up to {1e3 * sched['max_excursion']:.1f} mrad from it (offline RMSE {o['rmse']:.3g} N m)")
+        else:
+            print(f"range:       {100 * sched['out_of_range_fraction']:.2f} % of the record outside the identified "
+                  f"scheduling range [{sched['identified_range'][0]:+.3f}, {sched['identified_range'][1]:+.3f}] rad "
+                  f"(offline RMSE there {o['rmse']:.3g} N m)")
     for check in m["checks"]:
         if not check["pass"]:
             print(f"FAILED:      {check['name']}: {check['value']:.4g} (threshold {check['threshold']:.4g})")

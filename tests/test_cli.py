@@ -445,6 +445,8 @@ def test_identify_stationary_trial_says_it_fits_the_lti_cascade(capsys, tmp_path
     # one operating point: the summary gives one value each, not a range from a point to itself
     summary = {ln.split(":")[0]: ln for ln in out.splitlines() if ln.startswith(("viscosity:", "reflex gain:"))}
     assert set(summary) == {"viscosity", "reflex gain"} and not any(".." in ln for ln in summary.values()), out
+    # 100 Hz velocity: the threshold is not determined, said without a unit after it
+    assert "threshold not determined by these data (" in summary["reflex gain"] and "data rad/s" not in out, out
 
 
 def test_relaxation_term_options_reach_the_model(run_dir, tmp_path, capsys):

@@ -524,9 +524,10 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
     write_trial_csv(Trial(pt.time[k:] - pt.time[k], pt.position[k:], pt.torque[k:], {}), held)
     m = tmp_path / "m.json"
     assert main(["identify", "--pt", str(first), "--stationary", "-o", str(m), "-q"]) == 0
-    rc, _, err = _run(["validate", m, "--pt", held, "--stationary", "--report", tmp_path / "r",
-                       "--actuator-fmu", full["report"] / "fmus" / "actuator_fmi2.fmu"])
+    rc, out, err = _run(["validate", m, "--pt", held, "--stationary", "--report", tmp_path / "r",
+                         "--actuator-fmu", full["report"] / "fmus" / "actuator_fmi2.fmu"])
     assert rc == 0, err
+    assert "identified at one operating position" in out and "outside the identified" not in out
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     rc, _, err = _run(["predict", m, "--pt", held, "--stationary", "--json", tmp_path / "p.json", "-q"])
     assert rc == 0, err

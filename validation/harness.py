@@ -500,6 +500,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     sched = cmp.scheduling_summary(meas.scheduling, model.scheduling_range, y, preds)
     sched["flagged"] = bool(sched["out_of_range_fraction"] > 0)
+    sched["one_position"] = bool(model.one_position)  # a stationary trial's model: max_excursion is the distance from it
 
     pert_pos_meas = meas.position
     track = {

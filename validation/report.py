@@ -514,8 +514,7 @@ def _html(m: dict, figs: dict, model) -> str:
     software.append(_table(["check", "value", "threshold", "result"], rows))
     if s["flagged"] and model.one_position:  # a stationary trial's model: how far the record is from its position
         o = s["out_of_range"]["numpy"]
-        away = 1e3 * max(abs(s["heldout_range"][0] - s["identified_range"][0]),
-                         abs(s["heldout_range"][1] - s["identified_range"][1]))
+        away = 1e3 * s["max_excursion"]
         top.append(f"<p class=\"flag\"><b>Away from the identified position:</b> the model was identified at one "
                    f"operating position, {s['identified_range'][0]:+.3f} rad, and does not vary with position; the "
                    f"held-out record's scheduling variable lies up to {away:.1f} mrad from it "
