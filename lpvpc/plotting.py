@@ -313,14 +313,16 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
         extra.append("dashed: truth")
     ax.set_title("reflex nonlinearity" + (f" ({'; '.join(extra)})" if extra else ""), fontsize="medium")
     _legend_outside(ax, title="position")
+    # notes at the top left, where a stretch reflex's curve (flat, then rising with stretch velocity)
+    # leaves room; at the bottom they ran over the curve's flat part and the zero line
+    note = dict(transform=ax.transAxes, ha="left", va="top", fontsize="x-small", color="0.35",
+                bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1.0))
     if model.reflex_threshold_biased:
-        # two lines: one overran the axes' left edge onto the tick labels
-        ax.text(0.98, 0.02, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)"
-                + (f"\nthreshold {NOT_DETERMINED}" if not th_ok.any() else ""),
-                transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35")
+        # two lines: one overran the axes' edge onto the tick labels
+        ax.text(0.02, 0.98, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)"
+                + (f"\nthreshold {NOT_DETERMINED}" if not th_ok.any() else ""), **note)
     elif not th_ok.any() and g_ok.any():
-        ax.text(0.98, 0.02, f"threshold {NOT_DETERMINED}", transform=ax.transAxes, ha="right", va="bottom",
-                fontsize="x-small", color="0.35")
+        ax.text(0.02, 0.98, f"threshold {NOT_DETERMINED}", **note)
     dens = _density(model)
     if dens is not None:
         _density_strip(ax, dens[1], dens[2].sum(axis=0), "delayed stretch velocity (rad/s)", log=True)
