@@ -15,7 +15,9 @@ late), and the run continues L steps past the record so that its torques can be 
 back to their time (``latency`` of :func:`run_cosimulation`). Commands come from the record's ``command`` channel; a
 record without one is driven by its measured positions passed through the inverse of the
 servo loop (a feedforward command under which the servo reproduces the measured
-position; see :func:`feedforward_command`).
+position; see :func:`feedforward_command`), then refined by iterative learning
+(:func:`validation.harness.refined_drive`: each pass adds :func:`actuator_inverse` of the
+remaining position error and co-simulates again).
 
 Decisions (each a :class:`CosimSettings` field; the defaults are what the report uses)
 ---------------------------------------------------------------------------------------
@@ -88,7 +90,8 @@ from lpvpc.errors import DataError, FMUError
 from .fmu import FMUInfo, FMUInstance
 
 __all__ = ["CosimSettings", "CosimResult", "ActuatorDrive", "run_cosimulation", "connections",
-           "to_rate", "band_limit", "feedforward_command", "calibrate_servo", "ACTUATOR_INPUTS", "ACTUATOR_OUTPUTS",
+           "to_rate", "band_limit", "feedforward_command", "actuator_inverse", "ACTUATOR_LINEAR_PARAMETERS",
+           "calibrate_servo", "ACTUATOR_INPUTS", "ACTUATOR_OUTPUTS",
            "MODEL_INPUTS", "MODEL_OUTPUTS", "model_fmu_variant", "model_fmu_sampled", "model_variant_inputs", "hold_tail"]
 
 ACTUATOR_INPUTS = ("command", "load_torque")
@@ -276,6 +279,42 @@ def feedforward_command(position, step: float, bandwidth: float, damping: float)
     v = np.gradient(p, step)
     a = np.gradient(v, step)
     return p + (2 * damping / wn) * v + a / wn ** 2
+
+
+#: Actuator parameters :func:`actuator_inverse` needs (the actuator FMU's, lpvpc.actuator).
+ACTUATOR_LINEAR_PARAMETERS = ("servo_bandwidth", "servo_damping", "footplate_inertia", "servo_stiffness",
+                              "coupling_damping")
+
+
+def actuator_inverse(x, step: float, parameters: dict) -> np.ndarray:
+    """Command change (rad, at 1/``step`` Hz) under which the actuator's footplate moves by
+    ``x`` more: ``x`` divided by the actuator's linear response, the servo loop times the
+    footplate mode (lpvpc.actuator's equations; the load torque held) times the zero-order
+    hold's half-step delay, in the frequency domain over the mirrored record (no wrap-around
+    at its ends). ``parameters``: :data:`ACTUATOR_LINEAR_PARAMETERS`. Where
+    :func:`feedforward_command` inverts the servo loop alone, this also undoes the footplate's
+    lag, which is what remains at 30-50 Hz. Give it band-limited signals: the inverse grows as
+    frequency^4.
+
+    >>> p = {"servo_bandwidth": 40.0, "servo_damping": 0.7, "footplate_inertia": 0.02,
+    ...      "servo_stiffness": 2.0e4, "coupling_damping": 0.7}
+    >>> t = np.arange(2000) * 1e-3  # s
+    >>> x = 1e-3 * np.sin(2 * np.pi * 5.0 * t)  # rad, 5 Hz
+    >>> d = actuator_inverse(x, 1e-3, p)
+    >>> lead = [np.dot(d[200:-200], x[200 + k:len(x) - 200 + k]) for k in range(20)]
+    >>> int(np.argmax(lead))  # ms: the command leads the motion by the actuator's lag
+    6
+    """
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    X = np.fft.rfft(np.r_[x, x[::-1]])
+    s = 2j * np.pi * np.fft.rfftfreq(2 * n, step)
+    wn = 2 * np.pi * parameters["servo_bandwidth"]
+    J, K_s = parameters["footplate_inertia"], parameters["servo_stiffness"]
+    B_c = 2 * parameters["coupling_damping"] * np.sqrt(K_s * J)
+    servo = wn ** 2 / (s ** 2 + 2 * parameters["servo_damping"] * wn * s + wn ** 2)
+    footplate = (B_c * s + K_s) / (J * s ** 2 + B_c * s + K_s)
+    return np.fft.irfft(X / (servo * footplate * np.exp(-s * step / 2)), 2 * n)[:n]
 
 
 def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, start=(40.0, 0.7)) -> dict:

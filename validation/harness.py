@@ -40,9 +40,9 @@ from lpvpc.outputs import staged_folder
 from lpvpc.progress import report as progress
 
 from . import compare as cmp
-from .cosim import (ACTUATOR_INPUTS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive, CosimSettings,
-                    band_limit, calibrate_servo, feedforward_command, model_fmu_sampled, model_fmu_variant, run_cosimulation,
-                    to_rate)
+from .cosim import (ACTUATOR_INPUTS, ACTUATOR_LINEAR_PARAMETERS, ACTUATOR_OUTPUTS, MODEL_OUTPUTS, ActuatorDrive,
+                    CosimSettings, actuator_inverse, band_limit, calibrate_servo, feedforward_command, model_fmu_sampled,
+                    model_fmu_variant, run_cosimulation, to_rate)
 from .fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
 from .routes import casadi_routes, fmu_replay, model_fmu_inputs, offline_routes
 
@@ -58,6 +58,12 @@ SSP_FILE = "cosimulation.ssp"
 PORTABLE_SSP_FILE = "cosimulation_portable.ssp"
 #: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
 CALIBRATION_WARN_VAF = 99.0
+#: Iterative learning of a command rebuilt from a record's measured positions (no command
+#: channel): at most this many passes, each one co-simulation; it stops when the perturbation
+#: tracking error is below COMMAND_REFINEMENT_TOLERANCE of the perturbation's RMS, or when a
+#: pass does not cut it by a tenth.
+COMMAND_REFINEMENT_PASSES = 4
+COMMAND_REFINEMENT_TOLERANCE = 1e-4
 
 
 @dataclass
@@ -216,6 +222,52 @@ def _pad(x, n):
     if len(x) >= n:
         return x[:n].copy()
     return np.concatenate([x, np.full(n - len(x), x[-1])])
+
+
+def _tracking_error(cos, targets) -> float:
+    """RMS (rad) of the perturbation position (PT - UT) the model FMU received in ``cos`` (the
+    actuators sampled at the model rate) against that of ``targets`` (UT, PT at the model rate)."""
+    k = len(targets[0])
+    return float(np.sqrt(np.mean((cos.model_inputs["position"][:k] - (targets[1] - targets[0])) ** 2)))
+
+
+def refined_drive(drive: ActuatorDrive, targets, run, parameters: dict):
+    """Iterative learning of a command rebuilt from measured positions (a record without a
+    command channel). The feedforward inverts the servo loop alone; the footplate's lag and the
+    load leave the co-simulated actuators ~0.4 mrad off the measured positions, and the model's
+    velocity and acceleration inputs turn that into ~1 VAF point (the lab's pilot trial).
+    Each pass takes the UT and PT position errors where the model sees them (the actuators
+    sampled at the model rate, against ``targets``: the measured UT and PT positions at the model
+    rate, as identification reads them), brings them to the actuator rate by the commands'
+    band-limited interpolation, adds their :func:`~validation.cosim.actuator_inverse` and runs
+    again (``run(drive) -> CosimResult``; ``parameters``: the actuator's). Returns (drive, its
+    co-simulation, {"passes", "tracking_rms_mrad" per pass}).
+
+    On the lab's pilot trial (22 s held out): 0.40 -> 0.010 -> 0.0005 mrad in two passes, and the
+    co-simulation's VAF from 1.3 points below the FMU replay to equal to it."""
+    import dataclasses
+
+    K, r = drive.n_model, drive.ratio
+    fs_model, fs_a = 1.0 / (drive.step * r), 1.0 / drive.step
+    enough = COMMAND_REFINEMENT_TOLERANCE * float(np.sqrt(np.mean((targets[1] - targets[0]) ** 2)))
+    cos = run(drive)
+    rms = [_tracking_error(cos, targets)]
+    while len(rms) <= COMMAND_REFINEMENT_PASSES and rms[-1] > enough:
+        commands = []
+        for target, y, cmd in ((targets[0], cos.ut, drive.command_ut), (targets[1], cos.pt, drive.command_pt)):
+            error = to_rate(target[:K] - y[: K * r: r, 0], fs_model, fs_a, "position error")[: K * r]
+            d = actuator_inverse(error, drive.step, parameters)
+            commands.append(np.concatenate([cmd[: K * r] + d, cmd[K * r:] + d[-1]]))
+        trial = dataclasses.replace(drive, command_ut=commands[0], command_pt=commands[1])
+        trial_cos = run(trial)
+        e = _tracking_error(trial_cos, targets)
+        if not e < 0.9 * rms[-1]:
+            break
+        drive, cos = trial, trial_cos
+        rms.append(e)
+    drive = dataclasses.replace(drive, source=f"{drive.source}; refined by {len(rms) - 1} pass(es) of iterative "
+                                f"learning (perturbation tracking {1e3 * rms[0]:.3g} -> {1e3 * rms[-1]:.2g} mrad RMS)")
+    return drive, cos, {"passes": len(rms) - 1, "tracking_rms_mrad": [1e3 * x for x in rms]}
 
 
 def actuator_drive(record: Record, info: FMUInfo, ratio: int, n_model: int, parameters: dict,
@@ -436,8 +488,18 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     timing["calibration"] = calibration.get("seconds", 0.0)
     variant = model_fmu_variant(model_fmu)
     latency = latency_samples(model, variant)
-    cos = run_cosimulation(model_fmu, act_fmu, drive, settings=settings, actuator_parameters=params,
-                           signals=signals, latency=latency)
+    def cosimulate(d):
+        return run_cosimulation(model_fmu, act_fmu, d, settings=settings, actuator_parameters=params,
+                                signals=signals, latency=latency)
+
+    refinement = None
+    linear = {**_start_values(act_fmu), **params}
+    if not record.has_command and all(k in linear for k in ACTUATOR_LINEAR_PARAMETERS):
+        # commands rebuilt from the measured positions: refined until the actuators reproduce them
+        drive, cos, refinement = refined_drive(drive, (meas.scheduling, meas.scheduling + meas.position),
+                                               cosimulate, linear)
+    else:
+        cos = cosimulate(drive)
     timing["cosim"] = time.perf_counter() - t0
     unloaded = None
     if measure_load_effect and settings.load != "none":
@@ -583,6 +645,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
             "command_source": drive.source,
             "actuator_parameters": params,
             "calibration": calibration,
+            # a record without a command channel: the rebuilt command's iterative learning (None otherwise)
+            "command_refinement": refinement,
             "tracking": track,
             "load_effect": load_effect,
             "iterations": {"mean": float(cos.iterations.mean()), "max": int(cos.iterations.max())},
