@@ -38,6 +38,8 @@ TABLES = {
                            "python benchmarks/bench_reflex_1k_bias.py"),
     "threshold_information.txt": ("How much a record holds about the reflex threshold's trend",
                                   "python benchmarks/bench_threshold_information.py"),
+    "threshold_alternatives.txt": ("Reflex threshold intervals: the shipped rule and the others tried",
+                                   "nice python benchmarks/bench_threshold_alternatives.py 40"),
     "lab_perturbation.txt": ("The virtual subject under the lab's perturbation design",
                              "python benchmarks/bench_lab_perturbation.py"),
     "real_pilot.txt": ("The lab's pilot LPV trial, held-out last 30 %",

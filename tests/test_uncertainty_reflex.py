@@ -97,13 +97,13 @@ def test_the_knee_rounding_widens_the_threshold_interval_on_its_own_side_only(mo
 
     rho = central_rho(model_1k, 9)
     v = model_1k.rectifier_velocity_grid()[0]
-    real = unc._basis_resolution_shift
+    real = unc._threshold_shift_curve
 
-    def with_shift(value):
-        def shifted(model, rho_, gain, th):
-            g_shift, _ = real(model, rho_, gain, th)
-            return g_shift, np.full(len(rho_), value)
-        monkeypatch.setattr(unc, "_basis_resolution_shift", shifted)
+    def with_shift(value):  # the same shift whatever the true threshold
+        def shifted(model):
+            t, _ = real(model)
+            return t, np.full(len(t), value)
+        monkeypatch.setattr(unc, "_threshold_shift_curve", shifted)
         (g_lo, _), (lo, hi) = unc.reflex_interval(model_1k, rho)
         return np.asarray(g_lo), np.asarray(lo), np.asarray(hi)
 
@@ -255,3 +255,20 @@ def test_model_rate_threshold_is_not_determined_and_gain_is(model_rate):
     plain = without_bias_bound(model)
     (lo, hi), (lo0, hi0) = model.reflex_gain_interval(rho), plain.reflex_gain_interval(rho)
     assert np.all(lo < lo0 + 1e-12) and np.all(hi0 < hi + 1e-12)
+
+
+def test_the_threshold_interval_keeps_a_truth_whose_knee_the_basis_rounds_into_the_data():
+    """The rounding belongs to the true threshold: a knee at 0.3 rad/s that the velocity basis
+    rounds up by 0.3 is fitted at ~0.6, inside the data's interval [0.5, 0.7], so 0.3 stays in
+    the threshold's interval; a shift taken at the estimate (0 at 0.6) would have dropped it.
+    Thresholds consistent with no shift stay in; those fitted outside the data's interval do not."""
+    from lpvpc.uncertainty import _inverted_threshold_interval
+
+    t = np.linspace(0.0, 1.5, 301)  # rad/s
+    s_t = np.where(t < 0.4, 0.3, 0.0)  # the basis rounds low knees up by 0.3 rad/s
+    (lo,), (hi,) = _inverted_threshold_interval([0.5], [0.7], [0.0], t, s_t, 0.95)
+    assert 0.2 < lo < 0.3 and hi == pytest.approx(0.7, abs=0.01)  # (t on a 0.005 rad/s grid)
+    (lo,), (hi,) = _inverted_threshold_interval([0.5], [0.7], [0.0], t, np.zeros_like(t), 0.95)
+    assert (lo, hi) == pytest.approx((0.5, 0.7), abs=0.01)
+    lo, hi = _inverted_threshold_interval([0.5], [0.7], [0.0], t[t > 1.0], s_t[t > 1.0], 0.95)
+    assert np.isnan(lo[0]) and np.isnan(hi[0])  # nothing consistent: the caller keeps its interval

@@ -393,7 +393,7 @@ def _physiology_table(model, level=0.95) -> str:
                 f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject at the "
                 f"default settings from 1 kHz files (three stiffness families, two of them curves the basis cannot "
                 f"hold; 40 seeds each, 9 positions): K 91-99 %, viscosity 93-100 %, reflex gain 92-96 %, reflex "
-                f"threshold 97-100 % (see the user guide's page on confidence intervals). In a model with stress relaxation the "
+                f"threshold 94-99 % (see the user guide's page on confidence intervals). In a model with stress relaxation the "
                 f"K interval is the short-range stiffness's.")
     else:
         note = _no_intervals_note(model)
