@@ -38,7 +38,6 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import lpvpc.uncertainty as U  # noqa: E402
-from lpvpc.basis import Basis  # noqa: E402
 from lpvpc.data import pair_trials  # noqa: E402
 from lpvpc.identify import identify  # noqa: E402
 from lpvpc.reflex import rectifier_fit  # noqa: E402
@@ -95,23 +94,6 @@ def joint_shift(model, rho, th, n_r=33, n_v=200):
     return rectifier_fit(v, f2)[1] - th
 
 
-def structures_spread(model, rho):
-    """Largest |threshold shift| over the reflex structures the selection could not exclude."""
-    term = ((model.uncertainty or {}).get("structural") or {}).get("reflex")
-    if not term or not term["structures"]:
-        return np.zeros(len(rho))
-    G_r = Basis.from_dict(term["rho_basis"])
-    G = G_r.evaluate(np.clip(rho, G_r.lo, G_r.hi))
-    v, _ = model.rectifier_velocity_grid()
-
-    def th(entry):
-        C = np.asarray(entry["coefficients"], dtype=float)
-        return rectifier_fit(v, G @ C.T @ Basis.from_dict(entry["velocity_basis"]).evaluate(v).T)[1]
-
-    ref = th(term["reference"])
-    return np.max(np.abs([th(s) - ref for s in term["structures"]]), axis=0)
-
-
 def parts(model, rho):
     """Estimate, noise percentile interval (as reflex_interval draws it), curvature bound b and
     knee-rounding shift s at ``rho``."""
@@ -165,7 +147,7 @@ def one_record(family, seed):
         m_tr = np.array([np.interp(tr[i], tg, projected_threshold(m, gain[i], tg)) for i in range(len(rho))])
         rows["shift as the known bias"] = (tr + (lo - b - m_tr), tr + (hi + b - m_tr))  # covered iff m(t) in [lo-b, hi+b]
         rows["joint projection"] = interval(lo, hi, b, joint_shift(m, rho, th))
-        rows["+ reflex structures"] = interval(lo, hi, b + structures_spread(m, rho), s)
+        rows["+ reflex structures"] = interval(lo, hi, b + U._structural_spread(m, rho, 1), s)
         out[path] = {"biased": False, "rows": rows, "truth": tr, "estimate": th, "s": s,
                      "family": m.nonlinearity()[0].family, "n": len(rho)}
     return out

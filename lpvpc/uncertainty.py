@@ -761,6 +761,12 @@ def reflex_structural_shift(model, rho) -> np.ndarray:
     >>> bool(np.all(reflex_structural_shift(model, rho) > 0)), reflex_structural_shift(fixed, rho).tolist()
     (True, [0.0, 0.0])
     """
+    return _structural_spread(model, rho, 0)
+
+
+def _structural_spread(model, rho, which: int) -> np.ndarray:
+    """Largest absolute shift of the rectifier's gain (``which`` 0) or threshold (1) at ``rho``
+    over the stored reflex structures the selection could not exclude (zeros when none)."""
     from .basis import Basis
     from .reflex import rectifier_fit
 
@@ -772,12 +778,12 @@ def reflex_structural_shift(model, rho) -> np.ndarray:
     G = G_r.evaluate(np.clip(rho, G_r.lo, G_r.hi))
     v, _ = model.rectifier_velocity_grid()
 
-    def gain(entry):
+    def fitted(entry):
         C = np.asarray(entry["coefficients"], dtype=float)
-        return rectifier_fit(v, G @ C.T @ Basis.from_dict(entry["velocity_basis"]).evaluate(v).T)[0]
+        return rectifier_fit(v, G @ C.T @ Basis.from_dict(entry["velocity_basis"]).evaluate(v).T)[which]
 
-    ref = gain(term["reference"])
-    return np.max(np.abs([gain(s) - ref for s in term["structures"]]), axis=0)
+    ref = fitted(term["reference"])
+    return np.max(np.abs([fitted(s) - ref for s in term["structures"]]), axis=0)
 
 
 #: Monte Carlo draws of the reflex parameters behind the gain and threshold intervals.
