@@ -832,16 +832,23 @@ def _basis_resolution_shift(model, rho, gain, th):
     estimate was above the truth at 74-90 % of the seeds over the upper half of the range,
     where the error is largest, and at 44-77 % below, where the noise covers it. The gain's
     shift has no reliable sign: counted one way, its coverage fell from 94-96 % to 85-90 %."""
+    g2, th2 = _rounded_rectifier_fit(model, gain, th)
+    return g2 - gain, th2 - th
+
+
+def _rounded_rectifier_fit(model, gains, thresholds):
+    """(gain, threshold) of the rectifier fit to each rectifier G max(v - t, 0) of ``gains``,
+    ``thresholds`` after projection onto the model's velocity basis (least squares weighted by
+    the velocities seen at identification): what the basis makes of that rectifier."""
     from .reflex import rectifier_fit
 
     basis = model.nonlinearity()[0]
     v, _ = model.rectifier_velocity_grid()
     vv = np.linspace(basis.lo, basis.hi, 400)
     sw = np.sqrt(_velocity_weight(model, vv))[:, None]
-    hinge = gain[None, :] * np.maximum(vv[:, None] - th[None, :], 0.0)  # (400, len(rho))
-    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinge * sw, rcond=None)[0]
-    g2, th2 = rectifier_fit(v, (basis.evaluate(v) @ coef).T)
-    return g2 - gain, th2 - th
+    hinges = np.asarray(gains)[None, :] * np.maximum(vv[:, None] - np.asarray(thresholds)[None, :], 0.0)
+    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinges * sw, rcond=None)[0]
+    return rectifier_fit(v, (basis.evaluate(v) @ coef).T)
 
 
 def _threshold_shift_curve(model):
@@ -850,16 +857,8 @@ def _threshold_shift_curve(model):
     G max(v - t, 0) projected onto the velocity basis (weighted by the velocities seen) and
     refitted is fitted at t + s(t); the gain G does not change it (the fit's threshold is
     scale-free), so one curve serves every position."""
-    from .reflex import rectifier_fit
-
-    basis = model.nonlinearity()[0]
-    v, _ = model.rectifier_velocity_grid()
-    t = v[:-5]  # the rectifier fit's own threshold grid
-    vv = np.linspace(basis.lo, basis.hi, 400)
-    sw = np.sqrt(_velocity_weight(model, vv))[:, None]
-    hinges = np.maximum(vv[:, None] - t[None, :], 0.0)
-    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinges * sw, rcond=None)[0]
-    return t, rectifier_fit(v, (basis.evaluate(v) @ coef).T)[1] - t
+    t = model.rectifier_velocity_grid()[0][:-5]  # the rectifier fit's own threshold grid
+    return t, _rounded_rectifier_fit(model, np.ones_like(t), t)[1] - t
 
 
 def _inverted_threshold_interval(lo, hi, b, t, s_t, level):
