@@ -488,6 +488,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     timing["calibration"] = calibration.get("seconds", 0.0)
     variant = model_fmu_variant(model_fmu)
     latency = latency_samples(model, variant)
+
     def cosimulate(d):
         return run_cosimulation(model_fmu, act_fmu, d, settings=settings, actuator_parameters=params,
                                 signals=signals, latency=latency)
