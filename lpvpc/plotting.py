@@ -318,8 +318,8 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     note = dict(transform=ax.transAxes, ha="left", va="top", fontsize="x-small", color="0.35",
                 bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1.0))
     if model.reflex_threshold_biased:
-        # two lines: one overran the axes' edge onto the tick labels
-        ax.text(0.02, 0.98, f"seen on {model.nonlinearity_fs:g} Hz velocity: the threshold is biased (a soft rectifier)"
+        # short lines: one long line overran the axes' edge (onto the tick labels or the legend)
+        ax.text(0.02, 0.98, f"seen on {model.nonlinearity_fs:g} Hz velocity:\nthe threshold is biased (a soft rectifier)"
                 + (f"\nthreshold {NOT_DETERMINED}" if not th_ok.any() else ""), **note)
     elif not th_ok.any() and g_ok.any():
         ax.text(0.02, 0.98, f"threshold {NOT_DETERMINED}", **note)

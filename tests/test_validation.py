@@ -549,3 +549,20 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
     _one_line_error(rc, err, "missing --ut", "--stationary")
     with pytest.raises(DataError, match="whole-joint model follows the UT trial"):  # refused before anything is read
         validate(m, held, None, tmp_path / "y", stationary=True, whole_joint=tmp_path / "any.json")
+
+
+def test_summary_does_not_quote_a_reflex_gain_the_data_do_not_determine(model, monkeypatch):
+    """The report's summary quotes the reflex gain at the range's ends only where the table
+    does: an end the data do not determine is said to be so, not given as a number."""
+    from lpvpc.uncertainty import NOT_DETERMINED
+    from lpvpc.validation.report import _physiology_sentence
+
+    lo, hi = model.scheduling_range
+    g = model.reflex_gain_threshold([lo, hi])[0]
+    both = _physiology_sentence(model)
+    assert f"from {g[0]:.1f} to {g[1]:.1f} N m s/rad" in both and NOT_DETERMINED not in both
+    monkeypatch.setattr(type(model), "reflex_determined",
+                        lambda self, theta, level=0.95: (np.array([False, True]), np.array([False, True])))
+    one = _physiology_sentence(model)
+    assert f"{NOT_DETERMINED} at {lo:+.2f} rad and {g[1]:.1f} N m s/rad at {hi:+.2f} rad" in one, one
+    assert f"{g[0]:.1f} N m s/rad" not in one

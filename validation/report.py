@@ -26,6 +26,7 @@ from lpvpc.report_html import new_figure as _fig
 from lpvpc.report_html import num as _num
 from lpvpc.report_html import save_figure as _save
 from lpvpc.report_html import table as _table
+from lpvpc.uncertainty import NOT_DETERMINED
 
 __all__ = ["write_report", "write_metrics", "FIGURES"]
 
@@ -333,13 +334,17 @@ def _physiology_sentence(model) -> str:
     rho = np.array(model.scheduling_range)
     K = model.elastic_stiffness(rho)
     g, _ = model.reflex_gain_threshold(rho)
+    g_ok = model.reflex_determined(rho)[0]  # a gain the data do not determine is not quoted (as in the table)
+    gain = [f"{x:.1f} N m s/rad" if ok else NOT_DETERMINED for x, ok in zip(g, g_ok)]
     if model.one_position:  # a stationary trial's model: nothing varies with position
         return (f"At the one operating position of its identification, {rho[0]:+.2f} rad (+ = dorsiflexion), the "
-                f"elastic stiffness is {K[0]:.0f} N m/rad and the reflex gain {g[0]:.1f} N m s/rad.")
+                f"elastic stiffness is {K[0]:.0f} N m/rad and the reflex gain "
+                f"{'is ' + NOT_DETERMINED if not g_ok[0] else gain[0]}.")
     trend = "rises" if K[1] > K[0] else "falls"
+    reflex = (f"the reflex gain goes from {g[0]:.1f} to {g[1]:.1f} N m s/rad over the same range" if all(g_ok) else
+              f"the reflex gain is {gain[0]} at {rho[0]:+.2f} rad and {gain[1]} at {rho[1]:+.2f} rad")
     return (f"Elastic stiffness {trend} from {K[0]:.0f} N m/rad at {rho[0]:+.2f} rad to {K[1]:.0f} N m/rad at "
-            f"{rho[1]:+.2f} rad (+ = dorsiflexion); the reflex gain goes from {g[0]:.1f} to {g[1]:.1f} N m s/rad "
-            f"over the same range.")
+            f"{rho[1]:+.2f} rad (+ = dorsiflexion); {reflex}.")
 
 
 def _physiology_table(model, level=0.95) -> str:
@@ -357,8 +362,6 @@ def _physiology_table(model, level=0.95) -> str:
         if not has:
             return fmt.format(est[i])
         if not ci[key].determined[i]:  # the interval spans most of the plausible range (lpvpc.uncertainty)
-            from lpvpc.uncertainty import NOT_DETERMINED
-
             return f"<em>{NOT_DETERMINED}</em>"
         lo, hi = ci[key][0][i], ci[key][1][i]
         return f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(lo)}–{fmt.format(hi)})</span>"
