@@ -495,8 +495,12 @@ def _physical_summary(model) -> list:
         reflex = f"{g_text}; threshold " + (f"{thr[0]} rad/s{bias}" if th_ok[0] else f"{NOT_DETERMINED}{bias}")
     else:
         viscosity = f"B {B.min():.2f}..{B.max():.2f} N m s/rad"
-        reflex = (f"{gain[0]} at {rho[0]:+.3f} .. {gain[-1]} at {rho[-1]:+.3f} N m s/rad; threshold "
-                  + (f"{NOT_DETERMINED}{bias}" if not th_ok.any() else f"{thr[0]} .. {thr[-1]} rad/s{bias}"))
+        if g_ok.all():
+            reflex = f"{gain[0]} at {rho[0]:+.3f} .. {gain[-1]} at {rho[-1]:+.3f} N m s/rad"
+        else:  # units on the numbers only ("not determined ... at -0.412 .. 14.01 at +0.197 N m s/rad" misread)
+            reflex = ", ".join(f"{g} N m s/rad at {r:+.3f} rad" if ok else f"{g} at {r:+.3f} rad"
+                               for g, ok, r in zip(gain, g_ok, rho[[0, -1]]))
+        reflex += "; threshold " + (f"{NOT_DETERMINED}{bias}" if not th_ok.any() else f"{thr[0]} .. {thr[-1]} rad/s{bias}")
     return [
         f"stiffness:   K(theta) {at(K, rho)} N m/rad",
         f"viscosity:   {viscosity}",

@@ -218,6 +218,9 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
     assert np.all(~th_ok[~g_ok])
     summary = " ".join(_physical_summary(model_weak))
     assert NOT_DETERMINED in summary.split("reflex gain:")[1]
+    assert not model_weak.reflex_determined([lo, hi])[0].all()  # an end of the range too
+    gain_text = summary.split("reflex gain: ")[1].split("; threshold")[0]  # units on numbers only, each end placed
+    assert gain_text.count(" at ") == 2 and f"{NOT_DETERMINED} at " in gain_text and ".." not in gain_text, gain_text
     fig = plotting.plot_reflex_nonlinearity(model_weak, positions=rho)
     ax = fig.axes[0]
     labels = ax.get_legend_handles_labels()[1]
