@@ -18,8 +18,9 @@
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
                    [--route-tolerance TOL] [--whole-joint whole.json]
     lpvpc diagnose model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json diagnosis.json] [--report DIR]
-    lpvpc improve --pt PT.csv --ut UT.csv --heldout-pt PT2.csv --heldout-ut UT2.csv --report DIR
-                  [--json ladder.json] [--max-steps N] [--effect NAME ...]
+    lpvpc improve (--pt PT.csv --ut UT.csv | DATA.csv) (--heldout-pt PT2.csv --heldout-ut UT2.csv |
+                  --heldout DATA2.csv) --report DIR [--stationary] [--json ladder.json] [--max-steps N]
+                  [--effect NAME ...]
 
 ``validate`` exits with status 1 when a threshold fails (``--min-vaf``, route agreement).
 Errors of the package (bad data, corrupt model file, ...) and unreadable or unwritable
@@ -184,7 +185,7 @@ COMMAND_IO = {
                           folders={"--report": "report"}),
     "diagnose": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json"},
                           folders={"--report": "report"}),
-    "improve": CommandIO(inputs={"--pt": "pt", "--ut": "ut", "--heldout-pt": "heldout_pt",
+    "improve": CommandIO(inputs={**_DATA, "--heldout": "heldout", "--heldout-pt": "heldout_pt",
                                  "--heldout-ut": "heldout_ut"},
                          files={"-o": "output", "--json": "json"}, folders={"--report": "report"}),
 }
@@ -873,17 +874,23 @@ def cmd_improve(args) -> int:
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
     check_report_folder(args.report, ("improve.md",), args.force)
-    kw = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit=args.time_unit,
-              variable=args.variable, channels=_channel_options(args))
-    from .channel_skew import load_aligned
-    from .data import load_identification_data
-
+    # the held-out record as the identification record is given: a PT - UT file, a PT/UT pair or a stationary trial
+    if args.heldout and (args.heldout_pt or args.heldout_ut):
+        raise _UsageError("give either --heldout DATA2 or --heldout-pt and --heldout-ut, not both")
+    if not args.heldout:
+        if args.stationary and (args.heldout_ut or not args.heldout_pt):
+            raise _UsageError("--stationary: give the held-out stationary trial with --heldout-pt PT2 (or --heldout "
+                              "DATA2), without --heldout-ut")
+        if not args.stationary and not (args.heldout_pt and args.heldout_ut):
+            raise _UsageError("missing the held-out record: give --heldout-pt PT2 --heldout-ut UT2 (or a PT - UT "
+                              "file with a scheduling column as --heldout DATA2)")
+    held_args = argparse.Namespace(**{**vars(args), "data": args.heldout, "pt": args.heldout_pt,
+                                      "ut": args.heldout_ut})
+    units = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit="s")
     # a late torque channel lined up in both records as identify does (the rig's: found on the identification record)
-    ident = load_aligned(pt=args.pt, ut=args.ut, target_fs=target_fs, channel_skew=_channel_skew(args.channel_skew_ms),
-                         **kw)
+    ident = _load_data(args, target_fs=target_fs, channel_skew=_channel_skew(args.channel_skew_ms), **units)
     skew = ident.meta.get("channel_skew_s", 0.0)
-    held = load_identification_data(pt=args.heldout_pt, ut=args.heldout_ut, target_fs=ident.fs, channel_skew=skew,
-                                    **kw)
+    held = _load_data(held_args, target_fs=ident.fs, channel_skew=skew, **units)
     if skew:
         print(f"skew:      torque channel {skew * 1e3:+.2f} ms behind position, lined up in both records", flush=True)
 
@@ -1020,9 +1027,10 @@ def _add_file_choice_args(p):
                         "(rad)' or --channel 'torque=Torque (N m)' (repeatable)")
 
 
-def _add_data_args(p, what, several: bool = False):
+def _add_data_args(p, what, several: bool = False, time_unit=None):
     """DATA | --pt/--ut | --pt --stationary, and the .mat choices; ``several``: repeatable
-    (trials of one identification)."""
+    (trials of one identification); ``time_unit``: the default of --time-unit (None: a saved
+    model's)."""
     more = " (several: trials of one identification)" if several else ""
     p.add_argument("data", nargs="*" if several else "?", metavar="DATA",
                    help=f"{what}: CSV/.mat file with perturbation position, torque and a scheduling column{more}")
@@ -1034,7 +1042,7 @@ def _add_data_args(p, what, several: bool = False):
     p.add_argument("--stationary", action="store_true",
                    help="DATA or --pt alone: a perturbed trial around one fixed operating position recorded "
                         "without UT; the operating point is its mean position (and torque)")
-    _add_time_unit_arg(p, default=None)
+    _add_time_unit_arg(p, default=time_unit)
     _add_file_choice_args(p)
 
 
@@ -1280,10 +1288,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="The improve loop on an identification record and a held-out record; writes "
                                    "DIR/report.html (and improve.md) with the ladder of models (held-out VAF and RMSE), residual "
                                    "plots before and after each step, and each step's diagnosis.")
-    p.add_argument("--pt", required=True, metavar="PT", help="identification perturbed trial")
-    p.add_argument("--ut", required=True, metavar="UT", help="identification unperturbed trial")
-    p.add_argument("--heldout-pt", required=True, metavar="PT2", help="held-out perturbed trial")
-    p.add_argument("--heldout-ut", required=True, metavar="UT2", help="held-out unperturbed trial")
+    _add_data_args(p, "identification record", time_unit="s")
+    p.add_argument("--heldout", metavar="DATA2", help="held-out record as a PT - UT file with a scheduling column "
+                                                        "(or, with --stationary, the held-out stationary trial)")
+    p.add_argument("--heldout-pt", metavar="PT2", help="held-out perturbed trial")
+    p.add_argument("--heldout-ut", metavar="UT2", help="held-out unperturbed trial")
     p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")
@@ -1299,8 +1308,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the torque channel's lag behind the position channel in ms, undone in both records at the "
                         "files' rate; auto (default): found as identify finds it, on the identification record "
                         "(one extra fit); 0: none")
-    _add_time_unit_arg(p, default="s")
-    _add_file_choice_args(p)
     _add_quiet_arg(p)
     p.set_defaults(func=cmd_improve)
     return parser

@@ -258,13 +258,15 @@ def record_coverage(model, data) -> dict:
     rho = np.asarray(data.scheduling, dtype=float)
     lo, hi = (float(v) for v in model.scheduling_range)
     tol = RANGE_TOL * (hi - lo)
+    if model.one_position:  # a stationary trial's model: within the span identify itself calls one position
+        tol = 0.5 * float(model.settings.get("stationary_range", 0.010))
     outside = (rho < lo - tol) | (rho > hi + tol)
     span = (float(np.clip(rho.min(), lo, hi)), float(np.clip(rho.max(), lo, hi)))
     return {"duration_s": len(rho) / float(data.fs), "min_duration_s": MIN_RECORD_S,
             "identified_range": [lo, hi], "record_range": [float(rho.min()), float(rho.max())],
             "covered_fraction_of_range": (span[1] - span[0]) / (hi - lo) if hi > lo else 1.0,
             "outside_fraction": float(outside.mean()), "outside_samples": int(outside.sum()),
-            "max_outside_fraction": MAX_OUTSIDE, "outside_mask": outside}
+            "max_outside_fraction": MAX_OUTSIDE, "tolerance": tol, "outside_mask": outside}
 
 
 def check_record(model, data) -> dict:
@@ -279,6 +281,12 @@ def check_record(model, data) -> dict:
         raise InsufficientExcitationError(
             f"{src}: record too short for a diagnosis: {cov['duration_s']:.1f} s; it needs at least {MIN_RECORD_S:g} s "
             f"({FOLDS} cross-validation folds of >= {MIN_RECORD_S / FOLDS:g} s)")
+    if cov["outside_fraction"] > MAX_OUTSIDE and model.one_position:
+        raise InsufficientExcitationError(
+            f"{src}: {100 * cov['outside_fraction']:.0f} % of the samples lie more than {1e3 * cov['tolerance']:.1f} "
+            f"mrad from the model's one operating position {cov['identified_range'][0]:+.4f} rad (at most "
+            f"{100 * MAX_OUTSIDE:.0f} % allowed; the stationary trial's model does not vary with position): diagnose "
+            f"on a record at that position")
     if cov["outside_fraction"] > MAX_OUTSIDE:
         lo, hi = cov["identified_range"]
         raise InsufficientExcitationError(

@@ -488,3 +488,46 @@ def test_whole_joint_reads_other_column_names_with_channel(model_file, run_dir, 
         assert status == 0, err
     a, b = (json.loads((tmp_path / f).read_text()) for f in ("w.json", "own.json"))
     assert a["quasi_static"] == b["quasi_static"]
+
+
+def test_improve_reads_the_records_as_identify_does(tmp_path, capsys):
+    """improve takes each record in any form identify reads: a PT - UT file with a scheduling
+    column (DATA and --heldout DATA2), or a stationary trial (--stationary, --pt and
+    --heldout-pt), the held-out one a few mrad from the identification position. A mix-up of
+    the held-out options is one line and exit 2."""
+    from lpvpc.data import Trial, pair_trials, write_perturbation_csv, write_trial_csv
+    from lpvpc.simulate import simulate_pair
+
+    sim, held = simulate_pair("multilevel", seed=3, duration=60.0), simulate_pair("novel", seed=3, duration=30.0)
+    write_perturbation_csv(pair_trials(sim.pt, sim.ut), tmp_path / "d.csv")
+    write_perturbation_csv(pair_trials(held.pt, held.ut), tmp_path / "d2.csv")
+    status, out, err = _run(["improve", tmp_path / "d.csv", "--heldout", tmp_path / "d2.csv", "--report",
+                             tmp_path / "imp", "--max-steps", "1", "-o", tmp_path / "final.json", "-q"], capsys)
+    assert status == 0, err
+    assert "result:    held-out VAF" in out and (tmp_path / "imp" / "report.html").is_file()
+    assert LPVPCModel.load(tmp_path / "final.json").fit["n_samples"] > 0
+
+    pt = simulate_pair("stationary", seed=2, duration=60.0).pt
+    k = len(pt.time) // 2
+    write_trial_csv(Trial(pt.time[:k], pt.position[:k], pt.torque[:k], {}), tmp_path / "a.csv")
+    write_trial_csv(Trial(pt.time[k:] - pt.time[k], pt.position[k:], pt.torque[k:], {}), tmp_path / "b.csv")
+    away = abs(np.mean(pt.position[k:]) - np.mean(pt.position[:k]))
+    assert 0.001 < away < 0.005  # rad: the two halves' mean positions differ by a few mrad
+    status, out, err = _run(["improve", "--pt", tmp_path / "a.csv", "--stationary", "--heldout-pt", tmp_path / "b.csv",
+                             "--report", tmp_path / "imp_st", "--max-steps", "1", "-q"], capsys)
+    assert status == 0, err
+    assert "result:    held-out VAF" in out
+    # 20 mrad away is another position: refused in one line that says so
+    write_trial_csv(Trial(pt.time[k:] - pt.time[k], pt.position[k:] + 0.02, pt.torque[k:], {}), tmp_path / "c.csv")
+    status, out, err = _run(["improve", "--pt", tmp_path / "a.csv", "--stationary", "--heldout-pt", tmp_path / "c.csv",
+                             "--report", tmp_path / "imp_far", "--max-steps", "1", "-q"], capsys)
+    errors = [ln for ln in err.splitlines() if ln.startswith("lpvpc: error: ")]  # (the base fit's warning aside)
+    assert status == 2 and len(errors) == 1 and "from the model's one operating position" in errors[0], err
+
+    for argv, words in (
+            (["--pt", tmp_path / "a.csv", "--stationary", "--heldout-pt", tmp_path / "b.csv", "--heldout-ut",
+              tmp_path / "b.csv"], "without --heldout-ut"),
+            ([tmp_path / "d.csv"], "missing the held-out record"),
+            ([tmp_path / "d.csv", "--heldout", tmp_path / "d2.csv", "--heldout-pt", tmp_path / "a.csv"], "not both")):
+        status, out, err = _run(["improve", *argv, "--report", tmp_path / "x"], capsys)
+        assert status == 2 and len(err.strip().splitlines()) == 1 and words in err, err

@@ -47,7 +47,8 @@ def _trial_struct(tr, n):
 @pytest.fixture(scope="module")
 def source(subject, model_file, tmp_path_factory):
     """Valid inputs (20 s of the novel record): PT/UT as CSV and as the variables pt, ut of
-    s.mat, a perturbation file D.csv, the model, and stand-ins for FMU and whole-joint inputs."""
+    s.mat, a perturbation file D.csv (and its held-out stand-in D2.csv), the model, and
+    stand-ins for FMU and whole-joint inputs."""
     from lpvpc.data import Trial, load_identification_data, write_perturbation_csv, write_trial_csv
 
     folder = tmp_path_factory.mktemp("policy_source")
@@ -59,6 +60,7 @@ def source(subject, model_file, tmp_path_factory):
     write_perturbation_csv(load_identification_data(pt=folder / "PT.csv", ut=folder / "UT.csv"), folder / "D.csv")
     (folder / "PT2.csv").write_bytes((folder / "PT.csv").read_bytes())  # held-out stand-ins
     (folder / "UT2.csv").write_bytes((folder / "UT.csv").read_bytes())
+    (folder / "D2.csv").write_bytes((folder / "D.csv").read_bytes())
     (folder / "model.json").write_bytes(Path(model_file).read_bytes())
     (folder / "m.fmu").write_bytes(b"PK stand-in")
     (folder / "act.fmu").write_bytes(b"PK stand-in")
@@ -105,8 +107,10 @@ BASE = {
     "diagnose DATA": {"MODEL": "model.json", "DATA": "D.csv", "--json": "new.json", "--report": "newrep"},
     "improve": {"--pt": "PT.csv", "--ut": "UT.csv", "--heldout-pt": "PT2.csv", "--heldout-ut": "UT2.csv",
                 "--report": "newrep", "--json": "new.json", "-o": "new2.json", "--max-steps": "0"},
+    "improve DATA": {"DATA": "D.csv", "--heldout": "D2.csv", "--report": "newrep", "--json": "new.json",
+                     "-o": "new2.json", "--max-steps": "0"},
 }
-DATA_OPTIONS = ("DATA", "--pt", "--ut", "--heldout-pt", "--heldout-ut")
+DATA_OPTIONS = ("DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut")
 
 
 def _argv(command, values):
@@ -166,7 +170,7 @@ OUTPUTS = {
     "diagnose": [("--json", "file"), ("--report", "folder")],
     "improve": [("-o", "file"), ("--json", "file"), ("--report", "folder")],
 }
-INPUTS = {"MODEL", "DATA", "--pt", "--ut", "--heldout-pt", "--heldout-ut", "--fmu", "--actuator-fmu",
+INPUTS = {"MODEL", "DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut", "--fmu", "--actuator-fmu",
           "--whole-joint"}
 
 
@@ -264,7 +268,7 @@ def test_every_command_declares_its_files():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.choices and "identify" in a.choices)
     assert set(sub.choices) == set(COMMAND_IO)
-    path_like = re.compile(r"\.(json|csv|fmu|casadi|mat)$|^(DIR|PT2?|UT2?|DATA|F\.fmu|FILE\..*)$")
+    path_like = re.compile(r"\.(json|csv|fmu|casadi|mat)$|^(DIR|PT2?|UT2?|DATA2?|F\.fmu|FILE\..*)$")
     for name, p in sub.choices.items():
         io = COMMAND_IO[name]
         declared = {*io.inputs.values(), *io.files.values(), *io.folders.values()}
