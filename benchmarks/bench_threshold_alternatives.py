@@ -46,29 +46,13 @@ from lpvpc.subject import STIFFNESS_FAMILIES  # noqa: E402
 from _results import write_results  # noqa: E402
 
 LEVEL = 0.95
-Z = U.z_value(LEVEL)
 
 
-def _weights(model, vv):
-    """Velocity density of the identification data at ``vv`` (as _basis_resolution_shift weighs)."""
-    dens = model.fit.get("data_density")
-    if not dens:
-        return np.ones_like(vv)
-    edges = np.asarray(dens["velocity_edges"], dtype=float)
-    counts = np.asarray(dens["counts"], dtype=float).sum(axis=0)
-    return np.interp(vv, 0.5 * (edges[1:] + edges[:-1]), counts) + 1e-9 * max(counts.max(), 1.0)
-
-
-def projected_threshold(model, gain, thresholds):
-    """m(t): the rectifier fit of the hinge gain * max(v - t, 0) projected onto the velocity basis
-    (density weighted), for each t of ``thresholds`` (one position's gain)."""
-    basis = model.nonlinearity()[0]
-    v, _ = model.rectifier_velocity_grid()
-    vv = np.linspace(basis.lo, basis.hi, 400)
-    sw = np.sqrt(_weights(model, vv))[:, None]
-    hinge = gain * np.maximum(vv[:, None] - np.asarray(thresholds)[None, :], 0.0)
-    coef = np.linalg.lstsq(basis.evaluate(vv) * sw, hinge * sw, rcond=None)[0]
-    return rectifier_fit(v, (basis.evaluate(v) @ coef).T)[1]
+def projected_threshold(model, thresholds):
+    """m(t): where the rectifier fit puts a knee at each t of ``thresholds`` after the velocity
+    basis's projection (the package's own, scale-free in the gain)."""
+    t = np.asarray(thresholds, dtype=float)
+    return U._rounded_rectifier_fit(model, np.ones_like(t), t)[1]
 
 
 def joint_shift(model, rho, th, n_r=33, n_v=200):
@@ -112,11 +96,8 @@ def parts(model, rho):
 
 
 def interval(lo, hi, b, s):
-    """The shipped rule's arithmetic: bias (estimate minus truth) within [min(s,0) - b, max(s,0) + b]."""
-    se = np.maximum((hi - lo) / (2 * Z), 1e-300)
-    half = b + 0.5 * np.abs(s)
-    extra = (U.bias_aware_critical_value(half / se, LEVEL) - Z) * se
-    return lo - 0.5 * s - extra, hi - 0.5 * s + extra
+    """The package's arithmetic: bias (estimate minus truth) within [min(s,0) - b, max(s,0) + b]."""
+    return U._bias_range_interval(lo, hi, b, s, LEVEL)
 
 
 def one_record(family, seed):
@@ -144,7 +125,7 @@ def one_record(family, seed):
         for c in (0.75, 0.5):
             rows[f"shift x {c}"] = interval(lo, hi, b, c * s)
         tg = np.linspace(0.0, m.rectifier_velocity_grid()[0][-6], 120)
-        m_tr = np.array([np.interp(tr[i], tg, projected_threshold(m, gain[i], tg)) for i in range(len(rho))])
+        m_tr = np.interp(tr, tg, projected_threshold(m, tg))
         rows["shift as the known bias"] = (tr + (lo - b - m_tr), tr + (hi + b - m_tr))  # covered iff m(t) in [lo-b, hi+b]
         rows["joint projection"] = interval(lo, hi, b, joint_shift(m, rho, th))
         rows["+ reflex structures"] = interval(lo, hi, b + U._structural_spread(m, rho, 1), s)

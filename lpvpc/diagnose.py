@@ -259,7 +259,9 @@ def record_coverage(model, data) -> dict:
     lo, hi = (float(v) for v in model.scheduling_range)
     tol = RANGE_TOL * (hi - lo)
     if model.one_position:  # a stationary trial's model: within the span identify itself calls one position
-        tol = 0.5 * float(model.settings.get("stationary_range", 0.010))
+        from .identify import STATIONARY_RANGE
+
+        tol = 0.5 * float(model.settings.get("stationary_range", STATIONARY_RANGE))
     outside = (rho < lo - tol) | (rho > hi + tol)
     span = (float(np.clip(rho.min(), lo, hi)), float(np.clip(rho.max(), lo, hi)))
     return {"duration_s": len(rho) / float(data.fs), "min_duration_s": MIN_RECORD_S,

@@ -80,6 +80,10 @@ MAX_EFFECT_PASSES = 3
 #: lower bar: it showed 4-10 % on records with relaxation.
 FIRST_LOOK_GAIN = 0.01
 
+#: rad: a trial whose scheduling variable spans less than this is at one operating position
+#: (stationary): identified as the position-independent cascade.
+STATIONARY_RANGE = 0.010
+
 
 def _records_given_settings(init):
     """Wrap ``__init__`` to record the names of the settings passed (structure="cv" leaves them as given)."""
@@ -259,7 +263,7 @@ class LPVPCEstimator:
         refine: bool = True,
         effects: tuple = (),
         irf_length: float = DEFAULT_IRF_LENGTH,
-        stationary_range: float = 0.010,
+        stationary_range: float = STATIONARY_RANGE,
         causal_derivatives: str = "central5",
         stationary_delays: tuple = STATIONARY_DELAYS,
         high_rate_velocity_basis: str = "hinge",

@@ -861,6 +861,16 @@ def _threshold_shift_curve(model):
     return t, _rounded_rectifier_fit(model, np.ones_like(t), t)[1] - t
 
 
+def _bias_range_interval(lo, hi, b, s, level):
+    """(lower, upper) around the noise interval [lo, hi] when the bias (estimate minus truth)
+    lies in [min(s, 0) - b, max(s, 0) + b]: centred on that range and widened for its half-width
+    (:func:`bias_aware_critical_value`), not for |s| both ways. Broadcasts."""
+    z = z_value(level)
+    se = np.maximum((hi - lo) / (2 * z), 1e-300)
+    extra = (bias_aware_critical_value((b + 0.5 * np.abs(s)) / se, level) - z) * se
+    return lo - 0.5 * s - extra, hi - 0.5 * s + extra
+
+
 def _inverted_threshold_interval(lo, hi, b, t, s_t, level):
     """The thresholds t consistent with the data: those inside the interval their own bias
     range [min(s(t), 0) - b, max(s(t), 0) + b] gives (bias-aware, as the estimate's), i.e. the
@@ -876,11 +886,8 @@ def _inverted_threshold_interval(lo, hi, b, t, s_t, level):
     0.22
     """
     lo, hi, b = (np.atleast_1d(np.asarray(x, dtype=float))[:, None] for x in (lo, hi, b))
-    z = z_value(level)
-    se = np.maximum((hi - lo) / (2 * z), 1e-300)
-    half = b + 0.5 * np.abs(s_t)[None, :]
-    extra = (bias_aware_critical_value(half / se, level) - z) * se
-    inside = (lo - 0.5 * s_t - extra <= t) & (t <= hi - 0.5 * s_t + extra)
+    lower_t, upper_t = _bias_range_interval(lo, hi, b, np.asarray(s_t)[None, :], level)  # (positions, t)
+    inside = (lower_t <= t) & (t <= upper_t)
     lower = np.where(inside, t, np.inf).min(axis=1)
     upper = np.where(inside, t, -np.inf).max(axis=1)
     ok = inside.any(axis=1)
@@ -939,7 +946,6 @@ def reflex_interval(model, rho, level: float = 0.95):
     draws = np.random.default_rng(20141).standard_normal((N_REFLEX_DRAWS, len(w))) @ (U * np.sqrt(np.clip(w, 0, None))).T
     curves = f[None] + np.einsum("np,prv->nrv", draws, J)
     g_d, th_d = (x.reshape(N_REFLEX_DRAWS, len(rho)) for x in rectifier_fit(v, curves.reshape(-1, len(v))))
-    z = z_value(level)
     bound = list(reflex_bias_bound(model, rho))  # |bias| <= bound, either sign
     bound[0] = bound[0] + reflex_structural_shift(model, rho)
     shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth between 0 and shift
@@ -954,12 +960,7 @@ def reflex_interval(model, rho, level: float = 0.95):
         lo, hi = np.percentile(d, [50 * (1 - level), 50 * (1 + level)], axis=0)
         lo, hi = np.minimum(lo, est), np.maximum(hi, est)  # the estimate inside its own interval
         noise.append((lo, hi))
-        se = np.maximum((hi - lo) / (2 * z), 1e-300)
-        # bias (estimate minus truth) within [min(s, 0) - b, max(s, 0) + b]: the interval is
-        # centred on that range and widened for its half-width, not for |s| both ways
-        half = b + 0.5 * np.abs(s)
-        extra = (bias_aware_critical_value(half / se, level) - z) * se
-        out.append([lo - 0.5 * s - extra, hi - 0.5 * s + extra])
+        out.append(list(_bias_range_interval(lo, hi, b, s, level)))
     if not biased:  # the knee's shift belongs to the true threshold, not the estimate: invert the test
         t, s_t = _threshold_shift_curve(model)
         lower, upper = _inverted_threshold_interval(*noise[1], bound[1], t, s_t, level)

@@ -537,7 +537,8 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
     # a record off the one position is not "outside the identified range [op, op]": how far it lies, and why it matters
     assert "identified at one operating position" in err and "outside the identified range" not in err
     assert metrics["vaf"] == pytest.approx(json.loads((tmp_path / "p.json").read_text())["vaf"], abs=1e-9)
-    assert metrics["vaf_cosim"] > metrics["vaf_fmu"] - 1.0 and metrics["vaf"] > 90.0
+    # no command channel: the refined command reproduces the positions, the co-simulation the replay
+    assert abs(metrics["vaf_cosim"] - metrics["vaf_fmu"]) < 0.1 and metrics["vaf"] > 90.0
     assert metrics["provenance"]["data_files"]["ut"]["sha256"] is None
     # one operating position: its values there, and how far the held-out record lies from it
     page = (tmp_path / "r" / "report.html").read_text()
