@@ -42,7 +42,7 @@ from _results import write_results  # noqa: E402
 CHILD = """
 import resource, sys, time
 t0 = time.perf_counter()
-from lpvpc.data import load_trial
+from lpvpc.io import load_trial
 t1 = time.perf_counter()
 try:
     n = load_trial(sys.argv[1]).time.size
@@ -76,7 +76,7 @@ def main():
     from matlab_files import write_mat
     from test_safety import _v5_compressed_junk
 
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=0)
     tr = pair.pt

@@ -3,7 +3,7 @@ exoskeleton loop, the replay FMU beside it, and what the causal form costs offli
 
 1. Virtual subject, seeds 0..4: identified from its 2-minute PT/UT trials at 100 Hz (defaults),
    whole-joint model, closed-loop form (fitted to the two-sided model's torque: the CLI's
-   default), FMI 2.0 co-simulation FMUs of both. In the loop of lpvpc.compliant_loop (foot +
+   default), FMI 2.0 co-simulation FMUs of both. In the loop of lpvpc.simulation.compliant_loop (foot +
    device 0.01 kg m^2, PD Kp 40 or 150 N m/rad, Kd 0.5 N m s/rad, 60 s of the multilevel
    reference with +-0.02 rad steps every 100-400 ms, plant at 1 kHz) run by a fixed-step master
    over fmpy's FMU2Slave: the closed-loop FMU at communication steps of 1 ms and 10 ms (the model
@@ -23,7 +23,7 @@ exoskeleton loop, the replay FMU beside it, and what the causal form costs offli
    of p, p', p^2 and the inertia) with the reflex held, fitted to the measured torque and to the
    two-sided model's torque. The pilot has no UT torque and no whole-joint record: this is at the
    level of the perturbation data (p, rho = the recorded scheduling). Each form twice: as recorded
-   and with the position delayed by the channel skew that lpvpc.closed_loop.estimate_channel_skew
+   and with the position delayed by the channel skew that lpvpc.export.closed_loop.estimate_channel_skew
    finds on the identified part (the torque channel's lag); past-sample memory with the inertia
    fitted and held; then leave-one-level-out over the development split (all folds, and without
    the two end plateaus).
@@ -51,15 +51,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _results import write_results  # noqa: E402
 from real_data import real_data_dir  # noqa: E402
 
-from lpvpc import closed_loop as CL  # noqa: E402
-from lpvpc import compliant_loop as LOOP  # noqa: E402
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc.data import decimate_trial, join_trials, load_identification_data, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.selection import level_folds  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
-from lpvpc.whole_joint import export_whole_joint_fmu, fit_whole_joint  # noqa: E402
+from lpvpc.export import closed_loop as CL  # noqa: E402
+from lpvpc.simulation import compliant_loop as LOOP  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.io import decimate_trial, join_trials, load_identification_data, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.identification.selection import level_folds  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
+from lpvpc.export.whole_joint import export_whole_joint_fmu, fit_whole_joint  # noqa: E402
 
 KPS = (40.0, 150.0)
 
@@ -82,7 +82,7 @@ SKEW = 1e-3  # s: the torque channel written this late in the skewed copy of the
 
 def late_torque(trial, delay=SKEW):
     """The trial as a recording whose torque channel lags its position by ``delay`` s (whole samples)."""
-    from lpvpc.trial import Trial
+    from lpvpc.io.trial import Trial
 
     n = int(round(delay * trial.fs))
     return Trial(trial.time, trial.position, np.r_[np.full(n, trial.torque[0]), trial.torque[:-n]],
@@ -223,7 +223,7 @@ def _pilot_probes(m, d, k):
 
 
 def _pilot_lolo(d):
-    """Leave-one-level-out over the development split (lpvpc.selection.level_folds): pooled VAF
+    """Leave-one-level-out over the development split (lpvpc.identification.selection.level_folds): pooled VAF
     (%) of the two-sided model, its causal IRF form and the closed-loop impedance on the left-out
     levels, all and without the two end plateaus (extrapolation there dominates the pooled figure)."""
     labels, kind = level_folds(d.scheduling, d.fs)

@@ -7,7 +7,7 @@ decimated as the loaders do; or 100 Hz files with ``--files-fs 100``), identify 
 ``structure='cv'`` and ``high_rate_reflex=True`` (from 1 kHz files the reflex nonlinearity
 on the 1 kHz velocity; identify skips its selection on that path, so the structural term
 runs its own search: its cost is the whole search), then add the structural term
-(:func:`lpvpc.structural_uncertainty.add_structural_uncertainty`). From 1 kHz files the
+(:func:`lpvpc.identification.structural_uncertainty.add_structural_uncertainty`). From 1 kHz files the
 same record is also identified at every default (``identify(data)``: the reflex on the
 model-rate velocity, selection runs): rows "defaults". Truth at 9 positions over the
 central 80 % of the identified range: K at the perturbation amplitude
@@ -19,11 +19,11 @@ relaxes, so the subject's K is both its short-range and its relaxed stiffness).
 Rows per family, from the same fits: K, viscosity and inertia with
 - "noise only": estimate +- z * HAC standard error;
 - "neighbouring specifications only": bias-aware for the IRF one lag shorter (not for
-  viscosity) and the basis one order higher (:func:`lpvpc.uncertainty.structural_bias_bound`);
+  viscosity) and the basis one order higher (:func:`lpvpc.models.uncertainty.structural_bias_bound`);
 - "previous rule": the last release's intervals (sum of that bound, with the shorter IRF
   for viscosity too, and the spread over every structure within one SE of the
   best cross-validated one), recomputed from the same search;
-- "new intervals" (:func:`lpvpc.uncertainty.intrinsic_interval`): the sum of the
+- "new intervals" (:func:`lpvpc.models.uncertainty.intrinsic_interval`): the sum of the
   neighbouring bound and the spread over the near-equivalent structures that differ from
   the model's in the intrinsic pathway only;
 - the larger of the two bounds, and their root sum of squares (with the new structure set):
@@ -60,13 +60,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.structural_uncertainty import (  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.identification.structural_uncertainty import (  # noqa: E402
     _refit_irf, add_structural_uncertainty, near_equivalent, structural_term, structure_search)
-from lpvpc.subject import STIFFNESS_FAMILIES  # noqa: E402
-from lpvpc.uncertainty import (  # noqa: E402
+from lpvpc.simulation.subject import STIFFNESS_FAMILIES  # noqa: E402
+from lpvpc.models.uncertainty import (  # noqa: E402
     _gradients_intrinsic, bias_aware_critical_value, intrinsic_interval, intrinsic_interval_parts, lag_moment_weights,
     z_value)
 from _results import write_results  # noqa: E402
@@ -86,8 +86,8 @@ def _half(bias, se):
 def _previous_bounds(model, search, sel, quantity, rho, est):
     """The last release's two bounds: the shorter IRF counted for every quantity, and the
     largest shift over every structure within one SE of the best (reflex settings too)."""
-    from lpvpc.basis import Basis
-    from lpvpc.structural_uncertainty import _start
+    from lpvpc.models.basis import Basis
+    from lpvpc.identification.structural_uncertainty import _start
 
     u = model.uncertainty
     spec = intrinsic_interval_parts(model, quantity, rho)[2]["specification"]

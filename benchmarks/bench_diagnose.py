@@ -14,14 +14,14 @@
 printed; their rows (per seed and summary) replace the same scenarios' rows in
 results/diagnose.txt (a section-3 scenario not recorded yet is appended to its table),
 the other rows and sections are kept.
-``--perturbation NAME`` (a design of ``lpvpc.simulate.PERTURBATIONS``; ``--lab-pulses`` is
+``--perturbation NAME`` (a design of ``lpvpc.simulation.simulate.PERTURBATIONS``; ``--lab-pulses`` is
 ``--perturbation lab_pulses``): sections 1 and 2 (6 and 3 seeds) on that design instead of
 PRALDS: "lab_pulses" (holds alternating between 0 and 20-40 mrad, every step large) or
 "prbs" (+-40 mrad switching every 50-150 ms, no quiet windows); writes
 results/diagnose_NAME.txt. ``--seeds H0,EFFECT``: how many clean and effect seeds (the
 machine is shared: start small). With ``--only NAME`` the rows go to that file too.
 
-The virtual subject is the realistic one (lpvpc.simulate): EMG envelopes in volts with
+The virtual subject is the realistic one (lpvpc.simulation.simulate): EMG envelopes in volts with
 reflex-evoked bursts in the perturbed trial, tonic activation in both, measurement noise.
 
 Identification on the 2-minute multilevel record (seed s), diagnosis and VAF on the
@@ -43,13 +43,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lpvpc.data import Trial, pair_trials  # noqa: E402
-from lpvpc.diagnose import diagnose  # noqa: E402
-from lpvpc.diagnose_candidates import SMALL_GAIN, STRONG_EVIDENCE  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.improve import improve  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.io import Trial, pair_trials  # noqa: E402
+from lpvpc.diagnosis.diagnose import diagnose  # noqa: E402
+from lpvpc.diagnosis.candidates import SMALL_GAIN, STRONG_EVIDENCE  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.diagnosis.improve import improve  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 warnings.simplefilter("ignore")
@@ -125,7 +125,7 @@ def pairs(seed, effects=(), modify=None, params=None):
 
 
 def heldout_vaf(model, data):
-    from lpvpc.effects import signals_from_data
+    from lpvpc.models.effects import signals_from_data
 
     return vaf(data.torque, model.predict(data.position, data.scheduling, warn=False, signals=signals_from_data(data)).total)
 
@@ -164,8 +164,8 @@ REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "pilot_i
 
 def real_data(say):
     """Section 5: the pilot trial split inside itself (torque sign -1)."""
-    from lpvpc.data import PerturbationData, load_perturbation_file
-    from lpvpc.diagnose import format_table
+    from lpvpc.io import PerturbationData, load_perturbation_file
+    from lpvpc.diagnosis.diagnose import format_table
     from lpvpc.errors import LpvpcError
 
     say("## 5. Real data: pilot_ident.csv split inside it (torque sign -1)")
@@ -245,7 +245,7 @@ def speed(say):
 
 
 def _tie(d):
-    """The rival the top candidate is tied with (lpvpc.diagnose.TIES), its gain and the tie's p."""
+    """The rival the top candidate is tied with (lpvpc.diagnosis.diagnose.TIES), its gain and the tie's p."""
     top = d.candidates[0]
     if not top.tied_with:
         return "-"
@@ -416,7 +416,7 @@ def main():
             update_rows(chosen, lines, target=RESULTS_FILE, section=SECTION3)
         return
     if PERTURBATION != "pralds":
-        say(f"Perturbation: {PERTURBATION} (lpvpc.simulate.{PERTURBATION}), not PRALDS; sections 1 and 2 only; "
+        say(f"Perturbation: {PERTURBATION} (lpvpc.simulation.simulate.{PERTURBATION}), not PRALDS; sections 1 and 2 only; "
             f"{len(H0_SEEDS)} clean seeds, {len(EFFECT_SEEDS)} seeds per hidden effect.")
         say("")
     false_alarms(say, clean_vaf)
@@ -443,9 +443,9 @@ def activation_why():
     as the EMG (the effect's form alone: what is left is the model, not the estimate); with
     an EMG made of the activation alone (no reflex bursts: the EMG's own noise). Writes
     results/diagnose_activation.txt."""
-    from lpvpc import effects as fx
-    from lpvpc.data import decimate_signal
-    from lpvpc.simulate import emg_envelope
+    from lpvpc.models import effects as fx
+    from lpvpc.io import decimate_signal
+    from lpvpc.simulation.simulate import emg_envelope
 
     lines = [f"Activation ladder against the clean model ({ACTIVATION_SUBJECT}), perturbation {PERTURBATION}; "
              f"python benchmarks/bench_diagnose.py --activation-why --seeds 0,{len(EFFECT_SEEDS)}", ""]
@@ -498,7 +498,7 @@ def _quiet_window_activation(emg, position, fs, cutoff=1.0):
     steps, interpolated across the bursts, low-passed at 1 Hz (the whole EMG without them)."""
     import scipy.signal
 
-    from lpvpc.effects import quiet_mask
+    from lpvpc.models.effects import quiet_mask
 
     n = len(emg)
     q = quiet_mask(position, fs)
@@ -514,7 +514,7 @@ def estimate_errors(say, seeds=range(3)):
     multilevel records at 100 Hz; each trial's EMG (UT: the second, tonic estimate); the bursts
     explained by lagged velocity hinges (no model) or by the reflex drive of a model identified
     on the same record (what diagnose and improve use)."""
-    from lpvpc.effects import signals_from_data
+    from lpvpc.models.effects import signals_from_data
 
     volts = SubjectParams().emg_volts
     say(f"Background-activation estimate against the true activation (60-s records, seeds {list(seeds)}): "
@@ -548,7 +548,7 @@ def relaxation_why(seeds=range(3)):
     share of the torque variance: the subject with the effect minus the same seed without)
     and how much of it falls in quiet windows (no perturbation movement for 150 ms), 60-s
     multilevel records. Writes results/diagnose_relaxation.txt."""
-    from lpvpc.effects import quiet_mask
+    from lpvpc.models.effects import quiet_mask
 
     lines = ["Stress relaxation per perturbation design (python benchmarks/bench_diagnose.py --relaxation-why; "
              f"60-s multilevel records, seeds {list(seeds)}): the effect's torque (with minus without, same seed) "

@@ -23,10 +23,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _results import write_results  # noqa: E402
-from lpvpc.simulate import PERTURBATIONS, simulate_pair
-from lpvpc.simulated_effects import EFFECTS
+from lpvpc.simulation.simulate import PERTURBATIONS, simulate_pair
+from lpvpc.simulation.simulated_effects import EFFECTS
 
-MIN_GAIN_PP = 0.15  # lpvpc.diagnose_candidates' smallest gain named without the strong-p tier
+MIN_GAIN_PP = 0.15  # lpvpc.diagnosis.candidates' smallest gain named without the strong-p tier
 
 
 def effect_share(effect, design, seed):

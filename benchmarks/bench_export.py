@@ -1,4 +1,4 @@
-"""Benchmark of the model export (lpvpc.export): export time, FMU stepping speed, CasADi
+"""Benchmark of the model export (lpvpc.export.exporter): export time, FMU stepping speed, CasADi
 whole-trajectory evaluation against the numpy prediction, and instantiate/reset/free cycles.
 
     python benchmarks/bench_export.py [--model model.json] [--repeats 5] [--cycles 2000]
@@ -35,8 +35,8 @@ from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 import lpvpc  # noqa: E402
-from lpvpc import export as ex  # noqa: E402
-from lpvpc.model import LPVPCModel, vaf  # noqa: E402
+from lpvpc.export import exporter as ex  # noqa: E402
+from lpvpc.models.model import LPVPCModel, vaf  # noqa: E402
 from _results import write_results  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "export.txt"
@@ -60,9 +60,9 @@ def rss_mb() -> float:
 
 
 def model_and_record(model_path):
-    from lpvpc.data import pair_trials
-    from lpvpc.identify import identify
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import pair_trials
+    from lpvpc.identification.identify import identify
+    from lpvpc.simulation.simulate import simulate_pair
 
     data = pair_trials(*(lambda p: (p.pt, p.ut))(simulate_pair("multilevel", seed=0)))
     if model_path:

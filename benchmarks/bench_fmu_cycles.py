@@ -2,7 +2,7 @@
 
 Uses the actuator FMU (FMI 2 and FMI 3; the wrapper's direct mode) and the exported model
 FMUs (sampled variant: the wrapper's sampled mode; exact: direct mode; the closed-loop form of
-the whole-joint model, lpvpc.closed_loop: direct mode on a 1 ms tick; FMI 2 and 3) through fmpy's
+the whole-joint model, lpvpc.export.closed_loop: direct mode on a 1 ms tick; FMI 2 and 3) through fmpy's
 FMU2Slave / FMU3Slave:
 
 - instance cycles: library loaded once; instantiate, initialize, step, get/serialize/
@@ -37,7 +37,7 @@ from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
-from lpvpc.actuator import build_actuator_fmu  # noqa: E402
+from lpvpc.export.actuator import build_actuator_fmu  # noqa: E402
 from _results import write_results  # noqa: E402
 
 CMD = 4  # the actuator's command; the model FMUs' position has the same value reference
@@ -45,10 +45,10 @@ CMD = 4  # the actuator's command; the model FMUs' position has the same value r
 
 def model_fmus(tmp: Path) -> dict:
     """{(variant, fmi): path} of the model FMUs of a model identified on the virtual subject."""
-    from lpvpc import export as ex
-    from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.identify import identify
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.export import exporter as ex
+    from lpvpc.io import load_identification_data, write_trial_csv
+    from lpvpc.identification.identify import identify
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=0)
     write_trial_csv(pair.pt, tmp / "PT.csv")
@@ -56,8 +56,8 @@ def model_fmus(tmp: Path) -> dict:
     model = identify(load_identification_data(pt=tmp / "PT.csv", ut=tmp / "UT.csv"))
     out = {(v, f): ex.export_fmu(model, tmp / f"model_{v}_{f}.fmu", fmi_version=f, variant=v)
            for v in ("sampled", "exact") for f in (2, 3)}
-    from lpvpc.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
-    from lpvpc.whole_joint import fit_whole_joint
+    from lpvpc.export.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
+    from lpvpc.export.whole_joint import fit_whole_joint
 
     wj = fit_whole_joint(model, pair.ut)
     cl = fit_closed_loop(wj, [distillation_trial(wj, pair.ut)])

@@ -36,10 +36,10 @@ from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Model  # noqa: E402
 from fmpy.fmi3 import FMU3Model  # noqa: E402
 
-from lpvpc import export as ex  # noqa: E402
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.export import exporter as ex  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 

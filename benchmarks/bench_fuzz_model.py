@@ -1,4 +1,4 @@
-"""Fuzz benchmark of the model loader (lpvpc.modelfile): random mutations of a real model file.
+"""Fuzz benchmark of the model loader (lpvpc.models.modelfile): random mutations of a real model file.
 
     python benchmarks/bench_fuzz_model.py [--model model.json] [--cases 5000] [--seed 0] [--no-limits]
 
@@ -12,7 +12,7 @@ passes when it either loads, and then predicts a finite torque on a short record
 refused with a one-line :class:`~lpvpc.errors.ModelFileError`; anything else (another
 exception, a multi-line message, a non-finite prediction) is counted as a traceback.
 
-It then measures what the largest model the limits let through costs (:mod:`lpvpc.modelfile`:
+It then measures what the largest model the limits let through costs (:mod:`lpvpc.models.modelfile`:
 MAX_LAG, MAX_DELAY, MAX_BASIS_ORDER, MAX_STATE_ORDER at 1 kHz): the CasADi and FMU export
 times of both variants, and the peak memory (tracemalloc) of predicting a 5-minute record
 with it, in blocks (the default) and as one block (what prediction did before).
@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from lpvpc.errors import ModelFileError  # noqa: E402
-from lpvpc.model import LPVPCModel  # noqa: E402
+from lpvpc.models.model import LPVPCModel  # noqa: E402
 from _results import write_results  # noqa: E402
 
 HOSTILE_VALUES = [0, -1, 1, 2, 3.9, -0.5, 1e300, -1e308, 1e-320, math.inf, -math.inf, math.nan, True, False, None,
@@ -160,8 +160,8 @@ def fuzz(base: dict, n_cases: int = 5000, seed: int = 0) -> dict:
 
 
 def limits_model(base: dict) -> dict:
-    """``base`` grown to every limit of lpvpc.modelfile (a stable reflex, small coefficients)."""
-    from lpvpc import modelfile as mf
+    """``base`` grown to every limit of lpvpc.models.modelfile (a stable reflex, small coefficients)."""
+    from lpvpc.models import modelfile as mf
 
     d = copy.deepcopy(base)
     rng = np.random.default_rng(0)
@@ -188,9 +188,9 @@ def at_the_limits(base: dict, minutes: float = 5.0) -> list:
     """Table lines: export times and prediction memory of :func:`limits_model`."""
     import tracemalloc
 
-    from lpvpc import equations as eq
-    from lpvpc import export
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models import equations as eq
+    from lpvpc.export import exporter as export
+    from lpvpc.models.model import LPVPCModel
 
     model = LPVPCModel.from_dict(limits_model(base), "limits model")
     lines = [f"{'model at the limits':>28}: {len(model.lags)} lags, causal lags 0..{max(model.causal_lags)}, delay "
@@ -235,10 +235,10 @@ def at_the_limits(base: dict, minutes: float = 5.0) -> list:
 def _virtual_subject_model(tmp, effects=False):
     """The virtual subject's model; ``effects``: an extended model with every catalog effect
     (from a subject with drift and background activation)."""
-    from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.effects import CATALOG
-    from lpvpc.identify import LPVPCEstimator
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import load_identification_data, write_trial_csv
+    from lpvpc.models.effects import CATALOG
+    from lpvpc.identification.identify import LPVPCEstimator
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=0, duration=60.0,
                          effects=("drift", "background_activation") if effects else ())

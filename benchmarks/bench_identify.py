@@ -46,8 +46,8 @@ sys.path.insert(0, str(ROOT))
 
 
 def subject_data(duration, seed=0):
-    from lpvpc.data import pair_trials
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import pair_trials
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=seed, duration=duration, fs_out=100.0)
     return pair_trials(pair.pt, pair.ut)
@@ -64,8 +64,8 @@ def _peak_rss_kib() -> float:
 def one_length(pt, ut):
     """Child process: load and identify one record from its files, print JSON with time and
     peak memory."""
-    from lpvpc.data import load_identification_data
-    from lpvpc.identify import identify
+    from lpvpc.io import load_identification_data
+    from lpvpc.identification.identify import identify
 
     data = load_identification_data(pt=pt, ut=ut)
     rss0 = _peak_rss_kib()
@@ -78,11 +78,11 @@ def one_length(pt, ut):
 
 
 def projection_comparison():
-    from lpvpc.basis import basis_from_data
-    from lpvpc import equations as eq
-    from lpvpc.identify import LPVPCEstimator, project_out_and_solve
-    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
-    from lpvpc.reflex import reflex_input_regressor, reflex_regressor
+    from lpvpc.models.basis import basis_from_data
+    from lpvpc.models import equations as eq
+    from lpvpc.identification.identify import LPVPCEstimator, project_out_and_solve
+    from lpvpc.models.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.models.reflex import reflex_input_regressor, reflex_regressor
 
     data = subject_data(120.0)
     est = LPVPCEstimator()
@@ -125,12 +125,12 @@ def speed_floor() -> list:
     the same from 100 Hz files of the same record."""
     import tempfile
 
-    from lpvpc import equations as eq
-    from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.identify import identify
-    from lpvpc.intrinsic import intrinsic_regressor
-    from lpvpc.reflex import reflex_input_regressor, reflex_regressor
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.models import equations as eq
+    from lpvpc.io import load_identification_data, write_trial_csv
+    from lpvpc.identification.identify import identify
+    from lpvpc.models.intrinsic import intrinsic_regressor
+    from lpvpc.models.reflex import reflex_input_regressor, reflex_regressor
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=0, duration=120.0, fs_out=1000.0)
     pair100 = simulate_pair("multilevel", seed=0, duration=120.0, fs_out=100.0)
@@ -153,7 +153,7 @@ def speed_floor() -> list:
     # The paper's subspace step (PO-MOESP) factors a block-Hankel matrix of the inputs and
     # torque, much wider than the final regressor: time that factorisation in one
     # identification, and keep its inputs for a bare least-squares solve of that matrix.
-    import lpvpc.subspace as subspace
+    import lpvpc.identification.subspace as subspace
 
     hankel = {}
     moesp_factor = subspace.moesp_factor
@@ -209,7 +209,7 @@ def _library_identify_time():
     library session (numpy imported first, as in a notebook)."""
     import warnings
 
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
 
     data = subject_data(120.0)
     with warnings.catch_warnings():
@@ -240,13 +240,13 @@ def bare_ls(pt, ut):
     step's block-Hankel matrix [U_f; U_p; Y_p; Y_f]^T at the default settings) and solve it
     by numpy lstsq (the last future output on the other columns); print JSON timings."""
     t0 = time.perf_counter()
-    from lpvpc import equations as eq
-    from lpvpc.basis import basis_from_data
-    from lpvpc.data import load_identification_data
-    from lpvpc.identify import LPVPCEstimator
-    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
-    from lpvpc.reflex import reflex_input_regressor
-    from lpvpc.subspace import hankel_rows
+    from lpvpc.models import equations as eq
+    from lpvpc.models.basis import basis_from_data
+    from lpvpc.io import load_identification_data
+    from lpvpc.identification.identify import LPVPCEstimator
+    from lpvpc.models.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.models.reflex import reflex_input_regressor
+    from lpvpc.identification.subspace import hankel_rows
 
     data = load_identification_data(pt=pt, ut=ut)
     t_load = time.perf_counter() - t0
@@ -283,8 +283,8 @@ def long_records(minutes=(2, 30)) -> list:
     seed-sized regressor from the same files, and its peak memory (< 1 GB at 30 minutes)."""
     import tempfile
 
-    from lpvpc.data import write_trial_csv
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import write_trial_csv
+    from lpvpc.simulation.simulate import simulate_pair
 
     lpvpc_cli = str(Path(sys.executable).parent / "lpvpc")
     lines = ["# Long records (issue 22): whole `lpvpc identify` process against the bare-LS floor "
@@ -338,7 +338,7 @@ def main():
                      "(this process counts as 1; ratios are from one run, so load affects both sides)")
         write_results("identify_floor.txt", lines, echo=True)
         return
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
 
     lines = ["# Identification speed and memory (python benchmarks/bench_identify.py)", ""]
     load_before = os.getloadavg()
@@ -358,8 +358,8 @@ def main():
     lines.append("|---|---|---|---|---|---|")
     import tempfile
 
-    from lpvpc.data import write_trial_csv
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import write_trial_csv
+    from lpvpc.simulation.simulate import simulate_pair
 
     for minutes in (2, 7.5, 15, 30):
         with tempfile.TemporaryDirectory() as tmp:

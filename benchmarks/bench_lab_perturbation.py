@@ -2,7 +2,7 @@
 
 The lab's pilot trial does not use the virtual subject's PRALDS (levels uniform in +-40 mrad:
 steps of every size). Its perturbation alternates between 0 and a pulse level of 20-42 mrad
-(``lpvpc.simulate.lab_pulses``, measured on ``pilot_ident.csv``): every step is large, so
+(``lpvpc.simulation.simulate.lab_pulses``, measured on ``pilot_ident.csv``): every step is large, so
 every stretch reaches a peak velocity of a few rad/s, far above a reflex threshold of a few
 tenths of a rad/s. Which reflex-nonlinearity paths still recover the reflex trends then?
 
@@ -39,10 +39,10 @@ from _results import write_results  # noqa: E402
 from bench_reflex_1k import slopes  # noqa: E402
 from real_data import real_data_dir  # noqa: E402
 
-from lpvpc.data import load_identification_data, load_trial  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import simulate_pair, write_dataset  # noqa: E402
+from lpvpc.io import load_identification_data, load_trial  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair, write_dataset  # noqa: E402
 
 DESIGNS = ("pralds", "lab_pulses")
 PATHS = {

@@ -22,10 +22,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import Trial, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.io import Trial, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 

@@ -21,10 +21,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 from lpvpc.validation import validate  # noqa: E402
 from lpvpc.validation.engines import ENGINES, available, run_portable_ssp  # noqa: E402
 from _results import write_results  # noqa: E402

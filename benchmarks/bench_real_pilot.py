@@ -16,7 +16,7 @@ low-passed at 50 Hz (zero-phase FIR on the 1 kHz position, identification and pr
 alike: does the position sensor's noise floor explain the loss?). Below the table, the
 1 kHz velocity's noise floor beside the virtual subject's.
 
-Channel skew (issue 22; lpvpc.channel_skew): the pilot's torque channel lags its position by
+Channel skew (issue 22; lpvpc.identification.channel_skew): the pilot's torque channel lags its position by
 ~1 ms. The default identify on the data aligned at the file's rate before decimation
 (``channel_skew``: 0.5, 1, 1.5 ms; the estimate of the identification part only, kept when it
 removes >= 2 % of the residual variance; 1 ms at the model rate for comparison), on the
@@ -52,12 +52,12 @@ sys.path.insert(0, str(HERE))
 from flexible_fit import FlexibleFit  # noqa: E402
 from real_data import require  # noqa: E402
 
-from lpvpc import channel_skew as CS  # noqa: E402
-from lpvpc.data import join_trials, load_identification_data, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.selection import level_folds  # noqa: E402
-from lpvpc.trial import Trial  # noqa: E402
+from lpvpc.identification import channel_skew as CS  # noqa: E402
+from lpvpc.io import join_trials, load_identification_data, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.identification.selection import level_folds  # noqa: E402
+from lpvpc.io.trial import Trial  # noqa: E402
 from _results import write_results  # noqa: E402
 
 
@@ -145,7 +145,7 @@ def main():
         lines.append(f"{name}: reflex gain " + ", ".join(f"{x:.1f}" for x in g) + " N m s/rad, threshold "
                      + ", ".join(f"{x:.2f}" for x in th) + " rad/s" + (", K(theta) " + ", ".join(
                          f"{x:.1f}" for x in m.elastic_stiffness(rho)) if m is high else ""))
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.simulation.simulate import simulate_pair
 
     sim = simulate_pair("multilevel", seed=0, duration=60.0)  # 1 kHz, noiseless position
     real_floor = velocity_floor(d.high_rate.position, d.high_rate.fs)
@@ -218,7 +218,7 @@ def late_torque(trial, n=1):
 
 def cv_skew_scores(data, candidates):
     """The rejected alternative: pooled CV VAF (%) of a fixed-structure model per candidate skew
-    (aligned at the model rate), folds = the interior levels of lpvpc.selection.level_folds
+    (aligned at the model rate), folds = the interior levels of lpvpc.identification.selection.level_folds
     (the end plateaus score extrapolation), and the one-standard-error choice nearest 0."""
     labels, _ = level_folds(data.scheduling, data.fs)
     folds = np.unique(labels)
@@ -266,7 +266,7 @@ def skew_section(path, raw) -> list:
             two, cau = dev(d, k)
             (lt, lc), used = lolo(path, raw, skew, cache)
             table.append((name, two, cau, lt, lc, used))
-    lines = ["## Channel skew: the torque channel's lag behind the position channel (lpvpc.channel_skew)",
+    lines = ["## Channel skew: the torque channel's lag behind the position channel (lpvpc.identification.channel_skew)",
              f"identify's scan of the identification part (first 70 %; the default model's structure and reflex "
              f"dynamics held): {scan.delay * 1e3:.2f} ms, removing {100 * scan.residual_reduction:.1f} % of the "
              f"residual variance (threshold {100 * CS.MIN_RESIDUAL_REDUCTION:g} %): in-sample VAF "
@@ -294,7 +294,7 @@ def skew_section(path, raw) -> list:
 
 
 def virtual_skew_lines(seeds=range(3)) -> list:
-    from lpvpc.simulate import SubjectParams, simulate_pair
+    from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
     truth = SubjectParams()
     lines = ["Virtual subject (2-minute multilevel records at 1 kHz, no skew; novel trajectory seed + 1000): identify's "
@@ -334,7 +334,7 @@ def virtual_scan_lines(seeds=range(3)) -> list:
     (2-minute multilevel records unless said); where it finds one, the default identify on the
     files lined up by it against as simulated: novel-trajectory VAF (its files lined up the
     same), causal form, mean K(theta) error."""
-    from lpvpc.simulate import SubjectParams, simulate_pair
+    from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
     truth = SubjectParams()
     designs = [("PRALDS, 1 kHz files", {}), ("PRALDS, 100 Hz files", {"fs_out": 100.0}),
@@ -372,7 +372,7 @@ def virtual_scan_lines(seeds=range(3)) -> list:
                     effects.append(f"seed {seed}: " + ", ".join(f"{a:.2f} -> {b:.2f}" for a, b in zip(*res)))
         lines.append(f"  {name:38} " + "; ".join(cells))
         lines += [f"      {e}" for e in effects]
-    from lpvpc.simulated_effects import EFFECTS
+    from lpvpc.simulation.simulated_effects import EFFECTS
 
     lines.append("the same on records with each hidden effect of the virtual subject's catalog (1 kHz files, seeds 0, 1; "
                  "'not scanned': the selection took an effect into the model)")
@@ -390,7 +390,7 @@ def virtual_scan_lines(seeds=range(3)) -> list:
 
 
 def cv_probe_lines(ident) -> list:
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.simulation.simulate import simulate_pair
 
     cand = np.array([0.0, 1e-3, 2e-3])
     sim = simulate_pair("multilevel", seed=0, duration=120.0)

@@ -5,7 +5,7 @@ Data: ``experimental_data.mat`` of the lab's public recordings (MATLAB ``nldat``
 read by the package's .mat reader, which uses the ``mat-io`` package). A stationary trial
 has no UT trial; two constructions of the perturbation data are run:
 
-- "means removed": the package's stationary reading (``lpvpc.data.stationary_perturbation``,
+- "means removed": the package's stationary reading (``lpvpc.io.stationary_perturbation``,
   ``--stationary``): position and torque minus their means, scheduling = the mean position;
 - "0.3 Hz trend removed": the slow part of position and torque (zero-phase 2nd-order
   Butterworth below 0.3 Hz) plays the UT trial's role and is subtracted from both.
@@ -18,7 +18,7 @@ and chooses the reflex delay with the IRF half-width by BIC on the first 70 %, s
 with a StationaryWarning), the package with the fixed 40 ms of moving trials
 (``stationary_delays=()``, what it did before) and the crude flexible least-squares fit
 (``flexible_fit.py``). Below it, how sure each difference is: its 95 % interval from the
-paired test of the held-out residuals that the diagnosis uses (``lpvpc.diagnose.paired_test``).
+paired test of the held-out residuals that the diagnosis uses (``lpvpc.diagnosis.diagnose.paired_test``).
 
 Then why the flexible fit can still win, on the means-removed data: the flexible fit with
 its reflex memory shortened or lengthened, with a linear (not nonlinear) velocity term, and
@@ -58,12 +58,12 @@ sys.path.insert(0, str(HERE))
 from flexible_fit import FlexibleFit  # noqa: E402
 from real_data import require  # noqa: E402
 
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc.basis import basis_from_data  # noqa: E402
-from lpvpc.data import PerturbationData, Trial, decimate_trial, load_trial, stationary_perturbation  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.models.basis import basis_from_data  # noqa: E402
+from lpvpc.io import PerturbationData, Trial, decimate_trial, load_trial, stationary_perturbation  # noqa: E402
 from lpvpc.errors import LpvpcError, StationaryWarning  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
 from _results import write_results  # noqa: E402
 
 NAMES = ("z_df", "z_pf", "z_df2", "z_df3", "z_pf2")
@@ -72,7 +72,7 @@ CONSTRUCTIONS = ("means removed", f"{TREND_HZ:g} Hz trend removed")
 
 
 def load(path):
-    """The trials through the package's own .mat reader (lpvpc.data.load_trial: nldat objects
+    """The trials through the package's own .mat reader (lpvpc.io.load_trial: nldat objects
     via mat-io), torque negated."""
     try:
         import matio  # noqa: F401
@@ -84,7 +84,7 @@ def load(path):
 
 
 def perturbation(trial, construction):
-    if construction == "means removed":  # the package's stationary reading (lpvpc.data.stationary_perturbation)
+    if construction == "means removed":  # the package's stationary reading (lpvpc.io.stationary_perturbation)
         return stationary_perturbation(trial, target_fs=100.0)
     pos, tq = trial.position, trial.torque
     b, a = scipy.signal.butter(2, TREND_HZ, fs=trial.fs)
@@ -209,11 +209,11 @@ def terms_table(trials):
 
 def difference_interval(y, a, b, fs, block_s, level=0.95):
     """``level`` interval of VAF(y, a) - VAF(y, b) (points) from the package's paired test of
-    held-out residuals (lpvpc.diagnose.paired_test: means over ``block_s``-s blocks, which
+    held-out residuals (lpvpc.diagnosis.diagnose.paired_test: means over ``block_s``-s blocks, which
     absorb the residuals' colour; the test the diagnosis judges its candidates by)."""
     import scipy.stats
 
-    from lpvpc.diagnose import paired_test
+    from lpvpc.diagnosis.diagnose import paired_test
 
     ra, rb = y - a, y - b
     diff = vaf(y, a) - vaf(y, b)
@@ -228,7 +228,7 @@ def uncertainty_table(trials, block_s=1.0):
     """Is each difference from the flexible fit larger than the held-out part's sampling
     uncertainty? (Both predictions as in the first table.)"""
     lines = ["", "# how sure the differences are: lpvpc - flexible held-out VAF (points) with its 95 % interval from the",
-             f"# paired test of the held-out residuals over {block_s:g}-s blocks (lpvpc.diagnose.paired_test, the",
+             f"# paired test of the held-out residuals over {block_s:g}-s blocks (lpvpc.diagnosis.diagnose.paired_test, the",
              "# diagnosis's test); 'clearly' when the interval excludes 0",
              f"{'construction':22} {'trial':6} {'diff':>6} {'95 % interval':>16}  verdict"]
     for construction in CONSTRUCTIONS:

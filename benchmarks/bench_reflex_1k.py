@@ -1,8 +1,8 @@
 """Reflex gain and threshold trends from 1 kHz files against 100 Hz files (issue 10, item 3).
 
 For each seed the virtual subject's identification and novel trials are written at 1 kHz
-(what a lab records) by the package's writer (``lpvpc.simulate.write_dataset``), and again
-at 100 Hz: the same trials read back, decimated by ``lpvpc.data.decimate_trial`` and written
+(what a lab records) by the package's writer (``lpvpc.simulation.simulate.write_dataset``), and again
+at 100 Hz: the same trials read back, decimated by ``lpvpc.io.decimate_trial`` and written
 by ``write_trial_csv`` (a lab's 100 Hz export of the same recording: same noise, so the two
 paths differ only in the velocity the reflex nonlinearity sees). Both are read through
 ``load_identification_data`` with default settings (model rate 100 Hz) and identified at
@@ -10,7 +10,7 @@ default settings:
 
 - 1 kHz files: the data keep the 1 kHz position (``PerturbationData.high_rate``) and the
   reflex nonlinearity is identified on the 1 kHz delayed velocity, its output decimated to
-  the model rate (``lpvpc.reflex.high_rate_input``);
+  the model rate (``lpvpc.models.reflex.high_rate_input``);
 - 100 Hz files: the nonlinearity sees the 100 Hz velocity (its threshold is biased).
 
 Figures per seed: the slopes over the central 80 % of the identified positions of the
@@ -24,7 +24,7 @@ identify time of each path (ratio in the same run).
 A third identification per seed takes the 1 kHz files with every default (the command line's
 ``identify``): issue 22 keeps its gain slope within 20 % as a floor and says where its
 threshold is not determined. Its structure selection chooses the velocity the nonlinearity
-sees (model rate, or 1 kHz with a Chebyshev or hinge basis: lpvpc.selection.compare_reflex_paths);
+sees (model rate, or 1 kHz with a Chebyshev or hinge basis: lpvpc.identification.selection.compare_reflex_paths);
 the table names the choice.
 
 Run: python benchmarks/bench_reflex_1k.py [n_seeds [first_seed]]   (default 10 seeds from 0; writes
@@ -44,10 +44,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import decimate_trial, load_identification_data, load_trial, write_trial_csv  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import SubjectParams, write_dataset  # noqa: E402
+from lpvpc.io import decimate_trial, load_identification_data, load_trial, write_trial_csv  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, write_dataset  # noqa: E402
 
 TRUTH = SubjectParams()
 
@@ -118,7 +118,7 @@ def main():
     lines = [
         f"# Reflex trends from 1 kHz files vs 100 Hz files (python benchmarks/bench_reflex_1k.py {n} {first})", "",
         "Slope over position of the identified rectifier gain / threshold as a ratio to the simulator's",
-        "(1 = exact, target 0.8-1.2). Files written by lpvpc.simulate.write_dataset, read by",
+        "(1 = exact, target 0.8-1.2). Files written by lpvpc.simulation.simulate.write_dataset, read by",
         "load_identification_data with default settings (model rate 100 Hz), identified with defaults.",
         "'1 kHz': the nonlinearity on the 1 kHz delayed velocity (PerturbationData.high_rate), decimated;",
         "'100 Hz': on the 100 Hz velocity. Novel VAF (%): '1 kHz' predicts the novel 1 kHz files (high-rate",
@@ -126,7 +126,7 @@ def main():
         "Time: load + identify (s), both paths in the same run.", "",
         "'defaults, 1 kHz files': identify(data) with every default (the command line's), whatever velocity",
         "the default's structure selection gives the nonlinearity ('default path'); 'determined': fraction of 9 central",
-        "positions where the gain / threshold is determined (lpvpc.uncertainty.reflex_determination).", "",
+        "positions where the gain / threshold is determined (lpvpc.models.uncertainty.reflex_determination).", "",
         "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | gain defaults, 1 kHz files | "
         "threshold defaults, 1 kHz files | default path | determined gain/threshold: defaults | 1 kHz | "
         "novel VAF 1 kHz | novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz | "

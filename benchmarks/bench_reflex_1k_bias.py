@@ -39,10 +39,10 @@ sys.path.insert(0, str(HERE))
 
 from _results import write_results  # noqa: E402
 
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
 from bench_reflex_1k import TRUTH, slopes  # noqa: E402  (one definition of the slope ratios)
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 
 
 def elastic_remainder(pt, ut):

@@ -13,9 +13,9 @@ reflex poles (rho-weighted reflex states and their second cascade). Per seed:
 2. The oracle: the base model's intrinsic regressor and the true time-varying low-pass of its
    drive (the perfect dynamics form; gain, nonlinearity and delay the model's), fitted on the
    identification record: held-out VAF, against the clean subject's base model.
-3. The ladder (lpvpc.improve) with the expansion about the base fit's reflex held (poles and
+3. The ladder (lpvpc.diagnosis.improve) with the expansion about the base fit's reflex held (poles and
    nonlinearity), and with both refitted jointly with the expansion's weights
-   (lpvpc.effects.REFIT_POLES, REFIT_DRIVE): the step's and the final held-out VAF.
+   (lpvpc.models.effects.REFIT_POLES, REFIT_DRIVE): the step's and the final held-out VAF.
 
 Identification on the 2-minute multilevel record (seed s), held out the novel record (s + 1),
 100 Hz, SNR 18 dB. Units: VAF %, gaps in percentage points. Writes
@@ -36,16 +36,16 @@ import warnings  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
-from lpvpc import effects as fx  # noqa: E402
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.improve import improve  # noqa: E402
-from lpvpc.intrinsic import curvature_regressor, intrinsic_regressor  # noqa: E402
+from lpvpc.models import effects as fx  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.diagnosis.improve import improve  # noqa: E402
+from lpvpc.models.intrinsic import curvature_regressor, intrinsic_regressor  # noqa: E402
 from lpvpc.linalg import orthonormal_range  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.physics import _tv_lowpass, reflex_lowpass_coefficients  # noqa: E402
-from lpvpc.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.physics import _tv_lowpass, reflex_lowpass_coefficients  # noqa: E402
+from lpvpc.simulation.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 warnings.simplefilter("ignore")
@@ -91,7 +91,7 @@ def oracle(model, ident, novel, ratio=3.0):
     the base model's drive z (its nonlinearity as the LTI fit left it), "nonlinearity refitted"
     of each column of the reflex input regressor U_r (Omega free). "LTI" (a check): the
     model's LTI low-pass, Omega free."""
-    from lpvpc.reflex import reflex_input_regressor
+    from lpvpc.models.reflex import reflex_input_regressor
 
     out = {}
     for form in ("drive held", "nonlinearity refitted", "LTI"):

@@ -31,10 +31,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc import simulate as sim  # noqa: E402
-from lpvpc.data import decimate_signal, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.simulation import simulate as sim  # noqa: E402
+from lpvpc.io import decimate_signal, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
 from _results import write_results  # noqa: E402
 
 RATES = (1000, 500, 200, 100)

@@ -1,6 +1,6 @@
 """Coverage of the 95 % intervals of a model with stress relaxation (issue 22): the
-short-range stiffness K (lpvpc.model.LPVPCModel.elastic_stiffness_interval) and the relaxed
-stiffness (lpvpc.uncertainty.relaxed_stiffness_interval), against the virtual subject's truth.
+short-range stiffness K (lpvpc.models.model.LPVPCModel.elastic_stiffness_interval) and the relaxed
+stiffness (lpvpc.models.uncertainty.relaxed_stiffness_interval), against the virtual subject's truth.
 
 Three paths: identify at the defaults (stress relaxation allowed: on or off and its term, one
 averaging time of a grid or the catalog's three, chosen by the cross-validation; the
@@ -42,16 +42,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.effects import model_relaxation_times  # noqa: E402
-from lpvpc.equations import relaxation_memory  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.uncertainty import relaxed_stiffness_interval  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.models.effects import model_relaxation_times  # noqa: E402
+from lpvpc.models.equations import relaxation_memory  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.models.uncertainty import relaxed_stiffness_interval  # noqa: E402
 from _results import RESULTS, write_results  # noqa: E402
 
 EFFECT = "stress_relaxation"
-RELAXED_FRACTION = 0.6  # of K, what a held displacement keeps on the relaxing subject (lpvpc.simulated_effects)
+RELAXED_FRACTION = 0.6  # of K, what a held displacement keeps on the relaxing subject (lpvpc.simulation.simulated_effects)
 
 
 PATHS = {  # how the model with stress relaxation is identified
@@ -142,7 +142,7 @@ def _fit_variant(data, *, times=None, order=None, joined=None, oracle=None):
     own relaxing torque, scaled; in place: a diagnostic only)."""
     import dataclasses
 
-    import lpvpc.effects as effects_module
+    import lpvpc.models.effects as effects_module
 
     entry, saved_memory = effects_module.CATALOG[EFFECT], effects_module.eq.relaxation_memory
     settings = {"effects": (EFFECT,)}
@@ -237,9 +237,9 @@ def real_trials():
     """Short-range and relaxed stiffness, fit and held-out VAF on the lab's stationary trials,
     stress relaxation forced: the shipped averages and each single time of TIME_GRID (order 0:
     one position)."""
-    import lpvpc.effects as effects_module
-    from lpvpc.effects import relaxation_stiffnesses
-    from lpvpc.model import vaf
+    import lpvpc.models.effects as effects_module
+    from lpvpc.models.effects import relaxation_stiffnesses
+    from lpvpc.models.model import vaf
 
     import bench_real_stationary as real
     from real_data import require
@@ -250,7 +250,7 @@ def real_trials():
     variants = [("0.3, 1, 3 s (shipped)", shipped)] + [(f"{t:g} s", (t,)) for t in TIME_GRID]
     lines = ["# Stress relaxation's time on the lab's stationary trials (LPVPC_REAL_DATA=... nice python "
              "benchmarks/bench_relaxed_stiffness.py --real)", "",
-             "experimental_data.mat, means removed (lpvpc.data.stationary_perturbation), torque negated, 100 Hz; "
+             "experimental_data.mat, means removed (lpvpc.io.stationary_perturbation), torque negated, 100 Hz; "
              "identify(first 70 %, effects=('stress_relaxation',)) with the averaging times varied; held-out: the "
              "last 30 %. Cells: short-range K / relaxed stiffness (N m/rad), fit VAF / held-out VAF (%).", "",
              "| trial | " + " | ".join(v for v, _ in variants) + " |", "|---" * (len(variants) + 1) + "|"]

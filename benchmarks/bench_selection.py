@@ -37,12 +37,12 @@ from _results import write_results  # noqa: E402
 from flexible_fit import FlexibleFit  # noqa: E402
 from real_data import real_data_dir  # noqa: E402
 
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc.basis import basis_from_data  # noqa: E402
-from lpvpc.data import join_trials, load_identification_data, pair_trials  # noqa: E402
-from lpvpc.identify import LPVPCEstimator  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.selection import level_folds  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.models.basis import basis_from_data  # noqa: E402
+from lpvpc.io import join_trials, load_identification_data, pair_trials  # noqa: E402
+from lpvpc.identification.identify import LPVPCEstimator  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.identification.selection import level_folds  # noqa: E402
 
 MIN_PIECE_S = 1.0  # training stretches shorter than this are left out (too short for the subspace step)
 
@@ -197,7 +197,7 @@ def development_split(d) -> list:
 
 
 def subject_section(seeds=range(5)) -> list:
-    from lpvpc.simulate import SubjectParams, simulate_pair
+    from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
     truth = SubjectParams()
     lines = ["## 2. Virtual subject: 2-minute multilevel records, novel trajectory predicted (seed + 1000)", "",

@@ -15,7 +15,7 @@ so a long run can be split and resumed; the table is printed from all records th
 Rules (first significant = the largest candidate passing; Bonferroni 0.1 / applicable
 candidates; 0.15 pp, or 0.09 pp at a tenth of the level): the t test alone (before); the
 signed rank alone; the smaller p doubled; the same with the small-gain tier on the t test's
-p alone (lpvpc.diagnose_cv.robust_paired_test with lpvpc.diagnose_candidates.passes, now).
+p alone (lpvpc.diagnosis.cv.robust_paired_test with lpvpc.diagnosis.candidates.passes, now).
 A position-dependent reflex delay and dynamics, tied on torque, count for each other; stress
 relaxation absent from the candidates (identify put it in the model) counts as found. The
 full ranking (conditional ranking, ties, leak checks) can differ: bench_diagnose.py has it.
@@ -33,7 +33,7 @@ import scipy.stats
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-SMALL, STRONG, MIN_GAIN, ALPHA, BLOCK = 0.6, 10.0, 0.15, 0.1, 200  # as lpvpc.diagnose_candidates; 2 s at 100 Hz
+SMALL, STRONG, MIN_GAIN, ALPHA, BLOCK = 0.6, 10.0, 0.15, 0.1, 200  # as lpvpc.diagnosis.candidates; 2 s at 100 Hz
 TIED = {"position_dependent_reflex_delay", "position_dependent_reflex_dynamics"}
 
 
@@ -53,9 +53,9 @@ def _bench_diagnose(design):
 
 def diagnose_records(design, jobs, out):
     B = _bench_diagnose(design)
-    from lpvpc.diagnose import diagnose
-    from lpvpc.diagnose_cv import paired_test
-    from lpvpc.identify import LPVPCEstimator
+    from lpvpc.diagnosis.diagnose import diagnose
+    from lpvpc.diagnosis.cv import paired_test
+    from lpvpc.identification.identify import LPVPCEstimator
 
     with open(out, "a") as fh:
         for name, seed in jobs:

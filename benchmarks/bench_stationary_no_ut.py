@@ -3,9 +3,9 @@ operating point cost?
 
 For each seed the virtual subject's stationary experiment (one operating position, 60 s at
 1 kHz, decimated to 100 Hz) is identified twice on its first 70 % and judged on the last
-30 %: from the PT/UT pair as recorded (lpvpc.data.pair_trials), and from the PT trial alone
+30 %: from the PT/UT pair as recorded (lpvpc.io.pair_trials), and from the PT trial alone
 with the operating point and torque offset taken as its means
-(lpvpc.data.stationary_perturbation, what ``--stationary`` does). Printed: the elastic
+(lpvpc.io.stationary_perturbation, what ``--stationary`` does). Printed: the elastic
 stiffness K at the operating position (N m/rad) and the held-out VAF (%) of both.
 
 Run: python benchmarks/bench_stationary_no_ut.py [n_seeds]
@@ -24,10 +24,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import pair_trials, stationary_perturbation  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.io import pair_trials, stationary_perturbation  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 """Reflex threshold intervals: the shipped rule against the rules tried before and beside it.
 
-The shipped threshold interval (lpvpc.uncertainty.reflex_interval) inverts the test of each
+The shipped threshold interval (lpvpc.models.uncertainty.reflex_interval) inverts the test of each
 candidate threshold t with the velocity basis's knee-rounding shift s(t) of that t. Before, s
 was taken at the estimate, and the interval covered 97-99.4 % at every default from 1 kHz files
 (over the 99 % ceiling on the piecewise family) and 93-95 % on the explicit 1 kHz path. This
@@ -37,12 +37,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import lpvpc.uncertainty as U  # noqa: E402
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.reflex import rectifier_fit  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.subject import STIFFNESS_FAMILIES  # noqa: E402
+import lpvpc.models.uncertainty as U  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.reflex import rectifier_fit  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.simulation.subject import STIFFNESS_FAMILIES  # noqa: E402
 from _results import write_results  # noqa: E402
 
 LEVEL = 0.95

@@ -42,13 +42,13 @@ sys.path.insert(0, str(HERE))
 from _results import write_results  # noqa: E402
 from bench_reflex_1k import TRUTH, slopes  # noqa: E402
 
-from lpvpc import equations as eq  # noqa: E402
-from lpvpc.data import decimate_signal, load_identification_data  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.intrinsic import curvature_regressor, intrinsic_regressor  # noqa: E402
+from lpvpc.models import equations as eq  # noqa: E402
+from lpvpc.io import decimate_signal, load_identification_data  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.intrinsic import curvature_regressor, intrinsic_regressor  # noqa: E402
 from lpvpc.linalg import orthonormal_range  # noqa: E402
-from lpvpc.reflex import reflex_regressor  # noqa: E402
-from lpvpc.simulate import write_dataset  # noqa: E402
+from lpvpc.models.reflex import reflex_regressor  # noqa: E402
+from lpvpc.simulation.simulate import write_dataset  # noqa: E402
 
 CONDITIONS = (("2 min, 18 dB", 120.0, 18.0), ("8 min, 18 dB", 480.0, 18.0), ("2 min, noise-free", 120.0, None))
 

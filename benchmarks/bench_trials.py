@@ -6,7 +6,7 @@ out) and by K(theta) over the central 80 % of the identified range, against the 
 the whole record:
 
 - whole: the record as one trial;
-- halves: its two halves as two trials (lpvpc.data.join_trials);
+- halves: its two halves as two trials (lpvpc.io.join_trials);
 - 8 pieces, shuffled, as trials: nothing may cross a seam, so this should match the
   8 pieces in their own order (the joint problem is the sum of the trials' problems);
 - 8 pieces, shuffled, put naively end to end (no segments): the seams become jumps in
@@ -30,10 +30,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import PerturbationData, join_trials, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.io import PerturbationData, join_trials, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 from _results import write_results  # noqa: E402
 
 N_PIECES = 8

@@ -2,7 +2,7 @@
 
 For each seed: simulate an identification pair (1 kHz, paired and decimated as the loaders
 do), identify at default settings (which now computes the HAC covariance,
-lpvpc.uncertainty), and check whether the 95 % intervals of K(theta), reflex gain and
+lpvpc.models.uncertainty), and check whether the 95 % intervals of K(theta), reflex gain and
 threshold, viscosity and inertia contain the virtual subject's true values at 9 positions
 over the central 80 % of the identified range.
 
@@ -42,10 +42,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc.data import pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import SubjectParams, simulate_pair  # noqa: E402
-from lpvpc.uncertainty import Interval  # noqa: E402
+from lpvpc.io import pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair  # noqa: E402
+from lpvpc.models.uncertainty import Interval  # noqa: E402
 from _results import write_results  # noqa: E402
 
 N_POS = 9

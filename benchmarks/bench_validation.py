@@ -36,13 +36,13 @@ import casadi  # noqa: E402
 import fmpy  # noqa: E402
 
 import lpvpc  # noqa: E402
-from lpvpc.actuator import build_actuator_fmu  # noqa: E402
-from lpvpc.data import Trial, decimate_trial, load_identification_data, load_trial, pair_trials  # noqa: E402
+from lpvpc.export.actuator import build_actuator_fmu  # noqa: E402
+from lpvpc.io import Trial, decimate_trial, load_identification_data, load_trial, pair_trials  # noqa: E402
 from lpvpc.errors import FMUError, OutOfRangeWarning  # noqa: E402
-from lpvpc.export import export_fmu, latency_samples  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import write_dataset  # noqa: E402
+from lpvpc.export.exporter import export_fmu, latency_samples  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import write_dataset  # noqa: E402
 from lpvpc.validation import CosimSettings, validate  # noqa: E402
 from lpvpc.validation.cosim import run_cosimulation  # noqa: E402
 from lpvpc.validation.fmu import inspect_fmu  # noqa: E402

@@ -1,4 +1,4 @@
-"""Benchmark of the whole-joint model (lpvpc.whole_joint): angle in, total torque out.
+"""Benchmark of the whole-joint model (lpvpc.export.whole_joint): angle in, total torque out.
 
     python benchmarks/bench_whole_joint.py [--seeds 3]
 
@@ -25,11 +25,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lpvpc import whole_joint as W  # noqa: E402
-from lpvpc.data import decimate_trial, pair_trials  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.model import vaf  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.export import whole_joint as W  # noqa: E402
+from lpvpc.io import decimate_trial, pair_trials  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.models.model import vaf  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 from lpvpc.validation.whole_joint import fmu_replay  # noqa: E402
 from _results import write_results  # noqa: E402
 

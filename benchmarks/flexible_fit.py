@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lpvpc import equations as eq
-from lpvpc.basis import basis_from_data
+from lpvpc.models import equations as eq
+from lpvpc.models.basis import basis_from_data
 
 
 class FlexibleFit:

@@ -9,9 +9,9 @@ pushes back with the model's torque (positive resists dorsiflexion):
 
 The optimiser finds u so that the angle follows a target movement: a 0.2 rad dorsiflexion and
 back, minimum-jerk, from a held -0.15 rad. The ankle model is the closed-loop form's CasADi tick
-function (lpvpc.closed_loop.closed_loop_step, 1 ms per call). Its state and the plant's state are
+function (lpvpc.export.closed_loop.closed_loop_step, 1 ms per call). Its state and the plant's state are
 decision variables (multiple shooting, so the problem stays sparse). The profile is then applied,
-unchanged and without feedback, to the virtual subject (lpvpc.compliant_loop: the subject's physics
+unchanged and without feedback, to the virtual subject (lpvpc.simulation.compliant_loop: the subject's physics
 with its torque fed back) and the angle it produces is compared with the target.
 
 Run: python examples/assistance_profile.py  (identifies a model from simulated trials first)
@@ -44,8 +44,8 @@ def design_profile(cl, target: np.ndarray, smoothness: float = 1e-6):
     ``cl`` follow ``target`` (rad); returns (profile, the model's predicted angle)."""
     import casadi as ca
 
-    from lpvpc.closed_loop import closed_loop_step
-    from lpvpc.export import trajectory_function
+    from lpvpc.export.closed_loop import closed_loop_step
+    from lpvpc.export.exporter import trajectory_function
 
     step = closed_loop_step(cl)
     n, nx = len(target), step.size1_in(0)
@@ -81,7 +81,7 @@ def design_profile(cl, target: np.ndarray, smoothness: float = 1e-6):
 
 def check_on_subject(profile: np.ndarray, target: np.ndarray):
     """The profile applied to the virtual subject in the loop (no feedback controller): the angle."""
-    from lpvpc.compliant_loop import LoopSetup, VirtualSubject, run_loop
+    from lpvpc.simulation.compliant_loop import LoopSetup, VirtualSubject, run_loop
 
     run = run_loop(VirtualSubject(), target, LoopSetup(device_inertia=DEVICE_INERTIA, kp=0.0, kd=0.0),
                    assist=profile)
@@ -92,12 +92,12 @@ def main(seed: int = 0, duration: float = 60.0) -> dict:
     """Identify (simulated PT/UT trials), fit the closed-loop form, design, check; returns the figures."""
     import warnings
 
-    from lpvpc.closed_loop import distillation_trial, fit_closed_loop
-    from lpvpc.data import pair_trials
-    from lpvpc.identify import identify
-    from lpvpc.model import vaf
-    from lpvpc.simulate import simulate_pair
-    from lpvpc.whole_joint import fit_whole_joint
+    from lpvpc.export.closed_loop import distillation_trial, fit_closed_loop
+    from lpvpc.io import pair_trials
+    from lpvpc.identification.identify import identify
+    from lpvpc.models.model import vaf
+    from lpvpc.simulation.simulate import simulate_pair
+    from lpvpc.export.whole_joint import fit_whole_joint
 
     sim = simulate_pair("multilevel", seed=seed, duration=duration, fs_out=100.0)
     with warnings.catch_warnings():

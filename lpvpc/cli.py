@@ -28,7 +28,7 @@ paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit s
 for bad input (1 for other failures); out-of-range and unit warnings as one line
 ``lpvpc: warning: <message>`` each. Command-line usage errors exit 2.
 
-Outputs (:mod:`lpvpc.outputs`): every command's inputs and outputs are declared in
+Outputs (:mod:`lpvpc.io.outputs`): every command's inputs and outputs are declared in
 :data:`COMMAND_IO` and checked before any work: no output may be, link to or contain one of
 the command's inputs, and its folder must exist and be writable (exit 2, one line); files
 are written to a temporary file and renamed, report folders built beside and swapped in;
@@ -52,7 +52,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import LpvpcError, LpvpcWarning
-from .outputs import CommandIO, atomic_path, staged_folder, write_text
+from .io.outputs import CommandIO, atomic_path, staged_folder, write_text
 from .progress import report as progress
 
 PROG = "lpvpc"
@@ -130,8 +130,8 @@ def _listed(value) -> list:
 def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, channel_skew=0.0):
     """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
     loader); several files (identify) are joined as trials of one identification; the
-    channel skew (s or "auto") undone at the files' rate (lpvpc.channel_skew)."""
-    from .channel_skew import load_aligned
+    channel skew (s or "auto") undone at the files' rate (lpvpc.identification.channel_skew)."""
+    from .identification.channel_skew import load_aligned
 
     data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
     stationary = getattr(args, "stationary", False)
@@ -168,7 +168,7 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
-# (lpvpc.outputs.CommandIO) checks these before the command runs. A new command or file
+# (lpvpc.io.outputs.CommandIO) checks these before the command runs. A new command or file
 # option needs its entry here (tests/test_output_policy.py fails without it).
 _DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
 COMMAND_IO = {
@@ -202,7 +202,7 @@ def check_report_folder(folder, markers, force) -> None:
 
 
 def _estimator_defaults() -> dict:
-    from .identify import LPVPCEstimator
+    from .identification.identify import LPVPCEstimator
 
     return {k: p.default for k, p in inspect.signature(LPVPCEstimator.__init__).parameters.items()
             if k != "self"}
@@ -212,7 +212,7 @@ def _estimator_defaults() -> dict:
 
 
 def cmd_simulate(args) -> int:
-    from .simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
+    from .simulation.simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
 
     unknown = [e for e in args.effect if e not in EFFECTS]
     if unknown:
@@ -224,7 +224,7 @@ def cmd_simulate(args) -> int:
         raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
     if args.duration * args.fs < 100:
         raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
-    from .subject import STIFFNESS_FAMILIES
+    from .simulation.subject import STIFFNESS_FAMILIES
 
     if args.stiffness_family not in STIFFNESS_FAMILIES:
         raise _UsageError(f"unknown stiffness family {args.stiffness_family!r} (known: {', '.join(STIFFNESS_FAMILIES)})")
@@ -241,7 +241,7 @@ def cmd_simulate(args) -> int:
 
 
 def _check_effect_names(names) -> tuple:
-    from .effects import CATALOG, SETTINGS
+    from .models.effects import CATALOG, SETTINGS
 
     names = tuple(names or ())
     unknown = [e for e in names if e not in CATALOG]
@@ -256,7 +256,7 @@ def _check_effect_names(names) -> tuple:
 
 def _check_allowed_effects(names) -> tuple:
     """--allow-effect names ("none": no effect is offered to the selection)."""
-    from .selection import cv_effect_problem
+    from .identification.selection import cv_effect_problem
 
     if list(names) == ["none"]:
         return ()
@@ -282,11 +282,11 @@ def cmd_identify(args) -> int:
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
     if settings.get("structure", "cv") == "cv":  # (the default) what the user wrote is not selected
-        from .selection import REFLEX_PATH_SETTINGS, SEARCH
+        from .identification.selection import REFLEX_PATH_SETTINGS, SEARCH
 
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags"
                                             or k in REFLEX_PATH_SETTINGS)
-    from .identify import LPVPCEstimator
+    from .identification.identify import LPVPCEstimator
 
     try:  # a bad setting in one line, before any file is read
         LPVPCEstimator(**settings).check_settings()
@@ -300,7 +300,7 @@ def cmd_identify(args) -> int:
     with warnings.catch_warnings(record=True) as caught:  # the first fit's (as filtered): shown unless it is redone
         est = _identified(data, settings)
     if "channel_skew" in est.model_.fit:  # (the fit scanned its record for a skew)
-        from .skew_scan import skew_from_dict
+        from .identification.skew_scan import skew_from_dict
 
         found = skew_from_dict(est.model_.fit["channel_skew"])
         if found.chosen and skew == "auto":  # the files again, lined up at their own rate, and the fit again
@@ -326,7 +326,7 @@ def cmd_identify(args) -> int:
     trials = f"{len(data.segments)} trials, " if data.segments else ""
     print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")
-    from .channel_skew import MIN_RESIDUAL_REDUCTION
+    from .identification.channel_skew import MIN_RESIDUAL_REDUCTION
 
     choice = data.meta.get("channel_skew_choice")
     skew = data.meta.get("channel_skew_s", 0.0)
@@ -368,7 +368,7 @@ def cmd_identify(args) -> int:
 def _identified(data, settings):
     """The fitted estimator (identify's fit, with its progress line when it takes long); a
     skew the fit finds is the caller's to undo (--channel-skew-ms auto), not a warning."""
-    from .identify import LPVPCEstimator, with_base_model_activation
+    from .identification.identify import LPVPCEstimator, with_base_model_activation
 
     data = with_base_model_activation(data, settings)  # activation as predict estimates it (one extra fit)
     est = LPVPCEstimator(**settings)
@@ -416,7 +416,7 @@ def _selection_summary(sel) -> list:
         return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
                          f"{short.get(k, k)} {v}" for k, v in s.items())
 
-    def effects(row):  # the allowed effects a row switches on (lpvpc.identify: on/off candidates)
+    def effects(row):  # the allowed effects a row switches on (lpvpc.identification.identify: on/off candidates)
         return "" if "effects" not in row else f", effects {'+'.join(row['effects']) or 'none'}"
 
     chosen_effects = sel["effects"]["chosen"] if sel.get("effects") else None
@@ -441,7 +441,7 @@ def _selection_summary(sel) -> list:
 
 
 def _effects_cv_summary(entry, head="effects cv: ") -> list:
-    """Lines of the allowed effects' choice (lpvpc.identify: on/off candidates of the selection),
+    """Lines of the allowed effects' choice (lpvpc.identification.identify: on/off candidates of the selection),
     or of a forced stress relaxation's term (``head``)."""
     if not entry or not entry.get("allowed"):
         return []
@@ -485,7 +485,7 @@ def _physical_summary(model) -> list:
     bias = (f" (threshold biased: rectifier seen on {model.nonlinearity_fs:g} Hz velocity)"
             if model.reflex_threshold_biased else "")
     s = model.settings
-    from .uncertainty import NOT_DETERMINED
+    from .models.uncertainty import NOT_DETERMINED
 
     g_ok, th_ok = model.reflex_determined(rho[[0, -1]])  # where an interval spans most of the plausible range
     gain = [f"{g:.2f}" if ok else NOT_DETERMINED for g, ok in zip(gain, g_ok)]
@@ -514,9 +514,9 @@ def _physical_summary(model) -> list:
 def cmd_predict(args) -> int:
     import numpy as np
 
-    from .data import RATE_TOLERANCE
+    from .io import RATE_TOLERANCE
     from .errors import DataError
-    from .model import LPVPCModel, vaf
+    from .models.model import LPVPCModel, vaf
 
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
@@ -529,7 +529,7 @@ def cmd_predict(args) -> int:
                         source=data.source or None)
     signals = {}
     if model.effects:  # an extended model takes its extra channels from the data
-        from .effects import signals_from_data
+        from .models.effects import signals_from_data
 
         signals = signals_from_data(data, model)  # activation with the model's reflex drive, as improve fits it
     pred = model.predict(data, causal=args.causal, signals=signals)  # a 1 kHz reflex model: its 1 kHz path
@@ -566,17 +566,17 @@ def cmd_predict(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .model import LPVPCModel
+    from .models.model import LPVPCModel
 
     if not (args.casadi or args.fmu):
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
     model = LPVPCModel.load(args.model)
     try:
-        from . import export
+        from .export import exporter as export
     except ModuleNotFoundError as exc:
         if exc.name != f"{__package__}.export":
             raise
-        raise LpvpcError("export is not available in this installation (module lpvpc.export missing)") from None
+        raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter missing)") from None
     variant = "exact" if args.exact else args.variant
     if args.casadi:
         t0 = time.perf_counter()
@@ -584,7 +584,7 @@ def cmd_export(args) -> int:
         print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
         import casadi
 
-        from .effects import SIGNALS
+        from .models.effects import SIGNALS
 
         units = {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
                  "state": "the previous step's next_state", **{k: u for k, (u, _) in SIGNALS.items()}}
@@ -626,8 +626,8 @@ def _fmu_interface(path, model) -> list:
 
 
 def cmd_whole_joint(args) -> int:
-    from . import whole_joint as W
-    from .model import LPVPCModel
+    from .export import whole_joint as W
+    from .models.model import LPVPCModel
 
     if args.pt and not args.closed_loop:
         raise _UsageError("--pt is used by --closed-loop only (the whole-joint curve is fitted to the UT trial)")
@@ -658,7 +658,7 @@ def cmd_whole_joint(args) -> int:
 def _trial_with_conventions(path, args, conv):
     """One trial read with the command line's units and torque sign, else the model's own
     (whole-joint's UT trial and --closed-loop's PT trial alike)."""
-    from .data import load_trial
+    from .io import load_trial
 
     return load_trial(path, position_unit=args.position_unit or conv.get("position_unit", "rad"),
                       time_unit=args.time_unit or conv.get("time_unit", "s"),
@@ -668,8 +668,8 @@ def _trial_with_conventions(path, args, conv):
 
 
 def _closed_loop(args, wj, ut, conv) -> int:
-    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.closed_loop)."""
-    from . import closed_loop as CL
+    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.closed_loop)."""
+    from .export import closed_loop as CL
 
     if args.pt:
         pt = _trial_with_conventions(args.pt, args, conv)
@@ -697,7 +697,7 @@ def _closed_loop(args, wj, ut, conv) -> int:
 
 def _channel_skew(text):
     """--channel-skew-ms: a number (ms) or 'auto', as the loaders' channel_skew (s or 'auto')."""
-    if text is None or text == "auto":  # (the default: found by identify's scan, lpvpc.channel_skew)
+    if text is None or text == "auto":  # (the default: found by identify's scan, lpvpc.identification.channel_skew)
         return "auto"
     try:
         value = float(text)
@@ -711,8 +711,8 @@ def _channel_skew(text):
 
 def _position_delay(args, wj, conv) -> float:
     """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
-    from . import closed_loop as CL
-    from .data import load_identification_data
+    from .export import closed_loop as CL
+    from .io import load_identification_data
 
     text = args.position_delay_ms
     if text is None:
@@ -831,8 +831,8 @@ def _load_for_model(args, model):
 
 
 def cmd_diagnose(args) -> int:
-    from .diagnose import diagnose, format_table, write_report
-    from .model import LPVPCModel
+    from .diagnosis.diagnose import diagnose, format_table, write_report
+    from .models.model import LPVPCModel
 
     if args.report:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
@@ -869,7 +869,7 @@ def cmd_diagnose(args) -> int:
 
 
 def cmd_improve(args) -> int:
-    from .improve import improve, write_report
+    from .diagnosis.improve import improve, write_report
 
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
@@ -1009,7 +1009,7 @@ def _add_time_unit_arg(p, default):
 
 def _channel_options(args) -> dict | None:
     """--channel ROLE=NAME options as {role: name} (None when none are given)."""
-    from .matfiles import parse_channel_options
+    from .io.matfiles import parse_channel_options
 
     try:
         return parse_channel_options(getattr(args, "channel", None)) or None
@@ -1314,7 +1314,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _effect_names():
-    from .effects import CATALOG
+    from .models.effects import CATALOG
 
     return list(CATALOG)
 
@@ -1330,8 +1330,8 @@ class _SimulateHelp(argparse.HelpFormatter):
 
 def _simulated_effects() -> str:
     """The simulator's effects: those of the catalog (identify --effect), then the others."""
-    from .effects import CATALOG
-    from .simulate import EFFECTS
+    from .models.effects import CATALOG
+    from .simulation.simulate import EFFECTS
 
     outside = [e for e in EFFECTS if e not in CATALOG]
     return (", ".join(e for e in CATALOG if e in EFFECTS)

@@ -68,7 +68,7 @@ def _central_positions(model, n):
 def _perturbation_truth(trials_npz, target_fs):
     """Noise-free perturbation torque and its intrinsic and reflex parts (N m), through the
     same PT-UT pairing and decimation as the measured data."""
-    from .data import Trial, pair_trials
+    from .io import Trial, pair_trials
 
     z = np.load(trials_npz)
     t, pt_pos, ut_pos = z["time"], z["pt_position"], z["ut_position"]
@@ -108,10 +108,10 @@ def run(outdir) -> int:
     import matplotlib.pyplot as plt
 
     from . import plotting
-    from .data import load_identification_data
-    from .identify import LPVPCEstimator
-    from .model import vaf
-    from .simulate import SubjectParams, write_dataset
+    from .io import load_identification_data
+    from .identification.identify import LPVPCEstimator
+    from .models.model import vaf
+    from .simulation.simulate import SubjectParams, write_dataset
 
     t_start = time.perf_counter()
     outdir = Path(outdir)
@@ -213,11 +213,11 @@ def run(outdir) -> int:
     _section("6. Export")
     fmu_path = None
     try:
-        from . import export
+        from .export import exporter as export
     except ModuleNotFoundError as exc:
         if exc.name != f"{__package__}.export":
             raise
-        _say("lpvpc.export is not available in this installation: skipped")
+        _say("lpvpc.export.exporter is not available in this installation: skipped")
     else:
         t0 = time.perf_counter()
         export.export_casadi(model, outdir / "model.casadi")
@@ -256,9 +256,9 @@ HIDDEN_EFFECT = "direction_dependent_stiffness"
 
 def _improve(outdir):
     """Step 8: the improve loop on a hidden-effect data set; returns the report's path."""
-    from .data import load_identification_data
-    from .improve import improve, write_report
-    from .simulate import EFFECTS, write_dataset
+    from .io import load_identification_data
+    from .diagnosis.improve import improve, write_report
+    from .simulation.simulate import EFFECTS, write_dataset
 
     _section("8. What is the model missing? The improve loop on data with a hidden effect")
     t0 = time.perf_counter()
@@ -292,9 +292,9 @@ def _closed_loop(outdir, model, paths, params):
     virtual subject and the replay FMU; returns the page's path."""
     from lpvpc.validation.closed_loop import evaluate_closed_loop, write_closed_loop_report
 
-    from .closed_loop import distillation_trial, fit_closed_loop
-    from .data import load_trial
-    from .whole_joint import fit_whole_joint
+    from .export.closed_loop import distillation_trial, fit_closed_loop
+    from .io import load_trial
+    from .export.whole_joint import fit_whole_joint
 
     _section("9. Closed loop: the ankle model's torque moves the foot")
     t0 = time.perf_counter()

@@ -13,7 +13,7 @@ class LpvpcError(Exception):
     Catch every error lpvpc raises on purpose with this class; ``exit_status`` is what the
     command line exits with (2: bad input):
 
-    >>> from lpvpc.data import PerturbationData
+    >>> from lpvpc.io import PerturbationData
     >>> try:
     ...     PerturbationData(position=[0.0, float("nan")], torque=[0.0, 1.0], scheduling=[0.0, 0.0], fs=100.0)
     ... except LpvpcError as exc:
@@ -88,7 +88,7 @@ class IdentificationError(LpvpcError, RuntimeError):
 class ModelFileError(LpvpcError, ValueError):
     """A saved model file is missing, corrupt or of an unknown format version.
 
-    >>> from lpvpc.model import LPVPCModel
+    >>> from lpvpc.models.model import LPVPCModel
     >>> LPVPCModel.from_dict({"format": "something else"})
     Traceback (most recent call last):
     ...
@@ -101,7 +101,7 @@ class ModelFileError(LpvpcError, ValueError):
 class ExportError(LpvpcError, RuntimeError):
     """Code generation, compilation or packaging of an export failed.
 
-    >>> from lpvpc.fmu_build import FmuVariable, build_fmu
+    >>> from lpvpc.export.fmu_build import FmuVariable, build_fmu
     >>> build_fmu("x.fmu", model_identifier="1bad", system_sources=[], nx=1, step_size=0.01,
     ...           outputs=[FmuVariable("torque", "output", "N.m")], inputs=[], parameters=[])
     Traceback (most recent call last):
@@ -146,7 +146,7 @@ class UnitWarning(LpvpcWarning):
 
     >>> import tempfile, warnings
     >>> import numpy as np
-    >>> from lpvpc.data import Trial, load_trial, write_trial_csv
+    >>> from lpvpc.io import Trial, load_trial, write_trial_csv
     >>> t = np.arange(500) / 100.0
     >>> with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings(record=True) as caught:
     ...     warnings.simplefilter("always")
@@ -161,7 +161,7 @@ class PhysiologyWarning(LpvpcWarning):
     """An identified model is physiologically implausible (e.g. negative elastic stiffness
     over most of the range: usually a reversed torque sign convention).
 
-    >>> issubclass(PhysiologyWarning, LpvpcWarning)  # see lpvpc.identify.check_physiology
+    >>> issubclass(PhysiologyWarning, LpvpcWarning)  # see lpvpc.identification.identify.check_physiology
     True
     """
 

@@ -6,7 +6,7 @@ is None, and returns the :class:`matplotlib.figure.Figure` it drew into (its axe
 choose one (``matplotlib.use("Agg")`` for files).
 
 Figures of the identified model show what the data support: confidence bands where the
-model carries intervals (:mod:`lpvpc.uncertainty`), a strip with the density of the
+model carries intervals (:mod:`lpvpc.models.uncertainty`), a strip with the density of the
 scheduling variable and delayed velocity seen at identification under Figs. 4 and 5A
 (``model.fit["data_density"]``), and curves only where there were data.
 
@@ -114,7 +114,7 @@ def _position_colours(n):
 def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=None):
     """Measured vs predicted perturbation torque (N m) over time (s) (Fig. 3).
 
-    ``prediction`` is a :class:`lpvpc.model.Prediction` (total, intrinsic, reflex) or an
+    ``prediction`` is a :class:`lpvpc.models.model.Prediction` (total, intrinsic, reflex) or an
     array of predicted total torque. Layout:
 
     - ``ax`` None: three stacked axes (total, intrinsic, reflex) in ``fig`` (a new figure
@@ -263,7 +263,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     (Fig. 5A), with ``level`` confidence bands when the model carries intervals and, under
     it, the density of the delayed velocity seen at identification. At a position where the
     data do not determine the reflex (its gain interval reaches zero,
-    :meth:`lpvpc.model.LPVPCModel.reflex_determined`) no curve is drawn and the legend says
+    :meth:`lpvpc.models.model.LPVPCModel.reflex_determined`) no curve is drawn and the legend says
     "not determined by these data"; where only the threshold is not determined the curve is
     drawn and the legend (or a note, when that holds at every position) says so. Each curve is drawn
     only where identification saw data at that position and velocity (no polynomial lobes
@@ -271,7 +271,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     figure.
 
     ``truth``: optional object with ``reflex_gain(theta)`` and ``reflex_threshold(theta)``
-    (e.g. :class:`lpvpc.simulate.SubjectParams`); its half-wave rectifiers are drawn dashed.
+    (e.g. :class:`lpvpc.simulation.simulate.SubjectParams`); its half-wave rectifiers are drawn dashed.
     """
     ax = _new_axes(ax)
     rho = _positions(model, positions) if np.ndim(positions) == 0 else np.asarray(positions, dtype=float)
@@ -286,11 +286,11 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     curves = model.reflex_nonlinearity(velocity, rho)
     ok = _supported(model, rho, velocity)
     band = None
-    from .uncertainty import NOT_DETERMINED
+    from .models.uncertainty import NOT_DETERMINED
 
     g_ok, th_ok = model.reflex_determined(rho, level)  # all True without intervals
     if model.has_intervals:
-        from .uncertainty import nonlinearity_band
+        from .models.uncertainty import nonlinearity_band
 
         band = nonlinearity_band(model, velocity, rho, level)
     for k, (r, f, c) in enumerate(zip(rho, curves, _position_colours(len(rho)))):
@@ -399,7 +399,7 @@ def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None, *, level=0.95)
 
 
 def plot_residual_diagnosis(diag, data, fig=None, ax=None):
-    """Where a model fails (:class:`lpvpc.diagnose.Diagnosis` on ``data``): residual over
+    """Where a model fails (:class:`lpvpc.diagnosis.diagnose.Diagnosis` on ``data``): residual over
     time, residual RMS by position and by perturbation velocity, unexplained share per
     frequency band, and cross-correlation of the residual with the perturbation velocity
     and the delayed velocity (negative lags: residual leads). ``ax``: a 2 x 3 array of

@@ -1,7 +1,7 @@
 """Shared fixtures: one virtual-subject data set and one identified model per session.
 
 Data reach the identification through the same loaders a user's files would: the
-simulated trials are written as CSV and read back with lpvpc.data.
+simulated trials are written as CSV and read back with lpvpc.io.
 """
 
 import matplotlib
@@ -10,9 +10,9 @@ matplotlib.use("Agg")
 
 import pytest  # noqa: E402
 
-from lpvpc.data import load_identification_data, pair_trials, write_trial_csv  # noqa: E402
-from lpvpc.identify import identify  # noqa: E402
-from lpvpc.simulate import simulate_pair  # noqa: E402
+from lpvpc.io import load_identification_data, pair_trials, write_trial_csv  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
 
 
 def _write_and_load(pair, folder, stem):

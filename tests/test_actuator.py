@@ -1,4 +1,4 @@
-"""The actuator FMU (fmu_models/actuator): known physical responses, an independent check of the
+"""The actuator FMU (lpvpc/export/c/actuator): known physical responses, an independent check of the
 discretisation, parameters, and a 2-minute record. Units: rad, rad/s, rad/s^2, N m, kg m^2."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy.fmi3 import FMU3Slave
 
-from lpvpc.actuator import ACTUATOR_DEFAULTS, ACTUATOR_STEP, build_actuator_fmu
+from lpvpc.export.actuator import ACTUATOR_DEFAULTS, ACTUATOR_STEP, build_actuator_fmu
 
 POS, VEL, ACC, CMD, LOAD = 1, 2, 3, 4, 5
 PARAM = {name: 6 + i for i, name in enumerate(ACTUATOR_DEFAULTS)}

@@ -6,10 +6,10 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import PerturbationData
+from lpvpc.io import PerturbationData
 from lpvpc.errors import DataError, IdentificationError, OutOfRangeWarning
-from lpvpc.identify import LPVPCEstimator
-from lpvpc.model import vaf
+from lpvpc.identification.identify import LPVPCEstimator
+from lpvpc.models.model import vaf
 
 
 def test_predict_accepts_the_loaded_data_object(subject, model):
@@ -71,7 +71,7 @@ def test_export_methods_write_loadable_artifacts(model, subject, tmp_path):
 
 
 def test_predict_on_joined_trials_predicts_each_trial_from_rest(subject, model):
-    from lpvpc.data import join_trials
+    from lpvpc.io import join_trials
 
     d = subject["novel"]
     half = len(d.position) // 2
@@ -108,7 +108,7 @@ def test_top_level_names_import_lazily_and_once():
         assert getattr(lpvpc, name) is not None, name
     assert set(lpvpc.__all__) <= set(dir(lpvpc))
     from lpvpc import LPVPCEstimator as E, LPVPCModel, identify, load_identification_data, simulate_pair  # noqa: F401
-    import lpvpc.identify as module
+    import lpvpc.identification.identify as module
 
     assert identify is module and identify.LPVPCEstimator is E and callable(identify)
     with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
@@ -123,7 +123,7 @@ def test_top_level_identify_fits_like_the_estimator(subject):
 
 
 def test_reprs_are_short(subject, model):
-    from lpvpc.data import load_trial
+    from lpvpc.io import load_trial
 
     data = subject["ident"]
     trial = load_trial(subject["folder"] / "ident_PT.csv")
@@ -141,7 +141,7 @@ def test_reprs_are_short(subject, model):
 
 
 def test_one_interval_type_unpacks_like_a_pair(model):
-    from lpvpc.uncertainty import Interval
+    from lpvpc.models.uncertainty import Interval
 
     theta = np.array([-0.2, 0.0])
     for name in ("elastic_stiffness_interval", "viscosity_interval", "reflex_gain_interval"):

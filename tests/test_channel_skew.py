@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpvpc.channel_skew import MIN_RESIDUAL_REDUCTION, estimate_channel_skew, load_aligned
+from lpvpc.identification.channel_skew import MIN_RESIDUAL_REDUCTION, estimate_channel_skew, load_aligned
 from lpvpc.cli import main as cli_main
-from lpvpc.data import load_identification_data, pair_trials
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.simulate import simulate_pair
-from lpvpc.trial import Trial
+from lpvpc.io import load_identification_data, pair_trials
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.simulation.simulate import simulate_pair
+from lpvpc.io.trial import Trial
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -137,7 +137,7 @@ def test_load_aligned_passes_a_given_skew_through(subject):
 @pytest.fixture(scope="module")
 def late_files(subject, tmp_path_factory):
     """The subject's 1 kHz trials written as CSV files with the torque channel one sample (1 ms) late."""
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     d = tmp_path_factory.mktemp("late")
     for name, trial in (("PT", subject.pt), ("UT", subject.ut)):
@@ -153,7 +153,7 @@ def test_identify_scans_its_record_and_names_a_late_torque(subject, late_files):
     import warnings
 
     from lpvpc.errors import LpvpcWarning
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
 
     late = load_identification_data(pt=late_files[0], ut=late_files[1])
     with pytest.warns(LpvpcWarning, match=r"lags the position channel by about .* channel_skew="):
@@ -189,9 +189,9 @@ def test_the_scan_of_trials_joined_is_the_scan_of_the_whole_record():
     skew, finds none. (Kept, the trials' first samples read -1.2 ms as a skew here.)"""
     import warnings
 
-    from lpvpc.identification_data import join_trials
-    from lpvpc.identify import identify
-    from lpvpc.skew_scan import scan_channel_skew
+    from lpvpc.io.identification_data import join_trials
+    from lpvpc.identification.identify import identify
+    from lpvpc.identification.skew_scan import scan_channel_skew
 
     sim = simulate_pair("multilevel", seed=4, duration=60.0)
     whole = pair_trials(sim.pt, sim.ut)
@@ -208,7 +208,7 @@ def test_the_scan_of_trials_joined_is_the_scan_of_the_whole_record():
 def test_a_peak_at_the_grid_end_is_no_skew():
     """A fit that still improves at the end of the candidates is a model mismatch, not a skew:
     nothing is chosen, however much of the residual the end removes."""
-    from lpvpc.channel_skew import ChannelSkew
+    from lpvpc.identification.channel_skew import ChannelSkew
 
     cand = np.array([-2.0, -1.0, 0.0, 1.0, 2.0]) * 1e-3
     rising = ChannelSkew(2e-3, cand, np.array([90.0, 91.0, 92.0, 93.0, 94.0]))
@@ -250,7 +250,7 @@ def test_stationary_records_and_models_with_effects_are_not_scanned(subject):
     an effect) it took the misfit for a skew on the virtual subject: those fits are not scanned."""
     import warnings
 
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
 
     sim = simulate_pair("stationary", seed=0, duration=40.0)
     with warnings.catch_warnings():

@@ -23,9 +23,9 @@ import pytest  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from lpvpc.cli import main  # noqa: E402
-from lpvpc.data import load_identification_data  # noqa: E402
+from lpvpc.io import load_identification_data  # noqa: E402
 from lpvpc.errors import OutOfRangeWarning  # noqa: E402
-from lpvpc.model import LPVPCModel, vaf  # noqa: E402
+from lpvpc.models.model import LPVPCModel, vaf  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DURATION = "40"  # s: enough for the default estimator, quick to identify
@@ -143,7 +143,7 @@ def test_simulate_identify_predict_round_trip(run_dir, model_file, capsys):
 def test_single_file_forms_and_settings(run_dir, model_file, capsys, tmp_path):
     """identify DATA.csv / predict model DATA.csv with a perturbation file; estimator
     options reach the model; the single-file prediction equals the PT/UT one."""
-    from lpvpc.data import load_identification_data, write_perturbation_csv
+    from lpvpc.io import load_identification_data, write_perturbation_csv
 
     data = run_dir / "data"
     ident = load_identification_data(pt=data / "ident_PT.csv", ut=data / "ident_UT.csv")
@@ -174,7 +174,7 @@ def test_single_file_forms_and_settings(run_dir, model_file, capsys, tmp_path):
 
 
 def test_export(model_file, tmp_path, capsys):
-    pytest.importorskip("lpvpc.export")
+    pytest.importorskip("lpvpc.export.exporter")
     status, out, err = _run(["export", model_file, "--casadi", tmp_path / "m.casadi", "--fmu", tmp_path / "m.fmu"],
                             capsys)
     assert status == 0, err
@@ -349,8 +349,8 @@ def _has_data(ax):
 
 def test_plotting_functions_draw(run_dir, model_file):
     from lpvpc import plotting
-    from lpvpc.data import load_identification_data
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.io import load_identification_data
+    from lpvpc.simulation.simulate import SubjectParams
 
     model = LPVPCModel.load(model_file)
     params = SubjectParams()
@@ -432,8 +432,8 @@ def test_identify_prints_the_physiology_and_warns_on_a_reversed_torque_sign(run_
 
 
 def test_identify_stationary_trial_says_it_fits_the_lti_cascade(capsys, tmp_path):
-    from lpvpc.data import pair_trials, write_perturbation_csv
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import pair_trials, write_perturbation_csv
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("stationary", seed=2, duration=40.0)
     write_perturbation_csv(pair_trials(pair.pt, pair.ut), tmp_path / "stationary.csv")
@@ -495,8 +495,8 @@ def test_improve_reads_the_records_as_identify_does(tmp_path, capsys):
     column (DATA and --heldout DATA2), or a stationary trial (--stationary, --pt and
     --heldout-pt), the held-out one a few mrad from the identification position. A mix-up of
     the held-out options is one line and exit 2."""
-    from lpvpc.data import Trial, pair_trials, write_perturbation_csv, write_trial_csv
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import Trial, pair_trials, write_perturbation_csv, write_trial_csv
+    from lpvpc.simulation.simulate import simulate_pair
 
     sim, held = simulate_pair("multilevel", seed=3, duration=60.0), simulate_pair("novel", seed=3, duration=30.0)
     write_perturbation_csv(pair_trials(sim.pt, sim.ut), tmp_path / "d.csv")

@@ -1,5 +1,5 @@
-"""The closed-loop form of the whole-joint model (lpvpc.closed_loop) and the compliant loop
-(lpvpc.compliant_loop): identified against the virtual subject's known inertia, numpy = CasADi
+"""The closed-loop form of the whole-joint model (lpvpc.export.closed_loop) and the compliant loop
+(lpvpc.simulation.compliant_loop): identified against the virtual subject's known inertia, numpy = CasADi
 = FMU (FMI 2.0 / 3.0, co-simulation and Model Exchange) tick by tick, and in the exoskeleton
 loop with the torque fed back: stable where the replay FMU diverges, and close to the subject."""
 
@@ -8,14 +8,14 @@ import math
 import numpy as np
 import pytest
 
-from lpvpc import closed_loop as CL
-from lpvpc import compliant_loop as LOOP
-from lpvpc.data import decimate_trial
+from lpvpc.export import closed_loop as CL
+from lpvpc.simulation import compliant_loop as LOOP
+from lpvpc.io import decimate_trial
 from lpvpc.errors import DataError, ModelFileError
-from lpvpc.export import trajectory_function
-from lpvpc.model import vaf
-from lpvpc.simulate import SubjectParams
-from lpvpc.whole_joint import export_whole_joint_fmu, fit_whole_joint
+from lpvpc.export.exporter import trajectory_function
+from lpvpc.models.model import vaf
+from lpvpc.simulation.simulate import SubjectParams
+from lpvpc.export.whole_joint import export_whole_joint_fmu, fit_whole_joint
 
 
 @pytest.fixture(scope="module")
@@ -328,8 +328,8 @@ def test_channel_skew_estimated_from_the_files_and_undone(subject, tmp_path):
     """A torque channel recorded 1 ms late (the virtual subject's 1 kHz trials written so, read
     back through the loader): the estimate finds ~1 ms there and ~0 on the subject's own files,
     and aligning by it restores the causal impedance's fit (the skew costs it points)."""
-    from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.trial import Trial
+    from lpvpc.io import load_identification_data, write_trial_csv
+    from lpvpc.io.trial import Trial
 
     pair = subject["ident_pair"]
     for name, trial in (("PT", pair.pt), ("UT", pair.ut)):
@@ -344,7 +344,7 @@ def test_channel_skew_estimated_from_the_files_and_undone(subject, tmp_path):
     assert abs(found - 1e-3) < 0.4e-3 and abs(none) < 0.4e-3
 
     def impedance_vaf(d):
-        from lpvpc.identify import identify
+        from lpvpc.identification.identify import identify
 
         m = identify(d)
         W, inertia = CL.fit_perturbation_impedance(m, d.position, d.scheduling, d.torque)

@@ -1,4 +1,4 @@
-"""Tests of lpvpc.data: loaders, checks, decimation, PT-UT pairing."""
+"""Tests of lpvpc.io: loaders, checks, decimation, PT-UT pairing."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from lpvpc.data import (
+from lpvpc.io import (
     PerturbationData,
     Trial,
     check_trial,

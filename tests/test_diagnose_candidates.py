@@ -1,4 +1,4 @@
-"""Settings candidates of the diagnosis (lpvpc.diagnose_candidates) on the virtual subject
+"""Settings candidates of the diagnosis (lpvpc.diagnosis.candidates) on the virtual subject
 under the PRBS design (every step one size, no quiet windows): a setting the user gave stays
 a candidate when the diagnosis holds the model fixed; one the model's cross-validation chose
 does not.
@@ -9,10 +9,10 @@ s + 1 (100 Hz, SNR 18 dB), as in benchmarks/bench_diagnose.py --perturbation prb
 
 import pytest
 
-from lpvpc.data import pair_trials
-from lpvpc.diagnose import diagnose
-from lpvpc.identify import identify
-from lpvpc.simulate import simulate_pair
+from lpvpc.io import pair_trials
+from lpvpc.diagnosis.diagnose import diagnose
+from lpvpc.identification.identify import identify
+from lpvpc.simulation.simulate import simulate_pair
 
 
 def _prbs_pairs(seed):
@@ -62,7 +62,7 @@ def _strong_reflex_dynamics(s):
 def test_wide_position_dependent_reflex_dynamics_is_not_taken_for_a_delay_under_prbs(monkeypatch):
     # natural frequency 5.3-48 rad/s over the range: with the effect's position weights of
     # order 2 the delay entry was named first on this seed (+1.76 against +1.85 pp, tied)
-    from lpvpc import simulate
+    from lpvpc.simulation import simulate
 
     monkeypatch.setitem(simulate.EFFECTS, "strong_reflex_dynamics", ("wn ratio 3", _strong_reflex_dynamics))
     ident, novel = [pair_trials(p.pt, p.ut) for p in (

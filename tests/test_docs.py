@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lpvpc.simulate import write_dataset
+from lpvpc.simulation.simulate import write_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"

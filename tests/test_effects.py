@@ -7,16 +7,16 @@ import shutil
 import numpy as np
 import pytest
 
-from lpvpc import effects as fx
-from lpvpc import equations as eq
-from lpvpc import export
+from lpvpc.models import effects as fx
+from lpvpc.models import equations as eq
+from lpvpc.export import exporter as export
 from lpvpc.cli import main
-from lpvpc.data import pair_trials
+from lpvpc.io import pair_trials
 from lpvpc.errors import DataError, ModelFileError
-from lpvpc.identify import with_base_model_activation
-from lpvpc.identify import LPVPCEstimator, identify
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.simulate import simulate_pair, write_dataset
+from lpvpc.identification.identify import with_base_model_activation
+from lpvpc.identification.identify import LPVPCEstimator, identify
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.simulation.simulate import simulate_pair, write_dataset
 
 ALL = tuple(fx.CATALOG)
 
@@ -34,7 +34,7 @@ def rich():
 
 
 def test_catalog_entries_are_documented():
-    from lpvpc.simulate import EFFECTS as SUBJECT_EFFECTS
+    from lpvpc.simulation.simulate import EFFECTS as SUBJECT_EFFECTS
 
     assert {"drift", "nonlinear_viscosity", "direction_dependent_stiffness", "background_activation",
             "position_dependent_reflex_dynamics", "reflex_habituation", "activation_reflex_gain",
@@ -208,7 +208,7 @@ def test_cli_identify_with_effects(tmp_path, capsys):
     assert main(["identify", "--pt", str(paths["ident_PT"]), "--ut", str(paths["ident_UT"]), "-o", str(out),
                  "--effect", "stiction"]) == 2
     assert "unknown effect 'stiction'" in capsys.readouterr().err
-    from lpvpc.data import load_trial, write_trial_csv
+    from lpvpc.io import load_trial, write_trial_csv
 
     for key in ("ident_PT", "ident_UT"):  # a recording without EMG
         tr = load_trial(paths[key])
@@ -253,7 +253,7 @@ def test_stress_relaxation_is_fitted_both_ways_and_the_better_fit_kept():
     identified reflex held, and keeps the better in-sample fit; on the virtual subject with
     stress relaxation the model then predicts a novel trajectory within 0.3 points of the
     clean subject's model."""
-    from lpvpc.identify import LPVPCEstimator
+    from lpvpc.identification.identify import LPVPCEstimator
 
     assert fx.CATALOG["stress_relaxation"].after_reflex
     ident = simulate_pair("multilevel", seed=1, effects=("stress_relaxation",))
@@ -290,7 +290,7 @@ def test_background_activation_is_leak_free_under_every_perturbation_design(desi
     PRBS without quiet windows, where the quiet-window estimate alone (the bursts
     interpolated) read the bursts (measured: 110-120 % error); a slow activation (0.05 Hz)
     is followed."""
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.simulation.simulate import SubjectParams
 
     volts = SubjectParams().emg_volts
     for effect, limit in (("reflex_habituation", 0.3), ("background_activation", 0.3)):
@@ -365,7 +365,7 @@ def test_a_saved_activation_model_predicts_with_the_activation_it_was_fitted_wit
     instead (1.6 points lower on the issue-23 subject, seed 0). They now use the model's
     drive: within a few tenths of what the ladder measured (the extended model's drive, not
     the base model's)."""
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.simulation.simulate import SubjectParams
     from validation.harness import record_signals
 
     sp = SubjectParams(activation_cutoff=0.5, activation_stiffness_gain=1.5, activation_reflex_gain=1.0)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lpvpc.effects import background_emg
-from lpvpc.trajectories import lab_pulses
+from lpvpc.models.effects import background_emg
+from lpvpc.simulation.trajectories import lab_pulses
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -35,7 +35,7 @@ def test_a_reflex_gain_swinging_over_35_s_stays_mostly_out_of_the_background_est
     must follow a swing, not only a trend, or their remainder stays in the estimate, which
     then follows the reflex gain (activation_reflex_gain named for it). Bursts' gain resolved
     to 60 s (a cubic over 2 minutes): correlation with the gain 0.93, error 27 % of the
-    bursts' mean; at 15 s (lpvpc.effects.BURST_GAIN_S): 0.56-0.61 and 16 %."""
+    bursts' mean; at 15 s (lpvpc.models.effects.BURST_GAIN_S): 0.56-0.61 and 16 %."""
     fs, tonic = 100.0, 0.1
     rng = np.random.default_rng(seed)
     p = lab_pulses(120.0, fs, rng)  # rad

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lpvpc import equations as eq
+from lpvpc.models import equations as eq
 
 FS = 100.0
 

@@ -28,77 +28,77 @@ TESTS = Path(__file__).resolve().parent
 #: public name -> "test_file.py::test_function" that shows its use (tests elsewhere; the
 #: test's body or the fixtures it requests must use the object)
 REGISTRY = {
-    "lpvpc.actuator.actuator_build_kwargs": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
-    "lpvpc.actuator.build_actuator_fmu": "test_actuator.py::test_build_is_cached",
-    "lpvpc.actuator.actuator_source_dir": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
+    "lpvpc.export.actuator.actuator_build_kwargs": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
+    "lpvpc.export.actuator.build_actuator_fmu": "test_actuator.py::test_build_is_cached",
+    "lpvpc.export.actuator.actuator_source_dir": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
     "lpvpc.cli.main": "test_cli.py::test_export",
     "lpvpc.cli.cmd_validate": "test_validation.py::test_min_vaf_failing_exits_1",
-    "lpvpc.trial.Trial": "test_data.py::test_degree_conversion",
-    "lpvpc.effects.model_reflex_delay_steps": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
-    "lpvpc.trial.write_trial_csv": "test_data.py::test_csv_round_trip",
-    "lpvpc.trial.check_trial": "test_data.py::test_uneven_time_named",
-    "lpvpc.readers.load_trial": "test_matfiles.py::test_nldat_trial_read_by_variable",
-    "lpvpc.decimation.decimate_trial": "test_data.py::test_decimation_in_stages",
-    "lpvpc.identification_data.PerturbationData": "test_data.py::test_perturbation_data_validates",
-    "lpvpc.reflex.high_rate_input": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
-    "lpvpc.reflex.high_rate_drive": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
-    "lpvpc.identification_data.pair_trials": "test_simulate.py::test_pair_trials_reproduces_the_simulated_perturbation",
-    "lpvpc.identification_data.load_perturbation_file": "test_data.py::test_load_perturbation_file_decimates",
-    "lpvpc.identification_data.join_trials": "test_trials.py::test_join_trials_checks_rate_and_conventions",
-    "lpvpc.identification_data.load_identification_data": "test_data.py::test_identification_entry_point_with_trials_and_data",
-    "lpvpc.identification_data.write_perturbation_csv": "test_data.py::test_perturbation_csv_round_trip_is_exact",
-    "lpvpc.diagnose_cv.BlockCV": "test_diagnose.py::test_block_cv_equals_explicit_least_squares",
-    "lpvpc.diagnose_cv.paired_test": "test_diagnose.py::test_paired_test",
-    "lpvpc.effects.shifted_reflex_torques": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
-    "lpvpc.diagnose_surrogate.Surrogate": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
-    "lpvpc.diagnose_candidates.signal_leaks": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
-    "lpvpc.diagnose.diagnose": "test_diagnose.py::test_position_dependent_reflex_dynamics_strong",
-    "lpvpc.diagnose_report.write_report": "test_diagnose.py::test_diagnose_and_improve_reports_render_in_chromium",
-    "lpvpc.effects.describe": "test_effects.py::test_catalog_entries_are_documented",
-    "lpvpc.effects.check_effects": "test_effects.py::test_unknown_effects_are_refused",
-    "lpvpc.effects.signals_from_data": "test_effects.py::test_extended_casadi_step_matches_numpy",
-    "lpvpc.effects.background_emg": "test_diagnose.py::test_candidate_reading_a_leaking_signal_is_not_named",
-    "lpvpc.effects.direction_alpha": "test_effects.py::test_direction_memory_latches_through_holds",
-    "lpvpc.export.step_function": "test_export_casadi.py::test_step_interface",
-    "lpvpc.export.state_layout": "test_export_casadi.py::test_step_interface",
-    "lpvpc.export.latency_samples": "test_validation.py::test_exact_fmu_in_the_loop_loads_the_actuator_with_its_latency",
-    "lpvpc.export.parameter_vector": "test_export_casadi.py::test_parameter_vector_and_names",
-    "lpvpc.export.parameter_names": "test_export_casadi.py::test_parameter_vector_and_names",
-    "lpvpc.export.parameter_info": "test_export_casadi.py::test_parameter_vector_and_names",
-    "lpvpc.export.export_casadi": "test_effects.py::test_extended_casadi_step_matches_numpy",
-    "lpvpc.export.trajectory_function": "test_export_casadi.py::test_saved_function_runs_with_casadi_alone",
-    "lpvpc.export.replay_inputs": "test_effects.py::test_extended_fmu_takes_the_extra_channels_as_inputs",
-    "lpvpc.export.export_fmu": "test_model_fmu.py::test_fmu_state_round_trips",
-    "lpvpc.export.ticks_per_sample": "test_model_fmu.py::test_model_description",
-    "lpvpc.export.fmu_parameter_name": "test_export_casadi.py::test_parameter_vector_and_names",
-    "lpvpc.fmu_build.FmuVariable": "test_fmu_build.py::test_validation_of_a_system_without_parameters",
-    "lpvpc.fmu_build.build_fmu": "test_fmu_build.py::test_validation_of_a_system_without_parameters",
-    "lpvpc.fmu_build.fmi_headers_dir": "test_fmu_build.py::test_fmi_headers_dir",
-    "lpvpc.fmu_build.fmu_guid": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
+    "lpvpc.io.trial.Trial": "test_data.py::test_degree_conversion",
+    "lpvpc.models.effects.model_reflex_delay_steps": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
+    "lpvpc.io.trial.write_trial_csv": "test_data.py::test_csv_round_trip",
+    "lpvpc.io.trial.check_trial": "test_data.py::test_uneven_time_named",
+    "lpvpc.io.readers.load_trial": "test_matfiles.py::test_nldat_trial_read_by_variable",
+    "lpvpc.io.decimation.decimate_trial": "test_data.py::test_decimation_in_stages",
+    "lpvpc.io.identification_data.PerturbationData": "test_data.py::test_perturbation_data_validates",
+    "lpvpc.models.reflex.high_rate_input": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
+    "lpvpc.models.reflex.high_rate_drive": "test_reflex_1k.py::test_high_rate_regressor_is_the_decimated_nonlinearity",
+    "lpvpc.io.identification_data.pair_trials": "test_simulate.py::test_pair_trials_reproduces_the_simulated_perturbation",
+    "lpvpc.io.identification_data.load_perturbation_file": "test_data.py::test_load_perturbation_file_decimates",
+    "lpvpc.io.identification_data.join_trials": "test_trials.py::test_join_trials_checks_rate_and_conventions",
+    "lpvpc.io.identification_data.load_identification_data": "test_data.py::test_identification_entry_point_with_trials_and_data",
+    "lpvpc.io.identification_data.write_perturbation_csv": "test_data.py::test_perturbation_csv_round_trip_is_exact",
+    "lpvpc.diagnosis.cv.BlockCV": "test_diagnose.py::test_block_cv_equals_explicit_least_squares",
+    "lpvpc.diagnosis.cv.paired_test": "test_diagnose.py::test_paired_test",
+    "lpvpc.models.effects.shifted_reflex_torques": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
+    "lpvpc.diagnosis.surrogate.Surrogate": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
+    "lpvpc.diagnosis.candidates.signal_leaks": "test_diagnose.py::test_reflex_bursts_in_the_emg_do_not_leak_into_the_activation_feature",
+    "lpvpc.diagnosis.diagnose.diagnose": "test_diagnose.py::test_position_dependent_reflex_dynamics_strong",
+    "lpvpc.diagnosis.report.write_report": "test_diagnose.py::test_diagnose_and_improve_reports_render_in_chromium",
+    "lpvpc.models.effects.describe": "test_effects.py::test_catalog_entries_are_documented",
+    "lpvpc.models.effects.check_effects": "test_effects.py::test_unknown_effects_are_refused",
+    "lpvpc.models.effects.signals_from_data": "test_effects.py::test_extended_casadi_step_matches_numpy",
+    "lpvpc.models.effects.background_emg": "test_diagnose.py::test_candidate_reading_a_leaking_signal_is_not_named",
+    "lpvpc.models.effects.direction_alpha": "test_effects.py::test_direction_memory_latches_through_holds",
+    "lpvpc.export.exporter.step_function": "test_export_casadi.py::test_step_interface",
+    "lpvpc.export.exporter.state_layout": "test_export_casadi.py::test_step_interface",
+    "lpvpc.export.exporter.latency_samples": "test_validation.py::test_exact_fmu_in_the_loop_loads_the_actuator_with_its_latency",
+    "lpvpc.export.exporter.parameter_vector": "test_export_casadi.py::test_parameter_vector_and_names",
+    "lpvpc.export.exporter.parameter_names": "test_export_casadi.py::test_parameter_vector_and_names",
+    "lpvpc.export.exporter.parameter_info": "test_export_casadi.py::test_parameter_vector_and_names",
+    "lpvpc.export.exporter.export_casadi": "test_effects.py::test_extended_casadi_step_matches_numpy",
+    "lpvpc.export.exporter.trajectory_function": "test_export_casadi.py::test_saved_function_runs_with_casadi_alone",
+    "lpvpc.export.exporter.replay_inputs": "test_effects.py::test_extended_fmu_takes_the_extra_channels_as_inputs",
+    "lpvpc.export.exporter.export_fmu": "test_model_fmu.py::test_fmu_state_round_trips",
+    "lpvpc.export.exporter.ticks_per_sample": "test_model_fmu.py::test_model_description",
+    "lpvpc.export.exporter.fmu_parameter_name": "test_export_casadi.py::test_parameter_vector_and_names",
+    "lpvpc.export.fmu_build.FmuVariable": "test_fmu_build.py::test_validation_of_a_system_without_parameters",
+    "lpvpc.export.fmu_build.build_fmu": "test_fmu_build.py::test_validation_of_a_system_without_parameters",
+    "lpvpc.export.fmu_build.fmi_headers_dir": "test_fmu_build.py::test_fmi_headers_dir",
+    "lpvpc.export.fmu_build.fmu_guid": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
     "lpvpc.linalg.project_out_and_solve": "test_identify.py::test_projection_equals_literal_pseudo_inverse_formula",
-    "lpvpc.improve.improve": "test_diagnose.py::test_improve_report",
-    "lpvpc.improve.physiology": "test_newcomer.py::test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths",
-    "lpvpc.improve.write_report": "test_diagnose.py::test_improve_report",
-    "lpvpc.improve.Ladder": "test_diagnose.py::test_improve_report",
-    "lpvpc.improve.Rung": "test_diagnose.py::test_improve_report",
+    "lpvpc.diagnosis.improve.improve": "test_diagnose.py::test_improve_report",
+    "lpvpc.diagnosis.improve.physiology": "test_newcomer.py::test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths",
+    "lpvpc.diagnosis.improve.write_report": "test_diagnose.py::test_improve_report",
+    "lpvpc.diagnosis.improve.Ladder": "test_diagnose.py::test_improve_report",
+    "lpvpc.diagnosis.improve.Rung": "test_diagnose.py::test_improve_report",
     "lpvpc.cli.cmd_diagnose": "test_diagnose.py::test_cli_diagnose_and_improve",
     "lpvpc.cli.cmd_improve": "test_diagnose.py::test_cli_diagnose_and_improve",
-    "lpvpc.matfiles.read_mat": "test_matfiles.py::test_real_lab_file_reads",
-    "lpvpc.model.vaf": "test_identify.py::test_novel_vaf_within_one_point_of_noise_ceiling",
+    "lpvpc.io.matfiles.read_mat": "test_matfiles.py::test_real_lab_file_reads",
+    "lpvpc.models.model.vaf": "test_identify.py::test_novel_vaf_within_one_point_of_noise_ceiling",
     "lpvpc.plotting.plot_torque_fit": "test_cli.py::test_plotting_functions_draw",
     "lpvpc.plotting.plot_intrinsic_gain": "test_cli.py::test_plotting_functions_draw",
     "lpvpc.plotting.plot_reflex_nonlinearity": "test_cli.py::test_plotting_functions_draw",
     "lpvpc.plotting.plot_reflex_irf": "test_cli.py::test_plotting_functions_draw",
     "lpvpc.plotting.plot_stiffness_vs_truth": "test_cli.py::test_plotting_functions_draw",
-    "lpvpc.subject.SubjectParams": "test_simulate.py::test_K_curve_shape_and_values",
-    "lpvpc.physics.servo": "test_simulate.py::test_servo_matches_analytic_step_response",
-    "lpvpc.physics.reflex_torque": "test_simulate.py::test_reflex_is_a_half_wave_rectifier_with_unit_dc_gain",
-    "lpvpc.simulate.simulate_pair": "test_simulate.py::test_pair_structure_and_trajectory",
-    "lpvpc.simulate.write_dataset": "test_simulate.py::test_write_dataset_roundtrip",
-    "lpvpc.subspace.hankel_rows": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
-    "lpvpc.subspace.streamed_r": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
-    "lpvpc.whole_joint.WholeJointModel": "test_whole_joint.py::test_cli_whole_joint_writes_model_and_fmu",
-    "lpvpc.closed_loop.ClosedLoopModel": "test_closed_loop.py::test_errors_and_round_trip",
+    "lpvpc.simulation.subject.SubjectParams": "test_simulate.py::test_K_curve_shape_and_values",
+    "lpvpc.simulation.physics.servo": "test_simulate.py::test_servo_matches_analytic_step_response",
+    "lpvpc.simulation.physics.reflex_torque": "test_simulate.py::test_reflex_is_a_half_wave_rectifier_with_unit_dc_gain",
+    "lpvpc.simulation.simulate.simulate_pair": "test_simulate.py::test_pair_structure_and_trajectory",
+    "lpvpc.simulation.simulate.write_dataset": "test_simulate.py::test_write_dataset_roundtrip",
+    "lpvpc.identification.subspace.hankel_rows": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
+    "lpvpc.identification.subspace.streamed_r": "test_trials.py::test_moesp_hankel_rows_stay_inside_trials",
+    "lpvpc.export.whole_joint.WholeJointModel": "test_whole_joint.py::test_cli_whole_joint_writes_model_and_fmu",
+    "lpvpc.export.closed_loop.ClosedLoopModel": "test_closed_loop.py::test_errors_and_round_trip",
     "lpvpc.validation.closed_loop.evaluate_closed_loop": "test_closed_loop.py::test_validation_closed_loop_section",
     "lpvpc.validation.closed_loop.evaluate_loop_ssp": "test_closed_loop.py::test_loop_ssp_in_fmpy_and_libcosim",
     "lpvpc.validation.closed_loop.write_loop_ssp": "test_closed_loop.py::test_loop_ssp_in_fmpy_and_libcosim",
@@ -107,25 +107,25 @@ REGISTRY = {
     "lpvpc.validation.closed_loop.exoskeleton_parameters": "test_closed_loop.py::test_loop_ssp_in_fmpy_and_libcosim",
     "lpvpc.validation.closed_loop.write_closed_loop_report": "test_closed_loop.py::test_validation_closed_loop_section",
     "lpvpc.validation.closed_loop.closed_loop_section": "test_closed_loop.py::test_validation_closed_loop_section",
-    "lpvpc.closed_loop.ClosedLoopPrediction": "test_closed_loop.py::test_causal_form_costs_little_on_a_novel_trajectory",
-    "lpvpc.closed_loop.distillation_trial": "test_closed_loop.py::test_inertia_stiffness_and_viscosity_against_the_subject",
-    "lpvpc.closed_loop.fit_closed_loop": "test_closed_loop.py::test_inertia_stiffness_and_viscosity_against_the_subject",
-    "lpvpc.closed_loop.export_closed_loop_casadi": "test_closed_loop.py::test_casadi_tick_function_file",
-    "lpvpc.closed_loop.export_closed_loop_fmu": "test_closed_loop.py::test_tick_function_equals_numpy_at_samples_and_fmus_every_tick",
-    "lpvpc.closed_loop.fit_perturbation_impedance": "test_closed_loop.py::test_perturbation_level_impedance_on_the_identification_data",
-    "lpvpc.closed_loop.predict_perturbation_impedance": "test_closed_loop.py::test_perturbation_level_impedance_on_the_identification_data",
-    "lpvpc.compliant_loop.FmuSource": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.LoopRun": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.LoopSetup": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.VirtualSubject": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.highpass": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.loop_vaf": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.reference_trajectory": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.compliant_loop.run_loop": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
-    "lpvpc.whole_joint.fit_whole_joint": "test_whole_joint.py::test_validation_report_has_a_whole_joint_section",
-    "lpvpc.whole_joint.export_whole_joint_casadi": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
-    "lpvpc.whole_joint.export_whole_joint_fmu": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
-    "lpvpc.whole_joint.latency_samples": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
+    "lpvpc.export.closed_loop.ClosedLoopPrediction": "test_closed_loop.py::test_causal_form_costs_little_on_a_novel_trajectory",
+    "lpvpc.export.closed_loop.distillation_trial": "test_closed_loop.py::test_inertia_stiffness_and_viscosity_against_the_subject",
+    "lpvpc.export.closed_loop.fit_closed_loop": "test_closed_loop.py::test_inertia_stiffness_and_viscosity_against_the_subject",
+    "lpvpc.export.closed_loop.export_closed_loop_casadi": "test_closed_loop.py::test_casadi_tick_function_file",
+    "lpvpc.export.closed_loop.export_closed_loop_fmu": "test_closed_loop.py::test_tick_function_equals_numpy_at_samples_and_fmus_every_tick",
+    "lpvpc.export.closed_loop.fit_perturbation_impedance": "test_closed_loop.py::test_perturbation_level_impedance_on_the_identification_data",
+    "lpvpc.export.closed_loop.predict_perturbation_impedance": "test_closed_loop.py::test_perturbation_level_impedance_on_the_identification_data",
+    "lpvpc.simulation.compliant_loop.FmuSource": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.LoopRun": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.LoopSetup": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.VirtualSubject": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.highpass": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.loop_vaf": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.reference_trajectory": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.simulation.compliant_loop.run_loop": "test_closed_loop.py::test_compliant_loop_stays_stable_and_follows_the_subject",
+    "lpvpc.export.whole_joint.fit_whole_joint": "test_whole_joint.py::test_validation_report_has_a_whole_joint_section",
+    "lpvpc.export.whole_joint.export_whole_joint_casadi": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
+    "lpvpc.export.whole_joint.export_whole_joint_fmu": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
+    "lpvpc.export.whole_joint.latency_samples": "test_whole_joint.py::test_casadi_step_and_fmus_agree_with_numpy",
     "lpvpc.validation.compare.vaf": "test_identify.py::test_novel_vaf_within_one_point_of_noise_ceiling",
     "lpvpc.validation.cosim.CosimSettings": "test_ssp.py::test_connections_match_the_fmus_and_the_master",
     "lpvpc.validation.cosim.run_cosimulation": "test_validation.py::test_fmi3_cosimulation_equals_fmi2_and_couplings_agree",
@@ -160,10 +160,10 @@ def example_of(*names):
 
 
 def public_modules():
-    for pkg in (lpvpc, lpvpc.validation):
-        for info in pkgutil.iter_modules(pkg.__path__):
-            if not info.name.startswith("_"):
-                yield importlib.import_module(f"{pkg.__name__}.{info.name}")
+    """Every public module of lpvpc and of its subpackages (the C source folder aside)."""
+    for info in pkgutil.walk_packages(lpvpc.__path__, prefix="lpvpc."):
+        if not any(part.startswith("_") for part in info.name.split(".")) and info.name != "lpvpc.export.c":
+            yield importlib.import_module(info.name)
 
 
 def public_api() -> dict:
@@ -173,6 +173,8 @@ def public_api() -> dict:
     for mod in public_modules():
         if hasattr(mod, "__all__"):
             names = list(mod.__all__)
+            if Path(mod.__file__).name == "__init__.py":  # a subpackage's re-exports: checked where defined
+                names = [n for n in names if getattr(getattr(mod, n), "__module__", mod.__name__) == mod.__name__]
         else:
             names = [n for n, v in vars(mod).items()
                      if not n.startswith("_") and getattr(v, "__module__", None) == mod.__name__]
@@ -289,9 +291,9 @@ def test_validation_doctests(module):
 # --------------------------------------------------------------------------- example tests
 
 
-@example_of("lpvpc.export.StateLayout", "lpvpc.export.fmu_variables", "lpvpc.export.fmu_constants",
-            "lpvpc.export.fmu_description", "lpvpc.export.system_functions", "lpvpc.export.write_system_c",
-            "lpvpc.export.generate_c")
+@example_of("lpvpc.export.exporter.StateLayout", "lpvpc.export.exporter.fmu_variables", "lpvpc.export.exporter.fmu_constants",
+            "lpvpc.export.exporter.fmu_description", "lpvpc.export.exporter.system_functions", "lpvpc.export.exporter.write_system_c",
+            "lpvpc.export.exporter.generate_c")
 def test_example_an_fmu_from_the_export_building_blocks(model, subject, tmp_path):
     """What ``export_fmu`` does, step by step, as a user who wants their own model
     identifier and author would do it: the CasADi system functions, their C code, the FMU
@@ -300,8 +302,8 @@ def test_example_an_fmu_from_the_export_building_blocks(model, subject, tmp_path
     from fmpy import extract
     from fmu_helpers import FMUInstance, reference, shifted_error
 
-    from lpvpc import export as ex
-    from lpvpc.fmu_build import build_fmu
+    from lpvpc.export import exporter as ex
+    from lpvpc.export.fmu_build import build_fmu
 
     layout = ex.state_layout(model, "causal")
     assert isinstance(layout, ex.StateLayout) and layout.latency == 0 and layout.m == model.state_order
@@ -343,7 +345,7 @@ def test_example_cosimulation_signal_helpers():
     position, and the servo's bandwidth fitted back from a record."""
     import numpy as np
 
-    from lpvpc.simulate import pralds
+    from lpvpc.simulation.simulate import pralds
     from lpvpc.validation import cosim
 
     fs, fs_act = 100.0, 1000.0  # Hz: model rate, actuator rate
@@ -379,7 +381,7 @@ def test_example_prediction_routes_of_an_exported_model(model, subject, tmp_path
     held-out record loaded from its files."""
     import numpy as np
 
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
     from lpvpc.validation import cosim, routes
     from lpvpc.validation.compare import relative_difference
     from lpvpc.validation.fmu import FMUInfo, file_sha256, fmu_model_hash, inspect_fmu
@@ -430,7 +432,7 @@ def test_example_command_handlers(tmp_path, capsys):
     import json
 
     from lpvpc import cli
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models.model import LPVPCModel
 
     def run(handler, *argv):
         assert handler(cli.build_parser().parse_args([str(a) for a in argv])) == 0
@@ -453,23 +455,23 @@ def test_example_command_handlers(tmp_path, capsys):
         cli.check_report_folder(data, ["report.html"], force=False)
 
 
-@example_of("lpvpc.effects.Effect", "lpvpc.effects.FittedEffect", "lpvpc.effects.Context", "lpvpc.effects.Setting",
-            "lpvpc.effects.model_signals", "lpvpc.effects.model_derived", "lpvpc.effects.predict_effects",
-            "lpvpc.effects.default_signals", "lpvpc.effects.record_context", "lpvpc.effects.effect_term",
-            "lpvpc.effects.quiet_mask", "lpvpc.effects.check_signals", "lpvpc.effects.channel_basis",
-            "lpvpc.effects.effect_basis", "lpvpc.effects.effect_options")
+@example_of("lpvpc.models.effects.Effect", "lpvpc.models.effects.FittedEffect", "lpvpc.models.effects.Context", "lpvpc.models.effects.Setting",
+            "lpvpc.models.effects.model_signals", "lpvpc.models.effects.model_derived", "lpvpc.models.effects.predict_effects",
+            "lpvpc.models.effects.default_signals", "lpvpc.models.effects.record_context", "lpvpc.models.effects.effect_term",
+            "lpvpc.models.effects.quiet_mask", "lpvpc.models.effects.check_signals", "lpvpc.models.effects.channel_basis",
+            "lpvpc.models.effects.effect_basis", "lpvpc.models.effects.effect_options")
 def test_example_an_extended_model_and_its_effect_terms():
     """A subject whose torque drifts over the trial, identified with the catalog's "drift"
     effect: the model asks for the trial time as an extra signal, and the drift term, taken
     apart by hand from the record's context, is what predict_effects and predict report."""
     import numpy as np
 
-    from lpvpc import effects as fx
-    from lpvpc import equations as eq
-    from lpvpc.data import pair_trials
+    from lpvpc.models import effects as fx
+    from lpvpc.models import equations as eq
+    from lpvpc.io import pair_trials
     from lpvpc.errors import DataError
-    from lpvpc.identify import identify
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.identification.identify import identify
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=4, effects=("drift",), duration=30.0, fs_out=100.0)
     data = pair_trials(pair.pt, pair.ut)
@@ -502,12 +504,12 @@ def test_example_an_extended_model_and_its_effect_terms():
                                                                                                  data.fs)).max())
 
 
-@example_of("lpvpc.diagnose.Diagnosis", "lpvpc.diagnose.record_coverage", "lpvpc.diagnose.check_record",
-            "lpvpc.diagnose_candidates.CandidateResult", "lpvpc.diagnose_candidates.score_candidates",
-            "lpvpc.diagnose_candidates.reflex_leak", "lpvpc.diagnose_signals.candidate_signals",
-            "lpvpc.diagnose_signals.signal_dependence", "lpvpc.diagnose_where.where_it_fails",
-            "lpvpc.diagnose_report.format_table", "lpvpc.diagnose_report.candidates_html",
-            "lpvpc.diagnose_report.diagnosis_html", "lpvpc.plotting.plot_residual_diagnosis")
+@example_of("lpvpc.diagnosis.diagnose.Diagnosis", "lpvpc.diagnosis.diagnose.record_coverage", "lpvpc.diagnosis.diagnose.check_record",
+            "lpvpc.diagnosis.candidates.CandidateResult", "lpvpc.diagnosis.candidates.score_candidates",
+            "lpvpc.diagnosis.candidates.reflex_leak", "lpvpc.diagnosis.signals.candidate_signals",
+            "lpvpc.diagnosis.signals.signal_dependence", "lpvpc.diagnosis.where.where_it_fails",
+            "lpvpc.diagnosis.report.format_table", "lpvpc.diagnosis.report.candidates_html",
+            "lpvpc.diagnosis.report.diagnosis_html", "lpvpc.plotting.plot_residual_diagnosis")
 def test_example_diagnosing_a_missing_effect():
     """A subject whose stiffness depends on the direction of the slow movement, modelled
     without that effect: the diagnosis of a held-out record names it, and each piece of the
@@ -518,11 +520,11 @@ def test_example_diagnosing_a_missing_effect():
     from matplotlib.figure import Figure
 
     from lpvpc import diagnose as D
-    from lpvpc.data import pair_trials
+    from lpvpc.io import pair_trials
     from lpvpc.errors import InsufficientExcitationError
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
     from lpvpc.plotting import plot_residual_diagnosis
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.simulation.simulate import simulate_pair
 
     effect = "direction_dependent_stiffness"
     ident = simulate_pair("multilevel", seed=4, effects=(effect,), duration=60.0, fs_out=100.0)
@@ -556,8 +558,8 @@ def test_example_diagnosing_a_missing_effect():
     plt.close(fig)
 
 
-@example_of("lpvpc.effects.EffectDesign", "lpvpc.effects.effect_columns", "lpvpc.effects.causal_irf",
-            "lpvpc.effects.finish_extended_fit")
+@example_of("lpvpc.models.effects.EffectDesign", "lpvpc.models.effects.effect_columns", "lpvpc.models.effects.causal_irf",
+            "lpvpc.models.effects.finish_extended_fit")
 def test_example_an_extended_fit_by_hand():
     """What ``identify(data, effects=("drift",))`` does with the effect's columns, by hand on
     a subject whose torque drifts: the design holds the drift's regressor columns (the
@@ -569,13 +571,13 @@ def test_example_an_extended_fit_by_hand():
 
     import numpy as np
 
-    from lpvpc import effects as fx
-    from lpvpc import equations as eq
-    from lpvpc.data import pair_trials
-    from lpvpc.identify import identify
-    from lpvpc.intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor
-    from lpvpc.model import vaf
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.models import effects as fx
+    from lpvpc.models import equations as eq
+    from lpvpc.io import pair_trials
+    from lpvpc.identification.identify import identify
+    from lpvpc.models.intrinsic import curvature_from_irf, curvature_regressor, intrinsic_regressor
+    from lpvpc.models.model import vaf
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=4, effects=("drift",), duration=30.0, fs_out=100.0)
     data = pair_trials(pair.pt, pair.ut)
@@ -664,9 +666,9 @@ def test_example_sigterm_takes_the_ctrl_c_path(subject, tmp_path, capsys):
 def held_out_cut(model, subject, tmp_path_factory):
     """The first 10 s of the session's novel record (1 kHz trials with their command
     channels) paired at the model's rate, the model's exact FMU and the actuator FMU (FMI 2.0)."""
-    from lpvpc.actuator import build_actuator_fmu
-    from lpvpc.data import Trial
-    from lpvpc.export import export_fmu
+    from lpvpc.export.actuator import build_actuator_fmu
+    from lpvpc.io import Trial
+    from lpvpc.export.exporter import export_fmu
     from lpvpc.validation.fmu import inspect_fmu
     from lpvpc.validation.harness import load_record
 
@@ -689,8 +691,8 @@ def test_example_a_cosimulation_by_hand_and_its_portable_ssp(model, held_out_cut
     engine runs as it is."""
     import numpy as np
 
-    from lpvpc.export import latency_samples
-    from lpvpc.model import vaf
+    from lpvpc.export.exporter import latency_samples
+    from lpvpc.models.model import vaf
     from lpvpc.validation.cosim import (ActuatorDrive, CosimResult, CosimSettings, band_limit, calibrate_servo,
                                         run_cosimulation)
     from lpvpc.validation.engines import available, run_portable_ssp, ssp_steps
@@ -783,8 +785,8 @@ def test_example_a_validation_report_drawn_from_the_runs_parts(model, held_out_c
     the measured positions, the co-simulation."""
     import numpy as np
 
-    from lpvpc.export import latency_samples
-    from lpvpc.model import vaf
+    from lpvpc.export.exporter import latency_samples
+    from lpvpc.models.model import vaf
     from lpvpc.validation import routes, validate
     from lpvpc.validation.cosim import run_cosimulation
     from lpvpc.validation.harness import actuator_drive, check_actuator_fmu
@@ -824,9 +826,9 @@ def test_example_the_whole_joint_model_on_a_held_out_record(model, subject, held
 
     import numpy as np
 
-    from lpvpc.model import vaf
+    from lpvpc.models.model import vaf
     from lpvpc.validation.whole_joint import evaluate_whole_joint
-    from lpvpc.whole_joint import fit_whole_joint
+    from lpvpc.export.whole_joint import fit_whole_joint
 
     wj = fit_whole_joint(model, subject["ident_pair"].ut)
     meas = held_out_cut["record"].measured
@@ -853,7 +855,7 @@ def test_example_the_demo(tmp_path, capsys):
     import re
 
     from lpvpc import demo
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models.model import LPVPCModel
 
     out = tmp_path / "demo_out"
     assert demo.run(out) == 0

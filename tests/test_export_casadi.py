@@ -12,8 +12,8 @@ import pytest
 
 from fmu_helpers import reference, shifted_error
 
-from lpvpc import equations as eq
-from lpvpc import export as ex
+from lpvpc.models import equations as eq
+from lpvpc.export import exporter as ex
 from lpvpc.errors import ExportError
 
 TOL = 1e-9  # max abs error / max abs torque
@@ -114,7 +114,7 @@ def test_parametric_step_follows_its_parameters(model, subject):
 
 
 def test_one_definition_of_the_equations(model, monkeypatch):
-    """The step is built from lpvpc.equations (no second copy of the model equations)."""
+    """The step is built from lpvpc.models.equations (no second copy of the model equations)."""
     called = []
     for name in ("intrinsic_torque", "reflex_drive", "reflex_step", "central_velocity", "central_acceleration",
                  "five_point_derivatives", "elastic_curvature_torque"):
@@ -223,7 +223,7 @@ def test_export_casadi_unwritable_path(model, tmp_path):
 def test_sampled_step_of_a_five_point_model_matches_its_causal_form(subject):
     """A model identified with causal_derivatives="central5": the sampled step computes the
     same 5-point differences (positions j-2..j+2) and so lags the numpy causal form by 2."""
-    from lpvpc.identify import identify
+    from lpvpc.identification.identify import identify
 
     data = subject["ident"].segment(0, 6000)
     m5 = identify(data, causal_derivatives="central5", state_order=2)

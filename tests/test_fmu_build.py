@@ -1,6 +1,6 @@
-"""The generic FMI co-simulation wrapper (fmu_models/wrapper) and the builder (lpvpc.fmu_build).
+"""The generic FMI co-simulation wrapper (lpvpc/export/c/wrapper) and the builder (lpvpc.export.fmu_build).
 
-The actuator (fmu_models/actuator) is the system under the wrapper, plus a tiny test system
+The actuator (lpvpc/export/c/actuator) is the system under the wrapper, plus a tiny test system
 that can fail on purpose. Units: SI. Every wrong call must return an error status and log a
 message that names the problem, never crash.
 """
@@ -26,9 +26,9 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 import fmpy
 
-from lpvpc.actuator import ACTUATOR_DEFAULTS, actuator_build_kwargs, actuator_source_dir, build_actuator_fmu
+from lpvpc.export.actuator import ACTUATOR_DEFAULTS, actuator_build_kwargs, actuator_source_dir, build_actuator_fmu
 from lpvpc.errors import ExportError
-from lpvpc.fmu_build import FmuVariable, build_fmu, fmi_headers_dir, fmu_guid
+from lpvpc.export.fmu_build import FmuVariable, build_fmu, fmi_headers_dir, fmu_guid
 
 # value references of the actuator (outputs 1..3, inputs 4..5, parameters 6..11)
 POS, VEL, ACC, CMD, LOAD = 1, 2, 3, 4, 5
@@ -579,7 +579,7 @@ def test_deserialized_state_is_checked_completely(opened, version):
 def test_one_do_step_is_bounded_by_the_declared_maximum_step(opened, version, fmus):
     """doStep longer than the declared maximum communication step (MAX_STEPS internal steps,
     stated in the model description) is an error at once, not hours of computation."""
-    from lpvpc.fmu_build import MAX_STEPS
+    from lpvpc.export.fmu_build import MAX_STEPS
 
     md, _ = opened[version]
     step = float(md.defaultExperiment.stepSize)

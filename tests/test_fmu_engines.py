@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from lpvpc import export as ex
-from lpvpc.model import vaf
+from lpvpc.export import exporter as ex
+from lpvpc.models.model import vaf
 
 REPO = Path(__file__).resolve().parents[1]
 RECIPE_PAGE = REPO / "docs" / "guide" / "fmu_casadi.md"  # the user guide's FMU page

@@ -7,12 +7,12 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.basis import Basis
-from lpvpc.data import PerturbationData, Trial, pair_trials
+from lpvpc.models.basis import Basis
+from lpvpc.io import PerturbationData, Trial, pair_trials
 from lpvpc.errors import DataError, InsufficientExcitationError, ModelFileError, OutOfRangeWarning
-from lpvpc.identify import LPVPCEstimator, identify, project_out_and_solve
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.simulate import SubjectParams, simulate_pair
+from lpvpc.identification.identify import LPVPCEstimator, identify, project_out_and_solve
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
 TRUTH = SubjectParams()
 
@@ -109,7 +109,7 @@ def test_reflex_poles_stay_within_the_time_constant_limit_under_slow_unmodelled_
         capped = identify(data)
         free = identify(data, max_reflex_time_constant=None)
         v_capped, v_free = (vaf(test.torque, m.predict(test, warn=False).total) for m in (capped, free))
-    from lpvpc.identify import DEFAULT_MAX_REFLEX_TIME_CONSTANT
+    from lpvpc.identification.identify import DEFAULT_MAX_REFLEX_TIME_CONSTANT
 
     radius = np.abs(np.linalg.eigvals(capped.A))
     assert radius.max() < np.exp(-1.0 / (DEFAULT_MAX_REFLEX_TIME_CONSTANT * 100.0)) and np.abs(np.linalg.eigvals(free.A)).max() > 0.995
@@ -164,7 +164,7 @@ def test_held_out_faster_than_identification_gives_no_spikes(subject, model):
     pair = simulate_pair("novel", seed=7, perturbation_amplitude=0.06)
     data = pair_trials(pair.pt, pair.ut)
     clean = pair_trials(pair.pt_clean, pair.ut_clean)
-    from lpvpc import equations as eq
+    from lpvpc.models import equations as eq
 
     dvel = eq.delayed_velocity(data.position, data.fs, model.delay)
     assert dvel.max() > model.velocity_range[1] * 1.1, "test record must exceed the identified velocity range"
@@ -296,9 +296,9 @@ def test_rank_check_on_the_triangular_factor_matches_the_full_regressor(subject)
     # identify checks rank on Psi_i's triangular factor (cheaper): the same rank as the
     # pivoted QR of the N-row regressor itself (which columns of an exactly dependent set
     # get named is a tie among roundoff-sized norms, in either)
-    from lpvpc.basis import basis_from_data
-    from lpvpc.identify import check_full_rank
-    from lpvpc.intrinsic import intrinsic_regressor, two_sided_lags
+    from lpvpc.models.basis import basis_from_data
+    from lpvpc.identification.identify import check_full_rank
+    from lpvpc.models.intrinsic import intrinsic_regressor, two_sided_lags
     from lpvpc.linalg import triangular_factor
 
     d = subject["ident"]
@@ -375,7 +375,7 @@ def test_negative_reflex_gain_warns_with_settings_that_constrain_the_nonlinearit
     import copy
 
     from lpvpc.errors import PhysiologyWarning
-    from lpvpc.identify import check_physiology
+    from lpvpc.identification.identify import check_physiology
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", PhysiologyWarning)  # the models as identified: no warning
@@ -398,7 +398,7 @@ def test_a_missing_effect_that_turns_the_reflex_gain_negative_is_named_as_a_caus
     # over 37 % of the range (-7.0 N m s/rad at -0.18 rad); with the effect in the model it is
     # positive (2.1 at least). (Seed 2, used before: -12.9 N m s/rad fixed, but its extended
     # model's activation comes from the default base model, whose IRF the one-standard-error
-    # rule no longer shortens to 20 ms (lpvpc.selection), and that extended gain dips to -20.)
+    # rule no longer shortens to 20 ms (lpvpc.identification.selection), and that extended gain dips to -20.)
     from lpvpc.errors import PhysiologyWarning
 
     pair = simulate_pair("multilevel", seed=5, effects=("background_activation",))
@@ -416,7 +416,7 @@ def test_a_missing_effect_that_turns_the_reflex_gain_negative_is_named_as_a_caus
 
 def test_correct_torque_sign_gives_no_physiology_warning(model):
     from lpvpc.errors import PhysiologyWarning
-    from lpvpc.identify import check_physiology
+    from lpvpc.identification.identify import check_physiology
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", PhysiologyWarning)
@@ -450,7 +450,7 @@ def test_model_files_from_before_the_derivative_stencil_load_as_three_point(mode
     assert loaded.causal_derivatives == "central3"
     nv = subject["novel"]
     got = predict_quiet(loaded, nv, causal=True).total
-    from lpvpc import equations as eq
+    from lpvpc.models import equations as eq
 
     vel, acc = eq.velocity(nv.position, nv.fs), eq.acceleration(nv.position, nv.fs)
     np.testing.assert_array_equal(got, predict_quiet(model, nv, causal=True, velocity=vel, acceleration=acc).total)
@@ -508,9 +508,9 @@ def test_intrinsic_refitted_jointly_with_the_rank_one_reflex_keeps_k_where_a_slo
     # one a slow mode (pole ~0.99 at 100 Hz, near the 1 s time-constant cap) that integrates the
     # velocity columns into position-like ones, and the 1 kHz hinge path. Intrinsic parameters
     # taken by the projection (the whole unstructured reflex space removed) left a worst central
-    # K(theta) error of 5.1 %; refitted jointly with the rank-1 reflex (lpvpc.reflex.refit_jointly)
+    # K(theta) error of 5.1 %; refitted jointly with the rank-1 reflex (lpvpc.models.reflex.refit_jointly)
     # 2.7 %, the fixed structure's 2.5 %.
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.simulation.simulate import SubjectParams
 
     pair = simulate_pair("multilevel", seed=1)
     data = pair_trials(pair.pt, pair.ut)

@@ -1,6 +1,6 @@
 """The improve ladder changes one thing per step: each refit also refines its reflex poles from
 where the model below it ended (as identify's own refit of a selected structure does) and keeps
-the better identification fit of that and MOESP's start (lpvpc.improve).
+the better identification fit of that and MOESP's start (lpvpc.diagnosis.improve).
 
 Virtual subject under the PRBS design, reflex habituation hidden; identification on the
 multilevel record of seed 2, held out the novel record of seed 3 (bench_diagnose's case).
@@ -8,9 +8,9 @@ multilevel record of seed 2, held out the novel record of seed 3 (bench_diagnose
 
 import pytest
 
-from lpvpc.data import pair_trials
-from lpvpc.improve import improve
-from lpvpc.simulate import simulate_pair
+from lpvpc.io import pair_trials
+from lpvpc.diagnosis.improve import improve
+from lpvpc.simulation.simulate import simulate_pair
 
 
 @pytest.mark.slow

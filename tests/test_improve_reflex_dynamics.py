@@ -1,5 +1,5 @@
 """The position-dependent reflex dynamics step refits the reflex poles and nonlinearity jointly
-with the expansion's weights (lpvpc.effects.finish_extended_fit): held at the
+with the expansion's weights (lpvpc.models.effects.finish_extended_fit): held at the
 base fit's (made under LTI dynamics), a natural frequency that changes ninefold over the range
 stays 1-1.6 points short of the clean model (bench_reflex_dynamics_range).
 
@@ -11,12 +11,12 @@ record of seed 2, held out the novel record of seed 3.
 import numpy as np
 import pytest
 
-from lpvpc import effects as fx
-from lpvpc import simulate
-from lpvpc.data import pair_trials
-from lpvpc.effects import signals_from_data
-from lpvpc.identify import LPVPCEstimator, identify
-from lpvpc.model import vaf
+from lpvpc.models import effects as fx
+from lpvpc.simulation import simulate
+from lpvpc.io import pair_trials
+from lpvpc.models.effects import signals_from_data
+from lpvpc.identification.identify import LPVPCEstimator, identify
+from lpvpc.models.model import vaf
 
 
 def _strong(s):
@@ -65,8 +65,8 @@ def test_wide_reflex_dynamics_step_reaches_the_clean_model(monkeypatch, tmp_path
     # the refitted model is the same equations: save/load and the CasADi step agree with numpy
     import casadi
 
-    from lpvpc import export
-    from lpvpc.model import LPVPCModel
+    from lpvpc.export import exporter as export
+    from lpvpc.models.model import LPVPCModel
 
     joint.save(tmp_path / "m.json")
     n = 2000

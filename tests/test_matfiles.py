@@ -14,15 +14,15 @@ import pytest
 from matlab_files import nldat, write_mat, write_v73_plain
 
 from lpvpc.cli import main
-from lpvpc.data import (
+from lpvpc.io import (
     load_identification_data,
     load_perturbation_file,
     load_trial,
     pair_trials,
 )
 from lpvpc.errors import DataError
-from lpvpc.matfiles import read_mat
-from lpvpc.model import LPVPCModel
+from lpvpc.io.matfiles import read_mat
+from lpvpc.models.model import LPVPCModel
 
 FS = 1000.0
 
@@ -220,8 +220,8 @@ def test_variables_of_another_rate_are_an_error(tmp_path):
 def test_cli_reads_nldat_pairs_like_csv(tmp_path, capsys):
     """A PT/UT pair stored as nldat objects in one .mat file gives the same data as CSV files:
     predict prints the same VAF and data hash."""
-    from lpvpc.identify import identify
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.identification.identify import identify
+    from lpvpc.simulation.simulate import simulate_pair
 
     pair = simulate_pair("multilevel", seed=2, duration=40.0)
     mat = write_mat(tmp_path / "s1.mat", {
@@ -229,7 +229,7 @@ def test_cli_reads_nldat_pairs_like_csv(tmp_path, capsys):
         for name, tr in (("pt", pair.pt), ("ut", pair.ut))})
     model = identify(pair_trials(pair.pt, pair.ut), intrinsic_order=3)
     model.save(tmp_path / "m.json")
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     write_trial_csv(pair.pt, tmp_path / "pt.csv")
     write_trial_csv(pair.ut, tmp_path / "ut.csv")

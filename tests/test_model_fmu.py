@@ -19,20 +19,20 @@ from fmpy.validation import validate_fmu
 from fmu_helpers import FMUInstance, reference, shifted_error
 
 from lpvpc import __version__
-from lpvpc import equations as eq
-from lpvpc import export as ex
-from lpvpc.model import vaf
+from lpvpc.models import equations as eq
+from lpvpc.export import exporter as ex
+from lpvpc.models.model import vaf
 
 TOL = 1e-9
 BUILDS = [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
-# the closed-loop form of the whole-joint model (lpvpc.closed_loop): inputs angle, angular_velocity
+# the closed-loop form of the whole-joint model (lpvpc.export.closed_loop): inputs angle, angular_velocity
 CLOSED_LOOP = [("closed_loop", 2), ("closed_loop", 3)]
 
 
 @pytest.fixture(scope="module")
 def closed_loop(model, subject):
-    from lpvpc.closed_loop import distillation_trial, fit_closed_loop
-    from lpvpc.whole_joint import fit_whole_joint
+    from lpvpc.export.closed_loop import distillation_trial, fit_closed_loop
+    from lpvpc.export.whole_joint import fit_whole_joint
 
     wj = fit_whole_joint(model, subject["ident_pair"].ut)
     return fit_closed_loop(wj, [distillation_trial(wj, subject["ident_pair"].ut)])
@@ -40,7 +40,7 @@ def closed_loop(model, subject):
 
 def _closed_loop_reference(cl, inputs):
     """The closed-loop tick function's (torque, torque_intrinsic, torque_reflex) over ``inputs``."""
-    from lpvpc.closed_loop import closed_loop_step
+    from lpvpc.export.closed_loop import closed_loop_step
 
     step = closed_loop_step(cl)
     out = ex.trajectory_function(step, len(inputs["angle"]))(
@@ -52,7 +52,7 @@ def _closed_loop_reference(cl, inputs):
 @pytest.fixture(scope="module")
 def fmus(model, closed_loop, tmp_path_factory):
     """Each FMU built once: {(variant, fmi_version): (path, extracted dir, timings)}."""
-    from lpvpc.closed_loop import export_closed_loop_fmu
+    from lpvpc.export.closed_loop import export_closed_loop_fmu
 
     folder = tmp_path_factory.mktemp("model_fmus")
     out = {}

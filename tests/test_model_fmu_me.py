@@ -18,19 +18,19 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmu_helpers import FMUInstance, delayed, reference
 
-from lpvpc import export as ex
+from lpvpc.export import exporter as ex
 
 TOL = 1e-9
 BUILDS = [("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3)]
-# the closed-loop form of the whole-joint model (lpvpc.closed_loop): inputs angle, angular_velocity,
+# the closed-loop form of the whole-joint model (lpvpc.export.closed_loop): inputs angle, angular_velocity,
 # a time event per base tick (1 ms)
 CLOSED_LOOP = [("closed_loop", 2), ("closed_loop", 3)]
 
 
 @pytest.fixture(scope="module")
 def fmus(model, subject, tmp_path_factory):
-    from lpvpc.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
-    from lpvpc.whole_joint import fit_whole_joint
+    from lpvpc.export.closed_loop import distillation_trial, export_closed_loop_fmu, fit_closed_loop
+    from lpvpc.export.whole_joint import fit_whole_joint
 
     wj = fit_whole_joint(model, subject["ident_pair"].ut)
     cl = fit_closed_loop(wj, [distillation_trial(wj, subject["ident_pair"].ut)])

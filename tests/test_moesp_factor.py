@@ -1,4 +1,4 @@
-"""The subspace step's factor from the Gram matrix of the block Hankel matrix (lpvpc.subspace.
+"""The subspace step's factor from the Gram matrix of the block Hankel matrix (lpvpc.identification.subspace.
 moesp_factor, hankel_gram; lpvpc.linalg.deflated_cholesky) against a QR of the matrix itself."""
 
 from __future__ import annotations
@@ -8,16 +8,16 @@ import pytest
 
 from lpvpc import linalg
 from lpvpc.linalg import DEFLATE_TOL, deflated_cholesky
-from lpvpc.segments import Segments
-from lpvpc.subspace import hankel_gram, hankel_rows, moesp_factor, po_moesp, streamed_r
+from lpvpc.io.segments import Segments
+from lpvpc.identification.subspace import hankel_gram, hankel_rows, moesp_factor, po_moesp, streamed_r
 
 
 @pytest.fixture(autouse=True)
 def gram_at_any_size(monkeypatch):
     """These matrices are small, where moesp_factor would take the QR for speed alone."""
-    import lpvpc.subspace
+    import lpvpc.identification.subspace
 
-    monkeypatch.setattr(lpvpc.subspace, "GRAM_MIN_WORK", 0)
+    monkeypatch.setattr(lpvpc.identification.subspace, "GRAM_MIN_WORK", 0)
 
 
 def _hankel(u_f, u_p, y, s, seg=None):
@@ -127,7 +127,7 @@ def test_po_moesp_poles_do_not_depend_on_the_route(seed, monkeypatch):
     # The same data through the Gram and the QR routes (forced): the same singular values
     # and poles (the dependent constant columns' rows are zero in one, arbitrary directions
     # of the complement in the other, so compare on data without exact repeats).
-    import lpvpc.subspace as subspace
+    import lpvpc.identification.subspace as subspace
 
     rng = np.random.default_rng(seed)
     u = rng.standard_normal((4000, 2))

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from lpvpc.cli import main
-from lpvpc.data import load_identification_data, load_trial, write_trial_csv
+from lpvpc.io import load_identification_data, load_trial, write_trial_csv
 from lpvpc.errors import DataError, OutOfRangeWarning, UnitWarning
-from lpvpc.simulate import simulate_pair
+from lpvpc.simulation.simulate import simulate_pair
 
 DURATION = 30.0  # s: enough to identify, quick
 
@@ -154,7 +154,7 @@ def test_emg_in_millivolts_for_a_model_fitted_in_volts_warns(tmp_path, capsys):
     assert "EMG in mV for V" in warning[0] and "unit of the identification data" in warning[0]
     assert "1e+03 times" in warning[0]  # the activation, 1000 times
 
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models.model import LPVPCModel
 
     fitted = LPVPCModel.load(model)
     data = load_identification_data(pt=paths["mV"][0], ut=paths["mV"][1])
@@ -237,8 +237,8 @@ def _report_text(html: str) -> str:
 
 
 def test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths(tmp_path):
-    from lpvpc.data import pair_trials
-    from lpvpc.improve import improve, physiology, write_report
+    from lpvpc.io import pair_trials
+    from lpvpc.diagnosis.improve import improve, physiology, write_report
 
     ident, novel = (pair_trials(p.pt, p.ut) for p in (
         simulate_pair(kind, seed=s, duration=60.0, effects=("nonlinear_viscosity",))
@@ -262,7 +262,7 @@ def test_improve_report_shows_the_physiology_of_each_step_and_no_repository_path
 def test_validation_report_of_a_model_with_effects_shows_its_intervals(files, tmp_path, capsys):
     """An extended model carries intervals like a base model (issue 22): the report's table
     shows them and the figures draw their bands."""
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models.model import LPVPCModel
     from lpvpc.validation import validate
 
     model = tmp_path / "effect.json"
@@ -288,8 +288,8 @@ def test_validation_report_of_a_model_with_effects_shows_its_intervals(files, tm
 def test_export_prints_the_fmus_interface_and_the_models_latency(files, tmp_path, capsys):
     from fmpy import read_model_description
 
-    from lpvpc.export import latency_samples
-    from lpvpc.model import LPVPCModel
+    from lpvpc.export.exporter import latency_samples
+    from lpvpc.models.model import LPVPCModel
 
     model = tmp_path / "m.json"
     assert _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)[0] == 0
@@ -312,8 +312,8 @@ def test_export_prints_the_fmus_interface_and_the_models_latency(files, tmp_path
 
 
 def test_simulate_and_identify_help_list_the_effect_catalog(capsys):
-    from lpvpc.effects import CATALOG
-    from lpvpc.simulate import EFFECTS
+    from lpvpc.models.effects import CATALOG
+    from lpvpc.simulation.simulate import EFFECTS
 
     for command in ("simulate", "identify", "improve"):
         with pytest.raises(SystemExit):

@@ -22,7 +22,7 @@ import pytest
 import scipy.io
 
 from lpvpc.cli import build_parser, main
-from lpvpc.outputs import input_file
+from lpvpc.io.outputs import input_file
 
 REPO = Path(__file__).resolve().parents[1]
 LIMIT_S = 120  # s per test: refusals cost CLI start-up only
@@ -49,7 +49,7 @@ def source(subject, model_file, tmp_path_factory):
     """Valid inputs (20 s of the novel record): PT/UT as CSV and as the variables pt, ut of
     s.mat, a perturbation file D.csv (and its held-out stand-in D2.csv), the model, and
     stand-ins for FMU and whole-joint inputs."""
-    from lpvpc.data import Trial, load_identification_data, write_perturbation_csv, write_trial_csv
+    from lpvpc.io import Trial, load_identification_data, write_perturbation_csv, write_trial_csv
 
     folder = tmp_path_factory.mktemp("policy_source")
     n = 20_000
@@ -196,20 +196,20 @@ COMMANDS = sorted(BASE)
 
 def _trap_work(m, trap):
     """Replace what reads inputs (the work) by ``trap``."""
-    import lpvpc.data
-    import lpvpc.identification_data
-    import lpvpc.model
-    import lpvpc.readers
-    import lpvpc.simulate
+    import lpvpc.io
+    import lpvpc.io.identification_data
+    import lpvpc.models.model
+    import lpvpc.io.readers
+    import lpvpc.simulation.simulate
     import lpvpc.validation
 
-    m.setattr(lpvpc.model.LPVPCModel, "load", trap)
+    m.setattr(lpvpc.models.model.LPVPCModel, "load", trap)
     # where the loaders are defined and where they are re-exported: a call through either is caught
-    for module in (lpvpc.data, lpvpc.readers, lpvpc.identification_data):
+    for module in (lpvpc.io, lpvpc.io.readers, lpvpc.io.identification_data):
         for name in ("load_identification_data", "load_trial"):
             if hasattr(module, name):
                 m.setattr(module, name, trap)
-    m.setattr(lpvpc.simulate, "write_dataset", trap)
+    m.setattr(lpvpc.simulation.simulate, "write_dataset", trap)
     m.setattr(lpvpc.validation, "validate", trap)
 
 

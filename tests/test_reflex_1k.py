@@ -13,11 +13,11 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import HighRate, PerturbationData, decimate_trial, join_trials, load_identification_data, pair_trials
+from lpvpc.io import HighRate, PerturbationData, decimate_trial, join_trials, load_identification_data, pair_trials
 from lpvpc.errors import DataError, ModelFileError
-from lpvpc.identify import identify
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.simulate import SubjectParams
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.simulation.simulate import SubjectParams
 
 TRUTH = SubjectParams()
 
@@ -101,8 +101,8 @@ def test_inconsistent_high_rate_signals_are_refused(subject):
 def test_high_rate_regressor_is_the_decimated_nonlinearity(subject):
     """high_rate_input's model-rate regressor times Omega equals high_rate_drive: the
     nonlinearity evaluated on the 1 kHz delayed velocity, then decimated (trial by trial)."""
-    from lpvpc.basis import basis_from_data
-    from lpvpc.reflex import high_rate_drive, high_rate_input
+    from lpvpc.models.basis import basis_from_data
+    from lpvpc.models.reflex import high_rate_drive, high_rate_input
 
     d = join_trials([subject["ident"].segment(None, 5000), subject["ident"].segment(5000, None)])
     rho_basis = basis_from_data(d.scheduling, "chebyshev", 2)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from lpvpc.errors import DataError, ModelFileError
-from lpvpc.model import LPVPCModel
+from lpvpc.models.model import LPVPCModel
 
 REPO = Path(__file__).resolve().parents[1]
 TIMEOUT = 120  # s: any hostile case must be refused long before this
@@ -123,7 +123,7 @@ def test_hostile_model_export_refused_quickly(case, base, tmp_path):
 
 @pytest.mark.parametrize("case", ["fs-0", "torque-sign-2", "position-unit", "unstable-reflex"])
 def test_hostile_model_predict_refused(case, base, tmp_path, subject):
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     pt, ut = tmp_path / "PT.csv", tmp_path / "UT.csv"
     write_trial_csv(subject["novel_pair"].pt, pt)
@@ -177,7 +177,7 @@ def test_fuzz_model_loader_small(base):
 def short_csv(subject, tmp_path_factory):
     """The first 20 s of the novel record as PT/UT CSV files (valid input: were an output
     written over them, the command would succeed)."""
-    from lpvpc.data import Trial, write_trial_csv
+    from lpvpc.io import Trial, write_trial_csv
 
     folder = tmp_path_factory.mktemp("short")
     n = 20_000
@@ -259,7 +259,7 @@ def test_report_folder_of_other_files_needs_force(files, capsys):
 
 # --------------------------------------------------------------------------- atomic outputs
 def test_staged_folder_is_all_or_nothing(tmp_path):
-    from lpvpc.outputs import staged_folder
+    from lpvpc.io.outputs import staged_folder
 
     folder = tmp_path / "report"
     folder.mkdir()
@@ -277,7 +277,7 @@ def test_staged_folder_is_all_or_nothing(tmp_path):
 
 
 def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
-    from lpvpc.outputs import atomic_path
+    from lpvpc.io.outputs import atomic_path
 
     target = tmp_path / "model.json"
     target.write_text("previous model")
@@ -298,9 +298,9 @@ def _cli_with_umask(mask, *argv, cwd):
 def test_every_output_has_the_same_mode(model, subject, tmp_path):
     """Model, predict's CSV and JSON, .casadi and sidecar, FMU and the validation report's SSP:
     all 0666 less the umask (the SSP was written 0600)."""
-    from lpvpc.actuator import build_actuator_fmu
-    from lpvpc.data import Trial, write_trial_csv
-    from lpvpc.export import export_fmu
+    from lpvpc.export.actuator import build_actuator_fmu
+    from lpvpc.io import Trial, write_trial_csv
+    from lpvpc.export.exporter import export_fmu
     from lpvpc.validation import validate
 
     n = 10_000  # 10 s of the novel record
@@ -412,7 +412,7 @@ def test_interrupted_validate_keeps_the_previous_report(model, subject, tmp_path
     loaded machine the validation could otherwise finish first)."""
     import signal
 
-    from lpvpc.data import Trial, write_trial_csv
+    from lpvpc.io import Trial, write_trial_csv
 
     n = 20_000
     for key, tr in (("PT", subject["novel_pair"].pt), ("UT", subject["novel_pair"].ut)):
@@ -454,7 +454,7 @@ def test_fmu_path_starting_with_a_dash_and_the_built_fmu_check(model_file, tmp_p
     from fmpy import read_model_description
 
     from lpvpc.errors import ExportError
-    from lpvpc.fmu_build import check_built_fmu
+    from lpvpc.export.fmu_build import check_built_fmu
 
     (tmp_path / "model.json").write_bytes(Path(model_file).read_bytes())
     r = _cli("export", "model.json", "--fmu=-out/m.fmu", cwd=tmp_path)
@@ -477,7 +477,7 @@ def test_fmu_path_starting_with_a_dash_and_the_built_fmu_check(model_file, tmp_p
 def test_csv_extra_text_columns_are_ignored(tmp_path, caplog):
     import logging
 
-    from lpvpc.data import load_trial
+    from lpvpc.io import load_trial
     from lpvpc.errors import DataError
 
     n = 40
@@ -504,9 +504,9 @@ def test_csv_extra_text_columns_are_ignored(tmp_path, caplog):
 def test_prediction_in_blocks_equals_the_whole_record(causal, subject, model, monkeypatch):
     """Prediction builds lagged positions block by block (memory bounded for any record
     length); the blocks' edges change nothing, also for an extended model."""
-    from lpvpc import equations as eq
-    from lpvpc.effects import signals_from_data
-    from lpvpc.identify import LPVPCEstimator
+    from lpvpc.models import equations as eq
+    from lpvpc.models.effects import signals_from_data
+    from lpvpc.identification.identify import LPVPCEstimator
 
     data = subject["novel"]
     extended = LPVPCEstimator(effects=("drift", "position_dependent_reflex_dynamics")).fit(subject["ident"]).model_
@@ -522,7 +522,7 @@ def test_prediction_in_blocks_equals_the_whole_record(causal, subject, model, mo
 
 
 def test_hostile_whole_joint_file_refused(model, subject, tmp_path):
-    from lpvpc.whole_joint import WholeJointModel, fit_whole_joint
+    from lpvpc.export.whole_joint import WholeJointModel, fit_whole_joint
 
     d = fit_whole_joint(model, subject["ident_pair"].ut).to_dict()
     for change, words in ((_set(("quasi_static", "basis", "order"), 10**6), "MAX_BASIS_ORDER"),
@@ -599,7 +599,7 @@ def test_v73_declared_size_is_never_allocated(subject, model_file, tmp_path):
     line naming the limit; the limit is settable."""
     import tracemalloc
 
-    from lpvpc.data import load_trial
+    from lpvpc.io import load_trial
 
     path = _v73_with_junk(tmp_path / "s.mat", subject["novel_pair"])
     tracemalloc.start()
@@ -634,8 +634,8 @@ def test_v5_declared_size_checked_in_compressed_elements(subject, tmp_path):
 
     import scipy.io
 
-    from lpvpc.data import load_trial
-    from lpvpc.matfiles import declared_sizes
+    from lpvpc.io import load_trial
+    from lpvpc.io.matfiles import declared_sizes
 
     n = 20_000
     path = tmp_path / "s5.mat"
@@ -658,7 +658,7 @@ def test_v5_declared_size_checked_in_compressed_elements(subject, tmp_path):
 
 
 def test_csv_over_the_limit_refused_before_reading(tmp_path, monkeypatch):
-    from lpvpc.data import load_trial
+    from lpvpc.io import load_trial
 
     path = tmp_path / "big.csv"
     path.write_text("time,position,torque\n" + "".join(f"{k / 1000},0.01,0.5\n" for k in range(5000)))

@@ -1,4 +1,4 @@
-"""Structure selection by cross-validation (lpvpc.selection, issue 22): folds, the exactness
+"""Structure selection by cross-validation (lpvpc.identification.selection, issue 22): folds, the exactness
 of scoring candidates on one largest regressor's fold Gram matrices, and structure="cv"
 in the estimator, the model file and the command line."""
 
@@ -10,16 +10,16 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc import equations as eq
-from lpvpc.basis import Basis, basis_from_data
-from lpvpc.data import pair_trials
-from lpvpc.identify import LPVPCEstimator
-from lpvpc.intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
-from lpvpc.reflex import reflex_input_regressor, reflex_regressor
-from lpvpc.segments import Segments
-from lpvpc.selection import StructureSearch, level_folds
-from lpvpc.simulate import simulate_pair
-from lpvpc.subspace import companion_form
+from lpvpc.models import equations as eq
+from lpvpc.models.basis import Basis, basis_from_data
+from lpvpc.io import pair_trials
+from lpvpc.identification.identify import LPVPCEstimator
+from lpvpc.models.intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
+from lpvpc.models.reflex import reflex_input_regressor, reflex_regressor
+from lpvpc.io.segments import Segments
+from lpvpc.identification.selection import StructureSearch, level_folds
+from lpvpc.simulation.simulate import simulate_pair
+from lpvpc.identification.subspace import companion_form
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +79,7 @@ def test_candidate_scores_equal_explicit_fits_on_each_folds_training_rows(record
 
 
 def test_structure_cv_chooses_records_and_round_trips(record, tmp_path):
-    from lpvpc.model import LPVPCModel
+    from lpvpc.models.model import LPVPCModel
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -134,7 +134,7 @@ def test_selection_is_skipped_where_it_cannot_apply_and_bad_values_are_refused(r
 
 def test_cli_structure_cv_prints_the_choice_and_keeps_written_options(record, tmp_path, capsys):
     from lpvpc.cli import main
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     sim = simulate_pair("multilevel", seed=3, duration=60.0, fs_out=100.0)
     write_trial_csv(sim.pt, tmp_path / "PT.csv")
@@ -192,7 +192,7 @@ def test_default_is_cross_validated_and_named_settings_stay_as_given(record):
 def test_everything_fixed_gives_the_fixed_structures_model(record):
     """With every selected setting fixed, structure="cv" refits the starting structure from the
     first fit's subspace step and state order: the model of structure="fixed", intervals included."""
-    from lpvpc.selection import SEARCH
+    from lpvpc.identification.selection import SEARCH
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -208,8 +208,8 @@ def test_everything_fixed_gives_the_fixed_structures_model(record):
 def test_end_fold_rows_from_the_change_in_a_window_equal_a_rebuilt_regressor(record, joined):
     """An end fold's rows under a rule are the whole-range regressor's plus the change of the
     held basis values, its reflex filters run over a window only: equal to rebuilding it."""
-    from lpvpc.data import join_trials
-    from lpvpc.selection import _held_basis
+    from lpvpc.io import join_trials
+    from lpvpc.identification.selection import _held_basis
 
     d = join_trials([record.segment(0, 2500), record.segment(2500, None)]) if joined else record
     A, C = companion_form(np.poly([0.9, 0.8])[1:])
@@ -240,7 +240,7 @@ def record_1k():
 
 
 def _gain_slope_ratio(model):
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.simulation.simulate import SubjectParams
 
     lo, hi = model.scheduling_range
     rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
@@ -318,7 +318,7 @@ def test_bad_reflex_path_settings_are_refused(record, tmp_path):
 
 def test_cli_prints_the_reflex_path_and_keeps_a_written_one(record_1k, tmp_path, capsys):
     from lpvpc.cli import main
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     sim = simulate_pair("multilevel", seed=9, duration=60.0, fs_out=1000.0)
     write_trial_csv(sim.pt, tmp_path / "PT.csv")
@@ -340,7 +340,7 @@ def test_one_standard_error_rule_does_not_shorten_the_irf_that_k_theta_is_summed
     # 30 ms one with fewer parameters lies within one standard error; picked, it truncated the
     # decimated inertia/viscosity terms into K(theta) (worst central error 2.5-2.6 %). The rule
     # keeps the best's half-width: 2.1 %.
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.simulation.simulate import SubjectParams
 
     sim = simulate_pair("multilevel", seed=4)
     with warnings.catch_warnings():

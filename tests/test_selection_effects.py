@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 
 from lpvpc.cli import main
-from lpvpc.data import pair_trials, stationary_perturbation
-from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffnesses
-from lpvpc.identify import identify
-from lpvpc.model import LPVPCModel
-from lpvpc.modelfile import check_model_dict
-from lpvpc.simulate import simulate_pair
+from lpvpc.io import pair_trials, stationary_perturbation
+from lpvpc.models.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffnesses
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import LPVPCModel
+from lpvpc.models.modelfile import check_model_dict
+from lpvpc.simulation.simulate import simulate_pair
 
 EFFECT = "stress_relaxation"
 SEED = 1  # a development seed (benchmarks/bench_effect_selection.py reports seeds 100-109)
@@ -67,10 +67,10 @@ def test_relaxation_chosen_on_a_record_with_it(relaxation_run):
 def test_relaxation_time_chosen_stored_and_exported(relaxation_run, tmp_path):
     """The relaxation's time is chosen per record from the grid (the subject's is 0.6 s; K
     trades with it), stored with the term, and the exported step averages over that time."""
-    from lpvpc import export
-    from lpvpc.effects import model_relaxation_times
-    from lpvpc.selection import RELAXATION_VARIANTS, variant_label
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.export import exporter as export
+    from lpvpc.models.effects import model_relaxation_times
+    from lpvpc.identification.selection import RELAXATION_VARIANTS, variant_label
+    from lpvpc.simulation.simulate import SubjectParams
 
     path, _ = relaxation_run
     model = LPVPCModel.load(path)
@@ -113,8 +113,8 @@ def test_forced_relaxation_chooses_its_term_unless_given():
     """Stress relaxation forced (effects=) keeps the structure as given, but its term is chosen
     like the selection's (the catalog's three times put K 8.5 % off on a relaxing subject,
     covered 30.6 %); a term given is kept as given."""
-    from lpvpc.effects import model_relaxation_times
-    from lpvpc.simulate import SubjectParams
+    from lpvpc.models.effects import model_relaxation_times
+    from lpvpc.simulation.simulate import SubjectParams
 
     sim = simulate_pair("multilevel", seed=SEED, fs_out=100.0, effects=(EFFECT,))
     data = pair_trials(sim.pt, sim.ut)
@@ -228,7 +228,7 @@ def test_cli_bad_allowed_effect_is_one_line_exit_2(tmp_path, name, says):
 def test_improve_keeps_the_effect_the_base_selection_chose():
     """``improve`` refits every step at the base model's chosen structure; an effect its
     selection switched on stays in every step (it had been dropped: two changes in one step)."""
-    from lpvpc.improve import improve
+    from lpvpc.diagnosis.improve import improve
 
     pairs = [pair_trials(*(lambda s: (s.pt, s.ut))(simulate_pair(kind, seed=s, duration=120.0, fs_out=100.0,
                                                                   effects=(EFFECT,))))
@@ -241,7 +241,7 @@ def test_improve_keeps_the_effect_the_base_selection_chose():
     assert base.effects == (EFFECT,) and base.label == f"base model + {EFFECT}"
     assert all(EFFECT in r.effects and EFFECT in [fe.name for fe in r.model.effects] for r in ladder.rungs)
     # with the term it chose (the catalog's, refitted in a later step, would change the base too)
-    from lpvpc.effects import model_relaxation_times
+    from lpvpc.models.effects import model_relaxation_times
 
     assert all(model_relaxation_times(r.model) == model_relaxation_times(base.model) for r in ladder.rungs)
     assert base.settings["relaxation_times"] == base.model.settings["relaxation_times"]

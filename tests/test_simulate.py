@@ -1,4 +1,4 @@
-"""Tests of the virtual subject (lpvpc.simulate)."""
+"""Tests of the virtual subject (lpvpc.simulation.simulate)."""
 
 import json
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from lpvpc.simulate import (
+from lpvpc.simulation.simulate import (
     EFFECTS,
     SimulatedPair,
     SubjectParams,
@@ -157,7 +157,7 @@ def test_the_pair_takes_the_lab_pulse_perturbation_and_records_it():
 def test_the_pair_takes_a_prbs_without_quiet_windows():
     """PRBS: +-amplitude switching every 50-150 ms; unlike PRALDS it leaves almost no
     quiet window (no movement in the last 150 ms) for a background-EMG estimate."""
-    from lpvpc.effects import quiet_mask
+    from lpvpc.models.effects import quiet_mask
 
     pr = simulate_pair("multilevel", seed=0, duration=20.0, fs_out=1000.0, perturbation="prbs")
     d = pr.pt.channels["command"] - pr.ut.channels["command"]
@@ -248,7 +248,7 @@ def test_each_effect_changes_the_torque(name, base100):
 def test_effects_outside_the_catalog_act_on_their_pathway_and_are_off_by_default(name, pathway, base100):
     """The benchmark's out-of-catalog effects: no diagnosis-catalog entry, absent unless asked
     for, and when asked for they change only their own pathway's torque, measurably."""
-    from lpvpc.effects import CATALOG
+    from lpvpc.models.effects import CATALOG
 
     assert name not in CATALOG and name not in {e.subject for e in CATALOG.values()}
     assert base100.truth["effects"] == []  # off by default
@@ -346,7 +346,7 @@ def test_write_dataset_roundtrip(tmp_path):
 
 
 def test_pair_trials_reproduces_the_simulated_perturbation(base100):
-    from lpvpc.data import pair_trials
+    from lpvpc.io import pair_trials
 
     pr = simulate_pair("multilevel", seed=0, fs_out=1000.0)
     d = pair_trials(pr.pt_clean, pr.ut_clean, target_fs=100.0)
@@ -364,7 +364,7 @@ def test_emg_is_a_rectified_band_limited_noise_whose_amplitude_follows_the_drive
     e = pr.ut.channels["emg"] / p.emg_volts  # activation units; UT: no reflex at a held position
     assert np.mean(e) == pytest.approx(np.hypot(p.emg_tonic, p.emg_noise), rel=0.05)
     assert 0.1 < np.std(e) / np.mean(e) < 0.5  # a noise carrier, not a smooth envelope
-    from lpvpc.simulate import emg_envelope
+    from lpvpc.simulation.simulate import emg_envelope
     rng = np.random.default_rng(0)
     twice = emg_envelope(np.full(20000, 0.3), np.zeros(20000), 1000.0, rng, p)
     assert np.mean(twice) / p.emg_volts == pytest.approx(np.hypot(0.3, p.emg_noise), rel=0.05)

@@ -23,10 +23,10 @@ from fmpy import read_model_description
 from fmpy.ssp.simulation import simulate_ssp
 from fmpy.ssp.ssd import read_ssd
 
-from lpvpc.actuator import ACTUATOR_DEFAULTS, build_actuator_fmu
-from lpvpc.data import Trial, write_trial_csv
+from lpvpc.export.actuator import ACTUATOR_DEFAULTS, build_actuator_fmu
+from lpvpc.io import Trial, write_trial_csv
 from lpvpc.errors import FMUError
-from lpvpc.export import export_fmu
+from lpvpc.export.exporter import export_fmu
 from lpvpc.validation import CosimSettings, validate
 from lpvpc.validation.cosim import ACTUATOR_INPUTS, MODEL_INPUTS, connections, run_cosimulation
 from lpvpc.validation.fmu import FMUInstance, inspect_fmu
@@ -275,7 +275,7 @@ def test_portable_ssp_connects_elements_only_and_states_parameters_and_steps(por
 def test_portable_ssp_runs_in_libcosim_and_ecos_like_the_harness(portable, engine):
     """The engine loads the archive as it is and runs it; its model torque (the exact FMU's,
     latency L removed) is within 1 VAF point of the harness's co-simulation."""
-    from lpvpc.model import vaf
+    from lpvpc.models.model import vaf
     from lpvpc.validation.engines import available, run_portable_ssp
 
     why = available(engine)

@@ -10,11 +10,11 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import PerturbationData, stationary_perturbation
+from lpvpc.io import PerturbationData, stationary_perturbation
 from lpvpc.errors import StationaryWarning
-from lpvpc.identify import STATIONARY_DELAYS, LPVPCEstimator, identify
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.simulate import SubjectParams, simulate_pair
+from lpvpc.identification.identify import STATIONARY_DELAYS, LPVPCEstimator, identify
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
 
 def split(delay, seed):
@@ -115,7 +115,7 @@ def test_unstable_moesp_poles_are_refined_inside_or_lose(late_reflex, monkeypatc
     the pole refinement starts it just inside the allowed radius (time constant at most
     ``max_reflex_time_constant``) and every chosen model is stable; without refinement the
     unstable order must lose to a stable one."""
-    from lpvpc.subspace import SubspaceResult
+    from lpvpc.identification.subspace import SubspaceResult
 
     system = SubspaceResult.system
 
@@ -126,7 +126,7 @@ def test_unstable_moesp_poles_are_refined_inside_or_lose(late_reflex, monkeypatc
         return A, C
 
     monkeypatch.setattr(SubspaceResult, "system", unstable_at_three)
-    from lpvpc.identify import DEFAULT_MAX_REFLEX_TIME_CONSTANT
+    from lpvpc.identification.identify import DEFAULT_MAX_REFLEX_TIME_CONSTANT
 
     limit = np.exp(-1.0 / (DEFAULT_MAX_REFLEX_TIME_CONSTANT * late_reflex[0].fs))
     m = fit_quiet(late_reflex[0], stationary_delays=())

@@ -1,4 +1,4 @@
-"""The structural term of the intrinsic intervals (lpvpc.structural_uncertainty): the spread
+"""The structural term of the intrinsic intervals (lpvpc.identification.structural_uncertainty): the spread
 over the structures cross-validation cannot tell apart, on stiffness families the position
 basis cannot hold."""
 
@@ -9,12 +9,12 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import pair_trials
+from lpvpc.io import pair_trials
 from lpvpc.errors import ModelFileError
-from lpvpc.identify import identify
-from lpvpc.model import LPVPCModel
-from lpvpc.simulate import SubjectParams, simulate_pair
-from lpvpc.structural_uncertainty import (
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import LPVPCModel
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair
+from lpvpc.identification.structural_uncertainty import (
     INTRINSIC_SETTINGS,
     REFLEX_SETTINGS,
     add_structural_uncertainty,
@@ -22,7 +22,7 @@ from lpvpc.structural_uncertainty import (
     structural_term,
     structure_search,
 )
-from lpvpc.uncertainty import intrinsic_interval_parts, reflex_structural_shift, structural_shift
+from lpvpc.models.uncertainty import intrinsic_interval_parts, reflex_structural_shift, structural_shift
 
 N_POS = 9
 
@@ -102,7 +102,7 @@ def test_the_shift_is_the_largest_difference_to_the_model_structure_refitted_ali
     assert [x["settings"] for x in again["structures"]] == [s.settings for s in intrinsic]
     assert len(intrinsic) < len([s for s in near if s.settings != start])  # some near ones changed the reflex
     # by hand for one structure: the shift of K is the sum over lags of the IRF weights' shift
-    from lpvpc.basis import Basis
+    from lpvpc.models.basis import Basis
 
     st = model.uncertainty["structural"]
     G = Basis.from_dict(st["basis"]).evaluate(rho)
@@ -198,8 +198,8 @@ def test_the_reflex_term_refits_the_model_structure_alike(piecewise):
     held) gives the model's own gain within a few per cent: the columns are read right."""
     _, model, _, rho, _ = piecewise
     term = model.uncertainty["structural"]["reflex"]
-    from lpvpc.basis import Basis
-    from lpvpc.reflex import rectifier_fit
+    from lpvpc.models.basis import Basis
+    from lpvpc.models.reflex import rectifier_fit
 
     G = Basis.from_dict(term["rho_basis"]).evaluate(rho)
     v, _ = model.rectifier_velocity_grid()
@@ -260,9 +260,9 @@ def test_the_explicit_1khz_path_counts_the_model_rate_path_for_viscosity(simple_
     with pytest.raises(ModelFileError, match=r"structural\.path\.quantities must be a list drawn from viscosity"):
         LPVPCModel.from_dict(bad)
     # by hand: the shift is the model's viscosity minus that of the model-rate refit of its structure
-    from lpvpc.basis import Basis
-    from lpvpc.structural_uncertainty import _refit_irf
-    from lpvpc.uncertainty import lag_moment_weights
+    from lpvpc.models.basis import Basis
+    from lpvpc.identification.structural_uncertainty import _refit_irf
+    from lpvpc.models.uncertainty import lag_moment_weights
 
     G = Basis.from_dict(st["basis"]).evaluate(rho)
     w = lag_moment_weights(model, "viscosity", st["lags"])

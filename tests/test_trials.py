@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lpvpc import equations as eq
+from lpvpc.models import equations as eq
 from lpvpc.cli import main
-from lpvpc.data import (
+from lpvpc.io import (
     PerturbationData,
     join_trials,
     load_identification_data,
@@ -15,12 +15,12 @@ from lpvpc.data import (
     write_perturbation_csv,
 )
 from lpvpc.errors import DataError
-from lpvpc.identify import identify
-from lpvpc.intrinsic import intrinsic_regressor
-from lpvpc.model import LPVPCModel, vaf
-from lpvpc.segments import Segments
-from lpvpc.simulate import simulate_pair
-from lpvpc.subspace import hankel_rows, streamed_r
+from lpvpc.identification.identify import identify
+from lpvpc.models.intrinsic import intrinsic_regressor
+from lpvpc.models.model import LPVPCModel, vaf
+from lpvpc.io.segments import Segments
+from lpvpc.simulation.simulate import simulate_pair
+from lpvpc.identification.subspace import hankel_rows, streamed_r
 
 
 def _data(n, seed, fs=100.0):
@@ -215,7 +215,7 @@ def test_two_halves_as_two_trials_match_the_whole_record(subject, model):
 
 
 def test_diagnosis_refuses_joined_trials(model):
-    from lpvpc.diagnose import diagnose
+    from lpvpc.diagnosis.diagnose import diagnose
 
     joint = join_trials([_data(400, 1), _data(400, 2)])
     with pytest.raises(DataError, match="the diagnosis takes one trial; got 2 joined trials"):

@@ -1,4 +1,4 @@
-"""Confidence intervals (lpvpc.uncertainty): the HAC estimate, the intervals of the
+"""Confidence intervals (lpvpc.models.uncertainty): the HAC estimate, the intervals of the
 physical quantities against the virtual subject's truth, storage in the model file.
 Coverage over many seeds is measured in benchmarks/bench_uncertainty.py."""
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from lpvpc.errors import ModelFileError
-from lpvpc.model import LPVPCModel, rectifier_fit
-from lpvpc.simulate import SubjectParams
-from lpvpc.uncertainty import long_run_covariance, vaf_interval
+from lpvpc.models.model import LPVPCModel, rectifier_fit
+from lpvpc.simulation.simulate import SubjectParams
+from lpvpc.models.uncertainty import long_run_covariance, vaf_interval
 
 TRUTH = SubjectParams()
 
@@ -142,7 +142,7 @@ def test_model_file_schema_checks_the_data_density(model, tmp_path):
 
 
 def test_bias_aware_critical_value_keeps_coverage_under_the_bias_bound():
-    from lpvpc.uncertainty import bias_aware_critical_value
+    from lpvpc.models.uncertainty import bias_aware_critical_value
 
     rng = np.random.default_rng(5)
     for t in (0.0, 0.7, 2.5):
@@ -170,7 +170,7 @@ def test_unidentified_parameters_give_no_interval_rather_than_noise(model):
     """A reflex pathway that came out zero (B = D = 0) leaves the nonlinearity's direction
     undetermined: the final fit's Jacobian is singular, and fit_uncertainty says so instead of
     inverting rounding errors into enormous 'intervals'. With a reflex it gives finite ones."""
-    from lpvpc.uncertainty import fit_uncertainty
+    from lpvpc.models.uncertainty import fit_uncertainty
 
     rng = np.random.default_rng(0)
     n = 2000

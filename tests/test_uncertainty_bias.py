@@ -1,4 +1,4 @@
-"""Bias-aware intrinsic intervals (lpvpc.uncertainty.structural_bias_bound) and the
+"""Bias-aware intrinsic intervals (lpvpc.models.uncertainty.structural_bias_bound) and the
 stiffness truth the coverage benchmark uses (SubjectParams.incremental_stiffness)."""
 
 import dataclasses
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from lpvpc.errors import ModelFileError
-from lpvpc.identify import identify
-from lpvpc.model import LPVPCModel
-from lpvpc.simulate import SubjectParams
-from lpvpc.uncertainty import (
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import LPVPCModel
+from lpvpc.simulation.simulate import SubjectParams
+from lpvpc.models.uncertainty import (
     bias_aware_critical_value,
     intrinsic_interval,
     structural_bias_bound,
@@ -85,7 +85,7 @@ def test_the_shorter_irf_bounds_k_and_inertia_not_viscosity(model):
         else:
             assert np.array_equal(with_t, without) and np.all(with_t > 0)
     # the truncation's viscosity shift is large against the noise: it would have dominated
-    from lpvpc.uncertainty import _gradients_intrinsic, intrinsic_interval_parts, lag_moment_weights
+    from lpvpc.models.uncertainty import _gradients_intrinsic, intrinsic_interval_parts, lag_moment_weights
 
     est, se, bias = intrinsic_interval_parts(model, "viscosity", rho)
     t = model.uncertainty["truncation"]
@@ -133,9 +133,9 @@ def test_recorded_inertial_torque_carries_no_spurious_viscosity():
     """An inertia-plus-spring ankle (B = 0) must give an IRF with zero first moment. With
     the servo's acceleration sampled at its jumps (the held command) the IRF read
     ~0.2 N m s/rad of viscosity; the anti-aliased recording does not."""
-    from lpvpc.data import decimate_signal
-    from lpvpc.equations import lagged
-    from lpvpc.simulate import FS_SIM, pralds, recorded_acceleration, servo
+    from lpvpc.io import decimate_signal
+    from lpvpc.models.equations import lagged
+    from lpvpc.simulation.simulate import FS_SIM, pralds, recorded_acceleration, servo
 
     cmd = pralds(60.0, FS_SIM, np.random.default_rng(4))
     theta = servo(cmd, FS_SIM, TRUTH)[0]

@@ -17,13 +17,13 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import pair_trials
+from lpvpc.io import pair_trials
 from lpvpc.errors import ModelFileError
-from lpvpc.identify import LPVPCEstimator, identify
-from lpvpc.model import LPVPCModel
-from lpvpc.simulate import SubjectParams, simulate_pair
-from lpvpc.effects import relaxation_stiffnesses
-from lpvpc.uncertainty import intrinsic_interval_parts, relaxed_stiffness_interval
+from lpvpc.identification.identify import LPVPCEstimator, identify
+from lpvpc.models.model import LPVPCModel
+from lpvpc.simulation.simulate import SubjectParams, simulate_pair
+from lpvpc.models.effects import relaxation_stiffnesses
+from lpvpc.models.uncertainty import intrinsic_interval_parts, relaxed_stiffness_interval
 
 EFFECT = "stress_relaxation"
 TRUTH = SubjectParams()
@@ -116,7 +116,7 @@ def test_model_file_refuses_an_extension_on_a_model_without_effects(models, tmp_
 
 def test_summary_and_report_show_the_extended_model_with_intervals(models):
     from lpvpc.cli import _physical_summary, _relaxation_summary
-    from lpvpc.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffness_entry
+    from lpvpc.models.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffness_entry
     from validation.report import _physiology_table
 
     model = models[True]
@@ -151,8 +151,8 @@ def test_relaxed_stiffness_interval_covers_the_truth(record, models):
 def test_structural_term_counts_the_structure_without_the_effects(record, models):
     """An extended model's structural term holds its own structure without the effects (the
     selection compared them on and off), so its K and viscosity intervals widen."""
-    from lpvpc.structural_uncertainty import add_structural_uncertainty
-    from lpvpc.uncertainty import structural_shift
+    from lpvpc.identification.structural_uncertainty import add_structural_uncertainty
+    from lpvpc.models.uncertainty import structural_shift
 
     _, data = record
     model = copy.deepcopy(models[True])
@@ -197,7 +197,7 @@ def test_effects_that_leave_the_base_pathway_undetermined_give_no_intervals():
     standard error far beyond MAX_EXTENSION_INFLATION: no intervals (identify warns and
     keeps the model); an unrelated column does not."""
     from lpvpc.linalg import triangular_factor
-    from lpvpc.uncertainty import _check_extension_inflation
+    from lpvpc.models.uncertainty import _check_extension_inflation
 
     rng = np.random.default_rng(0)
     X = rng.standard_normal((2000, 4))  # 3 base columns, then a reflex column
@@ -228,7 +228,7 @@ def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
     assert "Stress relaxation was asked for" in html  # forced, not chosen by the cross-validation
     rho5 = np.round(central_rho(model, 5), 2)
     (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho5), relaxed_stiffness_interval(model, rho5)
-    plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.effects)
+    plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.models.effects)
     assert plausible.sum() >= 3
     assert all((f"({a:.1f}–{b:.1f})" in html) == ok for a, b, ok in zip(lo, hi, plausible))
 
@@ -238,8 +238,8 @@ def test_effect_coefficients_too_uncertain_for_the_file_are_marginalised_out(tmp
     variances exceed the model file's MAX_ABS_VALUE. Their block is dropped (the base and
     reflex blocks are the marginal ones either way) and the model saves, loads and keeps
     its K intervals."""
-    from lpvpc.identification_data import load_identification_data
-    from lpvpc.modelfile import MAX_ABS_VALUE
+    from lpvpc.io.identification_data import load_identification_data
+    from lpvpc.models.modelfile import MAX_ABS_VALUE
 
     sim = simulate_pair("multilevel", seed=0, effects=("background_activation",), duration=60.0)
     with warnings.catch_warnings():

@@ -1,4 +1,4 @@
-"""Reflex gain and threshold intervals (lpvpc.uncertainty.reflex_interval): the delta
+"""Reflex gain and threshold intervals (lpvpc.models.uncertainty.reflex_interval): the delta
 method through the identifiable product of nonlinearity and dynamics, checked against the
 spread of the estimate over noise realisations of the same trials."""
 
@@ -9,13 +9,13 @@ import warnings
 import numpy as np
 import pytest
 
-from lpvpc.data import pair_trials
+from lpvpc.io import pair_trials
 from lpvpc.errors import ModelFileError
-from lpvpc.identify import identify
-from lpvpc.model import LPVPCModel
-from lpvpc.simulate import coloured_noise
-from lpvpc.subspace import companion_form
-from lpvpc.uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, reflex_bias_bound, z_value
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import LPVPCModel
+from lpvpc.simulation.simulate import coloured_noise
+from lpvpc.identification.subspace import companion_form
+from lpvpc.models.uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, reflex_bias_bound, z_value
 
 
 def central_rho(model, n=9):
@@ -93,7 +93,7 @@ def test_the_knee_rounding_widens_the_threshold_interval_on_its_own_side_only(mo
     """The velocity basis's rounding of the knee has a known sign (estimate minus truth within
     [0, shift]): the threshold interval reaches further by it on that side and no further on
     the other, where a bias of unknown sign would widen both."""
-    import lpvpc.uncertainty as unc
+    import lpvpc.models.uncertainty as unc
 
     rho = central_rho(model_1k, 9)
     v = model_1k.rectifier_velocity_grid()[0]
@@ -174,8 +174,8 @@ def model_weak(tmp_path_factory):
     """30 s of +-0.01 rad perturbations from 1 kHz files (through the CSV loaders): the
     stretch velocities rarely pass the plantarflexed threshold (0.7 rad/s), too little
     reflex excitation to determine it."""
-    from lpvpc.data import load_identification_data, write_trial_csv
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.io import load_identification_data, write_trial_csv
+    from lpvpc.simulation.simulate import simulate_pair
 
     folder = tmp_path_factory.mktemp("weak")
     sim = simulate_pair("multilevel", seed=3, duration=30.0, perturbation_amplitude=0.01)
@@ -190,7 +190,7 @@ def model_weak(tmp_path_factory):
 def test_a_normal_record_determines_gain_and_threshold(model_1k):
     """2 minutes of +-0.04 rad from 1 kHz files, reflex on the 1 kHz velocity: over the
     central 80 % of the range both are determined, and the intervals are the ones shown."""
-    from lpvpc.uncertainty import THRESHOLD_UNDETERMINED_FRACTION
+    from lpvpc.models.uncertainty import THRESHOLD_UNDETERMINED_FRACTION
 
     rho = central_rho(model_1k)
     g_ok, th_ok = model_1k.reflex_determined(rho)
@@ -207,7 +207,7 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
 
     from lpvpc import plotting
     from lpvpc.cli import _physical_summary
-    from lpvpc.uncertainty import NOT_DETERMINED
+    from lpvpc.models.uncertainty import NOT_DETERMINED
 
     lo, hi = model_weak.scheduling_range
     rho = np.linspace(lo, hi, 9)
@@ -247,7 +247,7 @@ def test_model_rate_threshold_is_not_determined_and_gain_is(model_rate):
     """The 100 Hz nonlinearity: the threshold is not observable (smoothed pulses),
     the gain is determined and its interval allows for the smoothed knee."""
     from lpvpc.cli import _physical_summary
-    from lpvpc.uncertainty import NOT_DETERMINED
+    from lpvpc.models.uncertainty import NOT_DETERMINED
 
     model = model_rate
     rho = central_rho(model)
@@ -265,7 +265,7 @@ def test_the_threshold_interval_keeps_a_truth_whose_knee_the_basis_rounds_into_t
     rounds up by 0.3 is fitted at ~0.6, inside the data's interval [0.5, 0.7], so 0.3 stays in
     the threshold's interval; a shift taken at the estimate (0 at 0.6) would have dropped it.
     Thresholds consistent with no shift stay in; those fitted outside the data's interval do not."""
-    from lpvpc.uncertainty import _inverted_threshold_interval
+    from lpvpc.models.uncertainty import _inverted_threshold_interval
 
     t = np.linspace(0.0, 1.5, 301)  # rad/s
     s_t = np.where(t < 0.4, 0.3, 0.0)  # the basis rounds low knees up by 0.3 rad/s

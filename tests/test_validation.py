@@ -22,9 +22,9 @@ import report_browser
 from report_browser import assert_layout_ok, check_page
 
 from lpvpc.cli import build_parser, cmd_validate, main
-from lpvpc.data import Trial, decimate_trial, write_trial_csv
+from lpvpc.io import Trial, decimate_trial, write_trial_csv
 from lpvpc.errors import DataError, FMUError
-from lpvpc.model import LPVPCModel, vaf
+from lpvpc.models.model import LPVPCModel, vaf
 from lpvpc.validation import CosimSettings, validate
 from lpvpc.validation.cosim import ActuatorDrive, _check_finite, run_cosimulation
 from lpvpc.validation.fmu import inspect_fmu
@@ -371,8 +371,8 @@ def _drive(short, ratio=10, seconds=5.0):
 
 
 def test_fmi3_cosimulation_equals_fmi2_and_couplings_agree(full, short, model, tmp_path):
-    from lpvpc.actuator import build_actuator_fmu
-    from lpvpc.export import export_fmu
+    from lpvpc.export.actuator import build_actuator_fmu
+    from lpvpc.export.exporter import export_fmu
 
     fmus = full["report"] / "fmus"
     m2, a2 = inspect_fmu(export_fmu(model, tmp_path / "m2.fmu")), inspect_fmu(fmus / "actuator_fmi2.fmu")
@@ -396,7 +396,7 @@ def test_exact_fmu_in_the_loop_loads_the_actuator_with_its_latency(full, short, 
     """The exact FMU's output at step k is the torque of k - L: the master shifts it back to
     its time and applies it to the PT actuator over step k (L steps late), and a latency
     that does not match the FMU's variant is refused."""
-    from lpvpc.export import latency_samples
+    from lpvpc.export.exporter import latency_samples
 
     fmus = full["report"] / "fmus"
     m_ex, act = inspect_fmu(fmus / "model_exact_fmi2.fmu"), inspect_fmu(fmus / "actuator_fmi2.fmu")
@@ -518,7 +518,7 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
     predict read it: the UT actuator holds the trial's mean position, loaded by its mean torque;
     the offline VAF is predict's; the report shows its one operating position. With --ut: one
     line, exit 2; with a whole-joint model: refused before anything is read."""
-    from lpvpc.simulate import simulate_pair
+    from lpvpc.simulation.simulate import simulate_pair
 
     pt = simulate_pair("stationary", seed=2, duration=40.0).pt
     k = int(0.7 * len(pt.time))
@@ -555,7 +555,7 @@ def test_a_stationary_trial_validates_alone(full, tmp_path):
 def test_summary_does_not_quote_a_reflex_gain_the_data_do_not_determine(model, monkeypatch):
     """The report's summary quotes the reflex gain at the range's ends only where the table
     does: an end the data do not determine is said to be so, not given as a number."""
-    from lpvpc.uncertainty import NOT_DETERMINED
+    from lpvpc.models.uncertainty import NOT_DETERMINED
     from lpvpc.validation.report import _physiology_sentence
 
     lo, hi = model.scheduling_range

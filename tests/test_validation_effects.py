@@ -1,4 +1,4 @@
-"""Validation of an extended model (identified with effects, :mod:`lpvpc.effects`):
+"""Validation of an extended model (identified with effects, :mod:`lpvpc.models.effects`):
 ``lpvpc validate`` feeds the record's extra signals (here ``scheduling_velocity``,
 ``emg`` and ``emg_ut``) to every route: numpy, CasADi, the FMU replay and the
 co-simulation (the model FMU's extra inputs set from the record at each model step).
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from lpvpc.cli import main
-from lpvpc.data import Trial, load_identification_data, write_trial_csv
-from lpvpc.effects import signals_from_data
-from lpvpc.identify import identify
-from lpvpc.model import vaf
-from lpvpc.simulate import simulate_pair
+from lpvpc.io import Trial, load_identification_data, write_trial_csv
+from lpvpc.models.effects import signals_from_data
+from lpvpc.identification.identify import identify
+from lpvpc.models.model import vaf
+from lpvpc.simulation.simulate import simulate_pair
 
 EFFECTS = ("background_activation", "nonlinear_viscosity")
 

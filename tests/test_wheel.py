@@ -56,7 +56,7 @@ def wheel_venv(tmp_path_factory):
 def test_wheel_ships_sources_and_exports_and_simulates_both_fmi_versions(wheel_venv, model):
     py, lpvpc, work = wheel_venv
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "LPVPC_FMU_MODELS")}
-    where = _run([py, "-c", "import lpvpc, lpvpc.validation, lpvpc.fmu_build as b; "
+    where = _run([py, "-c", "import lpvpc, lpvpc.validation, lpvpc.export.fmu_build as b; "
                             "print(lpvpc.__file__); print(lpvpc.validation.__file__); print(b.wrapper_dir())"],
                  cwd=work, env=env).split()
     for path in where:  # everything comes from the venv, nothing from the checkout
@@ -70,8 +70,9 @@ def test_wheel_ships_sources_and_exports_and_simulates_both_fmi_versions(wheel_v
         import numpy as np
         from fmpy import read_model_description, simulate_fmu
         from fmpy.validation import validate_fmu
-        from lpvpc import export as ex, simulate
-        from lpvpc.model import LPVPCModel
+        from lpvpc.export import exporter as ex
+        from lpvpc.simulation import simulate
+        from lpvpc.models.model import LPVPCModel
         model = LPVPCModel.load("model.json")
         t = np.arange(600) / model.fs
         position = 0.02 * np.sin(2 * np.pi * 3.0 * t)
@@ -112,7 +113,7 @@ def test_wheel_validates_a_model_with_fmi3(wheel_venv, model, subject):
     env["LPVPC_CACHE"] = str(work / "cache")  # the actuator FMU is built from the installed sources
     model.save(work / "model.json")
     pair = subject["novel_pair"]
-    from lpvpc.data import write_trial_csv
+    from lpvpc.io import write_trial_csv
 
     write_trial_csv(pair.pt, work / "PT.csv")
     write_trial_csv(pair.ut, work / "UT.csv")

@@ -1,4 +1,4 @@
-"""Whole-joint model (lpvpc.whole_joint): joint angle in, total torque out.
+"""Whole-joint model (lpvpc.export.whole_joint): joint angle in, total torque out.
 
 Checked against the virtual subject's ground truth (its elastic torque-angle curve and the
 novel trial's PT/UT torques), and numpy = CasADi = FMU (FMI 2.0 and 3.0) sample by sample.
@@ -7,11 +7,11 @@ novel trial's PT/UT torques), and numpy = CasADi = FMU (FMI 2.0 and 3.0) sample 
 import numpy as np
 import pytest
 
-from lpvpc import whole_joint as W
-from lpvpc.data import decimate_trial
+from lpvpc.export import whole_joint as W
+from lpvpc.io import decimate_trial
 from lpvpc.errors import DataError, ModelFileError
-from lpvpc.model import vaf
-from lpvpc.simulate import SubjectParams
+from lpvpc.models.model import vaf
+from lpvpc.simulation.simulate import SubjectParams
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +96,7 @@ def test_save_load_round_trip_and_errors(wj, tmp_path):
 def test_validation_report_has_a_whole_joint_section(wj, model, subject, tmp_path):
     """validate(..., whole_joint=) measures the whole-joint model on the held-out PT trial
     (Trial objects, the first 30 s of the novel record) and writes its report section."""
-    from lpvpc.data import Trial
+    from lpvpc.io import Trial
     from lpvpc.validation.harness import validate
 
     pair, n = subject["novel_pair"], 30_000

@@ -1,3 +1,0 @@
-"""C sources of the FMUs (installed as ``lpvpc.fmu_models``): the generic FMI 2/3
-co-simulation wrapper (``wrapper/``), the model adapter (``model/``) and the actuator
-(``actuator/``). Package data only; ``lpvpc.fmu_build`` compiles them."""

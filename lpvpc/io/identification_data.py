@@ -1,0 +1,689 @@
+"""The identification data object (:class:`PerturbationData`) and the ways to make it.
+
+PT-UT pairing (:func:`pair_trials`), a stationary trial without UT
+(:func:`stationary_perturbation`), a perturbation file already formed as PT - UT
+(:func:`load_perturbation_file`), several trials joined end to end (:func:`join_trials`),
+and the one entry point that takes any of them (:func:`load_identification_data`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .conventions import _check_settings, _check_time_unit, _milliseconds_hint, _refuse_degrees, _refuse_swap, _to_si
+from .decimation import decimate_trial, decimation_factor, multiple_rate, to_multiple_rate
+from ..errors import DataError, InsufficientExcitationError, UnitWarning
+from .readers import PERTURBATION_EMG, _name, _path_and_variable, _read_table, _trial_from_table, load_trial
+from .segments import Segments
+from .trial import RATE_TOLERANCE, REQUIRED_CHANNELS, Trial, _finite_problems, _short, _span, trial_problems
+
+
+# A stationary trial (no UT) holds one operating position: its mean over STATIONARY_WINDOW s
+# spans at most STATIONARY_MAX_SPAN rad (the lab's trials: 0.026-0.028 rad; a passive-movement
+# trajectory: about 0.6 rad).
+STATIONARY_WINDOW = 2.0
+STATIONARY_MAX_SPAN = 0.1
+# Below this variance (rad^2) of the PT-UT position there is no perturbation to identify from.
+MIN_PERTURBATION_VARIANCE = 1e-12
+
+
+# ------------------------------------------------------- channel skew (a measurement artefact)
+
+# A torque channel recorded a little later than the position channel (the lab's pilot trial:
+# ~1 ms, a tenth of a 100 Hz sample) is lined up at the file's rate, before decimation: the
+# position channels are delayed by the skew (lpvpc.identification.channel_skew; docs/guide/data.md).
+MAX_CHANNEL_SKEW = 0.02  # s: beyond this a "skew" is a misunderstanding, not a sensor lag
+
+
+SINC_HALF_WIDTH = 16  # samples each side of the fractional-delay filter (flat to ~0.4 fs)
+
+
+def delayed(x, fs: float, delay: float) -> np.ndarray:
+    """``x`` (sampled at ``fs`` Hz) delayed by ``delay`` s (negative: advanced), any fraction of
+    a sample: a Hann-windowed sinc interpolator, the record's end values held beyond its ends.
+    Exact for whole samples; for signals band-limited below ~0.4 fs (decimated data) the
+    interpolation error is ~1e-4 of the amplitude.
+
+    >>> t = np.arange(200) / 100.0
+    >>> y = delayed(np.sin(2 * np.pi * 2 * t), 100.0, 0.0035)
+    >>> bool(np.max(np.abs(y[20:180] - np.sin(2 * np.pi * 2 * (t[20:180] - 0.0035)))) < 1e-3)
+    True
+    """
+    x = np.asarray(x, dtype=float)
+    shift = delay * fs
+    whole = int(np.floor(shift))
+    frac = shift - whole
+    k = np.arange(-SINC_HALF_WIDTH, SINC_HALF_WIDTH + 1)
+    h = np.sinc(k + frac) * (0.5 + 0.5 * np.cos(np.pi * (k + frac) / (SINC_HALF_WIDTH + 1)))
+    h /= h.sum()  # unit DC gain: a constant stays constant
+    pad = SINC_HALF_WIDTH + abs(whole) + 1
+    xp = np.r_[np.full(pad, x[0]), x, np.full(pad, x[-1])]
+    y = np.convolve(xp, h[::-1], mode="same")  # y[i] = sum_j h[j] xp[i + j]
+    return y[pad - whole: pad - whole + len(x)]
+
+
+def check_channel_skew(value, allow_auto: bool = False) -> float | str:
+    """``channel_skew`` as given: a finite number of seconds within +-MAX_CHANNEL_SKEW, or "auto"
+    where ``allow_auto`` (ValueError naming the problem otherwise).
+
+    >>> check_channel_skew(0.001), check_channel_skew("auto", allow_auto=True)
+    (0.001, 'auto')
+    """
+    if isinstance(value, str):
+        if value == "auto":
+            if allow_auto:
+                return value
+            # choosing needs identification, which needs this module: not in the loaders
+            raise ValueError("channel_skew='auto' is chosen by lpvpc.identification.channel_skew.load_aligned (same arguments); "
+                             "give seconds here")
+        raise ValueError(f"channel_skew {value!r}: give seconds (e.g. 0.001), or 'auto' to choose it "
+                         f"(lpvpc.identification.channel_skew.load_aligned)")
+    try:
+        skew = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"channel_skew {value!r}: give seconds (e.g. 0.001), or 'auto' to choose it "
+                         f"(lpvpc.identification.channel_skew.load_aligned)") from None
+    if not math.isfinite(skew) or abs(skew) > MAX_CHANNEL_SKEW:
+        raise ValueError(f"channel_skew {value!r} s: give a finite delay within +-{MAX_CHANNEL_SKEW:g} s "
+                         f"(+-{MAX_CHANNEL_SKEW * 1e3:g} ms)")
+    return skew
+
+
+def _aligned(trial: Trial, skew: float) -> Trial:
+    """``trial`` (at its file's rate) with its position channels (position and, when present,
+    scheduling) delayed by ``skew`` s: the torque channel's lag behind them undone."""
+    if not skew:
+        return trial
+    channels = dict(trial.channels)
+    if "scheduling" in channels:
+        channels["scheduling"] = delayed(channels["scheduling"], trial.fs, skew)
+    return Trial(trial.time, delayed(trial.position, trial.fs, skew), trial.torque, channels, trial.name)
+
+
+# --------------------------------------------------------------------------- identification data
+
+
+@dataclass
+class HighRate:
+    """The perturbation position (rad) and scheduling (rad) at the file's own rate ``fs``
+    (Hz), kept beside model-rate data decimated from it (:class:`PerturbationData`).
+
+    The reflex rectifier acts on velocity pulses about 20 ms wide: at 1 kHz they are
+    resolved, at 100 Hz smoothed, and the rectifier's threshold is not observable there.
+    Identification therefore evaluates the reflex nonlinearity on the delayed velocity at
+    this rate and decimates its output (:mod:`lpvpc.models.reflex`). Sample ``k * q`` here is
+    model-rate sample ``k`` (q = ``fs`` / model rate). ``segments``: trial bounds at this
+    rate when trials are joined. Memory: two float64 arrays at the file's rate (16 bytes
+    per sample: 1.9 MB for 2 minutes at 1 kHz).
+
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=2.0)  # 1 kHz trials
+    >>> data = pair_trials(sim.pt, sim.ut)  # decimated to 100 Hz, the 1 kHz signals kept
+    >>> data.fs, data.high_rate.fs, data.n, data.high_rate.n
+    (100.0, 1000.0, 200, 2000)
+    """
+
+    position: np.ndarray
+    scheduling: np.ndarray
+    fs: float
+    segments: tuple = ()
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=float)
+        self.scheduling = np.asarray(self.scheduling, dtype=float)
+        self.fs = float(self.fs)
+        self.segments = tuple((int(a), int(b)) for a, b in self.segments)
+        if len(self.segments) == 1:
+            self.segments = ()
+
+    @property
+    def n(self) -> int:
+        return len(self.position)
+
+    def __repr__(self):
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        return f"HighRate({self.n} samples{trials} at {self.fs:g} Hz)"
+
+
+@dataclass
+class PerturbationData:
+    """Identification data: perturbation position ``position`` (rad), perturbation torque
+    ``torque`` (N m), scheduling variable ``scheduling`` (rho, rad), sampling rate ``fs`` (Hz).
+
+    ``extra`` holds other channels aligned with them (``time`` (s), ``emg``,
+    ``ut_velocity`` (rad/s) ...); ``source`` says where the data came from; ``meta`` records
+    the loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
+    ``decimation``) so a model can report them. ``segments`` lists the ``(start, stop)``
+    sample ranges of the trials when several are joined (:func:`join_trials`; empty: one
+    trial); identification builds its regressors trial by trial (:mod:`lpvpc.io.segments`).
+    ``high_rate`` (:class:`HighRate` or None) keeps the perturbation position and the
+    scheduling at the file's rate when it was decimated (the reflex nonlinearity is
+    identified there).
+    """
+
+    position: np.ndarray
+    torque: np.ndarray
+    scheduling: np.ndarray
+    fs: float
+    extra: dict = field(default_factory=dict)
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+    segments: tuple = ()
+    high_rate: HighRate | None = None
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=float)
+        self.torque = np.asarray(self.torque, dtype=float)
+        self.scheduling = np.asarray(self.scheduling, dtype=float)
+        self.fs = float(self.fs)
+        problems = []
+        if not (math.isfinite(self.fs) and self.fs > 0):
+            problems.append(f"sampling rate must be positive and finite, got {self.fs}")
+        arrays = {"position": self.position, "torque": self.torque, "scheduling": self.scheduling}
+        arrays.update({k: np.asarray(v) for k, v in self.extra.items() if np.ndim(v) == 1})
+        lengths = {k: len(v) for k, v in arrays.items()}
+        if len(set(lengths.values())) > 1:
+            problems.append("unequal channel lengths: " + ", ".join(f"{k} {n}" for k, n in lengths.items()))
+        for name in ("position", "torque", "scheduling"):
+            x = arrays[name]
+            if x.ndim != 1:
+                problems.append(f"channel '{name}': expected a vector, got shape {x.shape}")
+            else:
+                problems += _finite_problems(name, x)
+        if problems:
+            raise DataError(problems, source=self.source or None)
+        self.segments = tuple((int(a), int(b)) for a, b in self.segments)
+        if len(self.segments) == 1:
+            self.segments = ()
+        Segments(self.segments, self.n)  # they must tile the record
+        if self.high_rate is not None:
+            self._check_high_rate()
+
+    @property
+    def decimation(self) -> int:
+        """Factor q from the high-rate signals to this record (1 without them)."""
+        return 1 if self.high_rate is None else int(round(self.high_rate.fs / self.fs))
+
+    def _check_high_rate(self):
+        hr, q = self.high_rate, self.decimation
+        problems = []
+        if q < 2 or abs(hr.fs - q * self.fs) > RATE_TOLERANCE * hr.fs:
+            problems.append(f"high-rate signals at {hr.fs:.6g} Hz are not an integer multiple (> 1) of {self.fs:.6g} Hz")
+        elif hr.scheduling.shape != hr.position.shape or hr.position.ndim != 1:
+            problems.append(f"high-rate position and scheduling differ in shape: {hr.position.shape}, {hr.scheduling.shape}")
+        else:
+            hs = list(hr.segments) or [(0, hr.n)]
+            ms = list(self.segments) or [(0, self.n)]
+            if len(hs) != len(ms) or any(-(-(b - a) // q) != d - c for (a, b), (c, d) in zip(hs, ms)):
+                problems.append(f"high-rate record ({hr.n} samples in {len(hs)} trial(s) at {hr.fs:.6g} Hz) does not "
+                                f"decimate by {q} to the {self.n} samples in {len(ms)} trial(s) at {self.fs:.6g} Hz")
+            Segments(hr.segments, hr.n)
+            for name, x in (("high-rate position", hr.position), ("high-rate scheduling", hr.scheduling)):
+                problems += _finite_problems(name, x)
+        if problems:
+            raise DataError(problems, source=self.source or None)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return len(self.position)
+
+    def __repr__(self):
+        # one line a user can read; the arrays are in the attributes
+        trials = f" in {len(self.segments)} trials" if self.segments else ""
+        high = f", {self.high_rate.fs:g} Hz signals kept" if self.high_rate is not None else ""
+        extra = [k for k in self.extra if k != "time"]
+        return (f"PerturbationData({self.n} samples{trials} at {self.fs:g} Hz ({self.n / self.fs:.1f} s{high}); "
+                f"position {_span(self.position)} rad, torque {_span(self.torque)} N m, scheduling "
+                f"{_span(self.scheduling)} rad" + (f"; extra {', '.join(extra)}" if extra else "")
+                + (f"; source {_short(self.source)!r}" if self.source else "") + ")")
+
+    @property
+    def time(self) -> np.ndarray:
+        """Time stamps (s): ``extra['time']`` if present, else ``arange(n) / fs``."""
+        if "time" in self.extra:
+            return np.asarray(self.extra["time"], dtype=float)
+        return np.arange(self.n) / self.fs
+
+    @property
+    def data_hash(self) -> str:
+        """sha256 (hex) of position, torque, scheduling and fs as little-endian float64 bytes."""
+        h = hashlib.sha256()
+        h.update(np.int64(self.n).astype("<i8").tobytes())
+        for x in (self.position, self.torque, self.scheduling):
+            h.update(np.ascontiguousarray(x, dtype="<f8").tobytes())
+        h.update(np.float64(self.fs).astype("<f8").tobytes())
+        if self.segments:  # the same samples cut into trials are other data
+            h.update(np.asarray(self.segments, dtype="<i8").tobytes())
+        return h.hexdigest()
+
+    def segment(self, start: int | None = None, stop: int | None = None) -> "PerturbationData":
+        """Samples ``start:stop`` (e.g. to hold out the last part of a record for validation)."""
+        sl = slice(start, stop)
+        extra = {k: (np.asarray(v)[sl] if np.ndim(v) == 1 and len(v) == self.n else v) for k, v in self.extra.items()}
+        lo, hi, _ = sl.indices(self.n)
+        segments = [(max(a, lo) - lo, min(b, hi) - lo) for a, b in self.segments if min(b, hi) > max(a, lo)]
+        high = None
+        if self.high_rate is not None:
+            high = _high_rate_slice(self.high_rate, self.decimation, list(self.segments) or [(0, self.n)], lo, hi)
+        return PerturbationData(
+            self.position[sl], self.torque[sl], self.scheduling[sl], self.fs, extra,
+            f"{self.source}[{'' if start is None else start}:{'' if stop is None else stop}]", dict(self.meta),
+            tuple(segments), high,
+        )
+
+
+def _high_rate_slice(hr: HighRate, q: int, model_segments, lo: int, hi: int) -> HighRate:
+    """The high-rate samples of model-rate samples lo..hi-1 (trial by trial: a trial's last
+    model sample may stand for fewer than q high-rate samples)."""
+    high_segments = list(hr.segments) or [(0, hr.n)]
+    pieces, bounds, start = [], [], 0
+    for (a, b), (ha, hb) in zip(model_segments, high_segments):
+        ka, kb = max(a, lo), min(b, hi)
+        if kb <= ka:
+            continue
+        s0, s1 = ha + (ka - a) * q, min(ha + (kb - a) * q, hb)
+        pieces.append((s0, s1))
+        bounds.append((start, start + s1 - s0))
+        start += s1 - s0
+    idx = np.concatenate([np.arange(s0, s1) for s0, s1 in pieces]) if pieces else np.arange(0)
+    return HighRate(hr.position[idx], hr.scheduling[idx], hr.fs, tuple(bounds))
+
+
+def _check_perturbation(position: np.ndarray, source: str) -> None:
+    var = float(np.var(position)) if len(position) else 0.0
+    if not np.any(position) or var < MIN_PERTURBATION_VARIANCE:
+        raise InsufficientExcitationError(
+            f"no perturbation: {source}: variance of the perturbation position is {var:.3g} rad^2 "
+            f"(< {MIN_PERTURBATION_VARIANCE:g}); are the PT and UT trials the same recording?"
+        )
+
+
+def _output_rate(fs: float, target_fs) -> float:
+    # Report the nominal target rate, not fs/q with round-off from the time stamps, so the
+    # data hash does not depend on how the time column was rounded in a file.
+    return float(target_fs) if target_fs is not None else fs
+
+
+def _resampled(fs_file, fs_now, target_fs) -> dict:
+    """``{"resampled_to": the multiple of target_fs}`` when the file's rate was resampled."""
+    return {} if fs_now == fs_file else {"resampled_to": multiple_rate(fs_file, target_fs)}
+
+
+def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0, channel_skew: float = 0.0) -> PerturbationData:
+    """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
+
+    position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
+    scheduling = UT position (rad), all decimated with one anti-alias FIR filter to
+    ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
+    ``ut_velocity`` (rad/s, gradient of the decimated UT position), ``emg`` from PT and
+    ``emg_ut`` from UT if present (decimated as given with the same filter: rectify/envelope
+    raw EMG first). ``channel_skew`` (s): the torque channels' lag behind the position channels,
+    undone at the file's rate before decimation (the position and scheduling delayed by it;
+    recorded as ``meta["channel_skew_s"]``; docs/guide/data.md).
+    Raises DataError (problems of both trials, different lengths or rates) or
+    InsufficientExcitationError (no perturbation).
+    """
+    source = f"PT={pt.name or '?'}, UT={ut.name or '?'}"
+    problems = [f"PT: {p}" for p in trial_problems(pt)] + [f"UT: {p}" for p in trial_problems(ut)]
+    if problems:
+        raise DataError(problems, source=source)
+    if len(pt.time) != len(ut.time):
+        problems.append(f"PT and UT differ in length: PT has {len(pt.time)} samples, UT has {len(ut.time)}")
+    if abs(pt.fs - ut.fs) > RATE_TOLERANCE * max(pt.fs, ut.fs):
+        problems.append(f"PT and UT differ in sampling rate: PT {pt.fs:.6g} Hz, UT {ut.fs:.6g} Hz")
+    if problems:
+        raise DataError(problems, source=source)
+    _refuse_swap(pt, ut, source)
+
+    ut_position = np.asarray(ut.position, dtype=float)
+    channels = {"scheduling": ut_position}
+    if "emg" in pt.channels:
+        channels["emg"] = pt.channels["emg"]
+    if "emg" in ut.channels:
+        channels["emg_ut"] = ut.channels["emg"]
+    # Decimation is linear: decimating PT-UT equals the difference of the decimated trials,
+    # and position and torque go through the same filter.
+    diff = Trial(
+        time=np.asarray(pt.time, dtype=float),
+        position=np.asarray(pt.position, dtype=float) - ut_position,
+        torque=np.asarray(pt.torque, dtype=float) - np.asarray(ut.torque, dtype=float),
+        channels=channels,
+        name=source,
+    )
+    fs_file = float(pt.fs)
+    skew = check_channel_skew(channel_skew)
+    diff = _aligned(diff, skew)  # at the file's rate: a fraction of a model sample is whole samples here
+    diff = to_multiple_rate(diff, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
+    q = decimation_factor(diff.fs, target_fs, source=source)
+    low = decimate_trial(diff, target_fs) if q > 1 else diff
+    fs = _output_rate(diff.fs, target_fs)
+    _check_perturbation(low.position, source)
+    extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
+    for k in ("emg", "emg_ut"):
+        if k in low.channels:
+            extra[k] = low.channels[k]
+    meta = {"fs_original": fs_file, "decimation": q, **_resampled(fs_file, diff.fs, target_fs),
+            **({"channel_skew_s": skew} if skew else {})}
+    high = HighRate(diff.position, diff.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, source, meta,
+                            high_rate=high)
+
+
+def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: float = 1.0,
+                           target_fs=100.0, variable=None, channels=None, time_unit: str = "s",
+                           channel_skew: float = 0.0) -> PerturbationData:
+    """Load perturbation data already computed as PT-UT from one CSV or ``.mat`` file.
+
+    Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
+    (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg`` (of the PT trial) and
+    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
+    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`load_trial` (the lab's
+    pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
+    found without options). ``channel_skew`` as in :func:`pair_trials`.
+    """
+    skew = check_channel_skew(channel_skew)
+    trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit)
+    fs_file = float(trial.fs)
+    trial = _aligned(trial, skew)  # at the file's rate, before decimation
+    trial = to_multiple_rate(trial, target_fs)  # e.g. 1024 Hz: first to 1000 Hz, then decimated by 10
+    q = decimation_factor(trial.fs, target_fs, source=str(path))
+    low = decimate_trial(trial, target_fs) if q > 1 else trial
+    fs = _output_rate(trial.fs, target_fs)
+    _check_perturbation(low.position, str(path))
+    extra = {"time": low.time, "ut_velocity": np.gradient(low.channels["scheduling"]) * fs}
+    extra.update({c: low.channels[c] for c in PERTURBATION_EMG if c in low.channels})
+    meta = {"position_unit": position_unit, "torque_sign": float(torque_sign),
+            "fs_original": fs_file, "decimation": q, **_resampled(fs_file, trial.fs, target_fs),
+            **({"channel_skew_s": skew} if skew else {})}
+    high = HighRate(trial.position, trial.channels["scheduling"], meta.get("resampled_to", fs_file)) if q > 1 else None
+    return PerturbationData(low.position, low.torque, low.channels["scheduling"], fs, extra, str(path), meta,
+                            high_rate=high)
+
+
+def _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees="warn"):
+    """(Trial in SI units at the file's rate with a ``scheduling`` channel, path) of a PT - UT file
+    (``degrees``: as in :func:`load_trial`)."""
+    _check_settings(position_unit, torque_sign)
+    path, variable = _path_and_variable(path, variable)
+    table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
+                              channels=channels)
+    _refuse_single_trial(table, path)
+    trial = _trial_from_table(table, path, _name(path, variable), REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG)
+    if degrees == "refuse":
+        _refuse_degrees([trial], position_unit)
+    return _to_si(trial, position_unit, torque_sign, str(path), time_unit), path
+
+
+def perturbation_file_trials(path, *, position_unit: str = "rad", torque_sign: float = 1.0, variable=None,
+                             channels=None, time_unit: str = "s", degrees: str = "warn") -> tuple[Trial, Trial]:
+    """The PT and UT trials behind a PT - UT file (:func:`load_perturbation_file`'s columns), at
+    the file's rate, for what needs the two trials (the validation's co-simulation drives an
+    actuator with each): UT = the scheduling position, PT = the scheduling plus the perturbation
+    position with the perturbation torque. The UT torque is not in such a file: the UT trial's
+    torque is zero, so :func:`pair_trials` of the two gives back the file's perturbation data.
+    ``degrees`` as in :func:`load_trial`.
+
+    >>> t = np.arange(2000) / 1000.0
+    >>> rng = np.random.default_rng(1)
+    >>> pert = 0.03 * np.sign(np.sin(2 * np.pi * 4 * t))
+    >>> rows = np.c_[t, pert, 40 * pert + 0.1 * rng.standard_normal(2000), 0.1 * np.sin(t)]
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "pert.csv"
+    >>> np.savetxt(path, rows, delimiter=",", header="time,position,torque,scheduling", comments="")
+    >>> pt, ut = perturbation_file_trials(path)
+    >>> bool(np.allclose(pt.position - ut.position, pert)), float(np.abs(ut.torque).max())
+    (True, 0.0)
+    """
+    trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees)
+    rho = np.asarray(trial.channels["scheduling"], dtype=float)
+    emg = {"emg": trial.channels["emg"]} if "emg" in trial.channels else {}
+    emg_ut = {"emg": trial.channels["emg_ut"]} if "emg_ut" in trial.channels else {}
+    pt = Trial(trial.time, rho + trial.position, np.asarray(trial.torque, dtype=float), emg, f"{trial.name} (PT)")
+    ut = Trial(trial.time.copy(), rho.copy(), np.zeros(len(rho)), emg_ut, f"{trial.name} (UT: its scheduling)")
+    return pt, ut
+
+
+def _refuse_single_trial(table, path) -> None:
+    """A PT (or UT) trial given where perturbation data (PT - UT with its scheduling) are
+    expected: name what is missing and the fix, not only the missing column."""
+    if "scheduling" not in table and all(c in table for c in REQUIRED_CHANNELS):
+        raise DataError(["no 'scheduling' column: this looks like one trial (time, position, torque), not "
+                         "perturbation data (PT - UT with the unperturbed position as 'scheduling'); pass it as "
+                         "pt=PT with its unperturbed trial as ut=UT, or with stationary=True if it was recorded "
+                         "around one fixed position without a UT trial (a scheduling column named otherwise: "
+                         "channels={'scheduling': COLUMN})"], source=str(path))
+
+
+def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float = 0.0) -> PerturbationData:
+    """Perturbation data from one perturbed trial around a fixed operating position recorded
+    without a UT trial (the commonest experiment in the field, e.g. the lab's
+    ``experimental_data.mat``).
+
+    The UT trial of such an experiment would hold the joint at the operating position: a
+    constant position and a constant torque. Both are taken as the PT trial's means, so
+    position = PT position - its mean (rad), torque = PT torque - its mean (N m), and
+    scheduling = the mean position (constant; the model is then position-independent).
+    The mean and not a low-pass: the perturbation itself reaches down to the lowest
+    frequencies (the lab's trials keep about half their peak-to-peak range below 0.5 Hz),
+    and that slow part carries the elastic stiffness. Removing the torque mean also removes
+    the mean of the rectified reflex torque, which the model then cannot attribute (the
+    same as the lab's own stationary analysis, which removes it too). ``meta`` records
+    ``stationary``, ``operating_point`` (rad) and ``torque_offset`` (N m).
+
+    >>> t = np.arange(3000) / 1000.0  # a 3 s trial held at -0.1 rad, 1 kHz
+    >>> rng = np.random.default_rng(0)
+    >>> pos = -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t))
+    >>> data = stationary_perturbation(Trial(t, pos, 40 * pos + 0.01 * rng.standard_normal(3000)))
+    >>> data.fs, round(data.meta["operating_point"], 3), bool(np.ptp(data.scheduling) == 0.0)
+    (100.0, -0.1, True)
+    """
+    ut = stationary_ut(pt)
+    op, tq0 = float(ut.position[0]), float(ut.torque[0])
+    out = pair_trials(pt, ut, target_fs=target_fs, channel_skew=channel_skew)
+    out.source = f"{pt.name or 'PT'} (stationary at {op:+.4f} rad)"
+    out.meta.update(stationary=True, operating_point=op, torque_offset=tq0)
+    return out
+
+
+def stationary_ut(pt: Trial) -> Trial:
+    """The UT trial a stationary experiment (one perturbed trial around a fixed operating
+    position, no UT recorded) stands for: the PT trial's mean position and mean torque,
+    constant (:func:`stationary_perturbation`; the validation's co-simulation drives an
+    actuator with it). DataError for a bad trial or one whose slow mean position moves.
+
+    >>> t = np.arange(3000) / 1000.0
+    >>> pt = Trial(t, -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t)), np.full(3000, 2.0))
+    >>> ut = stationary_ut(pt)
+    >>> round(float(ut.position[0]), 3), float(np.ptp(ut.position)), float(ut.torque[0])
+    (-0.1, 0.0, 2.0)
+    """
+    problems = trial_problems(pt)
+    if problems:
+        raise DataError(problems, source=pt.name or "PT")
+    w = int(round(STATIONARY_WINDOW * pt.fs))
+    if len(pt.position) > w > 0:  # a moving trial read as stationary would be nonsense
+        slow = np.convolve(pt.position, np.ones(w) / w, mode="valid")
+        if np.ptp(slow) > STATIONARY_MAX_SPAN:
+            raise DataError([f"not a stationary trial: its {STATIONARY_WINDOW:g}-s mean position spans "
+                             f"{np.ptp(slow):.3f} rad (more than {STATIONARY_MAX_SPAN:g} rad for one operating "
+                             f"position); give the UT trial recorded with it instead"], source=pt.name or "PT")
+    n = len(pt.time)
+    return Trial(np.asarray(pt.time, dtype=float), np.full(n, float(np.mean(pt.position))),
+                 np.full(n, float(np.mean(pt.torque))), {}, "constant operating point")
+
+
+def join_trials(trials) -> PerturbationData:
+    """Several trials' perturbation data as one record for a joint identification.
+
+    The arrays are put end to end and ``segments`` marks each trial, so that identification
+    builds every regressor trial by trial and nothing (IRF lags, velocities, the reflex
+    delay and dynamics, MOESP Hankel blocks) reaches from one trial into the next
+    (:mod:`lpvpc.io.segments`). The trials must share the sampling rate (that of their files
+    too), the position unit and the torque sign (DataError otherwise); extra channels
+    (``time``, ``emg``, ...) are kept when every trial has them.
+    """
+    trials = list(trials)
+    if not trials:
+        raise DataError(["no trials given"])
+    if len(trials) == 1:
+        return trials[0]
+    problems = []
+    label = [f"trial {i + 1} ({d.source or '?'})" for i, d in enumerate(trials)]
+    for what, values in (("sampling rate", [d.meta.get("fs_original", d.fs) for d in trials]),
+                         ("sampling rate after decimation", [d.fs for d in trials])):
+        if max(values) - min(values) > RATE_TOLERANCE * max(values):
+            problems.append(f"trials differ in {what}: " + ", ".join(f"{lb} {v:.6g} Hz" for lb, v in zip(label, values))
+                            + "; resample them to one rate")
+            break
+    for key in ("position_unit", "torque_sign"):
+        values = [d.meta.get(key) for d in trials]
+        if len({v for v in values if v is not None}) > 1:
+            problems.append(f"trials differ in {key}: " + ", ".join(f"{lb} {v}" for lb, v in zip(label, values)))
+    if problems:
+        raise DataError(problems)
+    segments, start = [], 0
+    for d in trials:
+        segments += [(start + a, start + b) for a, b in (d.segments or ((0, d.n),))]
+        start += d.n
+    common = [k for k, v in trials[0].extra.items()
+              if all(np.ndim(d.extra.get(k)) == 1 and len(d.extra[k]) == d.n for d in trials)]
+    extra = {k: np.concatenate([np.asarray(d.extra[k], dtype=float) for d in trials]) for k in common}
+    meta = dict(trials[0].meta)
+    meta["trials"] = [d.source for d in trials]
+    for key in ("operating_point", "torque_offset"):
+        meta.pop(key, None)
+        if all(key in d.meta for d in trials):
+            meta[key + "s"] = [d.meta[key] for d in trials]
+    return PerturbationData(
+        np.concatenate([d.position for d in trials]), np.concatenate([d.torque for d in trials]),
+        np.concatenate([d.scheduling for d in trials]), trials[0].fs, extra,
+        " + ".join(d.source or "?" for d in trials), meta, tuple(segments), _joined_high_rate(trials),
+    )
+
+
+def _joined_high_rate(trials) -> HighRate | None:
+    """The trials' high-rate signals end to end (None unless every trial has them)."""
+    if any(d.high_rate is None for d in trials):
+        return None
+    bounds, start = [], 0
+    for d in trials:
+        for a, b in d.high_rate.segments or ((0, d.high_rate.n),):
+            bounds.append((start + a, start + b))
+        start += d.high_rate.n
+    return HighRate(np.concatenate([d.high_rate.position for d in trials]),
+                    np.concatenate([d.high_rate.scheduling for d in trials]), trials[0].high_rate.fs, tuple(bounds))
+
+
+def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
+                             torque_sign: float = 1.0, target_fs=100.0, variable=None, channels=None,
+                             stationary: bool = False, time_unit: str = "s", channel_skew=0.0) -> PerturbationData:
+    """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
+    a perturbation file, or a PerturbationData returned as is).
+
+    ``position_unit`` and ``torque_sign`` describe the inputs (applied to Trials too);
+    ``target_fs`` (Hz, None keeps the rate); ``variable`` and ``channels`` choose within
+    .mat files (:func:`load_trial`; a path ``"file.mat:NAME"`` names its own variable).
+    Several trials: lists for ``pt`` and ``ut`` (paired in order) or for ``data``, joined by
+    :func:`join_trials` for one joint identification. ``stationary=True``: ``pt`` alone, a
+    perturbed trial (or a list) around a fixed operating position recorded without UT
+    (:func:`stationary_perturbation`). Wrong combinations raise DataError.
+
+    ``time_unit`` ("s" or "ms") is the unit of the time columns. The mistakes that would
+    give a wrong model are refused (DataError naming the fix): angles that look like
+    degrees read as rad, a time column that looks like milliseconds read as s, PT and UT
+    swapped (the perturbation in the UT trial).
+
+    ``channel_skew`` (s): the torque channel's lag behind the position channel, a measurement
+    artefact undone at the file's rate before decimation (:func:`pair_trials`); to choose it
+    from the data, :func:`lpvpc.identification.channel_skew.load_aligned`. A PerturbationData passed as
+    ``data`` is returned as is (align it when loading it).
+    """
+    given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
+    allowed = (["pt"],) if stationary else (["pt", "ut"], ["data"])
+    if given not in allowed:
+        want = "pt alone (a stationary trial has no UT)" if stationary else "either both pt and ut, or data alone"
+        raise DataError([f"give {want}; got {', '.join(given) or 'nothing'}"])
+    torque_sign = _check_settings(position_unit, torque_sign)
+    _check_time_unit(time_unit)
+    skew = check_channel_skew(channel_skew)
+    kw = dict(position_unit=position_unit, torque_sign=torque_sign, target_fs=target_fs, variable=variable,
+              channels=channels, stationary=stationary, time_unit=time_unit)
+    if isinstance(data, PerturbationData) and skew:
+        raise DataError(["channel_skew aligns the channels at the file's own rate: give the file (or Trials), "
+                         "not loaded data"])
+    kw["channel_skew"] = skew
+    if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
+        if data is not None:
+            return join_trials([load_identification_data(data=d, **kw) for d in data])
+        pts = list(pt) if isinstance(pt, (list, tuple)) else [pt]
+        uts = list(ut) if isinstance(ut, (list, tuple)) else [ut] * len(pts) if stationary else [ut]
+        if len(pts) != len(uts):
+            raise DataError([f"{len(pts)} PT trials but {len(uts)} UT trials: give them in pairs"])
+        return join_trials([load_identification_data(pt=a, ut=b if not stationary else None, **kw)
+                            for a, b in zip(pts, uts)])
+    if data is not None:
+        if isinstance(data, PerturbationData):
+            return data
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnitWarning)  # degrees: refused below instead
+            out = load_perturbation_file(data, position_unit=position_unit, torque_sign=torque_sign,
+                                         target_fs=target_fs, variable=variable, channels=channels,
+                                         time_unit=time_unit, channel_skew=skew)
+        _refuse_degrees([Trial(out.time, out.position, out.torque, {"scheduling": out.scheduling}, out.source)],
+                        position_unit)
+        _refuse_milliseconds(out, time_unit)
+        if time_unit != "s":
+            out.meta["time_unit"] = time_unit
+        return out
+    trials = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnitWarning)  # degrees: refused below instead
+        for label, item in (("PT", pt), ("UT", ut)):
+            if item is None:
+                continue
+            if isinstance(item, Trial):
+                trials.append(_to_si(item, position_unit, torque_sign, item.name or label, time_unit))
+            else:
+                trials.append(load_trial(item, position_unit=position_unit, torque_sign=torque_sign,
+                                         variable=variable, channels=channels, time_unit=time_unit))
+    _refuse_degrees(trials, position_unit)
+    if stationary:
+        out = stationary_perturbation(trials[0], target_fs=target_fs, channel_skew=skew)
+    else:
+        out = pair_trials(trials[0], trials[1], target_fs=target_fs, channel_skew=skew)
+    _refuse_milliseconds(out, time_unit)
+    out.meta.update(position_unit=position_unit, torque_sign=torque_sign)
+    if time_unit != "s":
+        out.meta["time_unit"] = time_unit
+    return out
+
+
+def _refuse_milliseconds(data: PerturbationData, time_unit: str) -> None:
+    """A time column in ms read as s at target_fs=None (which keeps the rate) gives a model
+    at 1 Hz: refuse it as the decimation does."""
+    hint = _milliseconds_hint(data.meta.get("fs_original", data.fs)) if time_unit == "s" else ""
+    if hint:
+        raise DataError([f"sampling rate {data.meta.get('fs_original', data.fs):.6g} Hz: {hint}"],
+                        source=data.source or None)
+
+
+def write_perturbation_csv(data: PerturbationData, path) -> None:
+    """Write ``time,position,torque,scheduling[,emg][,emg_ut]`` (s, rad, N m, rad) so
+    that :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
+    names = ["time", "position", "torque", "scheduling"]
+    cols = [data.time, data.position, data.torque, data.scheduling]
+    for c in PERTURBATION_EMG:
+        if c in data.extra:
+            names.append(c)
+            cols.append(data.extra[c])
+    np.savetxt(
+        path, np.column_stack(cols), delimiter=",", fmt="%.17g", comments="",
+        header="# lpvpc perturbation data; units: time s, position rad, torque N m, scheduling rad\n"
+        + ",".join(names),
+    )
