@@ -74,6 +74,7 @@ def _one_line(text) -> str:
 #: options that do the same. Pattern -> replacement, applied in order.
 CLI_SYNTAX = (
     (r"channels=\{'(\w+)': COLUMN\}( \(--channel \w+=COLUMN\))?", r"--channel \1=COLUMN"),
+    (r"\bchannel_skew=0 given\b", "--channel-skew-ms 0"),
     (r"\btarget_fs=None\b", "--fs 0"),
     (r"\btarget_fs=", "--fs "),
     (r"\bstationary=True\b", "--stationary"),
@@ -130,8 +131,10 @@ def _listed(value) -> list:
 def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, channel_skew=0.0):
     """PerturbationData from DATA, --pt/--ut or --pt --stationary (SI units after the
     loader); several files (identify) are joined as trials of one identification; the
-    channel skew (s or "auto") undone at the files' rate (lpvpc.identification.channel_skew)."""
+    channel skew (s; "auto": chosen by a scan before loading; None: not given, for identify
+    to line up itself) undone at the files' rate (lpvpc.identification.channel_skew)."""
     from .identification.channel_skew import load_aligned
+    from .io import load_identification_data
 
     data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
     stationary = getattr(args, "stationary", False)
@@ -162,9 +165,10 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
 
+    load = load_aligned if channel_skew == "auto" else load_identification_data
     if data:
-        return load_aligned(data=one(data), **kw)
-    return load_aligned(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+        return load(data=one(data), **kw)
+    return load(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
@@ -295,27 +299,13 @@ def cmd_identify(args) -> int:
     target_fs = None if args.fs == 0 else args.fs
     skew = _channel_skew(args.channel_skew_ms)
     load = dict(target_fs=target_fs, position_unit=args.position_unit, torque_sign=args.torque_sign)
-    data = _load_data(args, **load, channel_skew=0.0 if skew == "auto" else skew)
+    # "auto" (the default): the loader is not given a skew, and the fit lines up a late torque
+    # channel itself (lpvpc.identification.identify, as Python's identify does)
+    data = _load_data(args, **load, channel_skew=None if skew == "auto" else skew)
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:  # the first fit's (as filtered): shown unless it is redone
-        est = _identified(data, settings)
-    if "channel_skew" in est.model_.fit:  # (the fit scanned its record for a skew)
-        from .identification.skew_scan import skew_from_dict
-
-        found = skew_from_dict(est.model_.fit["channel_skew"])
-        if found.chosen and skew == "auto":  # the files again, lined up at their own rate, and the fit again
-            data = _load_data(args, **load, channel_skew=found.chosen)
-            caught = []
-            est = _identified(data, settings)
-        data.meta["channel_skew_choice"] = found.to_dict()
-    for w in caught:
-        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    est = _identified(data, settings)
     elapsed = time.perf_counter() - t0
     model = est.model_
-    for key in ("position_unit", "torque_sign"):  # the file conventions, for predict to reuse
-        model.conventions.setdefault(key, data.meta.get(key, getattr(args, key)))
-    if data.meta.get("time_unit", "s") != "s":
-        model.conventions.setdefault("time_unit", data.meta["time_unit"])
     model.save(args.output)
 
     fit = model.fit
@@ -326,37 +316,12 @@ def cmd_identify(args) -> int:
     trials = f"{len(data.segments)} trials, " if data.segments else ""
     print(f"data:        {trials}{data.n} samples at {rate}, {data.n / data.fs:.1f} s, "
           f"position range {lo:+.3f}..{hi:+.3f} rad")
-    from .identification.channel_skew import MIN_RESIDUAL_REDUCTION
-
-    choice = data.meta.get("channel_skew_choice")
-    skew = data.meta.get("channel_skew_s", 0.0)
-    if skew:
-        how = (f"found by the fit's scan: removes {100 * choice['residual_reduction']:.1f} % of the residual variance"
-               if choice else "given")
-        print(f"skew:        torque channel {skew * 1e3:+.2f} ms behind position ({how}); position delayed by it at the "
-              f"file's rate (recorded in the model: predict does the same)")
-    elif choice and choice["chosen_s"]:  # found, but --channel-skew-ms 0 said not to line up
-        print(f"skew:        none applied (--channel-skew-ms 0); the fit's scan finds the torque channel "
-              f"{choice['chosen_s'] * 1e3:+.2f} ms behind position (lining up would remove "
-              f"{100 * choice['residual_reduction']:.1f} % of the residual variance)")
-    elif choice:
-        print(f"skew:        none (the fit's scan: lining up by {choice['estimate_s'] * 1e3:+.2f} ms would remove "
-              f"{100 * choice['residual_reduction']:.1f} % of the residual variance"
-              + (f", under {100 * MIN_RESIDUAL_REDUCTION:g} %)" if choice["residual_reduction"] < MIN_RESIDUAL_REDUCTION
-                 else ", at the end of the candidates: a misfit, not a skew)"))
     if data.meta.get("stationary"):
         ops = data.meta.get("operating_points", [data.meta.get("operating_point")])
         print(f"stationary:  no UT trial; operating point {', '.join(f'{x:+.4f}' for x in ops)} rad "
               f"(the trial's mean position; its mean torque removed)")
-    vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
-    print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
-    print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
-    for line in _physical_summary(model):
-        print(line)
-    for line in _selection_summary(fit.get("structure_selection")):
-        print(line)
-    for line in _relaxation_summary(model):
-        print(line)
+    for line in model.summary().lines:
+        print(cli_syntax(line))
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
@@ -366,8 +331,7 @@ def cmd_identify(args) -> int:
 
 
 def _identified(data, settings):
-    """The fitted estimator (identify's fit, with its progress line when it takes long); a
-    skew the fit finds is the caller's to undo (--channel-skew-ms auto), not a warning."""
+    """The fitted estimator (identify's fit, with its progress line when it takes long)."""
     from .identification.identify import LPVPCEstimator, with_base_model_activation
 
     data = with_base_model_activation(data, settings)  # activation as predict estimates it (one extra fit)
@@ -376,6 +340,7 @@ def _identified(data, settings):
     with _progress_after(IDENTIFY_QUIET_S, f"identify: fitting {data.n} samples at {data.fs:g} Hz"
                          + (f" (reflex state order chosen among {est.min_state_order}..{est.max_state_order})"
                             if est.state_order is None else "") + " ..."), warnings.catch_warnings():
+        # a skew found where --channel-skew-ms was given gets identify's own 'skew:' line instead
         warnings.filterwarnings("ignore", message="the torque channel lags the position channel")
         est.fit(data)
     return est
@@ -400,115 +365,6 @@ class _progress_after:
     def __exit__(self, *exc):
         self.timer.cancel()
         return False
-
-
-def _selection_summary(sel) -> list:
-    """Lines of the structure selection (--structure cv): the chosen structure and a short CV table."""
-    if not sel:
-        return []
-    if "skipped" in sel:
-        return ([f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
-                + _effects_cv_summary(sel.get("relaxation_term"), "relaxation:  forced on, its term by CV:"))
-    short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
-             "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
-
-    def text(s):
-        return ", ".join(f"{short.get(k, k)} {1e3 * v:g} ms" if k in ("irf_length", "reflex_delay") else
-                         f"{short.get(k, k)} {v}" for k, v in s.items())
-
-    def effects(row):  # the allowed effects a row switches on (lpvpc.identification.identify: on/off candidates)
-        return "" if "effects" not in row else f", effects {'+'.join(row['effects']) or 'none'}"
-
-    chosen_effects = sel["effects"]["chosen"] if sel.get("effects") else None
-    lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}"
-             + ("" if chosen_effects is None else f", effects {'+'.join(chosen_effects) or 'none'}"),
-             f"             {'CV VAF %':>9} {'params':>6}  structure"]
-    for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
-        mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", chosen_effects or []) == (
-            chosen_effects or []) else " "
-        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}{effects(row)}")
-    orders = sel.get("state_order", {})
-    if orders.get("cv_vaf"):
-        lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
-                     + ", ".join(f"order {k}: {v:.2f}" for k, v in orders["cv_vaf"].items()) + ")"
-                     + (f"; with the effects, BIC's: {orders['with_effects']}" if "with_effects" in orders else ""))
-    path = sel.get("reflex_path")
-    if path:  # data that keep their file's higher rate: which velocity the reflex nonlinearity sees
-        lines.append(f"             reflex nonlinearity by CV: {path['label']} (CV VAF % "
-                     + ", ".join(f"{r['label']}: {r['cv_vaf']:.2f}" for r in path["table"]) + ")"
-                     + (f"; {path['fallback']}" if path.get("fallback") else ""))
-    return lines + _effects_cv_summary(sel.get("effects"))
-
-
-def _effects_cv_summary(entry, head="effects cv: ") -> list:
-    """Lines of the allowed effects' choice (lpvpc.identification.identify: on/off candidates of the selection),
-    or of a forced stress relaxation's term (``head``)."""
-    if not entry or not entry.get("allowed"):
-        return []
-    cv = entry.get("cv", {})
-
-    def term(c):  # an effect with several terms (stress relaxation's averaging times): the one shown
-        if "variant" not in c:
-            return ""
-        others = sorted(((v, x) for v, x in c["variants"].items() if v != c["variant"]), key=lambda t: -t[1])[:2]
-        return (f", term {c['variant']} of {len(c['variants'])} (next: "
-                + ", ".join(f"{v} {x:.2f}" for v, x in others) + ")")
-
-    return [f"{head} {n} {'chosen' if n in entry['chosen'] else 'not chosen'} (CV VAF % on "
-            f"{cv[n]['cv_vaf_on']:.2f}, off {cv[n]['cv_vaf_off']:.2f}{term(cv[n])}, reflex dynamics of a fit with "
-            f"it; +{cv[n]['n_params']} parameters)" for n in entry["allowed"] if n in cv]
-
-
-def _relaxation_summary(model) -> list:
-    """Both elastic stiffnesses of a model with stress relaxation, labelled, with units."""
-    entry = (model.fit or {}).get("stiffness")
-    if not entry:
-        return []
-    def at(e):
-        ok = e.get("determined", [True] * len(e["values"]))
-        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else f"{x:.1f} (not determined by these data) at {p:+.3f}"
-                         for x, p, good in zip(e["values"], entry["scheduling"], ok))
-
-    return [f"stiffness:   {e['label']}: {at(e)} {e['unit']}" for e in (entry["short_range"], entry["relaxed"])]
-
-
-def _physical_summary(model) -> list:
-    """Lines of the identified physiology: K(theta) at five positions, viscosity, reflex gain
-    and threshold at the ends of the range, basis orders (what a user checks first)."""
-    import numpy as np
-
-    lo, hi = model.scheduling_range
-    rho = np.linspace(lo, hi, 5) if hi - lo > 1e-6 else np.array([lo])
-    K, B = model.elastic_stiffness(rho), model.viscosity(rho)
-    gain, thr = model.reflex_gain_threshold(rho[[0, -1]])
-    at = lambda v, r: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, r))  # noqa: E731
-    bias = (f" (threshold biased: rectifier seen on {model.nonlinearity_fs:g} Hz velocity)"
-            if model.reflex_threshold_biased else "")
-    s = model.settings
-    from .models.uncertainty import NOT_DETERMINED
-
-    g_ok, th_ok = model.reflex_determined(rho[[0, -1]])  # where an interval spans most of the plausible range
-    gain = [f"{g:.2f}" if ok else NOT_DETERMINED for g, ok in zip(gain, g_ok)]
-    thr = [f"{t:.3f}" if ok else NOT_DETERMINED for t, ok in zip(thr, th_ok)]
-    if len(rho) == 1:  # a stationary trial: one operating point, one value each
-        viscosity = f"B {B[0]:.2f} N m s/rad"
-        g_text = f"{gain[0]} N m s/rad" if g_ok[0] else gain[0]  # (no unit after "not determined")
-        reflex = f"{g_text}; threshold " + (f"{thr[0]} rad/s{bias}" if th_ok[0] else f"{NOT_DETERMINED}{bias}")
-    else:
-        viscosity = f"B {B.min():.2f}..{B.max():.2f} N m s/rad"
-        if g_ok.all():
-            reflex = f"{gain[0]} at {rho[0]:+.3f} .. {gain[-1]} at {rho[-1]:+.3f} N m s/rad"
-        else:  # units on the numbers only ("not determined ... at -0.412 .. 14.01 at +0.197 N m s/rad" misread)
-            reflex = ", ".join(f"{g} N m s/rad at {r:+.3f} rad" if ok else f"{g} at {r:+.3f} rad"
-                               for g, ok, r in zip(gain, g_ok, rho[[0, -1]]))
-        reflex += "; threshold " + (f"{NOT_DETERMINED}{bias}" if not th_ok.any() else f"{thr[0]} .. {thr[-1]} rad/s{bias}")
-    return [
-        f"stiffness:   K(theta) {at(K, rho)} N m/rad",
-        f"viscosity:   {viscosity}",
-        f"reflex gain: {reflex}",
-        f"orders:      IRF lags {model.lags[0]}..{model.lags[-1]}, basis orders in position {s.get('intrinsic_order')} "
-        f"(intrinsic), {s.get('reflex_order')} (reflex), velocity {s.get('velocity_order')}",
-    ]
 
 
 def cmd_predict(args) -> int:

@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import dataclasses
+
+from lpvpc.errors import DataError, LpvpcWarning
 from lpvpc.identification.channel_skew import MIN_RESIDUAL_REDUCTION, estimate_channel_skew, load_aligned
 from lpvpc.cli import main as cli_main
 from lpvpc.io import load_identification_data, pair_trials
@@ -109,8 +112,15 @@ def test_model_records_the_skew_and_predict_reuses_it(subject, tmp_path):
     data = load_identification_data(pt=npt, ut=nut, channel_skew=1e-3)
     expected = vaf(data.torque, model.predict(data, warn=False).total)
     assert json.loads((d / "p.json").read_text())["vaf"] == pytest.approx(expected, abs=1e-9)
+    # the files loaded without a skew: the model lines them up itself (the same torque), and
+    # data built in memory, which cannot be read again, are predicted as they are, with a warning
     raw = load_identification_data(pt=npt, ut=nut)
-    assert not np.allclose(model.predict(raw, warn=False).total, model.predict(data, warn=False).total)
+    assert np.array_equal(model.predict(raw).total, model.predict(data, warn=False).total)
+    with pytest.warns(LpvpcWarning, match="lined up by 0.00 ms"):
+        unaligned = model.predict(dataclasses.replace(raw, origin=None)).total
+    assert not np.allclose(unaligned, model.predict(data, warn=False).total)
+    with pytest.raises(DataError, match="channel skew"):  # another skew given explicitly: refused
+        model.predict(load_identification_data(pt=npt, ut=nut, channel_skew=0.0))
     from lpvpc.validation.harness import load_record  # validate's loading: the same alignment
 
     assert np.array_equal(load_record(model, npt, nut).measured.position, data.position)
@@ -145,39 +155,48 @@ def late_files(subject, tmp_path_factory):
     return d / "PT.csv", d / "UT.csv"
 
 
-def test_identify_scans_its_record_and_names_a_late_torque(subject, late_files):
+def test_identify_scans_its_record_and_lines_up_a_late_torque(subject, late_files):
     """Every identify scans its own record (one regressor, the model's structure and reflex
-    dynamics held): the 1 ms late torque is found (a warning naming the fix); the record as
-    simulated shows none and gets no warning; loaded lined up as found, the fit is better and
-    the data are not scanned again (already aligned)."""
+    dynamics held). Files loaded without a skew: the 1 ms late torque is found, the files read
+    again lined up and the model fitted again, the same model as from files loaded with that
+    skew; a skew given explicitly is kept, with a warning naming the fix; the record as
+    simulated shows none and gets no warning."""
     import warnings
 
     from lpvpc.errors import LpvpcWarning
     from lpvpc.identification.identify import identify
 
     late = load_identification_data(pt=late_files[0], ut=late_files[1])
-    with pytest.warns(LpvpcWarning, match=r"lags the position channel by about .* channel_skew="):
-        m_late = identify(late)
-    found = m_late.fit["channel_skew"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = identify(late)
+    assert not [w for w in caught if "lags the position channel" in str(w.message)]
+    found = m.fit["channel_skew"]
     print(f"late: {found['estimate_s'] * 1e3:.2f} ms, {100 * found['residual_reduction']:.1f} %")
     assert 0.5e-3 < found["chosen_s"] < 2e-3 and found["residual_reduction"] > 1.5 * MIN_RESIDUAL_REDUCTION
+    assert m.conventions["channel_skew_s"] == found["chosen_s"]
+    aligned = load_identification_data(pt=late_files[0], ut=late_files[1], channel_skew=found["chosen_s"])
+    m_aligned = identify(aligned)
+    rho = np.linspace(*m.scheduling_range, 7)
+    assert np.array_equal(m.elastic_stiffness(rho), m_aligned.elastic_stiffness(rho))
+    assert m.fit["vaf"] == m_aligned.fit["vaf"]
+    assert np.array_equal(load_aligned(pt=late_files[0], ut=late_files[1]).position, aligned.position)
+    # the skew given as none: kept, and the warning names the skew to load the files with
+    with pytest.warns(LpvpcWarning, match=r"lags the position channel by about .* channel_skew="):
+        m_late = identify(load_identification_data(pt=late_files[0], ut=late_files[1], channel_skew=0.0))
+    assert "channel_skew_s" not in m_late.conventions
+    assert m.fit["vaf"] > m_late.fit["vaf"] + 0.03
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         clean = identify(pair_trials(subject.pt, subject.ut))
     assert clean.fit["channel_skew"]["chosen_s"] == 0.0
     assert clean.fit["channel_skew"]["residual_reduction"] < 0.5 * MIN_RESIDUAL_REDUCTION
     assert not [w for w in caught if "lags the position channel" in str(w.message)]
-    aligned = load_aligned(pt=late_files[0], ut=late_files[1])
-    assert aligned.meta["channel_skew_s"] == pytest.approx(found["chosen_s"], abs=1e-4)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        m = identify(aligned)
-    assert "channel_skew" not in m.fit and not [w for w in caught if "lags the position" in str(w.message)]
-    assert m.conventions["channel_skew_s"] == aligned.meta["channel_skew_s"]
-    assert m.fit["vaf"] > m_late.fit["vaf"] + 0.03
-    # predicting records not lined up like the model's: a warning naming the skew to load them with
+    # predicting records not lined up like the model's: loaded files are lined up, data that
+    # cannot be read again get a warning naming the skew to load them with
+    assert np.array_equal(m.predict(late).total, m.predict(aligned).total)
     with pytest.warns(LpvpcWarning, match="channel_skew="):
-        m.predict(late)
+        m.predict(dataclasses.replace(late, origin=None))
     with warnings.catch_warnings():
         warnings.simplefilter("error", LpvpcWarning)
         m.predict(aligned)

@@ -366,7 +366,7 @@ def test_a_saved_activation_model_predicts_with_the_activation_it_was_fitted_wit
     drive: within a few tenths of what the ladder measured (the extended model's drive, not
     the base model's)."""
     from lpvpc.simulation.simulate import SubjectParams
-    from validation.harness import record_signals
+    from lpvpc.validation.harness import record_signals
 
     sp = SubjectParams(activation_cutoff=0.5, activation_stiffness_gain=1.5, activation_reflex_gain=1.0)
     ident, held = (pair_trials(p.pt, p.ut) for p in (

@@ -199,10 +199,10 @@ def test_bad_high_rate_entry_is_refused(model, tmp_path, change, message):
 
 
 def test_summary_says_where_the_threshold_is_biased(model, model_100):
-    from lpvpc.cli import _physical_summary
+    from lpvpc.models.summary import physiology_lines
 
-    assert "threshold biased" not in " ".join(_physical_summary(model))
-    assert "threshold biased" in " ".join(_physical_summary(model_100))
+    assert "threshold biased" not in " ".join(physiology_lines(model))
+    assert "threshold biased" in " ".join(physiology_lines(model_100))
     import matplotlib.pyplot as plt
 
     from lpvpc import plotting

@@ -166,7 +166,7 @@ def test_model_file_holds_both_stiffnesses_and_round_trips(relaxation_run, tmp_p
 
 
 def test_validation_report_table_shows_both_stiffnesses(relaxation_run):
-    from validation.report import _physiology_table
+    from lpvpc.validation.report import _physiology_table
 
     model = LPVPCModel.load(relaxation_run[0])
     html = _physiology_table(model)

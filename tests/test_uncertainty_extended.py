@@ -115,13 +115,13 @@ def test_model_file_refuses_an_extension_on_a_model_without_effects(models, tmp_
 
 
 def test_summary_and_report_show_the_extended_model_with_intervals(models):
-    from lpvpc.cli import _physical_summary, _relaxation_summary
+    from lpvpc.models.summary import physiology_lines, relaxation_lines
     from lpvpc.models.effects import RELAXED_LABEL, SHORT_RANGE_LABEL, relaxation_stiffness_entry
-    from validation.report import _physiology_table
+    from lpvpc.validation.report import _physiology_table
 
     model = models[True]
     model.fit["stiffness"] = relaxation_stiffness_entry(model)  # (identify adds it; _fit alone does not)
-    lines = _physical_summary(model) + _relaxation_summary(model)
+    lines = physiology_lines(model) + relaxation_lines(model)
     assert any(SHORT_RANGE_LABEL in x for x in lines) and any(RELAXED_LABEL in x for x in lines)
     html = _physiology_table(model)
     K = model.elastic_stiffness_interval(np.round(central_rho(model, 5), 2))
@@ -187,7 +187,7 @@ def test_selected_relaxation_on_a_clean_record_keeps_covering_intervals():
     assert _covered(model.elastic_stiffness_interval(rho), K_true) >= 8 / 9
     assert _covered(model.viscosity_interval(rho), truth.viscosity) >= 8 / 9
     assert _covered(model.reflex_gain_interval(rho), truth.reflex_gain(rho)) >= 8 / 9
-    from validation.report import _physiology_table
+    from lpvpc.validation.report import _physiology_table
 
     assert "Stress relaxation was chosen by the structure's cross-validation" in _physiology_table(model)
 
@@ -215,7 +215,7 @@ def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
     """On the virtual subject with stress relaxation (40 % of the elastic torque relaxes:
     held, 60 % of K remains) the relaxed stiffness's interval covers 0.6 K, and the report's
     relaxed column carries it where the relaxed stiffness is plausible."""
-    from validation.report import _physiology_table
+    from lpvpc.validation.report import _physiology_table
 
     sim = simulate_pair("multilevel", seed=SEED, fs_out=100.0, effects=(EFFECT,))
     with warnings.catch_warnings():

@@ -206,7 +206,7 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
     import matplotlib.pyplot as plt
 
     from lpvpc import plotting
-    from lpvpc.cli import _physical_summary
+    from lpvpc.models.summary import physiology_lines
     from lpvpc.models.uncertainty import NOT_DETERMINED
 
     lo, hi = model_weak.scheduling_range
@@ -216,7 +216,7 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
     g = model_weak.reflex_gain_interval(rho)
     assert np.all(g.lower[~g_ok] <= 0)  # the data cannot tell the reflex there from none
     assert np.all(~th_ok[~g_ok])
-    summary = " ".join(_physical_summary(model_weak))
+    summary = " ".join(physiology_lines(model_weak))
     assert NOT_DETERMINED in summary.split("reflex gain:")[1]
     assert not model_weak.reflex_determined([lo, hi])[0].all()  # an end of the range too
     gain_text = summary.split("reflex gain: ")[1].split("; threshold")[0]  # units on numbers only, each end placed
@@ -246,14 +246,14 @@ def test_a_weakly_excited_record_says_not_determined(model_weak, tmp_path):
 def test_model_rate_threshold_is_not_determined_and_gain_is(model_rate):
     """The 100 Hz nonlinearity: the threshold is not observable (smoothed pulses),
     the gain is determined and its interval allows for the smoothed knee."""
-    from lpvpc.cli import _physical_summary
+    from lpvpc.models.summary import physiology_lines
     from lpvpc.models.uncertainty import NOT_DETERMINED
 
     model = model_rate
     rho = central_rho(model)
     g_ok, th_ok = model.reflex_determined(rho)
     assert g_ok.all() and not th_ok.any()
-    line = [ln for ln in _physical_summary(model) if ln.startswith("reflex gain:")][0]
+    line = [ln for ln in physiology_lines(model) if ln.startswith("reflex gain:")][0]
     assert f"threshold {NOT_DETERMINED}" in line and "threshold biased" in line
     plain = without_bias_bound(model)
     (lo, hi), (lo0, hi0) = model.reflex_gain_interval(rho), plain.reflex_gain_interval(rho)

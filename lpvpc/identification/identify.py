@@ -98,124 +98,101 @@ def _records_given_settings(init):
 
 
 class LPVPCEstimator:
-    """Estimator of an LPV-PC ankle stiffness model (scikit-learn style).
+    """Estimator of an LPV-PC ankle stiffness model, in the scikit-learn manner.
 
-    Parameters (defaults suit 100 Hz ankle data)
+    ``fit(data)`` follows the paper's steps: the regressors of both pathways, MOESP for the
+    reflex dynamics, the orthogonal projection that separates the intrinsic IRF, the
+    Hammerstein fit of the reflex nonlinearity by separable least squares, then the
+    intervals. By default the structure (IRF half-width, basis orders, reflex delay and the
+    optional terms) is chosen by cross-validation over the record's position levels. The
+    fitted model is ``model_`` (:class:`lpvpc.LPVPCModel`). Why each default is what it is,
+    with the evidence, is in the documentation's design notes.
+
+    Parameters
     ----------
-    irf_length : half-width of the intrinsic IRF in s: lags -L..L with L = round(irf_length
-        * fs) (0.04 s: L = 4 at 100 Hz; on the lab's pilot trial L = 3 lost 0.3 VAF points
-        held out, L = 2 1.3 points; the virtual subject is indifferent).
-    irf_lags : L in samples, overriding ``irf_length`` when given. Keep L at most the
-        reflex delay, otherwise intrinsic and reflex regressors overlap.
-    basis : basis family in the scheduling variable ("chebyshev", "legendre", "gaussian").
-    intrinsic_order : basis order in rho of each IRF weight (order 5 follows an
-        exponential K(theta); 3 does not).
-    reflex_order : basis order in rho of the reflex nonlinearity coefficients.
-    velocity_order : basis order in delayed velocity of the reflex nonlinearity.
-    velocity_basis : its family ("chebyshev" polynomials or "hinge" piecewise-linear);
-        both continue linearly beyond the identified velocity range.
-    high_rate_reflex : identify the reflex nonlinearity on the high-rate delayed velocity of
-        data that keep their file's higher rate (below). With ``structure="cv"`` (the default)
-        and the setting not given, it is chosen per record by the same cross-validation
-        (:func:`lpvpc.identification.selection.compare_reflex_paths`; the model rate unless the high rate
-        predicts the left-out levels better by more than a standard error), together with the
-        high-rate velocity basis (Chebyshev 4 or hinge 8) unless one is given. Why per record:
-        on the lab's pilot trial (1 kHz file, split 70/30) the high rate predicted the held-out
-        part worse than the model-rate velocity (93.49 % against 94.06 %:
-        benchmarks/results/real_pilot.txt), while on the virtual subject it recovers the reflex
-        gain trend (and, on long or clean records, the threshold's) better
-        (benchmarks/results/reflex_1k.txt) and its gain intervals cover the truth
-        (benchmarks/results/uncertainty.txt). Given (True or False), or with
-        ``structure="fixed"`` (then False unless given), it stays as given; given True, the
-        rest of the structure is not selected (its candidates are model-rate columns).
-    high_rate_velocity_basis, high_rate_velocity_order : family and order in delayed
-        velocity of the reflex nonlinearity when ``high_rate_reflex`` and the data keep their file's higher rate
-        (1 kHz files loaded at the 100 Hz model rate: :class:`lpvpc.io.HighRate`). The
-        nonlinearity then acts on the high-rate delayed velocity, where the 20 ms
-        reflex-evoking pulses are resolved, and its output is decimated to the model rate
-        (:func:`lpvpc.models.reflex.high_rate_input`); a piecewise-linear basis can place the
-        rectifier's kink (virtual subject, 10 seeds, slope ratios to the truth, medians: hinge
-        order 8 gain 0.99, threshold 1.15; from 100 Hz files 1.12 and 0.31:
-        benchmarks/results/reflex_1k.txt). Under the lab's perturbation design (every step
-        large) the hinge basis is left free and Chebyshev order 4 holds up (virtual subject
-        and pilot trial: benchmarks/results/lab_perturbation.txt, real_pilot.txt).
-    reflex_delay : reflex delay in s (rounded to samples).
-    state_order : order m of the reflex dynamics; None chooses it from the data.
-    min_state_order, max_state_order : range of orders considered when choosing.
-    horizon : block rows s of the MOESP Hankel matrices.
-    causal_lags : Lc, the causal intrinsic IRF spans lags 0..Lc (default L + 2).
-    causal_derivatives : offline velocity/acceleration estimate of the causal form,
-        "central5" (default: 5-point differences; on the lab's pilot trial the causal form
-        loses 1.2 points to the two-sided IRF, with "central3" 4.7; they need p(k+2), so the
-        default FMU's latency is 2 samples) or "central3" (3-point, latency 1): see
-        :data:`lpvpc.models.equations.DERIVATIVE_STENCILS`.
-    refine : refine the MOESP poles by variable projection (see module docstring).
-    max_reflex_time_constant : longest time constant (s) the refined reflex poles may have
-        (None: up to the stability limit). The reflex's activation dynamics are a 2-4 Hz
-        low-pass (time constants ~0.1-0.3 s: 0.18 s on the lab's pilot trial, 0.10-0.29 s on
-        its five stationary trials). Where the record holds slow torque the model lacks (a
-        background activation that changes over the trial), the poles otherwise ran to
-        0.999 per sample, an integrator that followed that torque on the identification
-        record and drifted on any other (virtual subject with a hidden activation, seed 4:
-        novel VAF 40 %; capped at 1 s, 69 %; clean seeds unchanged). The lab's stationary
-        trial z_df2 would take a 2.5-s pole uncapped (held-out VAF 96.45 %; capped 96.43 %).
-    tol, max_iter : stopping rule of the separable least squares.
-    stationary_range : when the scheduling variable spans less than this (rad), the trial is
-        stationary (one operating position) and the LTI parallel cascade is identified
-        (basis orders 0 in rho) with a :class:`~lpvpc.errors.StationaryWarning`.
-    stationary_delays : on a stationary trial, the reflex delays (s) among which the delay
-        is chosen by BIC of the complete fit, with the IRF half-width equal to it (the
-        longest IRF whose regressors stay independent of the reflex's); used while
-        ``reflex_delay``, ``irf_length`` and ``irf_lags`` keep their defaults (``()``: off;
-        given ``effects`` stay in every candidate).
-        On the lab's five stationary trials BIC chose 60-80 ms and the held-out VAF rose on
-        every trial (benchmarks/bench_real_stationary.py); on the virtual subject (40 ms) it
-        chose 40-50 ms and K moved by < 0.3 %. Up to 80 ms: a longer intrinsic IRF starts
-        to take reflex torque (K fell from 44 to 17 N m/rad on one lab trial at 120 ms).
-    elastic_curvature : include the elastic torque's second-order term in the perturbation,
-        0.5 K'(theta) p^2 (:func:`lpvpc.models.equations.elastic_curvature_torque`), tied to the
-        IRF's own stiffness K(theta) (no extra parameters; not in the paper). The IRF is
-        linear in p; without the term the reflex nonlinearity takes up part of it (a stretch
-        step raises velocity and p^2 together) and the 1 kHz path's reflex gain came out
-        +14 % high on the virtual subject (+1 % with it; K unchanged). Lab pilot trial:
-        held-out VAF 94.06 % with it, 94.10 % without; free coefficients instead of tied
-        ones lost 0.13 points there (and 6 points on the 1 kHz path).
-    structure : "cv" (default) or "fixed". "cv": the IRF half-width, basis orders, reflex
-        delay, curvature term and scheduling extrapolation the caller did not set are
-        chosen by leave-one-level-out cross-validation with the one-standard-error rule
-        (:mod:`lpvpc.identification.selection`), starting from the settings given; the choice and a CV
-        table are recorded in ``model.fit["structure_selection"]``. On the lab's pilot
-        trial (first 70 %, leave-one-level-out) it predicted left-out levels at 90.9 %
-        VAF against 81.1 % for the fixed settings (benchmarks/results/selection.txt).
-        On data that keep their file's higher rate, the velocity of the reflex nonlinearity
-        (model or high rate, see ``high_rate_reflex``) is a candidate too.
-        Selection is skipped, with the reason recorded, on stationary trials, extended
-        models (effects), non-polynomial bases, ``high_rate_reflex=True`` given and records whose
-        selection design would exceed ``DESIGN_BUDGET_BYTES``. "fixed": the settings as given.
-    structure_fixed : with ``structure="cv"``, names of settings the selection leaves as
-        given. None (default): every selected setting named in the call (to the constructor,
-        :meth:`set_params` or :func:`identify`), whatever its value; an ``irf_lags`` given
-        fixes ``irf_length``. The command line likewise fixes every option the user wrote.
-    scheduling_extrapolation : beyond the identified range of the scheduling variable the
-        position bases are held at the boundary ("clip", default) or continued along their
-        tangent ("linear"; :class:`lpvpc.models.basis.Basis`).
-    allow_effects : effects of the catalog that structure="cv" may switch on: each is an
-        on/off candidate of the same cross-validation (its columns join the largest
-        regressor; :mod:`lpvpc.identification.selection`), on stationary trials scored on contiguous blocks
-        at the delay BIC chose. Default ``("stress_relaxation",)``; ``()``: none. Only
-        intrinsic effects with static features of the position qualify (ValueError
-        otherwise). Not used with structure="fixed", nor when ``effects`` are given (then
-        the structure is as given), nor on several trials joined. Stress relaxation's
-        averaging time and position-weight order are chosen with it
-        (:data:`lpvpc.identification.selection.RELAXATION_VARIANTS`).
-    relaxation_times, relaxation_order : a stress-relaxation term's averaging times (s) and
-        the order of its position weights. None (default): chosen by the cross-validation
-        when it switches the effect on, else :data:`lpvpc.models.effects.RELAXATION_TIMES` and the
-        catalog's order (1). The model stores its times (its effect's options).
-    effects : names of effects from :data:`lpvpc.models.effects.CATALOG` to include (an extended
-        model; default none), always on. Intrinsic-pathway effects are estimated jointly with the
-        intrinsic part (extra columns of Psi_i); reflex-pathway effects jointly with it
-        after the reflex is identified. The data must carry the signals the effects need.
+    irf_lags : int or None, default None
+        Half-width L of the two-sided intrinsic IRF in samples (lags -L..L); overrides
+        ``irf_length``. Keep it at most the reflex delay, where the pathways' regressors
+        stay independent.
+    basis : {"chebyshev", "legendre", "gaussian"}, default "chebyshev"
+        Basis family in the scheduling variable (joint position).
+    intrinsic_order : int, default 5
+        Basis order in position of each IRF weight (order 5 follows an exponential K(theta)).
+    reflex_order : int, default 2
+        Basis order in position of the reflex nonlinearity's coefficients.
+    velocity_order : int, default 4
+        Basis order in delayed velocity of the reflex nonlinearity.
+    velocity_basis : {"chebyshev", "hinge"}, default "chebyshev"
+        Its family; both continue linearly beyond the identified velocity range.
+    reflex_delay : float, default 0.040
+        Reflex delay in s (rounded to samples).
+    state_order : int or None, default None
+        Order m of the reflex dynamics; None chooses it from the data.
+    min_state_order, max_state_order : int, default 1 and 4
+        Orders considered when choosing it.
+    horizon : int, default 6
+        Block rows of the MOESP Hankel matrices.
+    causal_lags : int or None, default None
+        Lc: the causal IRF of the closed-loop form spans lags 0..Lc (None: L + 2).
+    tol : float, default 1e-6
+        Relative-change stopping rule of the separable least squares.
+    max_iter : int, default 100
+        Its iteration limit.
+    refine : bool, default True
+        Refine the MOESP poles by variable projection.
+    effects : tuple of str, default ()
+        Effects of :data:`lpvpc.models.effects.CATALOG` always included (an extended model);
+        the data must carry the signals they need.
+    irf_length : float, default 0.040
+        Half-width of the intrinsic IRF in s, used when ``irf_lags`` is None.
+    stationary_range : float, default 0.010
+        A scheduling variable spanning less (rad) makes the trial stationary: one operating
+        position, the LTI parallel cascade.
+    causal_derivatives : {"central5", "central3"}, default "central5"
+        Difference stencil of the velocity and acceleration of the causal form (latency 2
+        or 1 sample in the default FMU).
+    stationary_delays : tuple of float, default (0.04, 0.05, 0.06, 0.07, 0.08)
+        On a stationary trial, the reflex delays (s) among which BIC chooses, with the IRF
+        half-width equal to it (``()``: off).
+    high_rate_velocity_basis : {"chebyshev", "legendre", "hinge"}, default "hinge"
+        Velocity basis of the reflex nonlinearity on the file's own rate (``high_rate_reflex``).
+    high_rate_velocity_order : int, default 8
+        Its order.
+    high_rate_reflex : bool, default False
+        Identify the reflex nonlinearity on the delayed velocity at the file's own rate (e.g.
+        1 kHz), where the rectifier's threshold is observable. With ``structure="cv"`` and
+        the setting not given, the cross-validation chooses it per record.
+    elastic_curvature : bool, default True
+        Include the elastic torque's second-order term 0.5 K'(theta) p^2, tied to the IRF's
+        own K(theta) (no extra parameters; not in the paper).
+    max_reflex_time_constant : float or None, default 1.0
+        Longest time constant (s) the refined reflex poles may take (None: up to stability);
+        keeps slow unmodelled torque out of the reflex dynamics.
+    structure : {"cv", "fixed"}, default "cv"
+        "cv": the settings the caller did not give are chosen by leave-one-level-out
+        cross-validation with the one-standard-error rule (:mod:`lpvpc.identification.selection`),
+        recorded in ``model.fit["structure_selection"]``; "fixed": the settings as given.
+    structure_fixed : tuple of str or None, default None
+        With ``structure="cv"``, the settings the selection leaves as given (None: every
+        setting named in the call).
+    scheduling_extrapolation : {"clip", "linear"}, default "clip"
+        Beyond the identified position range the bases are held at the boundary, or
+        continued along their tangent.
+    allow_effects : tuple of str, default ("stress_relaxation",)
+        Effects the cross-validation may switch on (``()``: none).
+    relaxation_times : tuple of float or None, default None
+        Stress relaxation's averaging times (s); None: chosen with the effect.
+    relaxation_order : int or None, default None
+        Order in position of stress relaxation's weights; None: chosen with the effect.
+
+    Attributes
+    ----------
+    model_ : lpvpc.LPVPCModel
+        The fitted model (after :meth:`fit`).
+
+    See Also
+    --------
+    lpvpc.identify : the same, as one call returning the model.
 
     Examples
     --------
@@ -278,49 +255,22 @@ class LPVPCEstimator:
         relaxation_times: tuple | None = None,
         relaxation_order: int | None = None,
     ):
-        self.allow_effects = allow_effects
-        self.relaxation_times = relaxation_times
-        self.relaxation_order = relaxation_order
-        self.structure = structure
-        self.structure_fixed = structure_fixed
-        self.scheduling_extrapolation = scheduling_extrapolation
-        self.elastic_curvature = elastic_curvature
-        self.max_reflex_time_constant = max_reflex_time_constant
-        self.high_rate_reflex = high_rate_reflex
-        self.high_rate_velocity_basis = high_rate_velocity_basis
-        self.high_rate_velocity_order = high_rate_velocity_order
-        self.irf_lags = irf_lags
-        self.irf_length = irf_length
-        self.stationary_range = stationary_range
-        self.causal_derivatives = causal_derivatives
-        self.stationary_delays = stationary_delays
-        self.basis = basis
-        self.intrinsic_order = intrinsic_order
-        self.reflex_order = reflex_order
-        self.velocity_order = velocity_order
-        self.velocity_basis = velocity_basis
-        self.reflex_delay = reflex_delay
-        self.state_order = state_order
-        self.min_state_order = min_state_order
-        self.max_state_order = max_state_order
-        self.horizon = horizon
-        self.causal_lags = causal_lags
-        self.tol = tol
-        self.max_iter = max_iter
-        self.refine = refine
-        self.effects = effects
+        # scikit-learn's rule: __init__ stores each setting under its own name and nothing else
+        given = locals()
+        for name in self._param_names():
+            setattr(self, name, given[name])
+
+    @classmethod
+    def _param_names(cls) -> tuple:
+        """The settings: the parameters of ``__init__``, in order (the one declaration)."""
+        import inspect
+
+        return tuple(name for name in inspect.signature(cls.__init__).parameters if name != "self")
 
     def get_params(self, deep: bool = True) -> dict:
         """The estimator's settings as a dict (scikit-learn convention; ``deep`` is ignored:
         no nested estimators)."""
-        return {k: getattr(self, k) for k in (
-            "irf_lags", "basis", "intrinsic_order", "reflex_order", "velocity_order", "velocity_basis", "reflex_delay",
-            "state_order", "min_state_order", "max_state_order", "horizon", "causal_lags", "tol", "max_iter", "refine",
-            "effects", "irf_length", "stationary_range", "causal_derivatives", "stationary_delays",
-            "high_rate_velocity_basis", "high_rate_velocity_order", "high_rate_reflex", "elastic_curvature",
-            "max_reflex_time_constant", "structure", "structure_fixed", "scheduling_extrapolation", "allow_effects",
-            "relaxation_times", "relaxation_order")
-            } | {"structure_fixed": self._given_settings()}  # (a clone keeps what was given)
+        return {k: getattr(self, k) for k in self._param_names()} | {"structure_fixed": self._given_settings()}
 
     def resolved_lags(self, fs: float) -> int:
         """L in samples at rate ``fs`` (Hz): ``irf_lags`` if given, else round(irf_length * fs)."""
@@ -373,50 +323,82 @@ class LPVPCEstimator:
 
                 data = join_trials(data)
             self.check_settings()
-            if self.structure == "cv":
-                self._fit_selected(data)
+            if not self._lines_up(data):
+                self._fit_once(data)
+                self._record_channel_skew(data)
+                return self
+            # The record can be read again from its files: a late torque channel found by the
+            # scan is lined up at the files' rate and the model fitted again (the first fit's
+            # warnings are shown only when it stands).
+            with warnings.catch_warnings(record=True) as caught:
+                self._fit_once(data)
+                found = self._scan_channel_skew(data)
+            if found is not None and found.chosen:
+                self._fit_once(data.reload(channel_skew=found.chosen))
+                self.model_.fit["channel_skew"] = found.to_dict()
             else:
-                try:
-                    self._fit(data)
-                except InsufficientExcitationError as exc:
-                    if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
-                        raise
-                    from dataclasses import replace
-
-                    from ..errors import LpvpcWarning
-
-                    warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz "
-                                  f"velocity ({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold "
-                                  f"is biased)", LpvpcWarning, stacklevel=2)
-                    self._fit(replace(data, high_rate=None))
-            self._record_channel_skew(data)
+                for w in caught:
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             return self
 
+    def _fit_once(self, data) -> None:
+        if self.structure == "cv":
+            self._fit_selected(data)
+            return
+        try:
+            self._fit(data)
+        except InsufficientExcitationError as exc:
+            if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
+                raise
+            from dataclasses import replace
+
+            from ..errors import LpvpcWarning
+
+            warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz "
+                          f"velocity ({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold "
+                          f"is biased)", LpvpcWarning, stacklevel=3)
+            self._fit(replace(data, high_rate=None))
+
+    def _lines_up(self, data) -> bool:
+        """Whether this fit lines a late torque channel up itself: a top-level fit of a record
+        that can be read again from its files (``data.origin``) and whose channel skew the
+        loader was not given."""
+        origin = getattr(data, "origin", None)
+        meta = getattr(data, "meta", {}) or {}
+        return (origin is not None and "channel_skew" not in origin.given and getattr(self, "_scan_skew", True)
+                and not getattr(self, "_reuse", {}).get("bare") and "position_delay_s" not in meta)
+
     def _record_channel_skew(self, data) -> None:
-        """The channel skew the fitted model sees in its data (lpvpc.identification.skew_scan.scan_channel_skew,
-        about one least-squares solve), in ``model.fit["channel_skew"]``, with a warning naming
-        the fix when lining the channels up would remove at least MIN_RESIDUAL_REDUCTION of the
-        residual variance. Not for the fits inside identify, nor for data already aligned."""
+        """Scan for a channel skew (:meth:`_scan_channel_skew`) and warn, naming the fix, when
+        lining the channels up would remove at least MIN_RESIDUAL_REDUCTION of the residual
+        variance: for records this fit cannot read again, or whose skew was given."""
+        found = self._scan_channel_skew(data)
+        if found is not None and found.chosen:
+            from ..errors import LpvpcWarning
+
+            warnings.warn(f"the torque channel lags the position channel by about {found.chosen * 1e3:.2f} ms (a "
+                          f"recording artefact: lining them up removes {100 * found.residual_reduction:.1f} % of the "
+                          f"residual variance); load the files with channel_skew={found.chosen:.5f}, or leave "
+                          f"channel_skew out of load_identification_data and identify lines them up itself",
+                          LpvpcWarning, stacklevel=4)
+
+    def _scan_channel_skew(self, data):
+        """The channel skew the fitted model sees in its data
+        (:func:`lpvpc.identification.skew_scan.scan_channel_skew`, about one least-squares
+        solve), recorded in ``model.fit["channel_skew"]``; None where no scan applies: the
+        fits inside identify, data already aligned, stationary records and models with
+        effects (where the scan takes the misfit for a skew)."""
         meta = getattr(data, "meta", {}) or {}
         if getattr(self, "_reuse", {}).get("bare") or not getattr(self, "_scan_skew", True) \
                 or "channel_skew_s" in meta or "position_delay_s" in meta or not hasattr(data, "meta"):
-            return
-        # Only where the scan's regressor is the model's own: a moving record without effects.
-        # On stationary virtual trials and on models with an effect the scan took the misfit for
-        # a skew (2.6-6.9 % of the residual removed by -1.4..+0.6 ms, where there is none).
+            return None
         if self.model_.effects or float(np.ptp(np.asarray(data.scheduling, dtype=float))) < self.stationary_range:
-            return
-        from ..errors import LpvpcWarning
+            return None
         from .skew_scan import scan_channel_skew
 
         found = scan_channel_skew(self.model_, data)
         self.model_.fit["channel_skew"] = found.to_dict()
-        if found.chosen:
-            warnings.warn(f"the torque channel lags the position channel by about {found.chosen * 1e3:.2f} ms (a "
-                          f"recording artefact: lining them up removes {100 * found.residual_reduction:.1f} % of the "
-                          f"residual variance); load the files with channel_skew={found.chosen:.5f} "
-                          f"(lpvpc.identification.channel_skew.load_aligned; the CLI's identify does it by default) and identify again",
-                          LpvpcWarning, stacklevel=3)
+        return found
 
     def check_settings(self) -> None:
         """ValueError naming the first bad setting, before any data are read (fit calls it;
@@ -1409,6 +1391,7 @@ def _conventions(data) -> dict:
     """Units and torque sign the data were loaded with (recorded so predict can reuse them)."""
     meta = dict(getattr(data, "meta", {}) or {})
     return {"position_unit": meta.get("position_unit", "rad"), "torque_sign": float(meta.get("torque_sign", 1.0)),
+            **({"time_unit": meta["time_unit"]} if meta.get("time_unit", "s") != "s" else {}),
             "fs_original": meta.get("fs_original"), "decimation": meta.get("decimation"),
             **({"channel_skew_s": float(meta["channel_skew_s"])} if meta.get("channel_skew_s") else {})}
 

@@ -175,6 +175,29 @@ class PerturbationData:
     meta: dict = field(default_factory=dict)
     segments: tuple = ()
     high_rate: HighRate | None = None
+    origin: "RecordSource | None" = field(default=None, repr=False, compare=False)
+
+    def reload(self, **changes) -> "PerturbationData":
+        """The same record loaded again from its files (or Trials) with ``changes`` to its
+        conventions (``torque_sign``, ``position_unit``, ``time_unit``, ``channel_skew``,
+        ``target_fs``); DataError when it was not loaded by
+        :func:`load_identification_data` and so cannot be."""
+        if self.origin is None:
+            raise DataError([f"these data were not loaded from files or Trials by load_identification_data, so they "
+                             f"cannot be loaded again with {', '.join(f'{k}={v!r}' for k, v in changes.items())}: "
+                             f"load them that way"], source=self.source or None)
+        return self.origin.load(**changes)
+
+    @property
+    def conventions(self) -> dict:
+        """The conventions these data were loaded with (defaults where the loader did not
+        record one): ``position_unit``, ``torque_sign``, ``time_unit``, ``channel_skew`` (s)
+        and ``fs`` (Hz)."""
+        meta = self.meta or {}
+        return {"position_unit": meta.get("position_unit", CONVENTION_DEFAULTS["position_unit"]),
+                "torque_sign": float(meta.get("torque_sign", CONVENTION_DEFAULTS["torque_sign"])),
+                "time_unit": meta.get("time_unit", CONVENTION_DEFAULTS["time_unit"]),
+                "channel_skew": float(meta.get("channel_skew_s", 0.0) or 0.0), "fs": self.fs}
 
     def __post_init__(self):
         self.position = np.asarray(self.position, dtype=float)
@@ -580,13 +603,68 @@ def _joined_high_rate(trials) -> HighRate | None:
                     np.concatenate([d.high_rate.scheduling for d in trials]), trials[0].high_rate.fs, tuple(bounds))
 
 
-def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str = "rad",
-                             torque_sign: float = 1.0, target_fs=100.0, variable=None, channels=None,
-                             stationary: bool = False, time_unit: str = "s", channel_skew=0.0) -> PerturbationData:
+#: The conventions a record is loaded with and a model carries (its input contract), with
+#: the value each takes when not given.
+CONVENTION_DEFAULTS = {"position_unit": "rad", "torque_sign": 1.0, "time_unit": "s", "channel_skew": 0.0,
+                       "target_fs": 100.0}
+
+
+class _DefaultRate(float):
+    """The loader's default model rate: a float that says it was not given."""
+
+    def __repr__(self):
+        return float.__repr__(self)
+
+
+DEFAULT_RATE = _DefaultRate(CONVENTION_DEFAULTS["target_fs"])
+
+
+@dataclass(frozen=True)
+class RecordSource:
+    """How a record was loaded: the files (or Trials) and the settings, so that it can be
+    loaded again with other conventions (a model's: its torque sign, units, channel skew
+    and rate).
+
+    Parameters
+    ----------
+    inputs : dict
+        The loader's ``pt``, ``ut``, ``data``, ``variable``, ``channels`` and ``stationary``.
+    settings : dict
+        Every convention of :data:`CONVENTION_DEFAULTS`, as used.
+    given : frozenset
+        The conventions the caller gave explicitly (the others took their defaults).
+
+    Examples
+    --------
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=5.0)
+    >>> data = load_identification_data(pt=sim.pt, ut=sim.ut, torque_sign=1)
+    >>> sorted(data.origin.given), data.reload(target_fs=200).fs
+    (['torque_sign'], 200.0)
+    """
+
+    inputs: dict
+    settings: dict
+    given: frozenset
+
+    def load(self, **changes) -> "PerturbationData":
+        """The record loaded again with ``changes`` to its conventions (given explicitly)."""
+        unknown = set(changes) - set(CONVENTION_DEFAULTS)
+        if unknown:
+            raise ValueError(f"not a convention of a record: {', '.join(sorted(unknown))}")
+        given = {k: v for k, v in self.settings.items() if k in self.given}
+        return load_identification_data(**self.inputs, **{**given, **changes})
+
+
+def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str | None = None,
+                             torque_sign: float | None = None, target_fs=DEFAULT_RATE,
+                             variable=None, channels=None, stationary: bool = False, time_unit: str | None = None,
+                             channel_skew=None) -> PerturbationData:
     """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
     a perturbation file, or a PerturbationData returned as is).
 
-    ``position_unit`` and ``torque_sign`` describe the inputs (applied to Trials too);
+    ``position_unit`` ("rad", the default, or "deg") and ``torque_sign`` (+1, the default, or
+    -1) describe the inputs (applied to Trials too);
     ``target_fs`` (Hz, None keeps the rate); ``variable`` and ``channels`` choose within
     .mat files (:func:`load_trial`; a path ``"file.mat:NAME"`` names its own variable).
     Several trials: lists for ``pt`` and ``ut`` (paired in order) or for ``data``, joined by
@@ -603,7 +681,30 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     artefact undone at the file's rate before decimation (:func:`pair_trials`); to choose it
     from the data, :func:`lpvpc.identification.channel_skew.load_aligned`. A PerturbationData passed as
     ``data`` is returned as is (align it when loading it).
+
+    The data remember how they were loaded (``data.origin``, :class:`RecordSource`): a
+    model given them loads them again with its own conventions where these were not given
+    here (:meth:`lpvpc.LPVPCModel.conform`), and refuses those given otherwise.
     """
+    settings = {"position_unit": position_unit, "torque_sign": torque_sign, "time_unit": time_unit,
+                "channel_skew": channel_skew, "target_fs": target_fs}
+    given = frozenset(k for k, v in settings.items() if v is not None and not isinstance(v, _DefaultRate))
+    settings = {k: (CONVENTION_DEFAULTS[k] if k not in given and k != "target_fs" else v) for k, v in settings.items()}
+    settings["target_fs"] = None if target_fs is None else float(target_fs)
+    out = _load(pt, ut, data, variable=variable, channels=channels, stationary=stationary, **settings)
+    if not isinstance(data, PerturbationData):
+        out.meta.update(position_unit=settings["position_unit"], torque_sign=float(settings["torque_sign"]))
+        if settings["time_unit"] != "s":
+            out.meta["time_unit"] = settings["time_unit"]
+        out.origin = RecordSource({"pt": pt, "ut": ut, "data": data, "variable": variable, "channels": channels,
+                                   "stationary": stationary}, settings, given)
+    return out
+
+
+def _load(pt, ut, data, *, position_unit, torque_sign, target_fs, variable, channels, stationary, time_unit,
+          channel_skew) -> PerturbationData:
+    """:func:`load_identification_data` with every convention given."""
+
     given = [k for k, v in (("pt", pt), ("ut", ut), ("data", data)) if v is not None]
     allowed = (["pt"],) if stationary else (["pt", "ut"], ["data"])
     if given not in allowed:
@@ -620,13 +721,12 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     kw["channel_skew"] = skew
     if any(isinstance(v, (list, tuple)) for v in (pt, ut, data)):
         if data is not None:
-            return join_trials([load_identification_data(data=d, **kw) for d in data])
+            return join_trials([_load(None, None, d, **kw) for d in data])
         pts = list(pt) if isinstance(pt, (list, tuple)) else [pt]
         uts = list(ut) if isinstance(ut, (list, tuple)) else [ut] * len(pts) if stationary else [ut]
         if len(pts) != len(uts):
             raise DataError([f"{len(pts)} PT trials but {len(uts)} UT trials: give them in pairs"])
-        return join_trials([load_identification_data(pt=a, ut=b if not stationary else None, **kw)
-                            for a, b in zip(pts, uts)])
+        return join_trials([_load(a, b if not stationary else None, None, **kw) for a, b in zip(pts, uts)])
     if data is not None:
         if isinstance(data, PerturbationData):
             return data

@@ -263,6 +263,108 @@ class LPVPCModel:
 
         return model_signals(self)
 
+    def summary(self):
+        """What the model says about the ankle: lines to read and the same figures as numbers
+        (:class:`lpvpc.models.summary.ModelSummary`; ``lpvpc identify`` prints its lines)."""
+        from .summary import summarize
+
+        return summarize(self)
+
+    def record_conventions(self) -> dict:
+        """The conventions this model's records are read with (its input contract): the
+        file conventions of the record it was identified from, and its rate.
+
+        Returns
+        -------
+        dict
+            ``position_unit`` ("rad" or "deg"), ``torque_sign`` (+1 or -1), ``time_unit``
+            ("s" or "ms"), ``channel_skew`` (s: the torque channel's lag behind position,
+            undone at the file's rate) and ``fs`` (Hz).
+        """
+        c = self.conventions or {}
+        return {"position_unit": c.get("position_unit", "rad"), "torque_sign": float(c.get("torque_sign", 1.0)),
+                "time_unit": c.get("time_unit", "s"), "channel_skew": float(c.get("channel_skew_s", 0.0) or 0.0),
+                "fs": float(self.fs)}
+
+    def load_record(self, pt=None, ut=None, data=None, **settings):
+        """A record read the way this model's own record was: its torque sign, units,
+        channel skew and rate (:meth:`record_conventions`).
+
+        Parameters
+        ----------
+        pt, ut, data
+            As :func:`lpvpc.io.load_identification_data` takes them: the perturbed and the
+            unperturbed trial (paths or Trials), or one perturbation file. A stationary
+            model's record may be a perturbed trial alone.
+        **settings
+            Other loader settings (``variable``, ``channels``, ``stationary``); a convention
+            given here must agree with the model's.
+
+        Returns
+        -------
+        lpvpc.io.PerturbationData
+
+        Raises
+        ------
+        lpvpc.DataError
+            A convention given that contradicts the model's (both named), or bad data.
+        """
+        from ..io import load_identification_data
+
+        want = self.record_conventions()
+        contract = {"position_unit": want["position_unit"], "torque_sign": want["torque_sign"],
+                    "time_unit": want["time_unit"], "channel_skew": want["channel_skew"], "target_fs": want["fs"]}
+        _refuse_contradictions(want, {("fs" if k == "target_fs" else k): v for k, v in settings.items()
+                                      if k in contract and v is not None}, source=str(data or pt))
+        if pt is not None and ut is None and data is None and self.one_position:
+            settings.setdefault("stationary", True)
+        settings = {k: v for k, v in settings.items() if k not in contract}
+        return load_identification_data(pt, ut, data, **contract, **settings)
+
+    def conform(self, data):
+        """``data`` as this model reads a record: with the model's channel skew undone, and
+        with its torque sign and units.
+
+        A model identified from a lab's files carries how they were read
+        (:meth:`record_conventions`). A record loaded without a channel skew is loaded again
+        from its files with the model's, so that every door (the command line,
+        ``model.predict(data)``, the FMU recipes) predicts from the same positions; the
+        torque the caller holds is unchanged by it. A record read with another torque sign
+        or unit is refused, naming both: reading it again would change the torque the
+        caller compares with (:meth:`load_record` reads a record the model's way).
+
+        Parameters
+        ----------
+        data : lpvpc.io.PerturbationData or object
+            Anything else (arrays, other records) is returned unchanged.
+
+        Returns
+        -------
+        lpvpc.io.PerturbationData
+
+        Raises
+        ------
+        lpvpc.DataError
+            A torque sign or unit that differs from the model's, or a channel skew given
+            explicitly that does.
+        """
+        from ..io import PerturbationData
+
+        if not isinstance(data, PerturbationData):
+            return data
+        want, have = self.record_conventions(), data.conventions
+        meta = data.meta or {}
+        recorded = {"position_unit", "torque_sign", "time_unit"} & set(meta)
+        if data.origin is not None:
+            recorded |= {"position_unit", "torque_sign", "time_unit"}
+        _refuse_contradictions(want, {k: have[k] for k in recorded}, source=data.source)
+        if _same_convention(want["channel_skew"], have["channel_skew"]) or "position_delay_s" in meta \
+                or data.origin is None:  # (built in memory: predict warns when it was not lined up)
+            return data
+        if "channel_skew" in data.origin.given:
+            _refuse_contradictions(want, {"channel_skew": have["channel_skew"]}, source=data.source)
+        return data.reload(channel_skew=want["channel_skew"])
+
     def _check_alignment(self, data) -> None:
         """Warn when the model was identified on records lined up for a late torque channel
         (``conventions["channel_skew_s"]``, lpvpc.identification.channel_skew) and ``data`` were not lined up
@@ -296,6 +398,7 @@ class LPVPCModel:
         ``scheduling``.
         """
         if scheduling is None:
+            position = self.conform(position)
             segments = list(getattr(position, "segments", ()) or ())
             if len(segments) > 1:  # joined trials: each predicted on its own, from rest
                 data = position
@@ -757,3 +860,25 @@ def vaf(measured, predicted) -> float:
     measured = np.asarray(measured, dtype=float)
     predicted = np.asarray(predicted, dtype=float)
     return float(100.0 * (1.0 - np.var(measured - predicted) / np.var(measured)))
+
+
+def _same_convention(a, b) -> bool:
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    return abs(float(a) - float(b)) <= 1e-9 * max(1.0, abs(float(a)))
+
+
+_KEYWORD = {"position_unit": "position_unit", "torque_sign": "torque_sign", "time_unit": "time_unit",
+            "channel_skew": "channel_skew", "fs": "target_fs"}
+_CONVENTION_TEXT = {"position_unit": "position unit", "torque_sign": "torque sign", "time_unit": "time unit",
+                    "channel_skew": "channel skew (s)", "fs": "rate (Hz)"}
+
+
+def _refuse_contradictions(model_conventions: dict, given: dict, source=None) -> None:
+    """DataError naming each convention given for a record that differs from the model's."""
+    problems = [f"{_CONVENTION_TEXT[k]}: the record was read with {v!r}, the model's record with "
+                f"{model_conventions[k]!r}; read it as the model's (model.load_record, or {_KEYWORD[k]}="
+                f"{model_conventions[k]!r} when loading it)"
+                for k, v in given.items() if not _same_convention(model_conventions[k], v)]
+    if problems:
+        raise DataError(problems, source=source or None)
