@@ -3,7 +3,7 @@ torque out, no look-ahead, inertia declared apart.
 
 The whole-joint model (:mod:`lpvpc.export.whole_joint`) answers L samples late (its intrinsic IRF
 is two-sided) and holds the foot's inertia inside its torque. In a loop where the torque
-moves the foot both are fatal (issue 24: a compliant exoskeleton loop diverges within 0.4 s).
+moves the foot both are fatal: a compliant exoskeleton loop diverges within 0.4 s.
 This form keeps the whole-joint split (operating angle rho = causal 0.5 Hz low-pass of the
 angle, perturbation p = angle - rho) and the identified reflex pathway, and replaces the
 intrinsic IRF by a causal impedance of the current inputs:

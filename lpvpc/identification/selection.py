@@ -1,4 +1,4 @@
-"""Structure selection by cross-validation that imitates predicting unseen data (issue 22).
+"""Structure selection by cross-validation that imitates predicting unseen data.
 
 Folds are contiguous stretches of the record, never random samples. On a staircase
 trial (the scheduling variable held at a few levels, as in the paper's multilevel

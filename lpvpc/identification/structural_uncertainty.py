@@ -1,5 +1,5 @@
 """Structural uncertainty of the intrinsic intervals: the spread of K(theta) and viscosity
-over the structures cross-validation cannot tell apart (issue 22, item 3).
+over the structures cross-validation cannot tell apart.
 
 The noise intervals (:mod:`lpvpc.models.uncertainty`) are right for the noise but assume the
 position basis holds the true K(theta). When it does not (a steep sum of exponentials, a

@@ -1,6 +1,6 @@
 """A compliant exoskeleton loop with an ankle model in it: where the ankle's torque moves the foot.
 
-The set-up controller and prosthesis designers build (issue 24, DESIGN.md "Closed loop"):
+The set-up controller and prosthesis designers build:
 
     (I_device + I_ankle) theta'' = Kp (theta_ref - theta) - Kd theta' - torque_ankle(theta, theta')
 
