@@ -396,8 +396,10 @@ def _reflex_delay(st: TrialState, form, p) -> dict:
 def _reflex_dynamics(st: TrialState, form, p) -> dict:
     wn, ratio = st.params.reflex_wn, p["wn_ratio"]
     lo, hi = wn / math.sqrt(ratio), wn * math.sqrt(ratio)
-    prof = _position_profile(form, st.theta, p)
-    st.reflex_wn = lo * ratio ** prof if form == "exponential" else lo + (hi - lo) * prof
+    if form == "exponential":  # geometric in position: wn = lo * ratio^s
+        st.reflex_wn = lo * ratio ** _s(st.theta)
+    else:
+        st.reflex_wn = lo + (hi - lo) * _position_profile(form, st.theta, p)
     return {"form": form, "wn_at_-0.4": lo, "wn_at_+0.2": hi, **p}
 
 
