@@ -17,7 +17,9 @@ central 80 %, pooled per stiffness form.
 
 Seeds: DEVELOPMENT_SEEDS by default (from --first-seed, default 0); ``--record`` uses
 RECORD_SEEDS instead (for results recorded after the methods are settled). A development
-run writes benchmarks/results/population.txt; a record run population_record.txt.
+run writes benchmarks/results/population.txt, a record run population_record.txt; a run
+with another number of draws or --first-seed is recorded as its own section below the
+default run's table (replacing an earlier section of the same command).
 
 Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py [n_draws] [--first-seed S] [--record]
 """
@@ -37,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 import lpvpc  # noqa: E402
 from lpvpc.population import DEVELOPMENT_SEEDS, RECORD_SEEDS, STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
-from _results import write_results  # noqa: E402
+from _results import RESULTS, write_results  # noqa: E402
 
 N_POS = 9
 LEVEL = 0.95
@@ -130,7 +132,12 @@ def main(argv=None):
     lines.append(f"| all | {len(rows)} | {100 * a['k_cover'].mean():.1f} | {int(np.sum(a['k_cover'] == 1.0))}/{len(rows)} | "
                  f"{100 * a['b_cover'].mean():.1f} |")
     lines += ["", f"total run time {total:.0f} s ({total / len(rows):.1f} s per draw, simulation included)"]
-    write_results("population_record.txt" if args.record else "population.txt", lines, echo=True)
+    target = RESULTS / ("population_record.txt" if args.record else "population.txt")
+    if args.n != 9 or args.first_seed is not None:  # another run: its own section below the default run's
+        head = f"## Run: {cmd}"
+        old = target.read_text().split("\n\n" + head + "\n")[0].rstrip("\n").split("\n") if target.exists() else []
+        lines = old + ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
+    write_results(target, lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -148,6 +148,10 @@ class PopulationSubject:
     ``emg_unit``; ``draws``: every value drawn from :data:`RANGES` / :data:`EFFECT_RANGES`
     by its name (effect parameters as "effect.name"); ``seed`` also seeds the simulation's
     random streams (trajectory, perturbation, noise).
+
+    >>> s = draw_subject(2)
+    >>> 0.01 <= s.params.inertia <= 0.03, s.effect, s.draws["inertia"] == s.params.inertia
+    (True, None, True)
     """
 
     seed: int
@@ -253,6 +257,12 @@ def draw_subject(seed: int, effect: str | None = None, form: str | None = None, 
     (a perturbation name) fix those choices instead of drawing them. The subject's own
     parameters come from one stream and the effect's from another, so the same seed gives
     the same subject with or without an effect, and whatever is fixed.
+
+    >>> s = draw_subject(8, stiffness="polynomial")
+    >>> s.stiffness_form, s.params.stiffness_family
+    ('polynomial', 'polynomial')
+    >>> draw_subject(8).params == draw_subject(8, "reflex_habituation").params  # the effect draws on its own stream
+    True
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"population seed must be an integer >= 0, got {seed!r}")
@@ -423,7 +433,13 @@ def simulate_subject(subject: PopulationSubject, trajectory: str = "multilevel",
     :func:`lpvpc.simulate.simulate_pair` with the subject's parameters, effect, design,
     perturbation amplitude, SNR (``snr_db`` overrides it; ``clean=True``: the effect left
     out, the same subject otherwise) and EMG unit, seeded by the subject's seed.
-    ``trajectory``: "multilevel" (identification) or "novel" (held out)."""
+    ``trajectory``: "multilevel" (identification) or "novel" (held out).
+
+    >>> s = draw_subject(4, effect="nonlinear_viscosity", form="coulomb")
+    >>> pair = simulate_subject(s, duration=10.0, fs_out=100.0)
+    >>> pair.truth["perturbation"] == s.design, pair.truth["effects"][0]["name"]
+    (True, 'nonlinear_viscosity')
+    """
     from .simulate import simulate_pair
 
     return simulate_pair(trajectory, seed=subject.seed, duration=duration, fs_out=fs_out,
@@ -436,7 +452,15 @@ def simulate_subject(subject: PopulationSubject, trajectory: str = "multilevel",
 def write_subject(subject: PopulationSubject, out_dir, *, fs_out: float = 1000.0, duration: float = 120.0) -> dict:
     """Write the subject's identification and novel pairs as :func:`lpvpc.simulate.write_dataset`
     does (the same files), its description under "population_subject" in truth.json.
-    Returns {stem: Path}."""
+    Returns {stem: Path}.
+
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     paths = write_subject(draw_subject(4), tmp, fs_out=100.0, duration=10.0)
+    ...     saved = json.loads(paths["truth"].read_text())["population_subject"]
+    >>> PopulationSubject.from_dict(saved) == draw_subject(4)
+    True
+    """
     from .simulate import write_dataset
 
     return write_dataset(Path(out_dir), seed=subject.seed, fs_out=fs_out, snr_db=subject.snr_db,

@@ -296,7 +296,15 @@ EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
 class CustomEffect:
     """An effect given as an object rather than a name of :data:`EFFECTS`: a parameterised
     form (:mod:`lpvpc.population` builds them). ``name`` (recorded in ``truth['effects']``),
-    ``description`` and ``apply`` (a function of a :class:`TrialState`, as the registry's)."""
+    ``description`` and ``apply`` (a function of a :class:`TrialState`, as the registry's).
+
+    >>> def stiffer(s):  # K of the whole trial +10 %
+    ...     s.stiffness_scale *= 1.1
+    ...     return {"scale": 1.1}
+    >>> e = CustomEffect("stiffer", "K +10 %", stiffer)
+    >>> effect_entry(e)[:2], effect_entry("drift")[0]
+    (('stiffer', 'K +10 %'), 'drift')
+    """
 
     name: str
     description: str
@@ -304,7 +312,12 @@ class CustomEffect:
 
 
 def effect_entry(effect) -> tuple:
-    """(name, description, apply function) of a registry name or a :class:`CustomEffect`."""
+    """(name, description, apply function) of a registry name or a :class:`CustomEffect`.
+
+    >>> name, description, apply = effect_entry("reflex_habituation")
+    >>> name, callable(apply)
+    ('reflex_habituation', True)
+    """
     if isinstance(effect, CustomEffect):
         return effect.name, effect.description, effect.apply
     return effect, EFFECTS[effect][0], EFFECTS[effect][1]
