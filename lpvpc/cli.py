@@ -3,6 +3,7 @@
 ::
 
     lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
+    lpvpc simulate --out DIR --population-seed N [--effect NAME [--form FORM]] [--fs 1000|100] [--duration S]
     lpvpc identify (--pt PT.csv --ut UT.csv [--pt PT2 --ut UT2 ...] | DATA.csv [DATA2 ...]
                     | --pt PT.mat --stationary) -o model.json [estimator settings]
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
@@ -215,19 +216,55 @@ def _estimator_defaults() -> dict:
 # --------------------------------------------------------------------------- commands
 
 
+def _simulate_population(args) -> int:
+    """simulate --population-seed N: the population's subject N (lpvpc.simulation.population)."""
+    from .simulation.population import POPULATION_EFFECTS, draw_subject, write_subject
+
+    fixed = [opt for opt, v in (("--seed", args.seed), ("--snr", args.snr), ("--perturbation", args.perturbation),
+                                ("--stiffness-family", args.stiffness_family)) if v is not None]
+    if fixed:
+        raise _UsageError(f"{', '.join(fixed)} cannot be given with --population-seed (the subject draws them)")
+    if args.population_seed < 0:
+        raise _UsageError(f"--population-seed must be >= 0, got {args.population_seed}")
+    if len(args.effect) > 1:
+        raise _UsageError("--population-seed takes at most one --effect")
+    effect = args.effect[0] if args.effect else None
+    if effect is not None and effect not in POPULATION_EFFECTS:
+        raise _UsageError(f"unknown population effect {effect!r} (known: {', '.join(POPULATION_EFFECTS)})")
+    if args.form is not None and (effect is None or args.form not in POPULATION_EFFECTS[effect]):
+        known = f"{effect}'s forms: {', '.join(POPULATION_EFFECTS[effect])}" if effect else "--form needs --effect"
+        raise _UsageError(f"unknown form {args.form!r} ({known})")
+    subject = draw_subject(args.population_seed, effect, args.form)
+    paths = write_subject(subject, args.out, fs_out=args.fs, duration=args.duration)
+    eff = f", effect {effect} ({subject.form})" if effect else ""
+    print(f"population subject {args.population_seed}: {args.duration:g} s at {args.fs:g} Hz, SNR {subject.snr_db:.1f} dB, "
+          f"perturbation {subject.design}, stiffness {subject.stiffness_form}{eff}")
+    for path in paths.values():
+        print(path)
+    return 0
+
+
 def cmd_simulate(args) -> int:
     from .simulation.simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
+
+    q = FS_SIM / args.fs
+    if args.fs <= 0 or abs(q - round(q)) > 1e-9:
+        raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
+    if args.duration * args.fs < 100:
+        raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
+    if args.population_seed is not None:
+        return _simulate_population(args)
+    if args.form is not None:
+        raise _UsageError("--form needs --population-seed")
+    for name, default in (("seed", 0), ("snr", 18.0), ("perturbation", "pralds"), ("stiffness_family", "standard")):
+        if getattr(args, name) is None:
+            setattr(args, name, default)
 
     unknown = [e for e in args.effect if e not in EFFECTS]
     if unknown:
         raise _UsageError(f"unknown effect {', '.join(map(repr, unknown))} (known: {', '.join(sorted(EFFECTS))})")
     if args.perturbation not in PERTURBATIONS:
         raise _UsageError(f"unknown perturbation {args.perturbation!r} (known: {', '.join(sorted(PERTURBATIONS))})")
-    q = FS_SIM / args.fs
-    if args.fs <= 0 or abs(q - round(q)) > 1e-9:
-        raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
-    if args.duration * args.fs < 100:
-        raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
     from .simulation.subject import STIFFNESS_FAMILIES
 
     if args.stiffness_family not in STIFFNESS_FAMILIES:
@@ -428,11 +465,11 @@ def cmd_export(args) -> int:
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
     model = LPVPCModel.load(args.model)
     try:
-        from .export import exporter as export
+        from .export.exporter import exporter as export
     except ModuleNotFoundError as exc:
         if exc.name != f"{__package__}.export":
             raise
-        raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter missing)") from None
+        raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter.exporter.exporter missing)") from None
     variant = "exact" if args.exact else args.variant
     if args.casadi:
         t0 = time.perf_counter()
@@ -482,7 +519,7 @@ def _fmu_interface(path, model) -> list:
 
 
 def cmd_whole_joint(args) -> int:
-    from .export import whole_joint as W
+    from .export.exporter import whole_joint as W
     from .models.model import LPVPCModel
 
     if args.pt and not args.closed_loop:
@@ -524,8 +561,8 @@ def _trial_with_conventions(path, args, conv):
 
 
 def _closed_loop(args, wj, ut, conv) -> int:
-    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.closed_loop)."""
-    from .export import closed_loop as CL
+    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.exporter.exporter.closed_loop)."""
+    from .export.exporter import closed_loop as CL
 
     if args.pt:
         pt = _trial_with_conventions(args.pt, args, conv)
@@ -567,7 +604,7 @@ def _channel_skew(text):
 
 def _position_delay(args, wj, conv) -> float:
     """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
-    from .export import closed_loop as CL
+    from .export.exporter import closed_loop as CL
     from .io import load_identification_data
 
     text = args.position_delay_ms
@@ -920,8 +957,14 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Simulate the virtual subject: identification and novel PT/UT trials, "
                                    "truth.json and truth_*.npz.")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--snr", type=float, default=18.0, metavar="DB",
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--population-seed", type=int, default=None, metavar="N",
+                   help="simulate subject N of the population of virtual subjects (parameters, stiffness shape, "
+                        "noise, EMG and perturbation design drawn from published ranges; docs/guide/population.md); "
+                        "--effect then names one population effect and --form its form")
+    p.add_argument("--form", default=None, metavar="FORM",
+                   help="with --population-seed and --effect: the effect's form (default: drawn)")
+    p.add_argument("--snr", type=float, default=None, metavar="DB",
                    help="SNR of the perturbation torque in dB (default 18; inf: no noise)")
     p.add_argument("--fs", type=_positive_float, default=1000.0, metavar="HZ",
                    help="output sampling rate, 1000 or 100 Hz (default 1000)")
@@ -929,13 +972,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="switch on a physical effect the LPV-PC model lacks (repeatable): {simulated_effects}")
     p.add_argument("--duration", type=_positive_float, default=120.0, metavar="S",
                    help="length of each trial in s (default 120)")
-    p.add_argument("--perturbation", default="pralds", metavar="NAME",
+    p.add_argument("--perturbation", default=None, metavar="NAME",
                    help="pralds: levels uniform in +-0.04 rad (default); lab_pulses: the lab pilot trial's "
                         "design, holds alternating between 0 and +-0.02..0.04 rad; prbs: +-0.04 rad switching "
                         "every 50-150 ms (no quiet windows)")
-    p.add_argument("--stiffness-family", default="standard", metavar="NAME",
+    p.add_argument("--stiffness-family", default=None, metavar="NAME",
                    help="shape of the elastic stiffness K(theta): standard (default), sum_of_exponentials "
-                        "(steeper textbook form), piecewise (piecewise linear with a kink)")
+                        "(steeper textbook form), piecewise (piecewise linear with a kink), polynomial (a cubic)")
     p.set_defaults(func=cmd_simulate)
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 

@@ -14,6 +14,8 @@ import numpy as np
 
 from .uncertainty import NOT_DETERMINED
 
+__all__ = ["ModelSummary"]
+
 
 @dataclass(frozen=True)
 class ModelSummary:

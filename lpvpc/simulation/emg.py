@@ -15,6 +15,12 @@ from .subject import SubjectParams
 #: EMG units of :func:`simulate_pair` and the factor from volts.
 EMG_UNITS = {"V": 1.0, "mV": 1e3, "uV": 1e6}
 
+#: How the envelope is made (``SubjectParams.emg_form``): "modulated_noise" (band-limited noise
+#: whose amplitude follows the drive, rectified and smoothed, as a lab's hardware does) or
+#: "envelope" (the drive itself low-passed, plus ``emg_offset`` and low-passed measurement
+#: noise: a system that exports an already-smoothed envelope with an offset).
+EMG_FORMS = ("modulated_noise", "envelope")
+
 
 def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
                  params: SubjectParams | None = None) -> np.ndarray:
@@ -43,6 +49,10 @@ def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
     p = params or SubjectParams()
     drive = np.asarray(activation, dtype=float) + np.asarray(reflex_drive, dtype=float) / p.emg_reflex_torque
     n = len(drive)
+    if p.emg_form not in EMG_FORMS:
+        raise ValueError(f"unknown EMG form {p.emg_form!r}; use one of {list(EMG_FORMS)}")
+    if p.emg_form == "envelope":
+        return p.emg_volts * _smooth_envelope(drive, fs, rng, p)
     lo, hi = p.emg_band
     hi = min(hi, 0.45 * fs)
     bb, ab = signal.butter(2, (lo, hi), btype="bandpass", fs=fs)
@@ -57,6 +67,20 @@ def emg_envelope(activation, reflex_drive, fs: float, rng: np.random.Generator,
     rect = math.sqrt(math.pi / 2.0) * np.abs(raw)
     env = rect[:200].mean() + signal.lfilter(b, a, rect - rect[:200].mean())
     return p.emg_volts * np.maximum(env, 0.0)
+
+
+def _smooth_envelope(drive, fs, rng, p) -> np.ndarray:
+    """The "envelope" form (activation units): the non-negative drive and white measurement
+    noise (``emg_noise`` RMS after the filter) through the envelope low-pass
+    (``emg_cutoff`` Hz, 2nd-order Butterworth, from rest at the drive's first value), plus
+    ``emg_offset``; floored at 0 like a rectified signal."""
+    b, a = signal.butter(2, p.emg_cutoff, fs=fs)
+    d = np.maximum(drive, 0.0)
+    smooth = d[0] + signal.lfilter(b, a, d - d[0])
+    lead = int(fs)  # 1 s of filter start-up discarded
+    noise = signal.lfilter(b, a, rng.standard_normal(len(d) + lead))[lead:]
+    noise *= p.emg_noise / max(_rms(noise), 1e-300)
+    return np.maximum(smooth + noise + p.emg_offset, 0.0)
 
 
 def _rms(x):

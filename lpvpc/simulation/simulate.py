@@ -59,7 +59,7 @@ from .emg import EMG_UNITS, _rms, emg_envelope
 from ..models.model import vaf
 from .physics import (SENSOR_OVERSAMPLING, coloured_noise, delay_signal, intrinsic_torque, recorded_acceleration,
     reflex_lowpass_coefficients, reflex_torque, servo)
-from .simulated_effects import EFFECTS, TrialState, _check_effects
+from .simulated_effects import EFFECTS, CustomEffect, TrialState, _check_effects, effect_entry
 from .subject import FS_SIM, SubjectParams, THETA_DF, THETA_PF
 from .trajectories import (PERTURBATIONS, _TRAJECTORIES, lab_pulses, multilevel_trajectory, novel_trajectory, pralds,
     prbs, stationary_trajectory)
@@ -109,7 +109,10 @@ def _simulate_trial(command, slow, perturbed, fs, params, effects, rng):
                     slow_theta=theta if slow is None else slow["theta"],
                     perturbed=perturbed, fs=fs, params=params, rng=rng,
                     ut_activation=None if slow is None else slow["slow_activation"])
-    info = {name: EFFECTS[name][1](st) for name in effects}
+    info = {}
+    for e in effects:
+        name, _, apply = effect_entry(e)
+        info[name] = apply(st)
     tq_i = intrinsic_torque(theta, vel, acc, params, stiffness_scale=st.stiffness_scale,
                             viscosity_scale=st.viscosity_scale, extra=st.extra_torque)
     tq_r, z = reflex_torque(theta, vel, fs, params, gain_scale=st.reflex_gain_scale, wn=st.reflex_wn,
@@ -137,7 +140,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     "pralds" (:func:`pralds`), "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
     design: every step large) or "prbs" (:func:`prbs`: +-amplitude switching every
     50-150 ms, no quiet windows). ``effects``:
-    names from :data:`EFFECTS`. Position has no sensor noise (an optical encoder's
+    names from :data:`EFFECTS` or :class:`lpvpc.simulation.simulated_effects.CustomEffect` objects. Position has no sensor noise (an optical encoder's
     quantisation is negligible next to the torque noise). Both trials carry channel
     'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
     in ``emg_unit`` ("V", "mV" or "uV"). ``stiffness_family``: the subject's elastic
@@ -208,8 +211,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         return Trial(time=t_out.copy(), position=pos[key].copy(), torque=torque, channels=ch,
                      name=f"{trajectory}_{key}")
 
-    eff_truth = [{"name": e, "description": EFFECTS[e][0], "parameters": pt["effects"][e]}
-                 for e in effects]
+    eff_truth = [{"name": name, "description": desc, "parameters": pt["effects"][name]}
+                 for name, desc, _ in map(effect_entry, effects)]
     d_vel = out(pt["vel"] - ut["vel"])
     d_int = comp["pt_intrinsic"] - comp["ut_intrinsic"]
     d_ref = comp["pt_reflex"] - comp["ut_reflex"]
@@ -276,15 +279,18 @@ def _save_truth_npz(path, pair: SimulatedPair):
 
 def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: float = 18.0,
                   effects=(), duration: float = 120.0, params: SubjectParams | None = None,
-                  perturbation: str = "pralds", stiffness_family: str | None = None) -> dict:
+                  perturbation: str = "pralds", stiffness_family: str | None = None,
+                  emg_unit: str = "V", perturbation_amplitude: float = 0.04, extra_truth: dict | None = None) -> dict:
     """Write an identification pair and a novel (held-out) pair with their truth.
 
     Files in ``out_dir``: ident_PT.csv, ident_UT.csv, novel_PT.csv, novel_UT.csv
     (header ``time,position,torque[,emg],command``; s, rad, N m, rad), truth.json
     (parameters, curves, per-pair truth) and truth_ident.npz / truth_novel.npz (time,
     positions, clean PT/UT torques, the four components and the perturbation intrinsic
-    and reflex torques, all at the output rate). ``perturbation`` as in
-    :func:`simulate_pair`, and ``stiffness_family``. Returns {stem: Path}.
+    and reflex torques, all at the output rate). ``perturbation``, ``perturbation_amplitude``,
+    ``emg_unit`` (the 'emg' column's unit) and ``stiffness_family`` as in
+    :func:`simulate_pair`; ``extra_truth``: entries added to truth.json (e.g. the
+    population subject's description). Returns {stem: Path}.
     """
     params = params or SubjectParams()
     if stiffness_family is not None:
@@ -293,10 +299,12 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
     out_dir.mkdir(parents=True, exist_ok=True)
     paths, truth = {}, {"params": params.to_dict(), "curves": params.curves(),
                         "units": {"time": "s", "position": "rad", "torque": "N m",
-                                  "command": "rad", "emg": "V"}}
+                                  "command": "rad", "emg": emg_unit}}
+    truth.update(extra_truth or {})
     for key, kind in (("ident", "multilevel"), ("novel", "novel")):
         pair = simulate_pair(kind, seed=seed, duration=duration, fs_out=fs_out, snr_db=snr_db,
-                             params=params, effects=effects, perturbation=perturbation)
+                             params=params, effects=effects, perturbation=perturbation, emg_unit=emg_unit,
+                             perturbation_amplitude=perturbation_amplitude)
         for which, tr in (("PT", pair.pt), ("UT", pair.ut)):
             p = out_dir / f"{key}_{which}.csv"
             write_trial_csv(tr, p)

@@ -292,11 +292,42 @@ EFFECTS: dict[str, tuple[str, Callable[[TrialState], dict]]] = {
 }
 
 
+@dataclass(frozen=True)
+class CustomEffect:
+    """An effect given as an object rather than a name of :data:`EFFECTS`: a parameterised
+    form (:mod:`lpvpc.simulation.population` builds them). ``name`` (recorded in ``truth['effects']``),
+    ``description`` and ``apply`` (a function of a :class:`TrialState`, as the registry's).
+
+    >>> def stiffer(s):  # K of the whole trial +10 %
+    ...     s.stiffness_scale *= 1.1
+    ...     return {"scale": 1.1}
+    >>> e = CustomEffect("stiffer", "K +10 %", stiffer)
+    >>> effect_entry(e)[:2], effect_entry("drift")[0]
+    (('stiffer', 'K +10 %'), 'drift')
+    """
+
+    name: str
+    description: str
+    apply: Callable[[TrialState], dict]
+
+
+def effect_entry(effect) -> tuple:
+    """(name, description, apply function) of a registry name or a :class:`CustomEffect`.
+
+    >>> name, description, apply = effect_entry("reflex_habituation")
+    >>> name, callable(apply)
+    ('reflex_habituation', True)
+    """
+    if isinstance(effect, CustomEffect):
+        return effect.name, effect.description, effect.apply
+    return effect, EFFECTS[effect][0], EFFECTS[effect][1]
+
+
 def _check_effects(effects) -> tuple:
-    if isinstance(effects, str):
+    if isinstance(effects, (str, CustomEffect)):
         effects = (effects,)
     effects = tuple(effects)
-    unknown = [e for e in effects if e not in EFFECTS]
+    unknown = [e for e in effects if not isinstance(e, CustomEffect) and e not in EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(EFFECTS)}")
     return effects

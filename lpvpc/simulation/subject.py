@@ -26,8 +26,9 @@ _EXP_MAX = 700.0  # keeps np.exp finite for absurd angles (no overflow warnings)
 #: "standard" (today's smooth sum of exponentials, which the position basis holds to < 0.5 %
 #: at order 4), "sum_of_exponentials" (the textbook form with steeper ends: a Chebyshev basis of
 #: order 4-5 misses it by 5-7 % over the central 80 % of the range) and "piecewise"
-#: (piecewise-linear K with a kink near its minimum: 20-35 % at orders 4-7).
-STIFFNESS_FAMILIES = ("standard", "sum_of_exponentials", "piecewise")
+#: (piecewise-linear K with a kink near its minimum: 20-35 % at orders 4-7) and "polynomial"
+#: (a polynomial in theta, ``k_poly``: a smooth curve with other curvature than an exponential's).
+STIFFNESS_FAMILIES = ("standard", "sum_of_exponentials", "piecewise", "polynomial")
 
 #: The textbook sum of exponentials (k_base, k_df, k_df_rate, k_pf, k_pf_rate): 20 N m/rad
 #: plus 160 N m/rad at +0.2 rad decaying at 14/rad and 45 N m/rad at -0.4 rad decaying at
@@ -63,7 +64,9 @@ class SubjectParams:
     another family with :meth:`with_stiffness_family` (it sets that family's values).
     "piecewise" is linear between ``k_knots`` (rad) with values ``k_values`` (N m/rad),
     continued linearly beyond the end knots; its elastic torque (piecewise quadratic) is
-    continuous.
+    continuous. "polynomial" is K(theta) = sum_i k_poly[i] theta^i (its default
+    30 + 500 (theta + 0.2)^2 + 625 (theta + 0.2)^3 N m/rad: 45 at -0.4 rad, minimum 30 at
+    -0.2 rad, 150 at +0.2 rad).
 
     Reflex nonlinearity: half-wave rectifier of delayed velocity with gain ``G(theta)``
     (exponential from ``reflex_gain_pf`` at theta_pf to ``reflex_gain_df`` at theta_df)
@@ -85,6 +88,7 @@ class SubjectParams:
     stiffness_family: str = "standard"  # shape of K(theta): one of STIFFNESS_FAMILIES
     k_knots: tuple = (-0.4, -0.15, 0.2)  # rad, knots of the "piecewise" K (the kink at -0.15)
     k_values: tuple = (45.0, 25.0, 150.0)  # N m/rad, the "piecewise" K at its knots
+    k_poly: tuple = (55.0, 275.0, 875.0, 625.0)  # N m/rad/rad^i, the "polynomial" K's coefficients of theta^i
     # reflex pathway
     reflex_delay: float = 0.040  # s, stretch-reflex loop delay
     reflex_gain_pf: float = 2.0  # N m s/rad, rectifier slope at theta_pf
@@ -104,6 +108,8 @@ class SubjectParams:
     emg_noise: float = 0.015  # 1, RMS of the envelope's measurement noise (activation units)
     emg_cutoff: float = 30.0  # Hz, envelope low-pass (rectify, then 2nd-order Butterworth)
     emg_band: tuple = (20.0, 450.0)  # Hz, band of the raw surface EMG (the noise carrier the drive modulates)
+    emg_form: str = "modulated_noise"  # how the envelope is made: one of lpvpc.simulation.emg.EMG_FORMS
+    emg_offset: float = 0.0  # 1, constant offset of the "envelope" form (amplifier / rectifier offset)
     # background activation a(t) of the activation effects (its own slow dynamics, not the reflex's)
     activation_cutoff: float = 0.05  # Hz, how fast a(t) varies (2nd-order low-pass of the noise behind it)
     activation_shared: bool = False  # True: the same a(t) in PT and UT (a real pair is recorded at two times)
@@ -135,6 +141,15 @@ class SubjectParams:
             x = np.asarray(self.k_knots, dtype=float)
             if len(x) < 2 or len(x) != len(self.k_values) or np.any(np.diff(x) <= 0):
                 raise ValueError("piecewise stiffness needs >= 2 increasing k_knots and as many k_values")
+        if self.stiffness_family == "polynomial" and len(self.k_poly) < 1:
+            raise ValueError("polynomial stiffness needs at least one coefficient in k_poly")
+
+    def _polynomial(self, theta):
+        """(K, integral of K from 0) of the polynomial family at ``theta``."""
+        c = np.asarray(self.k_poly, dtype=float)
+        K = np.polynomial.polynomial.polyval(theta, c)
+        E = np.polynomial.polynomial.polyval(theta, np.concatenate([[0.0], c / np.arange(1, len(c) + 1)]))
+        return K, E
 
     def _piecewise(self, theta):
         """(K, integral of K from the first knot) of the piecewise-linear family at ``theta``."""
@@ -151,6 +166,8 @@ class SubjectParams:
         self._check_family()
         if self.stiffness_family == "piecewise":
             return self._piecewise(theta)[0]
+        if self.stiffness_family == "polynomial":
+            return self._polynomial(theta)[0]
         return (
             self.k_base
             + self.k_df * _exp(self.k_df_rate * (theta - self.theta_df))
@@ -170,7 +187,7 @@ class SubjectParams:
         """
         theta = np.asarray(theta, dtype=float)
         self._check_family()
-        if self.stiffness_family == "piecewise":  # no closed form: Gauss-Legendre over s in +-amplitude
+        if self.stiffness_family in ("piecewise", "polynomial"):  # Gauss-Legendre over s in +-amplitude
             if amplitude <= 0:
                 return self.K(theta)
             s, w = np.polynomial.legendre.leggauss(400)
@@ -192,6 +209,8 @@ class SubjectParams:
         self._check_family()
         if self.stiffness_family == "piecewise":
             return self._piecewise(theta)[1]
+        if self.stiffness_family == "polynomial":
+            return self._polynomial(theta)[1]
         return (
             self.k_base * theta
             + self.k_df / self.k_df_rate * _exp(self.k_df_rate * (theta - self.theta_df))

@@ -1,0 +1,144 @@
+"""Identification judged over a population of virtual subjects (lpvpc.simulation.population), not one.
+
+Each draw is a clean subject (no effect) of :func:`lpvpc.simulation.population.draw_subject`: its own
+inertia, viscosity, K(theta) shape and values, reflex gain, threshold, delay and dynamics,
+noise level and colour, EMG form and perturbation design. The stiffness form cycles through
+:data:`lpvpc.simulation.population.STIFFNESS_FORMS` (draw i has form i mod 3), everything else is drawn.
+Per draw: a 2-minute identification pair and a 2-minute novel pair at 1 kHz, paired and
+decimated as the loaders do (``lpvpc.pair_trials``), identified at every default through
+the public API (``lpvpc.identify(data)``), the novel pair predicted (``model.predict``), and
+(a) clean identification: the novel-trajectory VAF, its noise ceiling (VAF of the noise-free
+torque on the same record) and the gap; K(theta) error over the central 80 % of the
+identified range against the stiffness a linear model sees at the perturbation's amplitude
+(``SubjectParams.incremental_stiffness``); the reflex gain slope against the truth on draws
+whose gain changes at least two-fold;
+(b) the 95 % intervals' coverage of K(theta) and of the viscosity at 9 positions over the
+central 80 %, pooled per stiffness form.
+
+Seeds: DEVELOPMENT_SEEDS by default (from --first-seed, default 0); ``--record`` uses
+RECORD_SEEDS instead (for results recorded after the methods are settled). A development
+run writes benchmarks/results/population.txt, a record run population_record.txt; a run
+with another number of draws or --first-seed is recorded as its own section below the
+default run's table (replacing an earlier section of the same command).
+
+Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py [n_draws] [--first-seed S] [--record]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import lpvpc  # noqa: E402
+from lpvpc.simulation.population import DEVELOPMENT_SEEDS, RECORD_SEEDS, STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
+from _results import RESULTS, write_results  # noqa: E402
+
+N_POS = 9
+LEVEL = 0.95
+
+
+def one_draw(seed, form):
+    s = draw_subject(seed, stiffness=form)
+    truth = s.params
+    ident, novel = simulate_subject(s), simulate_subject(s, "novel")
+    d = lpvpc.pair_trials(ident.pt, ident.ut)
+    nv = lpvpc.pair_trials(novel.pt, novel.ut)
+    ceiling = lpvpc.vaf(nv.torque, lpvpc.pair_trials(novel.pt_clean, novel.ut_clean).torque)
+    t = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # physiology and range notes on unusual subjects
+        model = lpvpc.identify(d)
+        pred = model.predict(nv)
+        lo, hi = model.scheduling_range
+        rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), N_POS)
+        k_true = truth.incremental_stiffness(rho, s.perturbation_amplitude)
+        k_est = model.elastic_stiffness(rho)
+        k_lo, k_hi = model.elastic_stiffness_interval(rho, LEVEL)
+        b_lo, b_hi = model.viscosity_interval(rho, LEVEL)
+        gain, _ = model.reflex_gain_threshold(rho)
+    elapsed = time.perf_counter() - t
+    g_true = truth.reflex_gain(rho)
+    two_fold = g_true.max() >= 2.0 * g_true.min()
+    g_slope = np.polyfit(rho, gain, 1)[0] / np.polyfit(rho, g_true, 1)[0]
+    k_err = 100.0 * (k_est / k_true - 1.0)
+    return {
+        "seed": seed, "form": form, "design": s.design, "snr": s.snr_db, "th_df": truth.reflex_threshold_df,
+        "vaf": lpvpc.vaf(nv.torque, pred.total), "ceiling": ceiling,
+        "k_worst": float(np.max(np.abs(k_err))), "k_median": float(np.median(np.abs(k_err))),
+        "k_cover": np.mean((k_lo <= k_true) & (k_true <= k_hi)),
+        "b_cover": np.mean((b_lo <= truth.viscosity) & (truth.viscosity <= b_hi)),
+        "g_slope": float(g_slope), "two_fold": bool(two_fold), "time": elapsed,
+    }
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("n", nargs="?", type=int, default=9, help="draws (default 9: 3 per stiffness form)")
+    ap.add_argument("--first-seed", type=int, default=None, help="first seed (default: the set's first)")
+    ap.add_argument("--record", action="store_true", help="draw from RECORD_SEEDS (recorded results)")
+    args = ap.parse_args(argv)
+    seeds_set, name = (RECORD_SEEDS, "RECORD_SEEDS") if args.record else (DEVELOPMENT_SEEDS, "DEVELOPMENT_SEEDS")
+    first = seeds_set.start if args.first_seed is None else args.first_seed
+    seeds = range(first, first + args.n)
+    if seeds.start not in seeds_set or seeds[-1] not in seeds_set:
+        sys.exit(f"seeds {seeds.start}..{seeds[-1]} are not all in {name} ({seeds_set.start}..{seeds_set.stop - 1})")
+    t0 = time.perf_counter()
+    rows = [one_draw(seed, STIFFNESS_FORMS[i % len(STIFFNESS_FORMS)]) for i, seed in enumerate(seeds)]
+    total = time.perf_counter() - t0
+    cmd = "OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py" + (f" {args.n}" if args.n != 9 else "") \
+        + (f" --first-seed {args.first_seed}" if args.first_seed is not None else "") + (" --record" if args.record else "")
+    lines = [f"# Identification over population draws ({cmd})", "",
+             f"{args.n} clean subjects from {name}, seeds {seeds.start}..{seeds[-1]}; stiffness form cycling "
+             f"{', '.join(STIFFNESS_FORMS)}; everything else drawn (docs/guide/population.md). 2-minute identification "
+             "and novel pairs at 1 kHz, paired and decimated as the loaders do, lpvpc.identify(data) at every default, "
+             f"model.predict on the novel pair. K error and coverage at {N_POS} positions over the central 80 % of the "
+             "identified range, truth = the stiffness at the perturbation's amplitude; 95 % intervals.", "",
+             "| seed | K form | design | SNR dB | threshold at +0.2 rad/s | novel VAF | ceiling | gap | K worst err % | "
+             "K median err % | K covered | B covered | gain slope ratio | identify+predict s |",
+             "|" + "---|" * 14]
+    for r in rows:
+        lines.append(f"| {r['seed']} | {r['form']} | {r['design']} | {r['snr']:.1f} | {r['th_df']:.3f} | {r['vaf']:.2f} | "
+                     f"{r['ceiling']:.2f} | {r['ceiling'] - r['vaf']:.2f} | {r['k_worst']:.1f} | {r['k_median']:.1f} | "
+                     f"{round(r['k_cover'] * N_POS)}/{N_POS} | {round(r['b_cover'] * N_POS)}/{N_POS} | "
+                     f"{r['g_slope']:.2f}{'' if r['two_fold'] else ' (<2-fold)'} | {r['time']:.1f} |")
+    a = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+    gap = a["ceiling"] - a["vaf"]
+    lines += ["", "## (a) clean identification", "",
+              f"novel VAF gap to the noise ceiling: median {np.median(gap):.2f}, max {gap.max():.2f} points; "
+              f"within 0.5 point on {int(np.sum(gap <= 0.5))}/{len(gap)} draws",
+              f"K worst central error: median {np.median(a['k_worst']):.1f} %, max {a['k_worst'].max():.1f} %; "
+              f"median of the per-draw median errors {np.median(a['k_median']):.1f} %"]
+    tf = a["two_fold"]
+    if tf.any():
+        ok = np.abs(a["g_slope"][tf] - 1.0) <= 0.2
+        lines.append(f"reflex gain slope within 20 % of the truth on {int(ok.sum())}/{int(tf.sum())} draws whose gain "
+                     f"changes at least two-fold (ratios {', '.join(f'{g:.2f}' for g in a['g_slope'][tf])})")
+    lines += ["", "## (b) interval coverage per stiffness form (95 % intervals, pooled over draws and positions)", "",
+              "| K form | draws | K coverage % | draws with all K positions covered | viscosity coverage % |",
+              "|---|---|---|---|---|"]
+    for form in STIFFNESS_FORMS:
+        m = a["form"] == form
+        if m.any():
+            lines.append(f"| {form} | {int(m.sum())} | {100 * a['k_cover'][m].mean():.1f} | "
+                         f"{int(np.sum(a['k_cover'][m] == 1.0))}/{int(m.sum())} | {100 * a['b_cover'][m].mean():.1f} |")
+    lines.append(f"| all | {len(rows)} | {100 * a['k_cover'].mean():.1f} | {int(np.sum(a['k_cover'] == 1.0))}/{len(rows)} | "
+                 f"{100 * a['b_cover'].mean():.1f} |")
+    lines += ["", f"total run time {total:.0f} s ({total / len(rows):.1f} s per draw, simulation included)"]
+    target = RESULTS / ("population_record.txt" if args.record else "population.txt")
+    if args.n != 9 or args.first_seed is not None:  # another run: its own section below the default run's
+        head = f"## Run: {cmd}"
+        old = target.read_text().split("\n\n" + head + "\n")[0].rstrip("\n").split("\n") if target.exists() else []
+        lines = old + ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
+    write_results(target, lines, echo=True)
+
+
+if __name__ == "__main__":
+    main()
