@@ -61,6 +61,7 @@ _LAZY = {
     "pair_trials": "lpvpc.io",
     "join_trials": "lpvpc.io",
     "write_perturbation_csv": "lpvpc.io",
+    "hold_out": "lpvpc.io",
     "PerturbationData": "lpvpc.io",
     "Trial": "lpvpc.io",
     # identification and the fitted model

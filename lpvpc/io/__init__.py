@@ -27,7 +27,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "decimation": ["FIR_ATTENUATION_DB", "FIR_TAPS_PER_FACTOR", "MAX_STAGE_FACTOR", "decimate_signal",
                    "decimate_trial", "decimation_factor", "multiple_rate", "resample_trial", "to_multiple_rate"],
     "identification_data": ["MIN_PERTURBATION_VARIANCE", "STATIONARY_MAX_SPAN", "STATIONARY_WINDOW", "HighRate",
-                            "PerturbationData", "join_trials", "load_identification_data", "load_perturbation_file",
+                            "PerturbationData", "hold_out", "RecordSource", "join_trials", "load_identification_data", "load_perturbation_file",
                             "pair_trials", "perturbation_file_trials", "stationary_perturbation", "stationary_ut",
                             "write_perturbation_csv"],
     "matfiles": ["split_variable"],

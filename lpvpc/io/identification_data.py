@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -646,6 +646,9 @@ class RecordSource:
     inputs: dict
     settings: dict
     given: frozenset
+    #: the part of the record these data are (:func:`hold_out`): ("identification" or
+    #: "held-out", the held-out stretch), or None for the whole record
+    part: tuple | None = None
 
     def load(self, **changes) -> "PerturbationData":
         """The record loaded again with ``changes`` to its conventions (given explicitly)."""
@@ -653,7 +656,12 @@ class RecordSource:
         if unknown:
             raise ValueError(f"not a convention of a record: {', '.join(sorted(unknown))}")
         given = {k: v for k, v in self.settings.items() if k in self.given}
-        return load_identification_data(**self.inputs, **{**given, **changes})
+        whole = load_identification_data(**self.inputs, **{**given, **changes})
+        if self.part is None:
+            return whole
+        which, heldout = self.part
+        first, later = hold_out(whole, heldout)
+        return first if which == "identification" else later
 
 
 def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str | None = None,
@@ -762,6 +770,74 @@ def _load(pt, ut, data, *, position_unit, torque_sign, target_fs, variable, chan
     if time_unit != "s":
         out.meta["time_unit"] = time_unit
     return out
+
+
+#: Shortest part (s) hold_out leaves on either side: a few position levels' worth.
+MIN_PART_S = 10.0
+
+
+def hold_out(data: PerturbationData, heldout) -> tuple:
+    """Split a record forward in time, as a lab judges a model: identify from the earlier
+    part, predict the later one.
+
+    Parameters
+    ----------
+    data : PerturbationData
+        One record (trials joined are split at the same instant).
+    heldout : float or tuple
+        The held-out stretch: a fraction in (0, 1), the last part of the record; or a time
+        range ``(start, stop)`` in s from the record's start (``stop`` None: to the end).
+        Identification keeps everything before ``start``.
+
+    Returns
+    -------
+    tuple of PerturbationData
+        ``(identification, held_out)``; each can be read again from the files with other
+        conventions (a model's channel skew) and is split the same way.
+
+    Raises
+    ------
+    lpvpc.DataError
+        A fraction or range that leaves either part shorter than :data:`MIN_PART_S`.
+
+    Examples
+    --------
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0)
+    >>> ident, held = hold_out(load_identification_data(pt=sim.pt, ut=sim.ut), 0.3)
+    >>> ident.n, held.n, held.meta["part"]["start_s"]
+    (4200, 1800, 42.0)
+    """
+    n = data.n
+    if isinstance(heldout, (tuple, list)):
+        if len(heldout) != 2:
+            raise DataError([f"held-out range {heldout!r}: give (start, stop) in s"], source=data.source or None)
+        start_s, stop_s = heldout
+        start = int(round(float(start_s) * data.fs))
+        stop = n if stop_s is None else int(round(float(stop_s) * data.fs))
+        if not 0 < start < stop <= n:
+            raise DataError([f"held-out range {start_s}..{stop_s} s does not lie inside the record's "
+                             f"0..{n / data.fs:.1f} s after its start"], source=data.source or None)
+    else:
+        fraction = float(heldout)
+        if not 0.0 < fraction < 1.0:
+            raise DataError([f"held-out fraction {heldout!r}: give a number between 0 and 1 (e.g. 0.3: the last "
+                             f"30 %)"], source=data.source or None)
+        start, stop = n - int(round(fraction * n)), n
+    short = [f"{name} {m / data.fs:.1f} s" for name, m in (("identification part", start), ("held-out part", stop - start))
+             if m / data.fs < MIN_PART_S]
+    if short:
+        raise DataError([f"holding out {heldout!r} of a {n / data.fs:.1f} s record leaves the {', the '.join(short)} "
+                         f"(at least {MIN_PART_S:g} s each)"], source=data.source or None)
+    parts = []
+    for which, (a, b) in (("identification", (0, start)), ("held-out", (start, stop))):
+        part = data.segment(a, b)
+        part.meta["part"] = {"which": which, "start_s": a / data.fs, "stop_s": b / data.fs,
+                             "record_s": n / data.fs}
+        if data.origin is not None:
+            part.origin = replace(data.origin, part=(which, heldout))
+        parts.append(part)
+    return tuple(parts)
 
 
 def _refuse_milliseconds(data: PerturbationData, time_unit: str) -> None:
