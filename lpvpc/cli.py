@@ -465,11 +465,11 @@ def cmd_export(args) -> int:
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
     model = LPVPCModel.load(args.model)
     try:
-        from .export.exporter import exporter as export
+        from .export import exporter as export
     except ModuleNotFoundError as exc:
         if exc.name != f"{__package__}.export":
             raise
-        raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter.exporter.exporter missing)") from None
+        raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter missing)") from None
     variant = "exact" if args.exact else args.variant
     if args.casadi:
         t0 = time.perf_counter()
@@ -519,7 +519,7 @@ def _fmu_interface(path, model) -> list:
 
 
 def cmd_whole_joint(args) -> int:
-    from .export.exporter import whole_joint as W
+    from .export import whole_joint as W
     from .models.model import LPVPCModel
 
     if args.pt and not args.closed_loop:
@@ -561,8 +561,8 @@ def _trial_with_conventions(path, args, conv):
 
 
 def _closed_loop(args, wj, ut, conv) -> int:
-    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.exporter.exporter.closed_loop)."""
-    from .export.exporter import closed_loop as CL
+    """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.closed_loop)."""
+    from .export import closed_loop as CL
 
     if args.pt:
         pt = _trial_with_conventions(args.pt, args, conv)
@@ -604,7 +604,7 @@ def _channel_skew(text):
 
 def _position_delay(args, wj, conv) -> float:
     """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
-    from .export.exporter import closed_loop as CL
+    from .export import closed_loop as CL
     from .io import load_identification_data
 
     text = args.position_delay_ms
