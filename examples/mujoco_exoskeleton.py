@@ -315,6 +315,7 @@ def main(model=None, fmu=None, *, kps=KPS, duration: float = DURATION, timestep:
     angle to its PD torque (without it, the PD alone holds the foot off the reference by the
     ankle's rest torque over Kp plus the ankle's stiffness)."""
     import tempfile
+    import warnings
     from pathlib import Path
 
     import mujoco
@@ -327,6 +328,12 @@ def main(model=None, fmu=None, *, kps=KPS, duration: float = DURATION, timestep:
     clock_ratio(physics.opt.timestep, model_tick(cl))  # refuse a timestep the model cannot follow
     n = int(round(duration / timestep))
     reference = reference_trajectory(n * timestep, seed, fs=1.0 / timestep)[:n]  # rad
+    # The model knows the ankle over the angles it was identified on; beyond them its
+    # quasi-static curve continues as a straight line, which may be far from the ankle.
+    lo, hi = cl.model.scheduling_range  # rad
+    if reference.min() < lo or reference.max() > hi:
+        warnings.warn(f"the reference ({reference.min():.3f}..{reference.max():.3f} rad) leaves the model's "
+                      f"identified range [{lo:.3f}, {hi:.3f}] rad", stacklevel=2)
     # The exoskeleton's feed-forward: the ankle's rest torque at the reference angle (the model's
     # quasi-static torque-angle curve), so that the PD corrects only what moves.
     feedforward = cl.whole.quasi_static(reference) if compensate else None  # N m
