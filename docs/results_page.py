@@ -56,6 +56,8 @@ TABLES = {
                       REAL + "python benchmarks/bench_selection.py"),
     "closed_loop.txt": ("The closed-loop form in a compliant exoskeleton loop",
                         "python benchmarks/bench_closed_loop.py"),
+    "mujoco.txt": ("The closed-loop ankle model in a MuJoCo exoskeleton loop: real-time factor",
+                   "python benchmarks/bench_mujoco.py"),
     "bounded_loading.txt": ("Bounded loaders: files declaring huge unrelated variables",
                             "python benchmarks/bench_bounded_loading.py"),
     "identify_floor.txt": ("Identification against a bare least-squares solve",
