@@ -211,6 +211,8 @@ class CasadiAnkle:
 # The FMU declares its tick as the DefaultExperiment step size and the foot's inertia as the
 # constant output "inertia". Initialisation: the plant's starting angle is set during
 # initialisation mode, so that the FMU starts at rest there, as the CasADi tick does.
+# Communication points are counted in whole ticks and multiplied out (k x tick), so that they
+# stay on the FMU's grid over long runs; a time built by adding steps drifts off it.
 
 
 class FmuAnkle:
@@ -234,15 +236,15 @@ class FmuAnkle:
         self.fmu.setReal([self.vr["angle"], self.vr["angular_velocity"]], [start_angle, 0.0])
         self.fmu.exitInitializationMode()
         self.inertia = self.fmu.getReal([self.vr["inertia"]])[0]  # kg m^2: add to the plant's
-        self.time = 0.0  # s: the FMU's time, counted in ticks
+        self.ticks_done = 0  # the FMU's time in whole ticks: t = ticks_done x tick, never a running sum
 
     def torque(self, angle: float, velocity: float) -> float:
         self.fmu.setReal([self.vr["angle"], self.vr["angular_velocity"]], [angle, velocity])
         return self.fmu.getReal([self.vr["torque"]])[0]
 
     def advance(self, n_ticks: int) -> None:
-        self.fmu.doStep(self.time, n_ticks * self.tick)
-        self.time += n_ticks * self.tick
+        self.fmu.doStep(self.ticks_done * self.tick, n_ticks * self.tick)
+        self.ticks_done += n_ticks
 
     def close(self) -> None:
         import shutil

@@ -38,7 +38,8 @@ def runs(example, ankle):
 
 def test_stable_and_tracking_at_both_gains_with_both_torque_sources(runs):
     """Stable at Kp 40 and 150 N m/rad, no NaN, the foot within the ankle's range, tracking the
-    reference within 10 mrad RMS after the first second; the CasADi tick and the FMU give the same torque."""
+    reference within 10 mrad RMS after the first second; the CasADi tick and the FMU give the
+    same torque."""
     assert set(runs) == {(kp, s) for kp in (40.0, 150.0) for s in ("casadi", "fmu")}
     for key, s in runs.items():
         r = s["run"]
@@ -109,3 +110,21 @@ def test_gravity_and_the_foot_weight(example, ankle, runs):
         example["foot_mjcf"](cl.inertia, gravity="on")
     with pytest.raises(ValueError, match=r"the foot's inertia 0\.001 kg m\^2 about the ankle is less"):
         example["foot_mjcf"](0.001)
+
+
+def test_guide_minimal_loop_runs_as_written(ankle, tmp_path, monkeypatch):
+    """docs/guide/mujoco.md's code block, verbatim, on the example's model file: the foot held
+    near -0.1 rad, below it by the ankle's rest torque over Kp plus the ankle's stiffness."""
+    import re
+
+    page = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "mujoco.md").read_text()
+    block = re.search(r"## A minimal loop\n.*?```python\n(.*?)```", page, re.S)
+    assert block, "docs/guide/mujoco.md has no minimal loop"
+    (tmp_path / "cl.json").write_text(ankle["path"].read_text())
+    monkeypatch.chdir(tmp_path)
+    env: dict = {}
+    exec(compile(block.group(1), "mujoco.md:minimal-loop", "exec"), env)
+    cl, theta, torque = ankle["cl"], float(env["data"].qpos[0]), float(env["torque"])
+    assert np.isfinite(theta) and -0.1 - 0.05 < theta < -0.1  # rad
+    rest = float(cl.whole.quasi_static(np.array([theta]))[0])  # N m: at rest the torque is the curve's
+    assert torque == pytest.approx(rest, abs=0.05) and 40.0 * (-0.1 - theta) == pytest.approx(torque, abs=0.05)
