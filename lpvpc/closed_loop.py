@@ -474,21 +474,6 @@ def export_closed_loop_casadi(cl: ClosedLoopModel, path) -> Path:
     return path
 
 
-def _system_functions(cl):
-    import casadi as ca
-
-    step = closed_loop_step(cl, parametric=True)
-    nx, npar = step.size1_in("state"), step.size1_in("params")
-    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", 2), ca.SX.sym("p", npar)
-    res = step(x, u[0], u[1], p)
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(nx)], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {n: [INPUT_NAMES[i] for i in range(2) if ca.depends_on(res[1 + k], u[i])]
-            for k, n in enumerate(OUTPUT_NAMES)}
-    return (init, output, update), deps, nx
-
-
 def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
                            fmi_type: str = "cs") -> Path:
     """The closed-loop model as an FMI 2.0 or 3.0 FMU: co-simulation (``fmi_type="cs"``) or Model
@@ -496,13 +481,12 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
     (rad/s); outputs :data:`OUTPUT_NAMES` from the current inputs (direct feedthrough); constant
     outputs ``inertia`` (kg m^2, for the plant to add to its own), ``sample_period`` (s) and
     ``latency`` (0 s); internal step (base tick) 1 / (fs N) s."""
-    import tempfile
-
     from . import __version__
-    from .export import fmu_parameter_name, model_source_dir, write_system_c
-    from .fmu_build import FmuVariable, build_fmu
+    from .export import build_step_fmu, fmu_parameter_name, step_system_functions
+    from .fmu_build import FmuVariable
 
-    functions, deps, nx = _system_functions(cl)
+    step = closed_loop_step(cl, parametric=True)
+    deps = step_system_functions(step)[3]
     names, values, info = parameter_table(cl)
     outputs = [FmuVariable(n, "output", _OUTPUT_INFO[n][0], _OUTPUT_INFO[n][1], dependencies=deps[n])
                for n in OUTPUT_NAMES]
@@ -524,15 +508,8 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
                    f"torque (constant output 'inertia'): the plant adds it to its own. Samples every {1.0 / cl.fs!r} s, "
                    f"outputs every tick of {1.0 / (cl.fs * N)!r} s from the current inputs. Operating angle outside "
                    f"[{lo!r}, {hi!r}] rad: the model is {cl.model.beyond_range}, the curve continues linearly.")
-    with tempfile.TemporaryDirectory(prefix="lpvpc-closed-loop-") as tmp:
-        generated = write_system_c(functions, tmp)
-        try:
-            return Path(build_fmu(path, model_identifier="lpvpc_closed_loop" + ("_me" if fmi_type == "me" else ""),
-                                  system_sources=[model_source_dir() / "model_system.c", *generated], nx=nx,
-                                  step_size=1.0 / (cl.fs * N), outputs=outputs, inputs=inputs, parameters=parameters,
-                                  fmi_version=fmi_version, description=description,
-                                  version=f"lpvpc {__version__} model {cl.model.model_hash[:12]} closed loop",
-                                  latency=0.0, reuse_existing=reuse_existing, interface=fmi_type,
-                                  constants=constants))
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return build_step_fmu(path, step, model_identifier="lpvpc_closed_loop", fmi_type=fmi_type,
+                          prefix="lpvpc-closed-loop-", step_size=1.0 / (cl.fs * N), outputs=outputs, inputs=inputs,
+                          parameters=parameters, fmi_version=fmi_version, description=description,
+                          version=f"lpvpc {__version__} model {cl.model.model_hash[:12]} closed loop",
+                          latency=0.0, reuse_existing=reuse_existing, constants=constants)

@@ -113,6 +113,8 @@ __all__ = [
     "system_functions",
     "generate_c",
     "write_system_c",
+    "step_system_functions",
+    "build_step_fmu",
     "model_source_dir",
 ]
 
@@ -653,28 +655,56 @@ def fmu_parameter_name(name: str) -> str:
     return name.replace("[", "_").replace("]", "").replace(",", "_")
 
 
+def step_system_functions(step):
+    """The three CasADi functions an FMU's C code is generated from, made from a parametric
+    step function.
+
+    Parameters
+    ----------
+    step : casadi.Function
+        A step whose inputs are ``(state, u_1, ..., u_m, params)`` (scalar u_i) and whose
+        outputs are ``(next_state, y_1, ..., y_r)`` (scalar y_j), as :func:`step_function`,
+        :func:`lpvpc.whole_joint.whole_joint_step` and
+        :func:`lpvpc.closed_loop.closed_loop_step` make them with ``parametric=True``.
+
+    Returns
+    -------
+    initial, output, update : casadi.Function
+        ``lpvpc_model_initial(p) -> x0`` (zeros: every exported step starts from rest),
+        ``lpvpc_model_output(x, u, p) -> y`` and ``lpvpc_model_update(x, u, p) -> x_next``,
+        with u and y the step's inputs and outputs stacked in order: the names the
+        adapter ``model_system.c`` calls.
+    output_dependencies : dict
+        For each output name, the input names it depends on directly (the FMU's declared
+        dependencies; an algebraic loop in a master is seen from them).
+    """
+    import casadi as ca
+
+    u_names, y_names = step.name_in()[1:-1], step.name_out()[1:]
+    if step.name_in()[-1] != "params":
+        raise ExportError(f"step function {step.name()!r} is not parametric: its last input is "
+                          f"{step.name_in()[-1]!r}, not 'params'")
+    x = ca.SX.sym("x", step.size1_in(0))
+    u = ca.SX.sym("u", len(u_names))
+    p = ca.SX.sym("p", step.size1_in(step.n_in() - 1))
+    res = step(x, *[u[i] for i in range(len(u_names))], p)
+    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(x.shape[0])], ["p"], ["x0"])
+    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
+    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
+    deps = {name: [u_names[i] for i in range(len(u_names)) if ca.depends_on(res[1 + k], u[i])]
+            for k, name in enumerate(y_names)}
+    return init, output, update, deps
+
+
 def system_functions(model, variant="causal"):
     """The three CasADi functions the FMU's C code is generated from, all of (x, u, p):
     ``lpvpc_model_initial(p) -> x0``, ``lpvpc_model_output(x, u, p) -> y``,
     ``lpvpc_model_update(x, u, p) -> x_next``, with u = (position, scheduling[, velocity,
     acceleration]) and y = (torque, torque_intrinsic, torque_reflex). They call the
-    parametric :func:`step_function`. Returns (initial, output, update, output_dependencies)
-    where ``output_dependencies[name]`` lists the inputs an output depends on directly."""
-    import casadi as ca
-
-    step = step_function(model, variant, parametric=True)
-    u_names = input_names(variant, model=model)[1:]
-    x = ca.SX.sym("x", step.size1_in(STATE_INPUT))
-    u = ca.SX.sym("u", len(u_names))
-    p = ca.SX.sym("p", step.size1_in("params"))
-    res = step(x, *[u[i] for i in range(len(u_names))], p)
-    y = ca.vertcat(*res[1:])
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(x.shape[0])], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [y], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {name: [u_names[i] for i in range(len(u_names)) if ca.depends_on(res[1 + k], u[i])]
-            for k, name in enumerate(OUTPUT_NAMES[1:])}
-    return init, output, update, deps
+    parametric :func:`step_function` (:func:`step_system_functions`). Returns (initial,
+    output, update, output_dependencies) where ``output_dependencies[name]`` lists the
+    inputs an output depends on directly."""
+    return step_system_functions(step_function(model, variant, parametric=True))
 
 
 def generate_c(model, folder, variant="causal") -> list:
@@ -705,6 +735,62 @@ def write_system_c(functions, folder) -> list:
     paths[0].write_text('#if defined(__GNUC__)\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n#endif\n'
                         + paths[0].read_text())
     return paths
+
+
+def build_step_fmu(path, step, *, model_identifier: str, fmi_type: str = "cs", prefix: str = "lpvpc-export-",
+                   **build_options) -> Path:
+    """Build an FMU from a parametric CasADi step: the one build path of every model FMU.
+
+    The step becomes the three system functions (:func:`step_system_functions`), CasADi
+    writes their C (:func:`write_system_c`) into a temporary folder, and
+    :func:`lpvpc.fmu_build.build_fmu` compiles it with the generic adapter ``model_system.c``
+    (:func:`model_source_dir`) and the FMI wrapper.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` to write.
+    step : casadi.Function
+        The parametric step (inputs ``state``, the FMU's inputs in value-reference order,
+        ``params``).
+    model_identifier : str
+        The co-simulation identifier; a Model Exchange FMU gets it suffixed ``_me``.
+    fmi_type : {"cs", "me"}
+        Co-simulation (default) or Model Exchange.
+    prefix : str
+        Prefix of the temporary folder of the generated C (shows which export made it).
+    **build_options
+        The rest of :func:`lpvpc.fmu_build.build_fmu`'s keywords (variables, step size,
+        FMI version, description, ...), passed on unchanged; ``nx`` defaults to the step's
+        state size.
+
+    Returns
+    -------
+    Path
+        The FMU written.
+
+    Raises
+    ------
+    ExportError
+        Code generation or compilation failed, or the FMU could not be written.
+    """
+    import tempfile
+
+    from .fmu_build import build_fmu
+
+    init, output, update, _ = step_system_functions(step)
+    build_options.setdefault("nx", step.size1_in(0))
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        generated = write_system_c((init, output, update), tmp)
+        try:
+            out = build_fmu(path, model_identifier=model_identifier + ("_me" if fmi_type == "me" else ""),
+                            system_sources=[model_source_dir() / "model_system.c", *generated],
+                            interface=fmi_type, **build_options)
+        except ExportError:
+            raise
+        except OSError as exc:
+            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return Path(out)
 
 
 def ticks_per_sample(model) -> int:
@@ -827,47 +913,38 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
     sample k; model identifier suffixed ``_me``).
     """
-    import tempfile
     import time
 
     from . import __version__
-    from .fmu_build import build_fmu
 
     _check_variant(variant)
     t0 = time.perf_counter()
     outputs, inputs, parameters = fmu_variables(model, variant)
     lat = latency_samples(model, variant)
-    with tempfile.TemporaryDirectory(prefix="lpvpc-export-") as tmp:
-        generated = generate_c(model, tmp, variant)
-        t1 = time.perf_counter()
-        build_timings = {}
-        try:
-            out = build_fmu(
-                path,
-                model_identifier={"sampled": "lpvpc_model", "causal": "lpvpc_model_causal",
-                                  "exact": "lpvpc_model_exact"}[variant] + ("_me" if fmi_type == "me" else ""),
-                system_sources=[model_source_dir() / "model_system.c", *generated],
-                nx=state_layout(model, variant).size,
-                step_size=1.0 / float(model.fs),
-                outputs=outputs,
-                inputs=inputs,
-                parameters=parameters,
-                fmi_version=fmi_version,
-                description=fmu_description(model, variant),
-                version=f"lpvpc {__version__} model {model.model_hash[:12]}",
-                latency=lat / float(model.fs),
-                reuse_existing=reuse_existing,
-                timings=build_timings,
-                interface=fmi_type,
-                # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the default variant
-                ticks_per_sample=ticks_per_sample(model) if variant == "sampled" and fmi_type == "cs" else 0,
-                constants=fmu_constants(model, variant),
-            )
-        except ExportError:
-            raise
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
-    if timings is not None:
-        timings.update(codegen=t1 - t0, compile=build_timings.get("compile", 0.0), total=time.perf_counter() - t0,
-                       build=build_timings)
+    step = step_function(model, variant, parametric=True)
+    build_timings = {}
+    out = build_step_fmu(
+        path, step,
+        model_identifier={"sampled": "lpvpc_model", "causal": "lpvpc_model_causal",
+                          "exact": "lpvpc_model_exact"}[variant],
+        fmi_type=fmi_type,
+        nx=state_layout(model, variant).size,
+        step_size=1.0 / float(model.fs),
+        outputs=outputs,
+        inputs=inputs,
+        parameters=parameters,
+        fmi_version=fmi_version,
+        description=fmu_description(model, variant),
+        version=f"lpvpc {__version__} model {model.model_hash[:12]}",
+        latency=lat / float(model.fs),
+        reuse_existing=reuse_existing,
+        timings=build_timings,
+        # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the default variant
+        ticks_per_sample=ticks_per_sample(model) if variant == "sampled" and fmi_type == "cs" else 0,
+        constants=fmu_constants(model, variant),
+    )
+    t2 = time.perf_counter()
+    if timings is not None:  # codegen: the variables and the C code, everything but build_fmu
+        timings.update(codegen=t2 - t0 - build_timings.get("total", 0.0), compile=build_timings.get("compile", 0.0),
+                       total=t2 - t0, build=build_timings)
     return Path(out)

@@ -336,33 +336,18 @@ def replay(wj: WholeJointModel, angle) -> dict:
     return {k: np.asarray(ca.DM(out[k])).ravel()[L:] for k in OUTPUT_NAMES}
 
 
-def _system_functions(wj):
-    import casadi as ca
-
-    step = whole_joint_step(wj, parametric=True)
-    nx, npar = step.size1_in("state"), step.size1_in("params")
-    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", 1), ca.SX.sym("p", npar)
-    res = step(x, u, p)
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(nx)], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {n: (["angle"] if ca.depends_on(res[1 + k], u) else []) for k, n in enumerate(OUTPUT_NAMES)}
-    return (init, output, update), deps, nx
-
-
 def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
                            fmi_type: str = "cs") -> Path:
     """The whole-joint model as an FMI 2.0 or 3.0 co-simulation FMU (input ``angle`` rad,
     outputs :data:`OUTPUT_NAMES`, step 1/fs, outputs of sample k - L; parameters: the
     LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz);
     ``fmi_type="me"``: Model Exchange, a time event per sample (see :func:`lpvpc.export.export_fmu`)."""
-    import tempfile
-
     from . import __version__
-    from .export import fmu_parameter_name, model_source_dir, write_system_c
-    from .fmu_build import FmuVariable, build_fmu
+    from .export import build_step_fmu, fmu_parameter_name, step_system_functions
+    from .fmu_build import FmuVariable
 
-    functions, deps, nx = _system_functions(wj)
+    step = whole_joint_step(wj, parametric=True)
+    deps = step_system_functions(step)[3]
     names, values, info = _parameter_blocks(wj)
     outputs = [FmuVariable(n, "output", _OUTPUT_INFO[n][0], _OUTPUT_INFO[n][1], dependencies=deps[n])
                for n in OUTPUT_NAMES]
@@ -377,14 +362,8 @@ def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, r
                    f"the angle minus it. Outputs are those of {L} samples earlier (latency {L / wj.fs!r} s; 0 before "
                    f"that). Sample rate {wj.fs!r} Hz. Operating angle outside [{lo!r}, {hi!r}] rad: the cascade is "
                    f"{wj.model.beyond_range}, the curve continues linearly.")
-    with tempfile.TemporaryDirectory(prefix="lpvpc-whole-joint-") as tmp:
-        generated = write_system_c(functions, tmp)
-        try:
-            return Path(build_fmu(path, model_identifier="lpvpc_whole_joint" + ("_me" if fmi_type == "me" else ""),
-                                  system_sources=[model_source_dir() / "model_system.c", *generated], nx=nx,
-                                  step_size=1.0 / wj.fs, outputs=outputs, inputs=inputs, parameters=parameters,
-                                  fmi_version=fmi_version, description=description,
-                                  version=f"lpvpc {__version__} model {wj.model.model_hash[:12]}",
-                                  latency=L / wj.fs, reuse_existing=reuse_existing, interface=fmi_type))
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return build_step_fmu(path, step, model_identifier="lpvpc_whole_joint", fmi_type=fmi_type,
+                          prefix="lpvpc-whole-joint-", step_size=1.0 / wj.fs, outputs=outputs, inputs=inputs,
+                          parameters=parameters, fmi_version=fmi_version, description=description,
+                          version=f"lpvpc {__version__} model {wj.model.model_hash[:12]}", latency=L / wj.fs,
+                          reuse_existing=reuse_existing)
