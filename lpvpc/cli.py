@@ -514,8 +514,7 @@ def _physical_summary(model) -> list:
 def cmd_predict(args) -> int:
     import numpy as np
 
-    from .data import RATE_TOLERANCE
-    from .errors import DataError
+    from .data import check_model_rate
     from .model import LPVPCModel, vaf
 
     model = LPVPCModel.load(args.model)
@@ -524,9 +523,7 @@ def cmd_predict(args) -> int:
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
                       time_unit=conv.get("time_unit"), channel_skew=conv.get("channel_skew_s", 0.0))
-    if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
-        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
-                        source=data.source or None)
+    check_model_rate(data.fs, model.fs, source=data.source)
     signals = {}
     if model.effects:  # an extended model takes its extra channels from the data
         from .effects import signals_from_data

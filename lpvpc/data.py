@@ -29,4 +29,4 @@ from .identification_data import (MIN_PERTURBATION_VARIANCE, STATIONARY_MAX_SPAN
 from .matfiles import split_variable
 from .readers import PERTURBATION_EMG, load_trial
 from .trial import (ANGLE_CHANNELS, GRID_TOLERANCE, JITTER_TOLERANCE, OPTIONAL_CHANNELS, RATE_TOLERANCE,
-    REQUIRED_CHANNELS, Trial, check_trial, grid_deviation, trial_problems, write_trial_csv)
+    REQUIRED_CHANNELS, Trial, check_model_rate, check_trial, grid_deviation, trial_problems, write_trial_csv)

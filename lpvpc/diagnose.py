@@ -81,6 +81,7 @@ from .diagnose_surrogate import Surrogate
 from .diagnose_where import where_it_fails  # noqa: F401
 from .effects import signals_from_data, with_model_activation
 from .model import vaf
+from .trial import check_model_rate
 
 OUTSIDE_RATIO = 1.5  # a signal probe this many times better than the top candidate: say so
 MIN_RECORD_S = 20.0  # s: shorter records are refused (10 folds of 2 s, each a few perturbation steps)
@@ -315,11 +316,7 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()
     timings = {}
-    if abs(float(data.fs) - float(model.fs)) > 1e-6 * model.fs:
-        from .errors import DataError
-
-        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
-                        source=getattr(data, "source", None) or None)
+    check_model_rate(data.fs, model.fs, source=getattr(data, "source", None), tolerance=1e-6)
     if getattr(data, "segments", ()):  # its blocked cross-validation runs along one record
         from .errors import DataError
 
