@@ -178,8 +178,8 @@ COMMAND_IO = {
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
                         sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
-                             files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
-                             make_folders=("--fmu",)),
+                             files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"},
+                             sidecars={"--casadi": (".json",)}, regular=("--fmu",), make_folders=("--fmu",)),
     "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
@@ -574,7 +574,7 @@ def cmd_export(args) -> int:
         if exc.name != f"{__package__}.export":
             raise
         raise LpvpcError("export is not available in this installation (module lpvpc.export missing)") from None
-    variant = "exact" if args.exact else args.variant
+    variant = "exact" if args.exact else (args.variant or export.DEFAULT_VARIANT)
     if args.casadi:
         t0 = time.perf_counter()
         path = export.export_casadi(model, args.casadi, variant=variant)
@@ -1172,7 +1172,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the CasADi step function")
     p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
-    p.add_argument("--variant", choices=("sampled", "causal", "exact"), default="sampled",
+    p.add_argument("--variant", choices=("sampled", "causal", "exact"), default=None,
                    help="sampled (default): inputs position and scheduling only, velocity and acceleration by "
                         "central differences inside, so a latency of half the difference stencil: 2 samples for "
                         "models identified by this version (5 points), 1 for older files (3 points); the same timing "

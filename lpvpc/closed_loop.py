@@ -465,13 +465,23 @@ def closed_loop_step(cl: ClosedLoopModel, parametric: bool = False, name: str = 
 
 
 def export_closed_loop_casadi(cl: ClosedLoopModel, path) -> Path:
-    """Save the (non-parametric) tick function with ``Function.save``."""
-    path = Path(path)
-    try:
-        closed_loop_step(cl).save(str(path))
-    except (OSError, RuntimeError) as exc:
-        raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
-    return path
+    """Save the (non-parametric) tick function with ``Function.save`` and its metadata in
+    ``<path>.json`` (:func:`lpvpc.export.save_casadi`): the tick (1 / (fs N) s: one call per
+    tick), the foot's inertia (not in the torque: the plant adds it), units, names and the
+    initial state. :func:`lpvpc.export.load_casadi` reads both and refuses a host step that
+    is not the tick."""
+    from .export import save_casadi
+
+    N = ticks(cl)
+    meta = {"kind": "closed-loop", "variant": "causal", "fs": cl.fs, "tick_s": 1.0 / (cl.fs * N),
+            "ticks_per_sample": N, "sample_period_s": 1.0 / cl.fs, "latency_samples": 0, "latency_s": 0.0,
+            "units": {"state": "the previous call's next_state", "next_state": "(state)",
+                      **{n: u for n, (u, _) in _INPUT_INFO.items()},
+                      **{n: u.replace("N.m", "N m") for n, (u, _) in _OUTPUT_INFO.items()}},
+            "inertia": {"kg_m2": float(cl.inertia), "in_torque": False,
+                        "note": "the foot's moment of inertia is NOT in the torque: add it to the plant's"},
+            "model_hash": cl.model.model_hash}
+    return save_casadi(closed_loop_step(cl), path, meta)
 
 
 def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,

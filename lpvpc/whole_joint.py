@@ -41,7 +41,7 @@ import numpy as np
 
 from . import equations as eq
 from .basis import Basis, CasadiOps, basis_from_data
-from .errors import DataError, ExportError, ModelFileError, non_finite_problem
+from .errors import DataError, ModelFileError, non_finite_problem
 
 __all__ = ["WholeJointModel", "WholeJointPrediction", "fit_quasi_static", "fit_whole_joint",
            "whole_joint_step", "export_whole_joint_casadi", "export_whole_joint_fmu", "latency_samples",
@@ -311,14 +311,21 @@ def whole_joint_step(wj: WholeJointModel, parametric: bool = False, name: str = 
 
 
 def export_whole_joint_casadi(wj: WholeJointModel, path) -> Path:
-    """Save the (non-parametric) step with ``Function.save``; run a record with
-    ``lpvpc.export.trajectory_function`` (inputs ``state`` = zeros, ``angle`` = 1 x n row)."""
-    path = Path(path)
-    try:
-        whole_joint_step(wj).save(str(path))
-    except (OSError, RuntimeError) as exc:
-        raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
-    return path
+    """Save the (non-parametric) step with ``Function.save`` and its metadata in
+    ``<path>.json`` (:func:`lpvpc.export.save_casadi`: tick, latency, units, names, initial
+    state); run a record with ``lpvpc.export.trajectory_function`` (inputs ``state`` = zeros,
+    ``angle`` = 1 x n row), or load both with :func:`lpvpc.export.load_casadi`."""
+    from .export import save_casadi
+
+    L, T = latency_samples(wj), 1.0 / wj.fs
+    meta = {"kind": "whole-joint", "variant": "exact", "fs": wj.fs, "tick_s": T, "sample_period_s": T,
+            "latency_samples": L, "latency_s": L * T,
+            "units": {"state": "the previous call's next_state", "angle": "rad", "next_state": "(state)",
+                      **{n: u.replace("N.m", "N m") for n, (u, _) in _OUTPUT_INFO.items()}},
+            "inertia": {"kg_m2": None, "in_torque": True,
+                        "note": "the intrinsic impulse response contains the foot's inertia: do not add it again"},
+            "cutoff_hz": wj.cutoff, "model_hash": wj.model.model_hash}
+    return save_casadi(whole_joint_step(wj), path, meta)
 
 
 def replay(wj: WholeJointModel, angle) -> dict:
