@@ -27,7 +27,7 @@ numpy prediction, and added to the pathway they belong to.
 
 Variants
 --------
-``"causal"`` (default of this module; meant for closed loop with an actuator that supplies the derivatives)
+``"causal"`` (default of the building blocks; meant for closed loop with an actuator that supplies the derivatives)
     tq_i(k) = sum_{l=0..Lc} h_l(rho(k)) pos(k-l) + h_v(rho(k)) vel(k) + h_a(rho(k)) acc(k)
     with the model's causal IRF ``H_causal``. ``velocity``/``acceleration`` are the
     current perturbation velocity (rad/s) and acceleration (rad/s^2): the actuator's
@@ -41,6 +41,10 @@ Variants
     direct-feedthrough I/O above it is L, not L + 1). For k < L the outputs are 0 (no
     torque is defined before the record starts). Equals ``model.predict(...)`` shifted
     by L samples.
+
+The building blocks here (:func:`step_function`, :func:`export_fmu`, ...) default to
+``"causal"``; the files ``lpvpc export``, :func:`export_casadi` and the model's export methods
+write default to :data:`DEFAULT_VARIANT` (``"sampled"``).
 
 Reflex pathway (both variants): dvel(k) = vel(k - d) with vel the central difference of
 position and d = ``model.delay`` >= 1 samples; the velocity is zero outside the record
