@@ -183,8 +183,8 @@ COMMAND_IO = {
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
                         sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
-                             files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
-                             make_folders=("--fmu",)),
+                             files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"},
+                             sidecars={"--casadi": (".json",)}, regular=("--fmu",), make_folders=("--fmu",)),
     "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
@@ -407,8 +407,7 @@ class _progress_after:
 def cmd_predict(args) -> int:
     import numpy as np
 
-    from .io import RATE_TOLERANCE
-    from .errors import DataError
+    from .io import check_model_rate
     from .models.model import LPVPCModel, vaf
 
     model = LPVPCModel.load(args.model)
@@ -417,9 +416,7 @@ def cmd_predict(args) -> int:
     torque_sign = args.torque_sign if args.torque_sign is not None else float(conv.get("torque_sign", 1.0))
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
                       time_unit=conv.get("time_unit"), channel_skew=conv.get("channel_skew_s", 0.0))
-    if abs(data.fs - model.fs) > RATE_TOLERANCE * model.fs:
-        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
-                        source=data.source or None)
+    check_model_rate(data.fs, model.fs, source=data.source)
     signals = {}
     if model.effects:  # an extended model takes its extra channels from the data
         from .models.effects import signals_from_data
@@ -470,7 +467,7 @@ def cmd_export(args) -> int:
         if exc.name != f"{__package__}.export":
             raise
         raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter missing)") from None
-    variant = "exact" if args.exact else args.variant
+    variant = "exact" if args.exact else (args.variant or export.DEFAULT_VARIANT)
     if args.casadi:
         t0 = time.perf_counter()
         path = export.export_casadi(model, args.casadi, variant=variant)
@@ -1074,7 +1071,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--casadi", metavar="FILE.casadi", help="write the CasADi step function")
     p.add_argument("--fmu", metavar="FILE.fmu", help="write an FMU")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the FMU (default 2)")
-    p.add_argument("--variant", choices=("sampled", "causal", "exact"), default="sampled",
+    p.add_argument("--variant", choices=("sampled", "causal", "exact"), default=None,
                    help="sampled (default): inputs position and scheduling only, velocity and acceleration by "
                         "central differences inside, so a latency of half the difference stencil: 2 samples for "
                         "models identified by this version (5 points), 1 for older files (3 points); the same timing "

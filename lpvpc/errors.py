@@ -110,6 +110,20 @@ class ExportError(LpvpcError, RuntimeError):
     """
 
 
+
+class StepSizeError(LpvpcError, ValueError):
+    """A host asked an exported step function to advance by a time step that is not its tick
+    (a fixed-step model run at another step would run its model time at another speed).
+
+    >>> from lpvpc.export.exporter import CasadiExport
+    >>> CasadiExport(None, {"tick_s": 0.001}).check_step(0.0005)
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.StepSizeError: time step 0.0005 s is not the exported function's tick 0.001 s: call it once per tick (step your host at 0.001 s, or call the function every 0.001 s of host time)
+    """
+
+    exit_status = 2
+
 class FMUError(LpvpcError, RuntimeError):
     """An FMU is missing, corrupt, built for another platform, or returned an error.
 

@@ -178,3 +178,10 @@ def test_subpackage_re_exports_resolve(package):
     assert module.__all__
     for name in module.__all__:
         assert getattr(module, name) is not None, f"{package}.{name}"
+
+
+def test_the_export_package_re_exports_the_exporters_public_names():
+    import lpvpc.export
+    import lpvpc.export.exporter
+
+    assert sorted(lpvpc.export.__all__) == sorted(lpvpc.export.exporter.__all__)

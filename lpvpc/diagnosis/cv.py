@@ -4,15 +4,17 @@ was not fitted to.
 :class:`BlockCV` fits any combination of named column blocks on K - 1 contiguous (or
 interleaved) folds and predicts the held-out one; :func:`paired_test` says whether one
 held-out residual is smaller than another (batch means over 2-s blocks: the residual is
-coloured). Both are independent of the model: the surrogate (:mod:`lpvpc.diagnosis.surrogate`)
+coloured). The fold fits and scores are :mod:`lpvpc.identification.crossval`'s, the engine the structure search uses
+too (here with the ridge relative to the largest eigenvalue). Both are independent of the model: the surrogate (:mod:`lpvpc.diagnosis.surrogate`)
 fills them with the model's structure.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 import scipy.stats
+
+from ..identification.crossval import fold_fits, solve_normal
 
 FOLDS = 10
 BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
@@ -90,16 +92,14 @@ class BlockCV:
         """Held-out residual (N,) and training RSS per fold for the blocks ``names``."""
         if not names:  # nothing fitted: the target itself
             return self.y.copy(), self.yy.sum() - self.yy
-        G_f, b_f = self.fold_systems(names)
-        G_all, b_all, yy_all = G_f.sum(0), b_f.sum(0), self.yy.sum()
+        theta, G_train, b_train = fold_fits(*self.fold_systems(names), self.ridge, "largest_eigenvalue")
         resid = np.empty_like(self.y)
-        rss_train = np.empty(self.K)
+        rss_train = self.yy.sum() - self.yy  # y^T y of the training rows, then minus the fit's share
         X = np.hstack([self.blocks[a] for a in names])
         for f, ix in enumerate(self.parts):
-            G, b = G_all - G_f[f], b_all - b_f[f]
-            beta = _solve_psd(G, b, self.ridge)
+            beta, G, b = theta[f], G_train[f], b_train[f]
             resid[ix] = self.y[ix] - X[ix] @ beta
-            rss_train[f] = (yy_all - self.yy[f]) - 2 * beta @ b + beta @ G @ beta
+            rss_train[f] = rss_train[f] - 2 * beta @ b + beta @ G @ beta
         return resid, rss_train
 
 
@@ -108,16 +108,15 @@ FIXED_RIDGE = 1e-4  # the fixed design's candidates model a small residual: shri
 
 
 def _solve_psd(G, b, ridge=RIDGE):
-    """Least-squares coefficients from normal equations with a tiny relative ridge.
+    """Least-squares coefficients from normal equations with a tiny relative ridge
+    (:func:`lpvpc.identification.crossval.solve_normal` relative to the largest eigenvalue).
 
     The reflex columns are nearly collinear (neighbouring basis functions of the
     nonlinearity through the same filter, the drive through filters that differ little);
     without the ridge, directions with eigenvalues ~1e-12 of the largest turn fold-to-fold
     noise into large held-out errors. The intrinsic block's smallest
     eigenvalues (~1e-5) are untouched."""
-    w, V = scipy.linalg.eigh(G, check_finite=False)
-    w = np.maximum(w, 0.0)
-    return V @ ((V.T @ b) / (w + ridge * max(w[-1], 1e-300)))
+    return solve_normal(G, b, ridge, "largest_eigenvalue")
 
 
 def paired_test(r0, r1, fs, block_s=BLOCK_S):

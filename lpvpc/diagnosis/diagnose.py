@@ -79,6 +79,7 @@ from .report import candidates_html, diagnosis_html, format_table, write_report 
 from .signals import FORMS, TIME_KNOT_S, candidate_signals, signal_dependence, time_basis  # noqa: F401
 from .surrogate import Surrogate
 from .where import where_it_fails  # noqa: F401
+from ..io.trial import check_model_rate
 from ..models.effects import signals_from_data, with_model_activation
 from ..models.model import vaf
 
@@ -315,11 +316,7 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()
     timings = {}
-    if abs(float(data.fs) - float(model.fs)) > 1e-6 * model.fs:
-        from ..errors import DataError
-
-        raise DataError(f"sampling rate {data.fs:g} Hz of the data differs from the model's {model.fs:g} Hz",
-                        source=getattr(data, "source", None) or None)
+    check_model_rate(data.fs, model.fs, source=getattr(data, "source", None), tolerance=1e-6)
     if getattr(data, "segments", ()):  # its blocked cross-validation runs along one record
         from ..errors import DataError
 

@@ -13,6 +13,7 @@ from .._lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {"exporter": [
     "VARIANTS", "OUTPUT_NAMES", "StateLayout", "step_function", "input_names", "state_layout", "latency_samples",
     "parameter_vector", "parameter_names", "parameter_info", "export_casadi", "trajectory_function",
-    "replay_inputs", "export_fmu", "DEFAULT_FMU_VARIANT", "ticks_per_sample", "fmu_constants",
-    "derivative_points", "fmu_variables", "fmu_parameter_name", "fmu_description", "system_functions",
-    "generate_c", "write_system_c", "model_source_dir"]})
+    "replay_inputs", "export_fmu", "DEFAULT_VARIANT", "DEFAULT_FMU_VARIANT", "save_casadi", "load_casadi",
+    "CasadiExport", "ticks_per_sample", "fmu_constants", "derivative_points", "fmu_variables",
+    "fmu_parameter_name", "fmu_description", "system_functions", "generate_c", "write_system_c",
+    "step_system_functions", "build_step_fmu", "model_source_dir"]})

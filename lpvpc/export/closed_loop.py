@@ -465,28 +465,23 @@ def closed_loop_step(cl: ClosedLoopModel, parametric: bool = False, name: str = 
 
 
 def export_closed_loop_casadi(cl: ClosedLoopModel, path) -> Path:
-    """Save the (non-parametric) tick function with ``Function.save``."""
-    path = Path(path)
-    try:
-        closed_loop_step(cl).save(str(path))
-    except (OSError, RuntimeError) as exc:
-        raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
-    return path
+    """Save the (non-parametric) tick function with ``Function.save`` and its metadata in
+    ``<path>.json`` (:func:`lpvpc.export.exporter.save_casadi`): the tick (1 / (fs N) s: one call per
+    tick), the foot's inertia (not in the torque: the plant adds it), units, names and the
+    initial state. :func:`lpvpc.export.exporter.load_casadi` reads both and refuses a host step that
+    is not the tick."""
+    from .exporter import save_casadi
 
-
-def _system_functions(cl):
-    import casadi as ca
-
-    step = closed_loop_step(cl, parametric=True)
-    nx, npar = step.size1_in("state"), step.size1_in("params")
-    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", 2), ca.SX.sym("p", npar)
-    res = step(x, u[0], u[1], p)
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(nx)], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {n: [INPUT_NAMES[i] for i in range(2) if ca.depends_on(res[1 + k], u[i])]
-            for k, n in enumerate(OUTPUT_NAMES)}
-    return (init, output, update), deps, nx
+    N = ticks(cl)
+    meta = {"kind": "closed-loop", "variant": "causal", "fs": cl.fs, "tick_s": 1.0 / (cl.fs * N),
+            "ticks_per_sample": N, "sample_period_s": 1.0 / cl.fs, "latency_samples": 0, "latency_s": 0.0,
+            "units": {"state": "the previous call's next_state", "next_state": "(state)",
+                      **{n: u for n, (u, _) in _INPUT_INFO.items()},
+                      **{n: u.replace("N.m", "N m") for n, (u, _) in _OUTPUT_INFO.items()}},
+            "inertia": {"kg_m2": float(cl.inertia), "in_torque": False,
+                        "note": "the foot's moment of inertia is NOT in the torque: add it to the plant's"},
+            "model_hash": cl.model.model_hash}
+    return save_casadi(closed_loop_step(cl), path, meta)
 
 
 def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
@@ -496,13 +491,12 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
     (rad/s); outputs :data:`OUTPUT_NAMES` from the current inputs (direct feedthrough); constant
     outputs ``inertia`` (kg m^2, for the plant to add to its own), ``sample_period`` (s) and
     ``latency`` (0 s); internal step (base tick) 1 / (fs N) s."""
-    import tempfile
-
     from .. import __version__
-    from .exporter import fmu_parameter_name, model_source_dir, write_system_c
-    from .fmu_build import FmuVariable, build_fmu
+    from .exporter import build_step_fmu, fmu_parameter_name, step_system_functions
+    from .fmu_build import FmuVariable
 
-    functions, deps, nx = _system_functions(cl)
+    step = closed_loop_step(cl, parametric=True)
+    deps = step_system_functions(step)[3]
     names, values, info = parameter_table(cl)
     outputs = [FmuVariable(n, "output", _OUTPUT_INFO[n][0], _OUTPUT_INFO[n][1], dependencies=deps[n])
                for n in OUTPUT_NAMES]
@@ -524,15 +518,8 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
                    f"torque (constant output 'inertia'): the plant adds it to its own. Samples every {1.0 / cl.fs!r} s, "
                    f"outputs every tick of {1.0 / (cl.fs * N)!r} s from the current inputs. Operating angle outside "
                    f"[{lo!r}, {hi!r}] rad: the model is {cl.model.beyond_range}, the curve continues linearly.")
-    with tempfile.TemporaryDirectory(prefix="lpvpc-closed-loop-") as tmp:
-        generated = write_system_c(functions, tmp)
-        try:
-            return Path(build_fmu(path, model_identifier="lpvpc_closed_loop" + ("_me" if fmi_type == "me" else ""),
-                                  system_sources=[model_source_dir() / "model_system.c", *generated], nx=nx,
-                                  step_size=1.0 / (cl.fs * N), outputs=outputs, inputs=inputs, parameters=parameters,
-                                  fmi_version=fmi_version, description=description,
-                                  version=f"lpvpc {__version__} model {cl.model.model_hash[:12]} closed loop",
-                                  latency=0.0, reuse_existing=reuse_existing, interface=fmi_type,
-                                  constants=constants))
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return build_step_fmu(path, step, model_identifier="lpvpc_closed_loop", fmi_type=fmi_type,
+                          prefix="lpvpc-closed-loop-", step_size=1.0 / (cl.fs * N), outputs=outputs, inputs=inputs,
+                          parameters=parameters, fmi_version=fmi_version, description=description,
+                          version=f"lpvpc {__version__} model {cl.model.model_hash[:12]} closed loop",
+                          latency=0.0, reuse_existing=reuse_existing, constants=constants)

@@ -27,7 +27,7 @@ numpy prediction, and added to the pathway they belong to.
 
 Variants
 --------
-``"causal"`` (default of this module; meant for closed loop with an actuator that supplies the derivatives)
+``"causal"`` (default of the building blocks; meant for closed loop with an actuator that supplies the derivatives)
     tq_i(k) = sum_{l=0..Lc} h_l(rho(k)) pos(k-l) + h_v(rho(k)) vel(k) + h_a(rho(k)) acc(k)
     with the model's causal IRF ``H_causal``. ``velocity``/``acceleration`` are the
     current perturbation velocity (rad/s) and acceleration (rad/s^2): the actuator's
@@ -41,6 +41,10 @@ Variants
     direct-feedthrough I/O above it is L, not L + 1). For k < L the outputs are 0 (no
     torque is defined before the record starts). Equals ``model.predict(...)`` shifted
     by L samples.
+
+The building blocks here (:func:`step_function`, :func:`export_fmu`, ...) default to
+``"causal"``; the files ``lpvpc export``, :func:`export_casadi` and the model's export methods
+write default to :data:`DEFAULT_VARIANT` (``"sampled"``).
 
 Reflex pathway (both variants): dvel(k) = vel(k - d) with vel the central difference of
 position and d = ``model.delay`` >= 1 samples; the velocity is zero outside the record
@@ -80,6 +84,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -103,7 +108,11 @@ __all__ = [
     "trajectory_function",
     "replay_inputs",
     "export_fmu",
+    "DEFAULT_VARIANT",
     "DEFAULT_FMU_VARIANT",
+    "save_casadi",
+    "load_casadi",
+    "CasadiExport",
     "ticks_per_sample",
     "fmu_constants",
     "derivative_points",
@@ -113,12 +122,26 @@ __all__ = [
     "system_functions",
     "generate_c",
     "write_system_c",
+    "step_system_functions",
+    "build_step_fmu",
     "model_source_dir",
 ]
 
 VARIANTS = ("sampled", "causal", "exact")
-#: The FMU ``lpvpc export --fmu`` makes: positions in, for any co-simulation master.
-DEFAULT_FMU_VARIANT = "sampled"
+#: The variant written when none is named, by ``lpvpc export`` (``--casadi`` and ``--fmu``),
+#: :meth:`lpvpc.LPVPCModel.export_casadi`, :meth:`lpvpc.LPVPCModel.export_fmu` and
+#: :func:`export_casadi`: positions in, velocity and acceleration by central differences
+#: inside, a declared latency of half the difference stencil.
+DEFAULT_VARIANT = "sampled"
+#: The FMU ``lpvpc export --fmu`` makes (the same as :data:`DEFAULT_VARIANT`).
+DEFAULT_FMU_VARIANT = DEFAULT_VARIANT
+#: ``format`` of the sidecar ``<file>.casadi.json`` beside every exported step function.
+CASADI_FORMAT = "lpvpc-casadi-step"
+#: Version 2 adds ``tick_s``, ``sample_period_s``, ``inertia``, the initial state as numbers
+#: and ``kind``; :func:`load_casadi` reads version 1 files too.
+CASADI_FORMAT_VERSION = 2
+#: Relative tolerance of :meth:`CasadiExport.check_step` on a host's time step.
+STEP_TOLERANCE = 1e-6
 
 STATE_INPUT = "state"
 OUTPUT_NAMES = ("next_state", "torque", "torque_intrinsic", "torque_reflex")
@@ -520,55 +543,206 @@ def _effect_torques(model, variant, c, lay, ops, position_signals, rho, v_j, sig
 
 # ---------------------------------------------------------------------------------------
 # CasADi export
-def export_casadi(model, path, variant="causal") -> Path:
-    """Save the (non-parametric) step function to ``path`` with ``Function.save``.
+def save_casadi(step, path, metadata: dict) -> Path:
+    """Save a step function with ``casadi.Function.save`` and its sidecar ``<path>.json``:
+    the one writer of every CasADi export (the model's, whole-joint, closed-loop).
 
-    A user with only casadi installed runs a whole record with::
+    Parameters
+    ----------
+    step : casadi.Function
+        A non-parametric step (inputs ``state`` then the signals; outputs ``next_state``
+        then the torques).
+    path : str or Path
+        The ``.casadi`` file to write.
+    metadata : dict
+        What the exporter knows (``kind``, ``variant``, ``tick_s``, ``sample_period_s``,
+        ``latency_samples``, ``units``, ``inertia``, ...). The names of the inputs and
+        outputs, the state size, the initial state (zeros), the format and the lpvpc
+        version are added from the function.
 
-        import casadi, numpy as np
-        step = casadi.Function.load("model.casadi")
-        n = len(position)
-        traj = step.mapaccum(n)            # or lpvpc.export.exporter.trajectory_function(step, n)
-        out = traj(state=np.zeros(step.size1_in("state")), position=position[None, :],
-                   scheduling=scheduling[None, :],
-                   velocity=velocity[None, :], acceleration=acceleration[None, :])  # causal
-        torque = np.asarray(out["torque"]).ravel()
+    Returns
+    -------
+    Path
+        ``path``. The sidecar is ``<path>.json``; :func:`load_casadi` reads both.
 
-    A sidecar ``<path>.json`` records the variant, latency (samples and s), sampling
-    rate, state layout, model hash and lpvpc version.
+    Raises
+    ------
+    ExportError
+        The function or its sidecar could not be written.
     """
     from .. import __version__
 
     path = Path(path)
-    step = step_function(model, variant)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:  # temporary file + rename
             step.save(str(tmp))
     except (OSError, RuntimeError) as exc:
         raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
-    lay = state_layout(model, variant)
     meta = {
-        "format": "lpvpc-casadi-step",
+        "format": CASADI_FORMAT,
+        "format_version": CASADI_FORMAT_VERSION,
         "function": step.name(),
+        **metadata,
+        "inputs": list(step.name_in()),
+        "outputs": list(step.name_out()),
+        "state_size": int(step.size1_in(0)),
+        "initial_state": [0.0] * int(step.size1_in(0)),  # every exported step starts from rest
+        "lpvpc_version": __version__,
+    }
+    try:
+        write_text(str(path) + ".json", json.dumps(meta, indent=1))
+    except OSError as exc:
+        raise ExportError(f"{path}.json: could not write the CasADi function's metadata ({exc})") from None
+    return path
+
+
+def casadi_metadata(model, variant=DEFAULT_VARIANT) -> dict:
+    """The sidecar metadata of the model's step function (:func:`save_casadi` adds the names,
+    sizes and initial state): variant, tick and sample period (s), latency, units, state
+    layout, inertia, identified ranges, model hash."""
+    _check_variant(variant)
+    lay = state_layout(model, variant)
+    T = 1.0 / float(model.fs)
+    return {
+        "kind": "lpvpc model",
         "variant": variant,
         "fs": model.fs,
+        "tick_s": T,  # one call advances the model by one sample
+        "sample_period_s": T,
         "latency_samples": lay.latency,
-        "latency_s": lay.latency / model.fs,
-        "inputs": input_names(variant, model=model),
-        "outputs": list(OUTPUT_NAMES),
-        "state_size": lay.size,
+        "latency_s": lay.latency * T,
+        "units": {"state": "the previous call's next_state", "position": "rad", "scheduling": "rad",
+                  "velocity": "rad/s", "acceleration": "rad/s^2", "next_state": "(state)", "torque": "N m",
+                  "torque_intrinsic": "N m", "torque_reflex": "N m", **_signal_units(model)},
+        "inertia": {"kg_m2": None, "in_torque": True,
+                    "note": "the intrinsic impulse response contains the foot's inertia: do not add it again"},
         "state_layout": lay.describe(),
-        "initial_state": "zeros",
-        "units": {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
-                  "torque": "N m", **_signal_units(model)},
         **({"effects": [fe.name for fe in model.effects]} if getattr(model, "effects", None) else {}),
         "identified_ranges": {"scheduling": list(model.scheduling_range), "velocity": list(model.velocity_range)},
         "model_hash": model.model_hash,
-        "lpvpc_version": __version__,
     }
-    write_text(str(path) + ".json", json.dumps(meta, indent=1))
-    return path
+
+
+def export_casadi(model, path, variant=DEFAULT_VARIANT) -> Path:
+    """Save the (non-parametric) step function to ``path`` with ``Function.save``, and its
+    metadata beside it (:func:`save_casadi`).
+
+    ``variant`` defaults to :data:`DEFAULT_VARIANT` (what ``lpvpc export --casadi`` writes).
+    A user with only casadi installed runs a whole record of the default variant with::
+
+        import casadi, numpy as np
+        step = casadi.Function.load("model.casadi")
+        traj = step.mapaccum(len(position))  # or lpvpc.export.exporter.trajectory_function(step, n)
+        out = traj(state=np.zeros(step.size1_in("state")), position=position[None, :],
+                   scheduling=scheduling[None, :])
+        torque = np.asarray(out["torque"]).ravel()  # sample k - latency_samples at row k
+
+    The sidecar ``<path>.json`` (:func:`casadi_metadata`) records the variant, tick and
+    sample period, latency (samples and s), units, input and output names, initial state,
+    state layout, inertia, model hash and lpvpc version; :func:`load_casadi` returns the
+    function with it and refuses host steps that are not the tick.
+    """
+    _check_variant(variant)
+    return save_casadi(step_function(model, variant), path, casadi_metadata(model, variant))
+
+
+class CasadiExport(NamedTuple):
+    """An exported step function with its metadata (:func:`load_casadi`).
+
+    Unpacks as ``function, metadata``. The step is a fixed-step model: one call advances
+    its model time by ``tick`` seconds, whatever the host's clock. :meth:`step` and
+    :meth:`trajectory` take the host's time step and refuse one that is not the tick
+    (:class:`lpvpc.errors.StepSizeError`): a simulator stepping at half the tick would
+    otherwise run the model's time twice as fast, silently.
+    """
+
+    function: Any
+    metadata: dict
+
+    @property
+    def tick(self) -> float:
+        """Seconds of model time one call advances (s)."""
+        m = self.metadata
+        return float(m["tick_s"]) if "tick_s" in m else 1.0 / float(m["fs"])  # format 1: one sample per call
+
+    def check_step(self, dt) -> None:
+        """Raise :class:`lpvpc.errors.StepSizeError` unless ``dt`` (s) is the tick within
+        :data:`STEP_TOLERANCE` (relative)."""
+        from ..errors import StepSizeError
+
+        tick = self.tick
+        if not (np.isfinite(dt) and abs(float(dt) - tick) <= STEP_TOLERANCE * tick):
+            raise StepSizeError(f"time step {float(dt):g} s is not the exported function's tick {tick:g} s: call it "
+                                f"once per tick (step your host at {tick:g} s, or call the function every {tick:g} s "
+                                "of host time)")
+
+    def initial_state(self) -> np.ndarray:
+        """The state to start a record from (zeros: the model at rest)."""
+        m = self.metadata
+        x0 = m.get("initial_state")
+        return np.array(x0, dtype=float) if isinstance(x0, list) else np.zeros(int(m["state_size"]))
+
+    def step(self, dt, state, **inputs) -> dict:
+        """One call of the function after checking the host's step ``dt`` (s): ``state``
+        (the previous call's ``next_state``, :meth:`initial_state` first) and the inputs by
+        name (the sidecar's ``inputs`` after ``state``). Returns every output as a numpy array
+        (``next_state`` a vector, the torques floats)."""
+        self.check_step(dt)
+        out = self.function(state=state, **inputs)
+        return {k: (np.asarray(v, dtype=float).ravel() if k == "next_state" else float(v)) for k, v in out.items()}
+
+    def trajectory(self, n: int, dt):
+        """The whole-record function (:func:`trajectory_function`) for ``n`` calls, after
+        checking that the record's sample spacing ``dt`` (s) is the tick."""
+        self.check_step(dt)
+        return trajectory_function(self.function, n)
+
+
+def load_casadi(path) -> CasadiExport:
+    """Load an exported step function and its sidecar metadata.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.casadi`` file written by ``lpvpc export --casadi``, ``lpvpc whole-joint
+        --casadi``, :func:`export_casadi` or their whole-joint and closed-loop
+        counterparts; its metadata is ``<path>.json``.
+
+    Returns
+    -------
+    CasadiExport
+        ``(function, metadata)``, with :meth:`CasadiExport.step` and
+        :meth:`CasadiExport.trajectory` that check the host's time step against the tick.
+
+    Raises
+    ------
+    ExportError
+        A file is missing or unreadable, the sidecar is not lpvpc's, or it describes
+        another function.
+    """
+    import casadi as ca
+
+    path = Path(path)
+    side = Path(str(path) + ".json")
+    for f in (path, side):
+        if not f.is_file():
+            raise ExportError(f"{f}: no such file" + (" (the metadata lpvpc writes beside the .casadi file)"
+                                                      if f is side else ""))
+    try:
+        meta = json.loads(side.read_text())
+    except (OSError, ValueError) as exc:
+        raise ExportError(f"{side}: not readable as JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != CASADI_FORMAT:
+        raise ExportError(f"{side}: not the metadata of an lpvpc CasADi export (missing 'format': '{CASADI_FORMAT}')")
+    try:
+        function = ca.Function.load(str(path))
+    except RuntimeError as exc:
+        raise ExportError(f"{path}: not a CasADi function ({' '.join(str(exc).split())[:200]})") from None
+    if meta.get("function") not in (None, function.name()) or meta.get("inputs") not in (None, function.name_in()):
+        raise ExportError(f"{side} describes function {meta.get('function')!r} with inputs {meta.get('inputs')}, "
+                          f"but {path} holds {function.name()!r} with inputs {function.name_in()}")
+    return CasadiExport(function, meta)
 
 
 def trajectory_function(step_or_path, n: int):
@@ -653,28 +827,72 @@ def fmu_parameter_name(name: str) -> str:
     return name.replace("[", "_").replace("]", "").replace(",", "_")
 
 
+def step_system_functions(step):
+    """The three CasADi functions an FMU's C code is generated from, made from a parametric
+    step function.
+
+    Parameters
+    ----------
+    step : casadi.Function
+        A step whose inputs are ``(state, u_1, ..., u_m, params)`` (scalar u_i) and whose
+        outputs are ``(next_state, y_1, ..., y_r)`` (scalar y_j), as :func:`step_function`,
+        :func:`lpvpc.export.whole_joint.whole_joint_step` and
+        :func:`lpvpc.export.closed_loop.closed_loop_step` make them with ``parametric=True``.
+
+    Returns
+    -------
+    initial, output, update : casadi.Function
+        ``lpvpc_model_initial(p) -> x0`` (zeros: every exported step starts from rest),
+        ``lpvpc_model_output(x, u, p) -> y`` and ``lpvpc_model_update(x, u, p) -> x_next``,
+        with u and y the step's inputs and outputs stacked in order: the names the
+        adapter ``model_system.c`` calls.
+    output_dependencies : dict
+        For each output name, the input names it depends on directly (the FMU's declared
+        dependencies; an algebraic loop in a master is seen from them).
+
+    Raises
+    ------
+    ExportError
+        The step's last input is not ``params``.
+
+    Examples
+    --------
+    A gain with a one-sample memory: ``y = p u + x``, ``x_next = u``.
+
+    >>> import casadi as ca
+    >>> x, u, p = ca.SX.sym("state"), ca.SX.sym("u"), ca.SX.sym("params")
+    >>> step = ca.Function("gain", [x, u, p], [u, p * u + x], ["state", "u", "params"], ["next_state", "y"])
+    >>> init, output, update, deps = step_system_functions(step)
+    >>> float(output(2.0, 3.0, 0.5)), float(update(2.0, 3.0, 0.5)), deps
+    (3.5, 3.0, {'y': ['u']})
+    """
+    import casadi as ca
+
+    u_names, y_names = step.name_in()[1:-1], step.name_out()[1:]
+    if step.name_in()[-1] != "params":
+        raise ExportError(f"step function {step.name()!r} is not parametric: its last input is "
+                          f"{step.name_in()[-1]!r}, not 'params'")
+    x = ca.SX.sym("x", step.size1_in(0))
+    u = ca.SX.sym("u", len(u_names))
+    p = ca.SX.sym("p", step.size1_in(step.n_in() - 1))
+    res = step(x, *[u[i] for i in range(len(u_names))], p)
+    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(x.shape[0])], ["p"], ["x0"])
+    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
+    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
+    deps = {name: [u_names[i] for i in range(len(u_names)) if ca.depends_on(res[1 + k], u[i])]
+            for k, name in enumerate(y_names)}
+    return init, output, update, deps
+
+
 def system_functions(model, variant="causal"):
     """The three CasADi functions the FMU's C code is generated from, all of (x, u, p):
     ``lpvpc_model_initial(p) -> x0``, ``lpvpc_model_output(x, u, p) -> y``,
     ``lpvpc_model_update(x, u, p) -> x_next``, with u = (position, scheduling[, velocity,
     acceleration]) and y = (torque, torque_intrinsic, torque_reflex). They call the
-    parametric :func:`step_function`. Returns (initial, output, update, output_dependencies)
-    where ``output_dependencies[name]`` lists the inputs an output depends on directly."""
-    import casadi as ca
-
-    step = step_function(model, variant, parametric=True)
-    u_names = input_names(variant, model=model)[1:]
-    x = ca.SX.sym("x", step.size1_in(STATE_INPUT))
-    u = ca.SX.sym("u", len(u_names))
-    p = ca.SX.sym("p", step.size1_in("params"))
-    res = step(x, *[u[i] for i in range(len(u_names))], p)
-    y = ca.vertcat(*res[1:])
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(x.shape[0])], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [y], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {name: [u_names[i] for i in range(len(u_names)) if ca.depends_on(res[1 + k], u[i])]
-            for k, name in enumerate(OUTPUT_NAMES[1:])}
-    return init, output, update, deps
+    parametric :func:`step_function` (:func:`step_system_functions`). Returns (initial,
+    output, update, output_dependencies) where ``output_dependencies[name]`` lists the
+    inputs an output depends on directly."""
+    return step_system_functions(step_function(model, variant, parametric=True))
 
 
 def generate_c(model, folder, variant="causal") -> list:
@@ -705,6 +923,62 @@ def write_system_c(functions, folder) -> list:
     paths[0].write_text('#if defined(__GNUC__)\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n#endif\n'
                         + paths[0].read_text())
     return paths
+
+
+def build_step_fmu(path, step, *, model_identifier: str, fmi_type: str = "cs", prefix: str = "lpvpc-export-",
+                   **build_options) -> Path:
+    """Build an FMU from a parametric CasADi step: the one build path of every model FMU.
+
+    The step becomes the three system functions (:func:`step_system_functions`), CasADi
+    writes their C (:func:`write_system_c`) into a temporary folder, and
+    :func:`lpvpc.export.fmu_build.build_fmu` compiles it with the generic adapter ``model_system.c``
+    (:func:`model_source_dir`) and the FMI wrapper.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` to write.
+    step : casadi.Function
+        The parametric step (inputs ``state``, the FMU's inputs in value-reference order,
+        ``params``).
+    model_identifier : str
+        The co-simulation identifier; a Model Exchange FMU gets it suffixed ``_me``.
+    fmi_type : {"cs", "me"}
+        Co-simulation (default) or Model Exchange.
+    prefix : str
+        Prefix of the temporary folder of the generated C (shows which export made it).
+    **build_options
+        The rest of :func:`lpvpc.export.fmu_build.build_fmu`'s keywords (variables, step size,
+        FMI version, description, ...), passed on unchanged; ``nx`` defaults to the step's
+        state size.
+
+    Returns
+    -------
+    Path
+        The FMU written.
+
+    Raises
+    ------
+    ExportError
+        Code generation or compilation failed, or the FMU could not be written.
+    """
+    import tempfile
+
+    from .fmu_build import build_fmu
+
+    init, output, update, _ = step_system_functions(step)
+    build_options.setdefault("nx", step.size1_in(0))
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        generated = write_system_c((init, output, update), tmp)
+        try:
+            out = build_fmu(path, model_identifier=model_identifier + ("_me" if fmi_type == "me" else ""),
+                            system_sources=[model_source_dir() / "model_system.c", *generated],
+                            interface=fmi_type, **build_options)
+        except ExportError:
+            raise
+        except OSError as exc:
+            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return Path(out)
 
 
 def ticks_per_sample(model) -> int:
@@ -827,47 +1101,38 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
     sample k; model identifier suffixed ``_me``).
     """
-    import tempfile
     import time
 
     from .. import __version__
-    from .fmu_build import build_fmu
 
     _check_variant(variant)
     t0 = time.perf_counter()
     outputs, inputs, parameters = fmu_variables(model, variant)
     lat = latency_samples(model, variant)
-    with tempfile.TemporaryDirectory(prefix="lpvpc-export-") as tmp:
-        generated = generate_c(model, tmp, variant)
-        t1 = time.perf_counter()
-        build_timings = {}
-        try:
-            out = build_fmu(
-                path,
-                model_identifier={"sampled": "lpvpc_model", "causal": "lpvpc_model_causal",
-                                  "exact": "lpvpc_model_exact"}[variant] + ("_me" if fmi_type == "me" else ""),
-                system_sources=[model_source_dir() / "model_system.c", *generated],
-                nx=state_layout(model, variant).size,
-                step_size=1.0 / float(model.fs),
-                outputs=outputs,
-                inputs=inputs,
-                parameters=parameters,
-                fmi_version=fmi_version,
-                description=fmu_description(model, variant),
-                version=f"lpvpc {__version__} model {model.model_hash[:12]}",
-                latency=lat / float(model.fs),
-                reuse_existing=reuse_existing,
-                timings=build_timings,
-                interface=fmi_type,
-                # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the default variant
-                ticks_per_sample=ticks_per_sample(model) if variant == "sampled" and fmi_type == "cs" else 0,
-                constants=fmu_constants(model, variant),
-            )
-        except ExportError:
-            raise
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
-    if timings is not None:
-        timings.update(codegen=t1 - t0, compile=build_timings.get("compile", 0.0), total=time.perf_counter() - t0,
-                       build=build_timings)
+    step = step_function(model, variant, parametric=True)
+    build_timings = {}
+    out = build_step_fmu(
+        path, step,
+        model_identifier={"sampled": "lpvpc_model", "causal": "lpvpc_model_causal",
+                          "exact": "lpvpc_model_exact"}[variant],
+        fmi_type=fmi_type,
+        nx=state_layout(model, variant).size,
+        step_size=1.0 / float(model.fs),
+        outputs=outputs,
+        inputs=inputs,
+        parameters=parameters,
+        fmi_version=fmi_version,
+        description=fmu_description(model, variant),
+        version=f"lpvpc {__version__} model {model.model_hash[:12]}",
+        latency=lat / float(model.fs),
+        reuse_existing=reuse_existing,
+        timings=build_timings,
+        # co-simulation: the wrapper's sampled mode (base tick ~1 ms) for the default variant
+        ticks_per_sample=ticks_per_sample(model) if variant == "sampled" and fmi_type == "cs" else 0,
+        constants=fmu_constants(model, variant),
+    )
+    t2 = time.perf_counter()
+    if timings is not None:  # codegen: the variables and the C code, everything but build_fmu
+        timings.update(codegen=t2 - t0 - build_timings.get("total", 0.0), compile=build_timings.get("compile", 0.0),
+                       total=t2 - t0, build=build_timings)
     return Path(out)

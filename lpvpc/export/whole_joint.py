@@ -41,7 +41,7 @@ import numpy as np
 
 from ..models import equations as eq
 from ..models.basis import Basis, CasadiOps, basis_from_data
-from ..errors import DataError, ExportError, ModelFileError, non_finite_problem
+from ..errors import DataError, ModelFileError, non_finite_problem
 
 __all__ = ["WholeJointModel", "WholeJointPrediction", "fit_quasi_static", "fit_whole_joint",
            "whole_joint_step", "export_whole_joint_casadi", "export_whole_joint_fmu", "latency_samples",
@@ -311,14 +311,21 @@ def whole_joint_step(wj: WholeJointModel, parametric: bool = False, name: str = 
 
 
 def export_whole_joint_casadi(wj: WholeJointModel, path) -> Path:
-    """Save the (non-parametric) step with ``Function.save``; run a record with
-    ``lpvpc.export.exporter.trajectory_function`` (inputs ``state`` = zeros, ``angle`` = 1 x n row)."""
-    path = Path(path)
-    try:
-        whole_joint_step(wj).save(str(path))
-    except (OSError, RuntimeError) as exc:
-        raise ExportError(f"{path}: could not save the CasADi function ({exc})") from None
-    return path
+    """Save the (non-parametric) step with ``Function.save`` and its metadata in
+    ``<path>.json`` (:func:`lpvpc.export.exporter.save_casadi`: tick, latency, units, names, initial
+    state); run a record with ``lpvpc.export.exporter.trajectory_function`` (inputs ``state`` = zeros,
+    ``angle`` = 1 x n row), or load both with :func:`lpvpc.export.exporter.load_casadi`."""
+    from .exporter import save_casadi
+
+    L, T = latency_samples(wj), 1.0 / wj.fs
+    meta = {"kind": "whole-joint", "variant": "exact", "fs": wj.fs, "tick_s": T, "sample_period_s": T,
+            "latency_samples": L, "latency_s": L * T,
+            "units": {"state": "the previous call's next_state", "angle": "rad", "next_state": "(state)",
+                      **{n: u.replace("N.m", "N m") for n, (u, _) in _OUTPUT_INFO.items()}},
+            "inertia": {"kg_m2": None, "in_torque": True,
+                        "note": "the intrinsic impulse response contains the foot's inertia: do not add it again"},
+            "cutoff_hz": wj.cutoff, "model_hash": wj.model.model_hash}
+    return save_casadi(whole_joint_step(wj), path, meta)
 
 
 def replay(wj: WholeJointModel, angle) -> dict:
@@ -336,33 +343,18 @@ def replay(wj: WholeJointModel, angle) -> dict:
     return {k: np.asarray(ca.DM(out[k])).ravel()[L:] for k in OUTPUT_NAMES}
 
 
-def _system_functions(wj):
-    import casadi as ca
-
-    step = whole_joint_step(wj, parametric=True)
-    nx, npar = step.size1_in("state"), step.size1_in("params")
-    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", 1), ca.SX.sym("p", npar)
-    res = step(x, u, p)
-    init = ca.Function("lpvpc_model_initial", [p], [ca.SX.zeros(nx)], ["p"], ["x0"])
-    output = ca.Function("lpvpc_model_output", [x, u, p], [ca.vertcat(*res[1:])], ["x", "u", "p"], ["y"])
-    update = ca.Function("lpvpc_model_update", [x, u, p], [res[0]], ["x", "u", "p"], ["x_next"])
-    deps = {n: (["angle"] if ca.depends_on(res[1 + k], u) else []) for k, n in enumerate(OUTPUT_NAMES)}
-    return (init, output, update), deps, nx
-
-
 def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
                            fmi_type: str = "cs") -> Path:
     """The whole-joint model as an FMI 2.0 or 3.0 co-simulation FMU (input ``angle`` rad,
     outputs :data:`OUTPUT_NAMES`, step 1/fs, outputs of sample k - L; parameters: the
     LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz);
     ``fmi_type="me"``: Model Exchange, a time event per sample (see :func:`lpvpc.export.exporter.export_fmu`)."""
-    import tempfile
-
     from .. import __version__
-    from .exporter import fmu_parameter_name, model_source_dir, write_system_c
-    from .fmu_build import FmuVariable, build_fmu
+    from .exporter import build_step_fmu, fmu_parameter_name, step_system_functions
+    from .fmu_build import FmuVariable
 
-    functions, deps, nx = _system_functions(wj)
+    step = whole_joint_step(wj, parametric=True)
+    deps = step_system_functions(step)[3]
     names, values, info = _parameter_blocks(wj)
     outputs = [FmuVariable(n, "output", _OUTPUT_INFO[n][0], _OUTPUT_INFO[n][1], dependencies=deps[n])
                for n in OUTPUT_NAMES]
@@ -377,14 +369,8 @@ def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, r
                    f"the angle minus it. Outputs are those of {L} samples earlier (latency {L / wj.fs!r} s; 0 before "
                    f"that). Sample rate {wj.fs!r} Hz. Operating angle outside [{lo!r}, {hi!r}] rad: the cascade is "
                    f"{wj.model.beyond_range}, the curve continues linearly.")
-    with tempfile.TemporaryDirectory(prefix="lpvpc-whole-joint-") as tmp:
-        generated = write_system_c(functions, tmp)
-        try:
-            return Path(build_fmu(path, model_identifier="lpvpc_whole_joint" + ("_me" if fmi_type == "me" else ""),
-                                  system_sources=[model_source_dir() / "model_system.c", *generated], nx=nx,
-                                  step_size=1.0 / wj.fs, outputs=outputs, inputs=inputs, parameters=parameters,
-                                  fmi_version=fmi_version, description=description,
-                                  version=f"lpvpc {__version__} model {wj.model.model_hash[:12]}",
-                                  latency=L / wj.fs, reuse_existing=reuse_existing, interface=fmi_type))
-        except OSError as exc:
-            raise ExportError(f"{path}: could not write the FMU ({exc})") from None
+    return build_step_fmu(path, step, model_identifier="lpvpc_whole_joint", fmi_type=fmi_type,
+                          prefix="lpvpc-whole-joint-", step_size=1.0 / wj.fs, outputs=outputs, inputs=inputs,
+                          parameters=parameters, fmi_version=fmi_version, description=description,
+                          version=f"lpvpc {__version__} model {wj.model.model_hash[:12]}", latency=L / wj.fs,
+                          reuse_existing=reuse_existing)

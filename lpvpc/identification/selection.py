@@ -55,6 +55,7 @@ from ..models.basis import Basis, basis_from_data
 from ..models.intrinsic import curvature_regressor, intrinsic_regressor, two_sided_lags
 from ..models.reflex import reflex_input_regressor, reflex_response_regressor
 from ..io.segments import Segments
+from .crossval import fold_fits, held_out_sse, solve_normal
 
 #: Candidate values of each selected setting (IRF half-widths in s, delays in s).
 SEARCH = {
@@ -539,8 +540,7 @@ def in_sample_vaf(p, Y, rho, fs, dynamics, settings: dict, family="chebyshev", v
                 family, velocity_family, dynamics, top, (), segments)
     idx, cur = D.columns(L, top[1], top[2], top[3], d, bool(settings["elastic_curvature"]))
     G, b = _mapped(D.G[0], D.b[0].T, idx, cur)  # b: (k, columns)
-    s = np.sqrt(np.maximum(np.diag(G), 1e-300))
-    theta = (np.linalg.solve(G / np.outer(s, s) + RIDGE * np.eye(len(idx)), (b / s).T) / s[:, None]).T
+    theta = solve_normal(G, b.T, RIDGE).T
     Y = Y[labels == 0]
     sse = np.einsum("ij,ij->j", Y, Y) - 2.0 * np.einsum("ki,ki->k", theta, b) + np.einsum("ki,ij,kj->k", theta, G, theta)
     return 100.0 * (1.0 - sse / np.sum((Y - Y.mean(axis=0)) ** 2, axis=0))
@@ -637,13 +637,10 @@ class StructureSearch:
         D = self.design
         idx, cur = self.columns(settings)
         Gc, bc = _mapped(D.G, D.b, idx, cur)  # (K, n, n), (K, n): each fold's rows
-        Gt, bt = Gc.sum(axis=0) - Gc, bc.sum(axis=0) - bc  # each fold's training rows
-        s = np.sqrt(np.maximum(np.einsum("kii->ki", Gt), 1e-300))
-        A = Gt / (s[:, :, None] * s[:, None, :]) + RIDGE * np.eye(len(idx))
-        theta = np.linalg.solve(A, (bt / s)[:, :, None])[:, :, 0] / s
+        theta = fold_fits(Gc, bc, RIDGE)[0]  # each fit on the other folds' rows
         for f, (Ge, be) in D.end[settings["scheduling_extrapolation"]].items():  # end folds: their own rule
             Gc[f], bc[f] = _mapped(Ge, be, idx, cur)
-        sse = self.yy - 2.0 * np.einsum("ki,ki->k", theta, bc) + np.einsum("ki,kij,kj->k", theta, Gc, theta)
+        sse = held_out_sse(self.yy, theta, Gc, bc)
         out = Scored(dict(settings), len(idx), sse, 100.0 * (1.0 - float(sse.sum()) / self.sst))
         self._cache[key] = out
         return out

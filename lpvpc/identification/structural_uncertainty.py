@@ -226,6 +226,7 @@ def _refit(search, settings):
     """(theta, L, d): a structure's parameters refitted to the whole record (its columns of
     the search's largest regressor, the reflex dynamics held), IRF half-width and reflex
     delay in samples."""
+    from .crossval import solve_normal
     from .selection import RIDGE, _mapped
 
     D = search.design
@@ -234,8 +235,7 @@ def _refit(search, settings):
     d = max(1, int(round(settings["reflex_delay"] * fs)))
     idx, cur = search.columns(settings)
     G, b = _mapped(D.G.sum(axis=0), D.b.sum(axis=0), idx, cur)
-    s = np.sqrt(np.maximum(np.diag(G), 1e-300))
-    return np.linalg.solve(G / np.outer(s, s) + RIDGE * np.eye(len(idx)), b / s) / s, L, d
+    return solve_normal(G, b, RIDGE), L, d
 
 
 def _refit_irf(search, settings) -> np.ndarray:

@@ -33,5 +33,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "matfiles": ["split_variable"],
     "readers": ["PERTURBATION_EMG", "load_trial"],
     "trial": ["ANGLE_CHANNELS", "GRID_TOLERANCE", "JITTER_TOLERANCE", "OPTIONAL_CHANNELS", "RATE_TOLERANCE",
-              "REQUIRED_CHANNELS", "Trial", "check_trial", "grid_deviation", "trial_problems", "write_trial_csv"],
+              "REQUIRED_CHANNELS", "Trial", "check_model_rate", "check_trial", "grid_deviation", "trial_problems", "write_trial_csv"],
 })

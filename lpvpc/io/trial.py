@@ -33,6 +33,41 @@ GRID_TOLERANCE = 0.1
 RATE_TOLERANCE = 1e-4
 
 
+
+def check_model_rate(fs, model_fs, *, what: str = "data", source=None, tolerance: float = RATE_TOLERANCE) -> None:
+    """Refuse data whose sampling rate is not the model's: the one rate check of every door
+    that gives a model a record (``lpvpc predict``, the diagnosis, the validation harness).
+
+    Parameters
+    ----------
+    fs : float
+        Sampling rate of the data, Hz.
+    model_fs : float
+        The model's sampling rate, Hz.
+    what : str
+        What the data are, for the message ("data", "record").
+    source : str, optional
+        The file the data came from, named in the error.
+    tolerance : float
+        Largest relative difference accepted (default :data:`RATE_TOLERANCE`).
+
+    Raises
+    ------
+    DataError
+        The rates differ by more than ``tolerance`` of the model's.
+
+    Examples
+    --------
+    >>> check_model_rate(100.0, 100.0)
+    >>> check_model_rate(1000.0, 100.0, source="later.csv")
+    Traceback (most recent call last):
+    ...
+    lpvpc.errors.DataError: later.csv: sampling rate 1000 Hz of the data differs from the model's 100 Hz
+    """
+    if abs(float(fs) - float(model_fs)) > tolerance * float(model_fs):
+        raise DataError(f"sampling rate {float(fs):g} Hz of the {what} differs from the model's {float(model_fs):g} Hz",
+                        source=source or None)
+
 @dataclass
 class Trial:
     """One recorded (or simulated) trial: time (s), position (rad), torque (N m) and

@@ -508,25 +508,28 @@ class LPVPCModel:
             signals = signals_from_data(data, self)  # activation with this model's reflex drive, as improve fits it
         return data.position, data.scheduling, signals
 
-    def export_fmu(self, path, fmi_version: int = 2, variant: str = "sampled", **options):
+    def export_fmu(self, path, fmi_version: int = 2, variant: str | None = None, **options):
         """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
         path. Thin method over :func:`lpvpc.export.exporter.export_fmu` (which documents variables,
-        units and ``variant``). The default is what ``lpvpc export --fmu`` makes:
-        ``"sampled"``, inputs position and scheduling only, derivatives computed inside, a
-        declared latency (2 samples with the default 5-point differences), the same timing
-        in every co-simulation master (README, "timing contract"); ``"causal"`` takes
-        velocity and acceleration inputs and has direct feedthrough; ``"exact"`` is the
-        two-sided IRF delayed by L samples."""
-        from ..export.exporter import export_fmu
+        units and ``variant``). The default, :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, is what
+        ``lpvpc export --fmu`` makes: ``"sampled"``, inputs position and scheduling only,
+        derivatives computed inside, a declared latency (2 samples with the default 5-point
+        differences), the same timing in every co-simulation master (README, "timing
+        contract"); ``"causal"`` takes velocity and acceleration inputs and has direct
+        feedthrough; ``"exact"`` is the two-sided IRF delayed by L samples."""
+        from ..export.exporter import DEFAULT_VARIANT, export_fmu
 
-        return export_fmu(self, path, fmi_version=fmi_version, variant=variant, **options)
+        return export_fmu(self, path, fmi_version=fmi_version, variant=variant or DEFAULT_VARIANT, **options)
 
-    def export_casadi(self, path, variant: str = "causal"):
-        """Save the model's CasADi step function to ``path`` (``casadi.Function.load``
-        reads it back); returns the path. See :func:`lpvpc.export.exporter.export_casadi`."""
-        from ..export.exporter import export_casadi
+    def export_casadi(self, path, variant: str | None = None):
+        """Save the model's CasADi step function to ``path`` with its metadata in
+        ``<path>.json``; returns the path. ``variant`` defaults to
+        :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, what ``lpvpc export --casadi`` writes.
+        ``casadi.Function.load`` reads the function back, :func:`lpvpc.export.exporter.load_casadi`
+        the function with its metadata. See :func:`lpvpc.export.exporter.export_casadi`."""
+        from ..export.exporter import DEFAULT_VARIANT, export_casadi
 
-        return export_casadi(self, path, variant=variant)
+        return export_casadi(self, path, variant=variant or DEFAULT_VARIANT)
 
     def _high_rate_of(self, data):
         """The data's high-rate signals if this model identified its nonlinearity at their rate."""

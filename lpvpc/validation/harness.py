@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from lpvpc.models import equations as eq
-from lpvpc.io import (RATE_TOLERANCE, Trial, decimate_signal, load_trial, pair_trials, perturbation_file_trials,
+from lpvpc.io import (Trial, check_model_rate, decimate_signal, load_trial, pair_trials, perturbation_file_trials,
                         split_variable, stationary_ut, to_multiple_rate)
 from lpvpc.errors import DataError, FMUError, OutOfRangeWarning
 from lpvpc.export.exporter import latency_samples
@@ -154,9 +154,7 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     pt_t, ut_t = (to_multiple_rate(tr, model.fs) for tr in trials)
     # the recording's channel skew, undone as at identification (lpvpc.identification.channel_skew)
     measured = pair_trials(pt_t, ut_t, target_fs=model.fs, channel_skew=conv.get("channel_skew_s", 0.0))
-    if abs(measured.fs - model.fs) > RATE_TOLERANCE * model.fs:
-        raise DataError(f"sampling rate {measured.fs:g} Hz of the record differs from the model's {model.fs:g} Hz",
-                        source=measured.source or None)
+    check_model_rate(measured.fs, model.fs, what="record", source=measured.source)
     measured.meta.update(position_unit=position_unit, torque_sign=torque_sign)
     return Record(pt_t, ut_t, measured, files, fs_file=None if pt_t.fs == fs_file else float(fs_file))
 
