@@ -1,20 +1,29 @@
 """The subspace LPV parallel-cascade identification (Sobhani Tehrani et al., EMBC 2014).
 
-Steps (equation numbers of the seed paper):
+Steps (equation numbers of the seed paper), each a method of :class:`LPVPCEstimator`
+called in this order by ``_fit``:
 
-1. regressors: intrinsic Psi_i (9-11) and reflex inputs U_r (17) from the bases;
-2. MOESP on the MISO form (21)-(23) gives A_r, C_r; the state order is chosen from the
-   singular values (the orders at the two largest gaps, plus order 2) and settled by BIC
-   of the complete fit, unless ``state_order`` is given; the MOESP poles are then refined
-   by variable projection on the complete fit (``PoleRefinement``; MOESP with ~70 inputs
-   leaves a bias in the poles that leaks reflex torque into the intrinsic estimate);
-3. reflex regressor Psi_r (25) by filtering U_r through C_r (zI - A_r)^-1;
-4. orthogonal projection (27)-(28): the intrinsic parameters by least squares after
-   projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y
-   without N x N matrices);
-5. reflex torque (29) and separable least squares for B, d and Omega;
-6. a causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration terms) fitted to the
-   two-sided intrinsic torque, for closed loop (the default FMU's form).
+1. ``_build_regressors``: intrinsic Psi_i (9-11) and reflex inputs U_r (17) from the bases;
+2. ``_moesp``: MOESP on the MISO form (21)-(23), from which A_r, C_r are read;
+3. ``_candidate_orders``: the state orders to fit, from the singular values (the orders at
+   the two largest gaps, plus orders 2 and 3), unless ``state_order`` is given;
+4. ``_fit_orders``, at each order (``_fit_given_order``): ``_reflex_dynamics``, the MOESP
+   poles refined by variable projection on the complete fit (``PoleRefinement``; MOESP with
+   ~70 inputs leaves a bias in the poles that leaks reflex torque into the intrinsic
+   estimate); ``_orthogonal_projection`` (25, 27-28): the reflex regressor Psi_r by
+   filtering U_r through C_r (zI - A_r)^-1, then the intrinsic parameters by least squares
+   after projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r
+   Psi_r^+) Y without N x N matrices); ``_hammerstein``: the reflex torque (29) and
+   separable least squares for B, d and Omega;
+5. ``_choose_order``: the order of least BIC of the complete fit among the stable ones;
+6. ``_intrinsic_irf``: the two-sided IRF and the elastic curvature tied to it;
+7. ``_causal_form``: a causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration
+   terms) fitted to the two-sided intrinsic torque, for closed loop (the default FMU's form);
+8. ``_reflex_nonlinearity`` and ``_new_model``: the model; ``_finish_effects``: an extended
+   model's effect terms;
+9. ``_intervals``: the confidence intervals; ``_scores`` and ``_fit_summary``: ``model.fit``.
+
+Fits inside another (the structure selection's) start from a :class:`WarmStart`.
 """
 
 from __future__ import annotations
@@ -120,6 +129,17 @@ class WarmStart:
     scan_skew : bool, default True
         Scan the fitted model's record for a channel skew; False for fits inside another,
         which scans its own model.
+
+    Examples
+    --------
+    A fit whose model is not kept, and one whose pole refinement at order 2 starts from the
+    poles of a fit at a neighbouring structure:
+
+    >>> WarmStart(bare=True).scan_skew
+    True
+    >>> warm = WarmStart(poles={2: np.diag([0.9, 0.5])})
+    >>> warm.bare, warm.subspace is None, sorted(warm.poles)
+    (False, True, [2])
     """
 
     subspace: object = None
@@ -129,7 +149,7 @@ class WarmStart:
 
 
 #: A fit inside another (no channel-skew scan: the outer fit scans its own model).
-INNER = WarmStart(scan_skew=False)
+_INNER = WarmStart(scan_skew=False)
 
 
 @dataclass
@@ -764,7 +784,7 @@ class LPVPCEstimator:
                 est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]})
                 if entry["settings"] and self.state_order is None:  # BIC's order with them (_fit_selected)
                     est.state_order = None
-                warm = INNER  # the effects' dynamics, unless their terms changed since
+                warm = _INNER  # the effects' dynamics, unless their terms changed since
                 if entry["settings"] == dyn[2]:
                     warm = WarmStart(subspace=dyn[1], poles={dyn[0].shape[0]: dyn[0]}, scan_skew=False)
                 est._fit_from(data, warm)
@@ -849,7 +869,7 @@ class LPVPCEstimator:
         entry["rule"] = ("the effect forced on: its term among the variants by the same cross-validation, "
                          "one-standard-error rule toward fewer parameters")
         if entry["settings"] != _relaxation_term_of(m):
-            est = LPVPCEstimator(**{**base, **entry["settings"]})._fit_from(data, INNER)
+            est = LPVPCEstimator(**{**base, **entry["settings"]})._fit_from(data, _INNER)
             est.model_.settings["structure"] = "cv"
             est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
             self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
@@ -862,7 +882,7 @@ class LPVPCEstimator:
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
-        est = LPVPCEstimator(**base)._fit_from(data, INNER)
+        est = LPVPCEstimator(**base)._fit_from(data, _INNER)
         est.model_.settings["structure"] = "cv"
         est.model_.fit["structure_selection"] = {"skipped": reason}
         self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
@@ -1245,7 +1265,7 @@ class LPVPCEstimator:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 try:
-                    est._fit_from(data, INNER)
+                    est._fit_from(data, _INNER)
                 except (LpvpcError, np.linalg.LinAlgError) as e:  # that candidate is out; the others stand
                     failed[c] = e
                     continue
@@ -1717,7 +1737,7 @@ def with_base_model_activation(data, settings):
     if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
             or _has_backgrounds(extra)):
         return data
-    base = LPVPCEstimator(**{**settings, "effects": ()})._fit_from(data, INNER).model_
+    base = LPVPCEstimator(**{**settings, "effects": ()})._fit_from(data, _INNER).model_
     return with_model_activation(data, base)
 
 
