@@ -475,9 +475,9 @@ def _blas_threads_inside_fit(monkeypatch, data):
     seen = []
     fit = LPVPCEstimator._fit
 
-    def spy(self, d):
+    def spy(self, d, *args, **kwargs):  # (the fit's warm start and effects' order passed on)
         seen.extend(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
-        return fit(self, d)
+        return fit(self, d, *args, **kwargs)
 
     monkeypatch.setattr(LPVPCEstimator, "_fit", spy)
     with threadpool_limits(limits=2, user_api="blas"):

@@ -24,7 +24,7 @@ import numpy as np
 from .diagnose import Diagnosis, diagnose, format_table
 from .candidates import _variant_text
 from ..models.effects import CATALOG, reads_activation, signals_from_data, with_model_activation
-from ..identification.identify import LPVPCEstimator
+from ..identification.identify import LPVPCEstimator, WarmStart
 from ..models.model import vaf
 from ..progress import report
 
@@ -146,8 +146,8 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
             # step at 96.12 % was not kept (from the base's poles: fit 97.33, held out 97.36 %);
             # seed 0 from the base's, the step fitted 96.83 % and held out 95.99 % (MOESP's: 97.15, 96.91 %)
             est = LPVPCEstimator(**st, effects=eff)
-            est._reuse = {"poles": {int(poles_from.A.shape[0]): np.asarray(poles_from.A, dtype=float)}}
-            below = est.fit(ident).model_
+            below = est._fit_from(ident, WarmStart(poles={int(poles_from.A.shape[0]): np.asarray(poles_from.A,
+                                                                                                 dtype=float)})).model_
             if below.fit["vaf"] > model.fit["vaf"]:
                 model = below
         t_fit = time.perf_counter() - t0

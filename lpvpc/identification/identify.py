@@ -1,20 +1,29 @@
 """The subspace LPV parallel-cascade identification (Sobhani Tehrani et al., EMBC 2014).
 
-Steps (equation numbers of the seed paper):
+Steps (equation numbers of the seed paper), each a method of :class:`LPVPCEstimator`
+called in this order by ``_fit``:
 
-1. regressors: intrinsic Psi_i (9-11) and reflex inputs U_r (17) from the bases;
-2. MOESP on the MISO form (21)-(23) gives A_r, C_r; the state order is chosen from the
-   singular values (the orders at the two largest gaps, plus order 2) and settled by BIC
-   of the complete fit, unless ``state_order`` is given; the MOESP poles are then refined
-   by variable projection on the complete fit (``PoleRefinement``; MOESP with ~70 inputs
-   leaves a bias in the poles that leaks reflex torque into the intrinsic estimate);
-3. reflex regressor Psi_r (25) by filtering U_r through C_r (zI - A_r)^-1;
-4. orthogonal projection (27)-(28): the intrinsic parameters by least squares after
-   projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r Psi_r^+) Y
-   without N x N matrices);
-5. reflex torque (29) and separable least squares for B, d and Omega;
-6. a causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration terms) fitted to the
-   two-sided intrinsic torque, for closed loop (the default FMU's form).
+1. ``_build_regressors``: intrinsic Psi_i (9-11) and reflex inputs U_r (17) from the bases;
+2. ``_moesp``: MOESP on the MISO form (21)-(23), from which A_r, C_r are read;
+3. ``_candidate_orders``: the state orders to fit, from the singular values (the orders at
+   the two largest gaps, plus orders 2 and 3), unless ``state_order`` is given;
+4. ``_fit_orders``, at each order (``_fit_given_order``): ``_reflex_dynamics``, the MOESP
+   poles refined by variable projection on the complete fit (``PoleRefinement``; MOESP with
+   ~70 inputs leaves a bias in the poles that leaks reflex torque into the intrinsic
+   estimate); ``_orthogonal_projection`` (25, 27-28): the reflex regressor Psi_r by
+   filtering U_r through C_r (zI - A_r)^-1, then the intrinsic parameters by least squares
+   after projecting out range(Psi_r) (Frisch-Waugh: identical to C^+ Psi_i^+ (I - Psi_r
+   Psi_r^+) Y without N x N matrices); ``_hammerstein``: the reflex torque (29) and
+   separable least squares for B, d and Omega;
+5. ``_choose_order``: the order of least BIC of the complete fit among the stable ones;
+6. ``_intrinsic_irf``: the two-sided IRF and the elastic curvature tied to it;
+7. ``_causal_form``: a causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration
+   terms) fitted to the two-sided intrinsic torque, for closed loop (the default FMU's form);
+8. ``_reflex_nonlinearity`` and ``_new_model``: the model; ``_finish_effects``: an extended
+   model's effect terms;
+9. ``_intervals``: the confidence intervals; ``_scores`` and ``_fit_summary``: ``model.fit``.
+
+Fits inside another (the structure selection's) start from a :class:`WarmStart`.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import inspect
 import math
 import time
 import warnings
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -95,6 +105,79 @@ def _records_given_settings(init):
         self._given = set(signature.bind(self, *args, **kwargs).arguments) - {"self"}
 
     return wrapper
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """Where one of the estimator's internal fits starts, and what it leaves out.
+
+    The structure selection fits the same record several times; a later fit starts from what
+    an earlier one found instead of repeating it. A fit from ``WarmStart()`` is the fit of
+    the record alone (what :meth:`LPVPCEstimator.fit` does).
+
+    Parameters
+    ----------
+    subspace : lpvpc.identification.subspace.SubspaceResult or None, default None
+        The MOESP step of an earlier fit of the same record, used instead of computing it
+        (the reflex poles do not depend on the structure's columns). None: computed.
+    poles : dict of int to numpy.ndarray, or None, default None
+        A reflex state matrix A_r by state order: the pole refinement at that order starts
+        there (the poles of a fit at a neighbouring structure) instead of at MOESP's.
+    bare : bool, default False
+        Only the reflex dynamics, the state order and the parameters: no causal form,
+        intervals, scores or physiology checks (a fit whose model is not kept).
+    scan_skew : bool, default True
+        Scan the fitted model's record for a channel skew; False for fits inside another,
+        which scans its own model.
+
+    Examples
+    --------
+    A fit whose model is not kept, and one whose pole refinement at order 2 starts from the
+    poles of a fit at a neighbouring structure:
+
+    >>> WarmStart(bare=True).scan_skew
+    True
+    >>> warm = WarmStart(poles={2: np.diag([0.9, 0.5])})
+    >>> warm.bare, warm.subspace is None, sorted(warm.poles)
+    (False, True, [2])
+    """
+
+    subspace: object = None
+    poles: dict | None = None
+    bare: bool = False
+    scan_skew: bool = True
+
+
+#: A fit inside another (no channel-skew scan: the outer fit scans its own model).
+_INNER = WarmStart(scan_skew=False)
+
+
+@dataclass
+class _Regressors:
+    """One record's regressors of both pathways and what built them (the first step of a fit)."""
+
+    data: object
+    p: np.ndarray  # perturbation position (rad)
+    y: np.ndarray  # perturbation torque (N m)
+    rho: np.ndarray  # scheduling variable (rad)
+    fs: float  # Hz
+    seg: Segments
+    delay: int  # reflex delay, samples
+    L: int  # IRF half-width, samples
+    lags: np.ndarray
+    dvel: np.ndarray  # delayed velocity (rad/s)
+    rho_orders: dict  # basis orders in rho as used (0 on a stationary trial)
+    G_i: object  # intrinsic basis in rho
+    G_r: object  # reflex basis in rho
+    V_b: object  # velocity basis
+    Gi_val: np.ndarray
+    Psi_irf: np.ndarray  # the IRF's columns
+    Psi_i: np.ndarray  # with the curvature's share and the effects' columns
+    n_base: int  # columns of Psi_i that are the IRF's
+    U_r: np.ndarray  # reflex inputs, at the high rate on that path
+    U_r_model: np.ndarray  # reflex inputs at the model rate
+    high: object  # high-rate reflex input, or None
+    design: object  # the effects' design, or None
 
 
 class LPVPCEstimator:
@@ -315,38 +398,46 @@ class LPVPCEstimator:
         the reflex nonlinearity identified on the high-rate velocity; when that fit is not determined (too few
         stretch velocities for its basis: InsufficientExcitationError) it is identified on
         the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`."""
+        return self._fit_from(data, WarmStart(), stacklevel=3)
+
+    def _fit_from(self, data, warm: WarmStart, stacklevel: int = 2) -> "LPVPCEstimator":
+        """:meth:`fit` from a warm start (:class:`WarmStart`). ``stacklevel``: the frame, counted
+        from this one, that the warnings about the record point at (2: this method's caller)."""
         from ..linalg import one_blas_thread
 
-        with one_blas_thread():  # in this frame: the warnings' stacklevels count from fit
+        with one_blas_thread():  # in this frame: the warnings' stacklevels count from here
             if isinstance(data, (list, tuple)):
                 from ..io import join_trials
 
                 data = join_trials(data)
             self.check_settings()
-            if not self._lines_up(data):
-                self._fit_once(data)
-                self._record_channel_skew(data)
+            if not self._lines_up(data, warm):
+                self._fit_once(data, warm, stacklevel)
+                self._record_channel_skew(data, warm, stacklevel)
                 return self
             # The record can be read again from its files: a late torque channel found by the
             # scan is lined up at the files' rate and the model fitted again (the first fit's
             # warnings are shown only when it stands).
             with warnings.catch_warnings(record=True) as caught:
-                self._fit_once(data)
-                found = self._scan_channel_skew(data)
+                self._fit_once(data, warm, stacklevel)
+                found = self._scan_channel_skew(data, warm)
             if found is not None and found.chosen:
-                self._fit_once(data.reload(channel_skew=found.chosen))
+                self._fit_once(data.reload(channel_skew=found.chosen), warm, stacklevel)
                 self.model_.fit["channel_skew"] = found.to_dict()
             else:
                 for w in caught:
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             return self
 
-    def _fit_once(self, data) -> None:
+    def _fit_once(self, data, warm: WarmStart, stacklevel: int = 2) -> None:
+        """One fit of the record: selected (structure="cv", whose fits have their own warm
+        starts) or as given from ``warm``; on the high-rate path, the model-rate one when the
+        high-rate fit is not determined. ``stacklevel`` as in :meth:`_fit_from`."""
         if self.structure == "cv":
             self._fit_selected(data)
             return
         try:
-            self._fit(data)
+            self._fit(data, warm)
         except InsufficientExcitationError as exc:
             if getattr(data, "high_rate", None) is None or self.effects or not self.high_rate_reflex:
                 raise
@@ -356,23 +447,23 @@ class LPVPCEstimator:
 
             warnings.warn(f"the reflex nonlinearity could not be identified on the {data.high_rate.fs:g} Hz "
                           f"velocity ({exc}); identified on the {data.fs:g} Hz velocity instead (its threshold "
-                          f"is biased)", LpvpcWarning, stacklevel=3)
-            self._fit(replace(data, high_rate=None))
+                          f"is biased)", LpvpcWarning, stacklevel=stacklevel + 1)
+            self._fit(replace(data, high_rate=None), warm)
 
-    def _lines_up(self, data) -> bool:
+    def _lines_up(self, data, warm: WarmStart) -> bool:
         """Whether this fit lines a late torque channel up itself: a top-level fit of a record
         that can be read again from its files (``data.origin``) and whose channel skew the
         loader was not given."""
         origin = getattr(data, "origin", None)
         meta = getattr(data, "meta", {}) or {}
-        return (origin is not None and "channel_skew" not in origin.given and getattr(self, "_scan_skew", True)
-                and not getattr(self, "_reuse", {}).get("bare") and "position_delay_s" not in meta)
+        return (origin is not None and "channel_skew" not in origin.given and warm.scan_skew
+                and not warm.bare and "position_delay_s" not in meta)
 
-    def _record_channel_skew(self, data) -> None:
+    def _record_channel_skew(self, data, warm: WarmStart, stacklevel: int = 2) -> None:
         """Scan for a channel skew (:meth:`_scan_channel_skew`) and warn, naming the fix, when
         lining the channels up would remove at least MIN_RESIDUAL_REDUCTION of the residual
         variance: for records this fit cannot read again, or whose skew was given."""
-        found = self._scan_channel_skew(data)
+        found = self._scan_channel_skew(data, warm)
         if found is not None and found.chosen:
             from ..errors import LpvpcWarning
 
@@ -380,16 +471,16 @@ class LPVPCEstimator:
                           f"recording artefact: lining them up removes {100 * found.residual_reduction:.1f} % of the "
                           f"residual variance); load the files with channel_skew={found.chosen:.5f}, or leave "
                           f"channel_skew out of load_identification_data and identify lines them up itself",
-                          LpvpcWarning, stacklevel=4)
+                          LpvpcWarning, stacklevel=stacklevel + 2)
 
-    def _scan_channel_skew(self, data):
+    def _scan_channel_skew(self, data, warm: WarmStart):
         """The channel skew the fitted model sees in its data
         (:func:`lpvpc.identification.skew_scan.scan_channel_skew`, about one least-squares
         solve), recorded in ``model.fit["channel_skew"]``; None where no scan applies: the
         fits inside identify, data already aligned, stationary records and models with
         effects (where the scan takes the misfit for a skew)."""
         meta = getattr(data, "meta", {}) or {}
-        if getattr(self, "_reuse", {}).get("bare") or not getattr(self, "_scan_skew", True) \
+        if warm.bare or not warm.scan_skew \
                 or "channel_skew_s" in meta or "position_delay_s" in meta or not hasattr(data, "meta"):
             return None
         if self.model_.effects or float(np.ptp(np.asarray(data.scheduling, dtype=float))) < self.stationary_range:
@@ -464,10 +555,9 @@ class LPVPCEstimator:
                 self._choose_forced_relaxation_term(data, base)
             return self
         first = LPVPCEstimator(**base)
-        first._reuse = {"bare": True}  # no intervals, causal form or scores: computed once, for the model kept
         with warnings.catch_warnings():  # the model kept gives its own warnings
             warnings.simplefilter("ignore")
-            first._fit(data)
+            first._fit(data, WarmStart(bare=True))  # no intervals, causal form or scores: computed once, for the model kept
         m = first.model_
         fs = m.fs
         start = {"irf_length": m.settings["irf_lags"] / fs, "intrinsic_order": self.intrinsic_order,
@@ -536,21 +626,21 @@ class LPVPCEstimator:
                 # subject seed 1, 100 Hz: order 3, K +19 %; BIC with them: order 2, K within 3 %)
                 chosen["state_order"] = None
         est = LPVPCEstimator(**{**base, **chosen})
-        est._reuse = {"subspace": first.subspace_}
+        warm = WarmStart(subspace=first.subspace_)
         if effect_poles is not None and "effects" in chosen:  # the effects' own subspace step
             # (the first fit's poles take part of a relaxation), unless their terms changed since
             A_e = effect_poles[0]
-            est._reuse = ({"subspace": effect_poles[1], "poles": {A_e.shape[0]: A_e}}
-                          if effects_cv["settings"] == effect_poles[2] else {})
+            warm = (WarmStart(subspace=effect_poles[1], poles={A_e.shape[0]: A_e})
+                    if effects_cv["settings"] == effect_poles[2] else WarmStart())
         elif sel.chosen != {k: start[k] for k in sel.chosen} or order != bic_order:  # another structure: its
             # refinement starts at the first fit's poles of that order (fewer steps than from MOESP's)
-            est._reuse["poles"] = {order: first._order_dynamics[order][0]}
+            warm = WarmStart(subspace=first.subspace_, poles={order: first._order_dynamics[order][0]})
         if path is not None and path.chosen["high_rate_reflex"]:
             est = self._fit_high_rate_chosen(data, est, path, first, order)
         else:  # effects chosen: joined in the subspace step, as in the fit whose dynamics the CV held
             # (fitted both ways, the fit after the reflex was kept on seed 10 of the virtual subject
             # that relaxes, 100 Hz: in-sample VAF alike, its reflex had taken the relaxing torque, K -16 %)
-            est._fit(data, late=False if "effects" in chosen else None)
+            est._fit(data, warm, late=False if "effects" in chosen else None)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
         est.model_.fit["state_order_candidates"] = m.fit["state_order_candidates"]  # BIC at the starting structure
@@ -609,12 +699,11 @@ class LPVPCEstimator:
                 fit.state_order = None
             # its own subspace step: started from the first fit's (no effect columns) the pole refinement
             # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
-            # 95.25; from its own, 97.19 and 96.13)
-            fit._reuse = {"bare": True}
+            # 95.25; from its own, 97.19 and 96.13); bare: the model is not kept
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    fit._fit(data, late=False)
+                    fit._fit(data, WarmStart(bare=True), late=False)
             except (LpvpcError, np.linalg.LinAlgError):
                 return None, None, None
             e = fit.model_
@@ -692,12 +781,13 @@ class LPVPCEstimator:
             if entry is None:
                 return
             if entry["chosen"]:
-                est = _inner(LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]}))
+                est = LPVPCEstimator(**{**settings, "effects": tuple(entry["chosen"]), **entry["settings"]})
                 if entry["settings"] and self.state_order is None:  # BIC's order with them (_fit_selected)
                     est.state_order = None
+                warm = _INNER  # the effects' dynamics, unless their terms changed since
                 if entry["settings"] == dyn[2]:
-                    est._reuse = {"subspace": dyn[1], "poles": {dyn[0].shape[0]: dyn[0]}}
-                est.fit(data)
+                    warm = WarmStart(subspace=dyn[1], poles={dyn[0].shape[0]: dyn[0]}, scan_skew=False)
+                est._fit_from(data, warm)
                 est.model_.settings["stationary_delays"] = m.settings["stationary_delays"]  # the delay: BIC's
                 est.model_.settings["state_order"] = self.state_order  # (chosen by BIC)
                 if "stationary_delay_bic" in m.fit:
@@ -747,14 +837,12 @@ class LPVPCEstimator:
         step is reused: with the order given and a start, only its record (singular values)
         is read, not its poles. Not determined (InsufficientExcitationError): the model-rate
         fit, the reason recorded."""
-        reuse = {"subspace": first.subspace_, "poles": {order: first._order_dynamics[order][0]}}
-        est._reuse = dict(reuse)
+        warm = WarmStart(subspace=first.subspace_, poles={order: first._order_dynamics[order][0]})
         try:
-            est._fit(data)
+            est._fit(data, warm)
         except InsufficientExcitationError as exc:
             fallback = LPVPCEstimator(**{**est.get_params(), "high_rate_reflex": False})
-            fallback._reuse = dict(reuse)
-            fallback._fit(data)
+            fallback._fit(data, warm)
             path.chosen = {"high_rate_reflex": False}
             path.fallback = f"the high-rate fit was not determined ({exc}): model-rate velocity"
             return fallback
@@ -781,7 +869,7 @@ class LPVPCEstimator:
         entry["rule"] = ("the effect forced on: its term among the variants by the same cross-validation, "
                          "one-standard-error rule toward fewer parameters")
         if entry["settings"] != _relaxation_term_of(m):
-            est = _inner(LPVPCEstimator(**{**base, **entry["settings"]})).fit(data)
+            est = LPVPCEstimator(**{**base, **entry["settings"]})._fit_from(data, _INNER)
             est.model_.settings["structure"] = "cv"
             est.model_.fit["structure_selection"] = dict(m.fit["structure_selection"])
             self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
@@ -794,13 +882,13 @@ class LPVPCEstimator:
 
     def _fit_unselected(self, data, base, reason) -> "LPVPCEstimator":
         """structure="cv" where the structure cannot be selected: the settings as given, the reason recorded."""
-        est = _inner(LPVPCEstimator(**base)).fit(data)
+        est = LPVPCEstimator(**base)._fit_from(data, _INNER)
         est.model_.settings["structure"] = "cv"
         est.model_.fit["structure_selection"] = {"skipped": reason}
         self.model_, self.subspace_, self.n_features_ = est.model_, est.subspace_, est.n_features_
         return self
 
-    def _fit_both_ways(self, data) -> "LPVPCEstimator":
+    def _fit_both_ways(self, data, warm: WarmStart = WarmStart()) -> "LPVPCEstimator":
         """Effects that may be fitted ``after_reflex`` (lpvpc.models.effects.Effect): the fit with
         them in the subspace step's intrinsic regressor and the fit with them joining only
         the final solve, the identified reflex held; the better in-sample fit is kept (same
@@ -811,7 +899,7 @@ class LPVPCEstimator:
         def fit(late):  # its warnings, told only for the fit kept (each fit warns alike, in other numbers)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                self._fit(data, late=late)
+                self._fit(data, warm, late=late)
             return caught
 
         told_early = fit(False)
@@ -827,18 +915,79 @@ class LPVPCEstimator:
         self.model_.fit["timings_s"]["total"] = total  # both fits
         return self
 
-    def _fit(self, data, late=None) -> "LPVPCEstimator":
+    def _fit(self, data, warm: WarmStart = WarmStart(), late=None) -> "LPVPCEstimator":
+        """Identify the model at the settings as given, as the paper's steps in order.
+
+        Parameters
+        ----------
+        data : lpvpc.io.PerturbationData
+            The record, or trials joined (nothing crosses a seam).
+        warm : WarmStart, default WarmStart()
+            What an earlier fit of the same record gives this one (the structure selection's
+            refits start from it instead of repeating it).
+        late : bool or None, default None
+            Effects' columns in the final solve only (True) or also in the subspace step
+            (False); None: both fits for effects that may come after the reflex, else False.
+
+        Returns
+        -------
+        LPVPCEstimator
+            self, with ``model_``, ``subspace_`` and ``n_features_``.
+        """
         from ..models.effects import CATALOG
-        from ..models.model import LPVPCModel, vaf
-        from ..models.reflex import reflex_input_regressor
-        from .subspace import STABLE_POLE_RADIUS, PoleRefinement, candidate_orders, po_moesp
 
         t0 = time.perf_counter()
         timings = {}
         if self._searches_delay(data):  # (fit joined a list of trials)
             return self._fit_stationary_delays(data)
         if late is None and any(CATALOG[n].after_reflex for n in self.effects if n in CATALOG):
-            return self._fit_both_ways(data)
+            return self._fit_both_ways(data, warm)
+        reg = self._build_regressors(data, late)
+        timings["regressors"] = time.perf_counter() - t0
+
+        t = time.perf_counter()
+        sub = self._moesp(reg, warm)
+        timings["moesp"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        fits, failed = self._fit_orders(reg, sub, self._candidate_orders(sub), warm)
+        m_best, bic = self._choose_order(fits, len(reg.y))
+        best = fits[m_best]
+        self._order_dynamics = {m: (f["A"], np.reshape(f["C"], (1, -1)), np.append(f["hammerstein"].b, f["hammerstein"].d))
+                                for m, f in fits.items() if m in bic}  # (structure selection compares them)
+        timings["projection_and_reflex"] = time.perf_counter() - t
+
+        H, curvature = self._intrinsic_irf(reg, best)
+        causal, H_causal = self._causal_form(reg, best, warm.bare)
+        Omega, high_nl = self._reflex_nonlinearity(reg, best)
+        model = self._new_model(reg, best, H, curvature, causal, H_causal, Omega, high_nl)
+        signals = self._finish_effects(reg, model, best)
+        if not warm.bare:  # the selection's first fit: only its dynamics and order are used
+            t = time.perf_counter()
+            self._intervals(reg, model, best)
+            timings["uncertainty"] = time.perf_counter() - t
+        timings["total"] = time.perf_counter() - t0
+        scores = (float("nan"), float("nan")) if warm.bare else self._scores(reg, model, signals)
+        model.fit = self._fit_summary(reg, model, sub, best, m_best, bic, failed, scores, warm.bare, timings)
+        if reg.design is not None and any(fe.name == "stress_relaxation" for fe in model.effects):
+            from ..models.effects import relaxation_stiffness_entry
+
+            model.fit["stiffness"] = relaxation_stiffness_entry(model)  # short-range and relaxed, labelled
+        if not warm.bare:
+            check_physiology(model)
+        self.model_ = model
+        self.subspace_ = sub
+        self.n_features_ = reg.Psi_i.shape[1] + reg.U_r.shape[1]
+        return self
+
+    # The steps of _fit, in order ---------------------------------------------------------
+    def _build_regressors(self, data, late) -> _Regressors:
+        """The regressors of both pathways: the intrinsic Psi_i (eq. 9-11, with the elastic
+        curvature and the effects' columns) and the reflex inputs U_r (eq. 17), checked for
+        rank. Why first: a record that cannot determine them fails before the costly steps."""
+        from ..models.effects import CATALOG
+        from ..models.reflex import reflex_input_regressor
+
         p, y, rho, fs = self._checked(data)
         seg = Segments.of(data, len(y))  # several trials: nothing crosses a seam (lpvpc.io.segments)
         delay = int(round(self.reflex_delay * fs))
@@ -858,10 +1007,10 @@ class LPVPCEstimator:
         if self.elastic_curvature:  # tied to the IRF's stiffness: each lag's column gains 0.5 K' p^2's share
             Psi_i = Psi_irf + np.tile(curvature_regressor(p, Gi_val, G_i), len(lags))
         n_base = Psi_i.shape[1]  # columns beyond belong to effects
-        U_r = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
+        U_r = U_r_model = reflex_input_regressor(V_b.evaluate(dvel), Gr_val)
         high = _high_rate_input(self, data, G_r)  # None unless the file's rate exceeds the model's
         if high is not None:  # the rectifier acts on the high-rate velocity (lpvpc.models.reflex.high_rate_input)
-            U_r_model, U_r = U_r, high.U_r
+            U_r = high.U_r
         design = None
         if self.effects and len(seg) > 1:
             raise DataError(f"effects are identified from one trial; got {len(seg)} trials")
@@ -885,139 +1034,200 @@ class LPVPCEstimator:
 
         check_full_rank(triangular_factor(Psi_i), "intrinsic")
         check_full_rank(triangular_factor(U_r), "reflex input")
-        timings["regressors"] = time.perf_counter() - t0
+        return _Regressors(data=data, p=p, y=y, rho=rho, fs=fs, seg=seg, delay=delay, L=L, lags=lags, dvel=dvel,
+                           rho_orders=rho_orders, G_i=G_i, G_r=G_r, V_b=V_b, Gi_val=Gi_val, Psi_irf=Psi_irf,
+                           Psi_i=Psi_i, n_base=n_base, U_r=U_r, U_r_model=U_r_model, high=high, design=design)
 
-        t = time.perf_counter()
-        reuse = getattr(self, "_reuse", {})  # structure selection's refit: the first fit's subspace step
-        sub = reuse["subspace"] if "subspace" in reuse else po_moesp(U_r, Psi_i, y, self.horizon, segments=seg)
-        timings["moesp"] = time.perf_counter() - t
+    def _moesp(self, reg: _Regressors, warm: WarmStart):
+        """MOESP on the MISO form (eq. 21-23): the subspace of the reflex dynamics, from which
+        A_r and C_r of each state order are read. Why reused from ``warm``: its poles do not
+        depend on the structure's columns, and it is a quarter of a fit."""
+        from .subspace import po_moesp
 
-        t = time.perf_counter()
+        if warm.subspace is not None:
+            return warm.subspace
+        return po_moesp(reg.U_r, reg.Psi_i, reg.y, self.horizon, segments=reg.seg)
+
+    def _candidate_orders(self, sub) -> list:
+        """The reflex state orders to fit: ``state_order`` if given, else those at the two
+        largest gaps of the singular values and always 2 and 3, within the allowed range. Why
+        2 and 3: a well-damped reflex pole pair often shows as one gap at order 1."""
+        from .subspace import candidate_orders
+
         if self.state_order is not None:
-            orders = [int(self.state_order)]
-        else:
-            # The gaps alone are not enough: a well-damped reflex pole pair often shows as one
-            # gap at order 1. Orders 2 and 3 are therefore always tried; BIC of the complete
-            # fit decides (which needs each order's Hammerstein fit at its best minimum:
-            # lpvpc.models.reflex.fit_hammerstein).
-            orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2, 3})
-            orders = [m for m in orders if self.min_state_order <= m <= self.max_state_order]
-        orientation = np.sign(dvel) @ U_r  # makes Omega's output grow with stretch velocity
-        max_radius = (np.exp(-1.0 / (self.max_reflex_time_constant * fs)) if self.max_reflex_time_constant
+            return [int(self.state_order)]
+        # BIC of the complete fit decides among them (which needs each order's Hammerstein fit
+        # at its best minimum: lpvpc.models.reflex.fit_hammerstein)
+        orders = sorted(set(candidate_orders(sub.singular_values, self.max_state_order)) | {2, 3})
+        return [m for m in orders if self.min_state_order <= m <= self.max_state_order]
+
+    def _fit_orders(self, reg: _Regressors, sub, orders, warm: WarmStart):
+        """The complete fit at each candidate order (:meth:`_fit_given_order`): (fits by order,
+        errors of the orders the data cannot support); the first order's error when none fits.
+        Why each complete: the order is chosen by the BIC of the whole model."""
+        from .subspace import STABLE_POLE_RADIUS, PoleRefinement
+
+        orientation = np.sign(reg.dvel) @ reg.U_r  # makes Omega's output grow with stretch velocity
+        max_radius = (np.exp(-1.0 / (self.max_reflex_time_constant * reg.fs)) if self.max_reflex_time_constant
                       else STABLE_POLE_RADIUS)
-        refinement = PoleRefinement(U_r, Psi_i, y, segments=seg, max_radius=max_radius) if self.refine else None
+        refinement = (PoleRefinement(reg.U_r, reg.Psi_i, reg.y, segments=reg.seg, max_radius=max_radius)
+                      if self.refine else None)  # (its N-row factors freed on return)
+        starts = warm.poles or {}
         fits, failed = {}, {}
         for m in orders:
             try:
-                fits[m] = self._fit_given_order(sub, m, refinement, U_r, Psi_i, y, orientation, seg,
-                                                start=reuse.get("poles", {}).get(m), joint=high is not None)
+                fits[m] = self._fit_given_order(sub, m, refinement, reg.U_r, reg.Psi_i, reg.y, orientation, reg.seg,
+                                                start=starts.get(m), joint=reg.high is not None)
             except InsufficientExcitationError as err:  # a candidate order the data cannot support
                 failed[m] = err
         if not fits:  # every order failed: report the first
             raise failed[orders[0]]
-        n = len(y)
-        # An unstable reflex (MOESP can return a pole on or outside the unit circle, which the
-        # pole refinement cannot leave: it refuses unstable points) fits the identification
-        # record yet diverges on any later one (a lab trial: held-out VAF -1e6 %), and the
-        # model file refuses it: such orders compete only when no order is stable.
+        return fits, failed
+
+    @staticmethod
+    def _choose_order(fits: dict, n: int):
+        """The state order of least BIC among the stable fits: (order, BIC by order). Why only
+        the stable ones: an unstable reflex (MOESP can return a pole on or outside the unit
+        circle, which the pole refinement cannot leave) fits the identification record yet
+        diverges on any later one, and the model file refuses it; unstable orders compete only
+        when no order is stable."""
         stable = {m for m, f in fits.items() if np.max(np.abs(np.linalg.eigvals(f["A"]))) < 1.0}
         bic = {m: n * np.log(f["rss"] / n) + f["n_params"] * np.log(n) for m, f in fits.items()
                if m in stable or not stable}
-        m_best = min(bic, key=bic.get)
-        best = fits[m_best]
-        self._order_dynamics = {m: (f["A"], np.reshape(f["C"], (1, -1)), np.append(f["hammerstein"].b, f["hammerstein"].d))
-                                for m, f in fits.items() if m in bic}  # (structure selection compares them)
-        del refinement  # its N-row factors (a third of a 30-minute record's peak memory)
-        timings["projection_and_reflex"] = time.perf_counter() - t
+        return min(bic, key=bic.get), bic
 
-        H = best["theta_i"][:n_base].reshape(len(lags), G_i.size)
-        curvature = curvature_from_irf(H, G_i) if self.elastic_curvature else None
-        causal = list(range(0, (self.causal_lags if self.causal_lags is not None else L + 2) + 1))
-        bare = bool(reuse.get("bare"))  # structure selection's first fit: only its dynamics and order are used
+    def _intrinsic_irf(self, reg: _Regressors, best: dict):
+        """The two-sided intrinsic IRF weights H (lags x basis functions) of the chosen fit, and
+        the elastic curvature tied to its K(theta) (None when ``elastic_curvature`` is off)."""
+        H = best["theta_i"][:reg.n_base].reshape(len(reg.lags), reg.G_i.size)
+        return H, (curvature_from_irf(H, reg.G_i) if self.elastic_curvature else None)
+
+    def _causal_form(self, reg: _Regressors, best: dict, bare: bool):
+        """The causal intrinsic IRF (lags 0..Lc, plus velocity and acceleration terms): (its lags,
+        its weights), fitted to the two-sided IRF's torque. Why: closed loop (the default FMU)
+        cannot use future positions. Zeros for a bare fit (``WarmStart.bare``)."""
+        causal = list(range(0, (self.causal_lags if self.causal_lags is not None else reg.L + 2) + 1))
         if bare:
-            H_causal = np.zeros((len(causal) + 2, G_i.size))  # (no causal form)
-        else:
-            S_c = seg.map(eq.causal_signals, p, fs=fs, lags=causal, stencil=self.causal_derivatives)
-            Psi_c = (S_c[:, :, None] * Gi_val[:, None, :]).reshape(len(p), -1)
-            # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
-            H_causal = np.linalg.lstsq(Psi_c, Psi_irf @ best["theta_i"][:n_base],
-                                       rcond=None)[0].reshape(S_c.shape[1], G_i.size)
-            del Psi_c, S_c
+            return causal, np.zeros((len(causal) + 2, reg.G_i.size))  # (no causal form)
+        S_c = reg.seg.map(eq.causal_signals, reg.p, fs=reg.fs, lags=causal, stencil=self.causal_derivatives)
+        Psi_c = (S_c[:, :, None] * reg.Gi_val[:, None, :]).reshape(len(reg.p), -1)
+        # the causal form is fitted to the IRF's torque; the curvature term, static in pos(k), is shared
+        H_causal = np.linalg.lstsq(Psi_c, reg.Psi_irf @ best["theta_i"][:reg.n_base],
+                                   rcond=None)[0].reshape(S_c.shape[1], reg.G_i.size)
+        return causal, H_causal
+
+    @staticmethod
+    def _reflex_nonlinearity(reg: _Regressors, best: dict):
+        """The Hammerstein fit's reflex nonlinearity: (Omega at the model rate, the high-rate
+        nonlinearity or None). On the high-rate path Omega is its model-rate stand-in, for
+        exports and predictions from model-rate records."""
+        Omega = best["hammerstein"].omega.reshape(-1, reg.G_r.size)
+        if reg.high is None:
+            return Omega, None
+        from ..models.model import HighRateNonlinearity
+
+        high = reg.high
+        high_nl = HighRateNonlinearity(fs=high.fs, delay=high.delay, velocity_basis=high.velocity_basis, Omega=Omega)
+        return _model_rate_stand_in(reg.U_r_model, reg.U_r, best, reg.seg, reg.G_r.size), high_nl
+
+    def _new_model(self, reg: _Regressors, best: dict, H, curvature, causal, H_causal, Omega, high_nl) -> LPVPCModel:
+        """The model of the chosen fit, with the settings as used at this rate and range and
+        the record's provenance and conventions (applied whenever it reads a record)."""
+        from ..models.model import LPVPCModel
 
         hf = best["hammerstein"]
-        Omega = hf.omega.reshape(-1, G_r.size)
-        high_nl = None
-        if high is not None:
-            from ..models.model import HighRateNonlinearity
-
-            high_nl = HighRateNonlinearity(fs=high.fs, delay=high.delay, velocity_basis=high.velocity_basis, Omega=Omega)
-            Omega = _model_rate_stand_in(U_r_model, U_r, best, seg, G_r.size)
-        model = LPVPCModel(
-            fs=fs, lags=lags, H=H, intrinsic_basis=G_i, causal_lags=causal, H_causal=H_causal, delay=delay,
-            velocity_basis=V_b, reflex_rho_basis=G_r, Omega=Omega, high_rate=high_nl,
+        return LPVPCModel(
+            fs=reg.fs, lags=reg.lags, H=H, intrinsic_basis=reg.G_i, causal_lags=causal, H_causal=H_causal,
+            delay=reg.delay, velocity_basis=reg.V_b, reflex_rho_basis=reg.G_r, Omega=Omega, high_rate=high_nl,
             A=best["A"], B=hf.b, C=best["C"].ravel(), D=hf.d, causal_derivatives=self.causal_derivatives,
             curvature=curvature,
-            settings={**self.get_params(), "irf_lags": L, **rho_orders,  # as used at this rate and range
+            settings={**self.get_params(), "irf_lags": reg.L, **reg.rho_orders,  # as used at this rate and range
                       "stationary_delays": [float(c) for c in self.stationary_delays],  # JSON: lists
                       "structure_fixed": list(self.structure_fixed or ()),
                       "allow_effects": ([self.allow_effects] if isinstance(self.allow_effects, str)
                                         else list(self.allow_effects or ()))},
-            provenance=_provenance(data),
-            conventions=_conventions(data),
+            provenance=_provenance(reg.data),
+            conventions=_conventions(reg.data),
         )
-        sig = {}
-        if design is not None:
-            from ..models.effects import finish_extended_fit
 
-            finish_extended_fit(design, model, best["theta_i"][n_base:], Psi_i[:, :n_base], y, Psi_irf=Psi_irf)
-            sig = {"signals": design.signals}
-        def predicted(causal):  # trial by trial
-            if high is not None:  # the high-rate path, as identified
-                return model.predict(data, causal=causal, warn=False).total
-            return seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **sig).total, p, rho)
+    @staticmethod
+    def _finish_effects(reg: _Regressors, model, best: dict) -> dict:
+        """An extended model's effect terms from the final solve
+        (:func:`lpvpc.models.effects.finish_extended_fit`); returns the keywords its predictions
+        need (the effects' signals), empty without effects."""
+        if reg.design is None:
+            return {}
+        from ..models.effects import finish_extended_fit
 
-        if not bare:  # intervals (lpvpc.models.uncertainty)
-            from ..models.reflex import reflex_regressor
-            from ..models.uncertainty import fit_uncertainty
+        finish_extended_fit(reg.design, model, best["theta_i"][reg.n_base:], reg.Psi_i[:, :reg.n_base], reg.y,
+                            Psi_irf=reg.Psi_irf)
+        return {"signals": reg.design.signals}
 
-            t = time.perf_counter()
-            Psi_u, theta_u, omega_u = Psi_i, best["theta_i"], hf.omega
-            if design is not None:  # extended: the effects' columns as the final fit has them, fitted with
-                # the base ones (whose block of the full covariance is then marginal); the model-rate
-                # nonlinearity as refitted there (lpvpc.models.effects.finish_extended_fit)
-                X_e, theta_e = design.extension
-                Psi_u = np.hstack([Psi_i[:, :n_base], X_e])
-                theta_u, omega_u = np.concatenate([model.H.ravel(), theta_e]), model.Omega.ravel()
-            # the model's reflex dynamics: the base fit's, or as an effect refitted them
-            A_u, C_u = model.A, np.reshape(model.C, (1, -1))
-            try:
-                model.uncertainty = fit_uncertainty(
-                    model, Psi_u, reflex_regressor(U_r, A_u, C_u, seg), y, np.append(model.B, model.D),
-                    omega_u, theta_u, U_r, A_u, truncated_irf(p, Gi_val, L, seg), segments=seg,
-                    richer=richer_basis_irf(p, rho, G_i, lags, seg),
-                    curvature_torque=(None if model.curvature is None
-                                      else eq.elastic_curvature_torque(p, Gi_val, model.curvature)),
-                    # the elastic torque's second-order term, free (not tied to the IRF's K')
-                    free_curvature=(p ** 2)[:, None] * Gi_val, n_base=n_base)
-            except np.linalg.LinAlgError as exc:  # the model stands; only its intervals are missing
-                from ..errors import LpvpcWarning
+    @staticmethod
+    def _intervals(reg: _Regressors, model, best: dict) -> None:
+        """The model's confidence intervals (:func:`lpvpc.models.uncertainty.fit_uncertainty`),
+        set as ``model.uncertainty``; when they cannot be computed the model stands without
+        them, with a warning."""
+        from ..models.reflex import reflex_regressor
+        from ..models.uncertainty import fit_uncertainty
 
-                warnings.warn(f"no confidence intervals for this model: {exc}", LpvpcWarning, stacklevel=3)
-            timings["uncertainty"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - t0
-        model.fit = {
-            "vaf": float("nan") if bare else vaf(y, predicted(False)),
-            "vaf_causal": float("nan") if bare else vaf(y, predicted(True)),
+        p, Gi_val, n_base, seg = reg.p, reg.Gi_val, reg.n_base, reg.seg
+        Psi_u, theta_u, omega_u = reg.Psi_i, best["theta_i"], best["hammerstein"].omega
+        if reg.design is not None:  # extended: the effects' columns as the final fit has them, fitted with
+            # the base ones (whose block of the full covariance is then marginal); the model-rate
+            # nonlinearity as refitted there (lpvpc.models.effects.finish_extended_fit)
+            X_e, theta_e = reg.design.extension
+            Psi_u = np.hstack([reg.Psi_i[:, :n_base], X_e])
+            theta_u, omega_u = np.concatenate([model.H.ravel(), theta_e]), model.Omega.ravel()
+        # the model's reflex dynamics: the base fit's, or as an effect refitted them
+        A_u, C_u = model.A, np.reshape(model.C, (1, -1))
+        try:
+            model.uncertainty = fit_uncertainty(
+                model, Psi_u, reflex_regressor(reg.U_r, A_u, C_u, seg), reg.y, np.append(model.B, model.D),
+                omega_u, theta_u, reg.U_r, A_u, truncated_irf(p, Gi_val, reg.L, seg), segments=seg,
+                richer=richer_basis_irf(p, reg.rho, reg.G_i, reg.lags, seg),
+                curvature_torque=(None if model.curvature is None
+                                  else eq.elastic_curvature_torque(p, Gi_val, model.curvature)),
+                # the elastic torque's second-order term, free (not tied to the IRF's K')
+                free_curvature=(p ** 2)[:, None] * Gi_val, n_base=n_base)
+        except np.linalg.LinAlgError as exc:  # the model stands; only its intervals are missing
+            from ..errors import LpvpcWarning
+
+            # (stacklevel: the frame _fit's warnings point at)
+            warnings.warn(f"no confidence intervals for this model: {exc}", LpvpcWarning, stacklevel=4)
+
+    @staticmethod
+    def _scores(reg: _Regressors, model, signals: dict):
+        """VAF (%) of the model's prediction of the identification record, sampled and causal
+        forms, trial by trial (the high-rate path as identified)."""
+        from ..models.model import vaf
+
+        def predicted(causal):
+            if reg.high is not None:  # the high-rate path, as identified
+                return model.predict(reg.data, causal=causal, warn=False).total
+            return reg.seg.map(lambda pp, rr: model.predict(pp, rr, causal=causal, warn=False, **signals).total,
+                               reg.p, reg.rho)
+
+        return vaf(reg.y, predicted(False)), vaf(reg.y, predicted(True))
+
+    def _fit_summary(self, reg: _Regressors, model, sub, best, m_best, bic, failed, scores, bare, timings) -> dict:
+        """``model.fit``: the scores, the record's extent and density, the state order and how
+        it was chosen, the poles (MOESP's and the model's), the Hammerstein fit's convergence."""
+        hf, high, dvel = best["hammerstein"], reg.high, reg.dvel
+        n = len(reg.y)
+        return {
+            "vaf": scores[0],
+            "vaf_causal": scores[1],
             "n_samples": int(n),
-            "n_trials": len(seg),
+            "n_trials": len(reg.seg),
             # the top of the rectifier fit (model.reflex_gain_threshold). High rate: the top of the
             # basis's range (99.5th percentile of the 1 kHz velocities); a percentile of the positive
             # ones is fragile there (~90 % of the samples are holds whose 1e-7 rad/s velocities, or a
             # file's rounding, fall on either side of zero: 2.6 or 4.5 rad/s for one recording), and
             # beyond the range the curve is only the basis's linear continuation.
-            "velocity_p99": _velocity_p99(dvel, V_b) if high is None else high.velocity_basis.hi,
-            "data_density": {} if bare else data_density(rho, dvel, G_i, V_b) if high is None else
-            data_density(high.rho, high.dvel, G_i, high.velocity_basis),
+            "velocity_p99": _velocity_p99(dvel, reg.V_b) if high is None else high.velocity_basis.hi,
+            "data_density": {} if bare else data_density(reg.rho, dvel, reg.G_i, reg.V_b) if high is None else
+            data_density(high.rho, high.dvel, reg.G_i, high.velocity_basis),
             "state_order": int(m_best),
             "state_order_candidates": {str(m): float(b) for m, b in bic.items()},
             "state_orders_failed": {str(m): str(err) for m, err in failed.items()},
@@ -1025,21 +1235,11 @@ class LPVPCEstimator:
             "moesp_poles": [[float(z.real), float(z.imag)] for z in best["moesp_poles"]],
             # the model's own: the reflex dynamics effect refits them (lpvpc.models.effects.finish_extended_fit)
             "poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(model.A)],
-            "stationary": bool(np.ptp(rho) < self.stationary_range),
+            "stationary": bool(np.ptp(reg.rho) < self.stationary_range),
             "hammerstein_iterations": int(hf.iterations),
             "hammerstein_converged": bool(hf.converged),
             "timings_s": timings,
         }
-        if design is not None and any(fe.name == "stress_relaxation" for fe in model.effects):
-            from ..models.effects import relaxation_stiffness_entry
-
-            model.fit["stiffness"] = relaxation_stiffness_entry(model)  # short-range and relaxed, labelled
-        if not bare:
-            check_physiology(model)
-        self.model_ = model
-        self.subspace_ = sub
-        self.n_features_ = Psi_i.shape[1] + U_r.shape[1]
-        return self
 
     # ------------------------------------------------------------------------------------
     def _searches_delay(self, data) -> bool:
@@ -1061,12 +1261,11 @@ class LPVPCEstimator:
             delays.setdefault(max(1, int(round(float(c) * fs))), float(c))
         fits, failed = {}, {}
         for c in delays.values():
-            est = _inner(LPVPCEstimator(**{**self.get_params(), "reflex_delay": c, "irf_length": c,
-                                           "stationary_delays": ()}))
+            est = LPVPCEstimator(**{**self.get_params(), "reflex_delay": c, "irf_length": c, "stationary_delays": ()})
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 try:
-                    est.fit(data)
+                    est._fit_from(data, _INNER)
                 except (LpvpcError, np.linalg.LinAlgError) as e:  # that candidate is out; the others stand
                     failed[c] = e
                     continue
@@ -1091,13 +1290,36 @@ class LPVPCEstimator:
 
     def _fit_given_order(self, sub, m, refinement, U_r, Psi_i, y, orientation, segments=None, start=None,
                          joint=False):
-        from ..linalg import project_out_and_solve, triangular_factor
-        from ..models.reflex import fit_hammerstein, refit_jointly, reflex_regressor
+        """The complete fit at reflex state order ``m``: the reflex dynamics, the orthogonal
+        projection, the Hammerstein fit; a dict with A, C, MOESP's poles, the intrinsic
+        parameters, the Hammerstein fit, the residual sum of squares and the parameter count."""
+        A, C, moesp_poles = self._reflex_dynamics(sub, m, refinement, start)
+        blocks_c, Psi_i_c, y_c, theta_i = self._orthogonal_projection(U_r, A, C, Psi_i, y, segments)
+        theta_i, hf, rss = self._hammerstein(blocks_c, Psi_i_c, y_c, theta_i, orientation, joint)
+        n_params = Psi_i.shape[1] + U_r.shape[1] + m + 1 + 2 * m
+        return {"A": A, "C": C, "moesp_poles": moesp_poles, "theta_i": theta_i, "hammerstein": hf, "rss": rss, "n_params": n_params}
 
+    @staticmethod
+    def _reflex_dynamics(sub, m, refinement, start=None):
+        """A_r, C_r of order ``m`` from the subspace step, their poles refined by variable
+        projection on the complete fit (from ``start``, the A of a fit at a neighbouring
+        structure, when given), and MOESP's poles. Why refined: MOESP with ~70 inputs leaves a
+        bias in the poles that leaks reflex torque into the intrinsic estimate."""
         A, C = sub.system(m)
         moesp_poles = np.linalg.eigvals(A)
-        if refinement is not None:  # from ``start`` (A of the fit at a neighbouring structure) when given
+        if refinement is not None:
             A, C, _ = refinement.refine(A if start is None else start)
+        return A, C, moesp_poles
+
+    @staticmethod
+    def _orthogonal_projection(U_r, A, C, Psi_i, y, segments=None):
+        """The orthogonal projection (eq. 27-28): the reflex regressor Psi_r (eq. 25: U_r filtered
+        through C_r (zI - A_r)^-1) projected out, the intrinsic parameters by least squares on
+        what remains (Frisch-Waugh). Returns the triangular factor's reflex blocks, intrinsic
+        columns and torque, and the intrinsic parameters."""
+        from ..linalg import project_out_and_solve, triangular_factor
+        from ..models.reflex import reflex_regressor
+
         blocks = reflex_regressor(U_r, A, C, segments)
         # Every fit below is a least-squares problem in the columns of [Psi_r, Psi_i, y]:
         # solved on their triangular factor, at ~100 rows instead of N, with the same
@@ -1106,6 +1328,14 @@ class LPVPCEstimator:
         R = triangular_factor(blocks + [Psi_i, y])  # (stacked a block of rows at a time)
         blocks_c, Psi_i_c, y_c = np.hsplit(R[:, :k_r], len(blocks)), R[:, k_r:-1], R[:, -1]
         theta_i = project_out_and_solve(R[:, :k_r], Psi_i_c, y_c)
+        return blocks_c, Psi_i_c, y_c, theta_i
+
+    def _hammerstein(self, blocks_c, Psi_i_c, y_c, theta_i, orientation, joint=False):
+        """The reflex torque (eq. 29) and separable least squares for B, d and Omega (the
+        Hammerstein fit of the reflex nonlinearity); with ``joint``, then intrinsic and reflex
+        together. Returns (intrinsic parameters, Hammerstein fit, residual sum of squares)."""
+        from ..models.reflex import fit_hammerstein, refit_jointly
+
         tq_r = y_c - Psi_i_c @ theta_i
         hf = fit_hammerstein(blocks_c, tq_r, orientation, tol=self.tol, max_iter=self.max_iter)
         # On the high-rate path, then intrinsic and rank-1 reflex together: the projection's
@@ -1114,8 +1344,7 @@ class LPVPCEstimator:
         if joint:
             theta_i, hf = refit_jointly(blocks_c, Psi_i_c, y_c, hf, orientation)
         resid = y_c - Psi_i_c @ theta_i - sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks_c))
-        n_params = Psi_i.shape[1] + U_r.shape[1] + m + 1 + 2 * m
-        return {"A": A, "C": C, "moesp_poles": moesp_poles, "theta_i": theta_i, "hammerstein": hf, "rss": float(resid @ resid), "n_params": n_params}
+        return theta_i, hf, float(resid @ resid)
 
     def _scheduling_orders(self, rho) -> dict:
         """Basis orders in rho; both 0 (the LTI parallel cascade, with a StationaryWarning)
@@ -1127,7 +1356,7 @@ class LPVPCEstimator:
         warnings.warn(
             f"the scheduling variable spans only {span * 1e3:.2f} mrad (< {self.stationary_range * 1e3:g} mrad): "
             f"stationary trial, identified the position-independent (LTI) parallel cascade",
-            StationaryWarning, stacklevel=3)
+            StationaryWarning, stacklevel=4)  # (from _build_regressors: the frame _fit's warnings point at)
         return {"intrinsic_order": 0, "reflex_order": 0}
 
     def _checked(self, data):
@@ -1164,12 +1393,6 @@ class LPVPCEstimator:
                 f"({n_intrinsic} intrinsic, {n_reflex} reflex nonlinearity); need at least {need} "
                 f"(reduce basis orders, IRF lags or MOESP horizon, or record longer)"
             )
-
-
-def _inner(est):
-    """``est`` as a fit inside another (no channel-skew scan: the outer fit scans its own model)."""
-    est._scan_skew = False
-    return est
 
 
 def _check_reflex_path_settings(est) -> None:
@@ -1514,7 +1737,7 @@ def with_base_model_activation(data, settings):
     if (not reads_activation(settings.get("effects") or ()) or not ({"emg", "emg_ut"} & set(extra))
             or _has_backgrounds(extra)):
         return data
-    base = _inner(LPVPCEstimator(**{**settings, "effects": ()})).fit(data).model_
+    base = LPVPCEstimator(**{**settings, "effects": ()})._fit_from(data, _INNER).model_
     return with_model_activation(data, base)
 
 
