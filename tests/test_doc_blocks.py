@@ -60,7 +60,7 @@ class Block:
 
 
 def _rel(path: Path) -> str:
-    return path.relative_to(REPO).as_posix()
+    return path.relative_to(REPO).as_posix() if path.is_relative_to(REPO) else path.as_posix()
 
 
 def blocks(path: Path) -> list[Block]:
@@ -262,6 +262,17 @@ def test_the_shell_check_refuses_what_the_parser_refuses(command, accepted):
 
 
 # --------------------------------------------------------------------------- python blocks
+
+
+def test_skip_markers_and_console_sessions_are_read(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("# Page\n\n<!-- doc-test: skip (needs the lab's own file) -->\n```python\nopen('lab.mat')\n```\n\n"
+                    "```pycon\n>>> x = 1 + 1\n>>> x\n2\n```\n\n```python\ny = 3\n```\n", encoding="utf-8")
+    found = python_blocks(page)
+    assert [b.skip for b in found] == ["needs the lab's own file", None, None]
+    assert _python_source(found[1]) == "x = 1 + 1\nx\n"
+    assert found[2].text == "y = 3\n" and found[2].line == 14
+
 
 
 def _cli(*argv):
