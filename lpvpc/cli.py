@@ -33,7 +33,8 @@ Outputs (:mod:`lpvpc.outputs`): every command's inputs and outputs are declared 
 the command's inputs, and its folder must exist and be writable (exit 2, one line); files
 are written to a temporary file and renamed, report folders built beside and swapped in;
 ``--force`` (validate, diagnose, improve) replaces a report folder that holds files but no
-previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
+previous report; a model (identify, whole-joint, improve ``-o``) replaces only a model file
+of ours unless ``--force``. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
 """
 
@@ -173,13 +174,13 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
 _DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
 COMMAND_IO = {
     "simulate": CommandIO(folders={"--out": "out"}),
-    "identify": CommandIO(inputs=_DATA, files={"-o": "output"}),
+    "identify": CommandIO(inputs=_DATA, files={"-o": "output"}, models=("-o",)),
     "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
                         sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
                              files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"}, regular=("--fmu",),
-                             make_folders=("--fmu",)),
+                             make_folders=("--fmu",), models=("-o",)),
     "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
@@ -187,7 +188,7 @@ COMMAND_IO = {
                           folders={"--report": "report"}),
     "improve": CommandIO(inputs={**_DATA, "--heldout": "heldout", "--heldout-pt": "heldout_pt",
                                  "--heldout-ut": "heldout_ut"},
-                         files={"-o": "output", "--json": "json"}, folders={"--report": "report"}),
+                         files={"-o": "output", "--json": "json"}, folders={"--report": "report"}, models=("-o",)),
 }
 
 
@@ -1088,6 +1089,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Identify an LPV-PC model (subspace method) and save it as JSON.")
     _add_data_args(p, "instead of --pt/--ut", several=True)
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--force", action="store_true",
+                   help="write -o even over an existing file that is not a model file (refused otherwise)")
     p.add_argument("--irf-length", type=_positive_float, metavar="S",
                    help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g})")
     p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
@@ -1247,6 +1250,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL.json")
     p.add_argument("--ut", required=True, metavar="UT", help="the unperturbed trial the model was identified with")
     p.add_argument("-o", "--out", required=True, metavar="WHOLE.json", help="write the whole-joint model here")
+    p.add_argument("--force", action="store_true",
+                   help="write -o even over an existing file that is not a model file (refused otherwise)")
     p.add_argument("--cutoff", type=_positive_float, default=0.5, metavar="HZ",
                    help="cutoff of the operating-angle low-pass (default 0.5 Hz)")
     p.add_argument("--order", type=int, default=5, metavar="N", help="order of the quasi-static curve (default 5)")
@@ -1295,7 +1300,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heldout-ut", metavar="UT2", help="held-out unperturbed trial")
     p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
     p.add_argument("--force", action="store_true",
-                   help="replace the report folder even if it holds files that are not a previous report")
+                   help="replace the report folder even if it holds files that are not a previous report, and "
+                        "-o even if it is not a model file")
     p.add_argument("--json", metavar="LADDER.json", help="write the ladder as JSON")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
