@@ -408,7 +408,10 @@ def _selection_summary(sel) -> list:
     if not sel:
         return []
     if "skipped" in sel:
-        return ([f"structure:   as given (not selected: {sel['skipped']})"] + _effects_cv_summary(sel.get("effects"))
+        effects = _effects_cv_summary(sel.get("effects"))
+        head = (f"structure:   basis orders and IRF as given (not selected: {sel['skipped']}); the effects "
+                f"selected by CV (next line)" if effects else f"structure:   as given (not selected: {sel['skipped']})")
+        return ([head] + effects
                 + _effects_cv_summary(sel.get("relaxation_term"), "relaxation:  forced on, its term by CV:"))
     short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
              "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
@@ -465,10 +468,15 @@ def _relaxation_summary(model) -> list:
     entry = (model.fit or {}).get("stiffness")
     if not entry:
         return []
+    def why(x, k):  # a relaxed stiffness outside (0, short-range]: which side, in words
+        return ("" if k <= 0 else "above the short-range: not relaxation; " if x > k else "below zero; " if x <= 0
+                else "")
+
     def at(e):
         ok = e.get("determined", [True] * len(e["values"]))
-        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else f"{x:.1f} (not determined by these data) at {p:+.3f}"
-                         for x, p, good in zip(e["values"], entry["scheduling"], ok))
+        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else
+                         f"{x:.1f} ({why(x, k)}not determined by these data) at {p:+.3f}"
+                         for x, p, good, k in zip(e["values"], entry["scheduling"], ok, entry["short_range"]["values"]))
 
     return [f"stiffness:   {e['label']}: {at(e)} {e['unit']}" for e in (entry["short_range"], entry["relaxed"])]
 
