@@ -923,7 +923,7 @@ def cmd_improve(args) -> int:
     print(f"stopped:   {ladder.stopped}")
     print(f"result:    held-out VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE "
           f"{first.heldout_rmse:.4f} -> {last.heldout_rmse:.4f} N m; final model: "
-          f"{', '.join(last.effects) or 'no effects'}"
+          f"{', '.join(fe.name for fe in last.model.effects or ()) or 'no effects'}"
           + (f"; settings changed: {', '.join(f'{k}={v}' for k, v in changed.items())}" if changed else ""))
     if args.output:
         model = last.model

@@ -94,3 +94,37 @@ def test_no_range_warning_when_the_trial_is_declared_stationary(declared):
     told = [w for w in caught if issubclass(w.category, StationaryWarning)]
     assert m.settings["intrinsic_order"] == 0 or m.fit["stationary"]
     assert len(told) == (0 if declared else 1), [str(w.message) for w in told]
+
+
+@pytest.fixture(scope="module")
+def stationary_ladder():
+    """The improve ladder (no step) of a virtual subject's stationary trial with stress
+    relaxation, judged on a second stationary trial: the base's selection switches it on."""
+    from lpvpc.data import stationary_perturbation
+    from lpvpc.improve import improve
+    from lpvpc.simulate import simulate_pair
+
+    ident, held = (stationary_perturbation(simulate_pair("stationary", seed=s, duration=40.0, fs_out=100.0,
+                                                         effects=("stress_relaxation",)).pt) for s in (1, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return improve(ident, held, max_steps=0), held
+
+
+def test_improve_names_the_effects_its_model_has(stationary_ladder):
+    rung = stationary_ladder[0].final
+    assert [fe.name for fe in rung.model.effects] == ["stress_relaxation"]
+    assert rung.effects == ("stress_relaxation",) and "stress_relaxation" in rung.label
+
+
+def test_stationary_improve_report_has_one_position_column(stationary_ladder, tmp_path):
+    from lpvpc.improve import _ladder_positions, write_report
+
+    ladder, held = stationary_ladder
+    assert len(_ladder_positions(ladder)) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        write_report(ladder, held, tmp_path)
+    md = (tmp_path / "improve.md").read_text()
+    header = next(line for line in md.splitlines() if line.startswith("| step | model |"))
+    assert header.count("|") == 4, header  # step, model and the one position
