@@ -128,3 +128,17 @@ def test_stationary_improve_report_has_one_position_column(stationary_ladder, tm
     md = (tmp_path / "improve.md").read_text()
     header = next(line for line in md.splitlines() if line.startswith("| step | model |"))
     assert header.count("|") == 4, header  # step, model and the one position
+
+
+@pytest.mark.parametrize("upper, warned", [(0.8, False), (-0.3, True)])
+def test_negative_reflex_gain_warned_only_where_its_interval_excludes_zero(upper, warned):
+    """A negative gain whose interval reaches zero is "not determined by these data" (as
+    the summary says): no warning; one whose interval lies below zero is, with no fix that
+    was not seen to work, in plain words."""
+    model = stand_in(gain=-1.9, rho=(-0.4, 0.2))
+    model.has_intervals = True
+    model.reflex_gain_interval = lambda r: (np.full(len(r), -4.0), np.full(len(r), upper))
+    told = physiology(model)
+    assert len(told) == int(warned), told
+    if warned:
+        assert "cannot tell" in told[0] and "velocity_order" not in told[0] and "interval up to -0.3" in told[0]
