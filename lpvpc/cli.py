@@ -163,9 +163,22 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
 
-    if data:
-        return load_aligned(data=one(data), **kw)
-    return load_aligned(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+    from .errors import DataError
+
+    try:
+        if data:
+            return load_aligned(data=one(data), **kw)
+        return load_aligned(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+    except DataError as exc:
+        if target_fs is None or hasattr(args, "fs"):
+            raise
+        # a command without --fs reads at a saved model's rate: keeping the file's rate is identify's option
+        fix = (f"the model was identified at {target_fs:g} Hz: give data recorded at that rate or faster, or "
+               f"identify a model at the file's own rate (lpvpc identify --fs 0)")
+        problems = [p.replace("pass target_fs=None to keep the rate", fix) for p in exc.problems]
+        if problems == exc.problems:
+            raise
+        raise DataError(problems, source=exc.source) from None
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
@@ -351,7 +364,10 @@ def cmd_identify(args) -> int:
               f"(the trial's mean position; its mean torque removed)")
     vaf_c = f" (causal form for closed loop: {fit['vaf_causal']:.2f} %)" if "vaf_causal" in fit else ""
     print(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
-    print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
+    bic = fit.get("stationary_delay_bic")  # a stationary trial's delay, chosen by BIC among candidates
+    by_bic = (f" (chosen by BIC among {', '.join(f'{1e3 * float(c):g}' for c in bic)} ms; IRF half-width the same)"
+              if bic else "")
+    print(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms{by_bic}")
     for line in _physical_summary(model):
         print(line)
     for line in _selection_summary(fit.get("structure_selection")):
@@ -1093,6 +1109,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     d = _estimator_defaults()
+    _given = ", unless given here"
     p = sub.add_parser("identify", help="identify an LPV-PC model and save it as JSON",
                        description="Identify an LPV-PC model (subspace method) and save it as JSON.")
     _add_data_args(p, "instead of --pt/--ut", several=True)
@@ -1100,19 +1117,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="write -o even over an existing file that is not a model file (refused otherwise)")
     p.add_argument("--irf-length", type=_positive_float, metavar="S",
-                   help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g})")
+                   help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
                    help="intrinsic IRF spans lags -L..L samples (overrides --irf-length)")
     p.add_argument("--basis", choices=("chebyshev", "legendre", "gaussian"),
                    help=f"basis family in the scheduling variable (default {d['basis']})")
     p.add_argument("--intrinsic-order", type=int, metavar="N",
-                   help=f"basis order of the IRF weights (default {d['intrinsic_order']})")
+                   help=f"basis order of the IRF weights (default {d['intrinsic_order']} with --structure fixed; with "
+                        f"--structure cv, the default, cross-validation chooses it among 2 to 7 unless given here)")
     p.add_argument("--reflex-order", type=int, metavar="N",
-                   help=f"basis order of the reflex nonlinearity in position (default {d['reflex_order']})")
+                   help=f"basis order of the reflex nonlinearity in position (default {d['reflex_order']} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--velocity-order", type=int, metavar="N",
-                   help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']})")
+                   help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--reflex-delay", type=_positive_float, metavar="S",
-                   help=f"reflex delay in s (default {d['reflex_delay']})")
+                   help=f"reflex delay in s (default {d['reflex_delay']} with --structure fixed; chosen by "
+                        f"cross-validation otherwise{_given}; a stationary trial's by BIC among 40-80 ms)")
     p.add_argument("--high-rate-reflex", dest="high_rate_reflex", action="store_const", const=True, default=None,
                    help="identify the reflex nonlinearity on the file's own rate (e.g. 1 kHz) delayed velocity "
                         "instead of the model rate's (better reflex trends on the virtual subject, worse held-out "
@@ -1149,8 +1171,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "extrapolation rule by leave-one-level-out cross-validation (options given here stay fixed); "
                         "fixed: the settings as given")
     p.add_argument("--extrapolation", dest="scheduling_extrapolation", choices=("clip", "linear"),
-                   help="beyond the identified position range the bases are held (clip, default) or continued "
-                        "linearly")
+                   help="beyond the identified position range the bases are held (clip) or continued linearly; "
+                        "default: chosen by the structure selection (--structure cv), clip with --structure fixed")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
     p.add_argument("--allow-effect", dest="allow_effects", action="extend", nargs="+", default=None, metavar="NAME",

@@ -142,3 +142,36 @@ def test_negative_reflex_gain_warned_only_where_its_interval_excludes_zero(upper
     assert len(told) == int(warned), told
     if warned:
         assert "cannot tell" in told[0] and "velocity_order" not in told[0] and "interval up to -0.3" in told[0]
+
+
+def _options(command):
+    from lpvpc.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.choices and command in a.choices)
+    return {o for a in sub.choices[command]._actions for o in a.option_strings}
+
+
+def test_every_option_a_model_reading_command_suggests_is_its_own(tmp_path, capsys):
+    """predict reads at the model's rate and has no --fs: a file slower than the model must
+    not be told to use --fs 0 (which predict rejects); an option of another command is
+    named with that command."""
+    import re
+
+    from lpvpc.cli import main
+    from lpvpc.data import Trial, pair_trials, write_trial_csv
+    from lpvpc.identify import identify
+    from lpvpc.simulate import simulate_pair
+
+    pair = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        identify(pair_trials(pair.pt, pair.ut), structure="fixed").save(tmp_path / "m.json")
+    for key, tr in (("PT", pair.pt), ("UT", pair.ut)):  # every other sample: 50 Hz
+        write_trial_csv(Trial(tr.time[::2], tr.position[::2], tr.torque[::2], {}, name=key), tmp_path / f"{key}.csv")
+    assert main(["predict", str(tmp_path / "m.json"), "--pt", str(tmp_path / "PT.csv"),
+                 "--ut", str(tmp_path / "UT.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "below" in err and "100 Hz" in err, err
+    own = _options("predict")
+    for m in re.finditer(r"(lpvpc (\w[\w-]*) )?(--[\w-]+)", err):
+        assert m.group(3) in (_options(m.group(2)) if m.group(2) else own), (m.group(0), err)
