@@ -34,7 +34,8 @@ Outputs (:mod:`lpvpc.io.outputs`): every command's inputs and outputs are declar
 the command's inputs, and its folder must exist and be writable (exit 2, one line); files
 are written to a temporary file and renamed, report folders built beside and swapped in;
 ``--force`` (validate, diagnose, improve) replaces a report folder that holds files but no
-previous report. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
+previous report; a model (identify, whole-joint, improve ``-o``) replaces only a model file
+of ours unless ``--force``. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
 """
 
@@ -166,10 +167,23 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
 
+    from .errors import DataError
+
     load = load_aligned if channel_skew == "auto" else load_identification_data
-    if data:
-        return load(data=one(data), **kw)
-    return load(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+    try:
+        if data:
+            return load(data=one(data), **kw)
+        return load(pt=one(pts), ut=one(uts) if uts else None, stationary=stationary, **kw)
+    except DataError as exc:
+        if target_fs is None or hasattr(args, "fs"):
+            raise
+        # a command without --fs reads at a saved model's rate: keeping the file's rate is identify's option
+        fix = (f"the model was identified at {target_fs:g} Hz: give data recorded at that rate or faster, or "
+               f"identify a model at the file's own rate (lpvpc identify --fs 0)")
+        problems = [p.replace("pass target_fs=None to keep the rate", fix) for p in exc.problems]
+        if problems == exc.problems:
+            raise
+        raise DataError(problems, source=exc.source) from None
 
 
 # What each command reads and writes ({option: argparse dest}): the one output policy
@@ -178,13 +192,14 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
 _DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
 COMMAND_IO = {
     "simulate": CommandIO(folders={"--out": "out"}),
-    "identify": CommandIO(inputs=_DATA, files={"-o": "output"}),
+    "identify": CommandIO(inputs=_DATA, files={"-o": "output"}, models=("-o",)),
     "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
                         sidecars={"--casadi": (".json",)}, regular=("--fmu", "--casadi"), make_folders=("--fmu",)),
     "whole-joint": CommandIO(inputs={"MODEL": "model", "--ut": "ut", "--pt": "pt"},
                              files={"-o": "out", "--fmu": "fmu", "--casadi": "casadi"},
-                             sidecars={"--casadi": (".json",)}, regular=("--fmu",), make_folders=("--fmu",)),
+                             sidecars={"--casadi": (".json",)}, regular=("--fmu",), make_folders=("--fmu",),
+                             models=("-o",)),
     "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
@@ -192,7 +207,7 @@ COMMAND_IO = {
                           folders={"--report": "report"}),
     "improve": CommandIO(inputs={**_DATA, "--heldout": "heldout", "--heldout-pt": "heldout_pt",
                                  "--heldout-ut": "heldout_ut"},
-                         files={"-o": "output", "--json": "json"}, folders={"--report": "report"}),
+                         files={"-o": "output", "--json": "json"}, folders={"--report": "report"}, models=("-o",)),
 }
 
 
@@ -804,7 +819,7 @@ def cmd_improve(args) -> int:
     print(f"stopped:   {ladder.stopped}")
     print(f"result:    held-out VAF {first.heldout_vaf:.2f} % -> {last.heldout_vaf:.2f} %, RMSE "
           f"{first.heldout_rmse:.4f} -> {last.heldout_rmse:.4f} N m; final model: "
-          f"{', '.join(last.effects) or 'no effects'}"
+          f"{', '.join(fe.name for fe in last.model.effects or ()) or 'no effects'}"
           + (f"; settings changed: {', '.join(f'{k}={v}' for k, v in changed.items())}" if changed else ""))
     if args.output:
         model = last.model
@@ -980,24 +995,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
 
     d = _estimator_defaults()
+    _given = ", unless given here"
     p = sub.add_parser("identify", help="identify an LPV-PC model and save it as JSON",
                        description="Identify an LPV-PC model (subspace method) and save it as JSON.")
     _add_data_args(p, "instead of --pt/--ut", several=True)
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--force", action="store_true",
+                   help="write -o even over an existing file that is not a model file (refused otherwise)")
     p.add_argument("--irf-length", type=_positive_float, metavar="S",
-                   help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g})")
+                   help=f"half-width of the intrinsic IRF in s (default {d['irf_length']:g} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--irf-lags", type=int, dest="irf_lags", metavar="L",
                    help="intrinsic IRF spans lags -L..L samples (overrides --irf-length)")
     p.add_argument("--basis", choices=("chebyshev", "legendre", "gaussian"),
                    help=f"basis family in the scheduling variable (default {d['basis']})")
     p.add_argument("--intrinsic-order", type=int, metavar="N",
-                   help=f"basis order of the IRF weights (default {d['intrinsic_order']})")
+                   help=f"basis order of the IRF weights (default {d['intrinsic_order']} with --structure fixed; with "
+                        f"--structure cv, the default, cross-validation chooses it among 2 to 7 unless given here)")
     p.add_argument("--reflex-order", type=int, metavar="N",
-                   help=f"basis order of the reflex nonlinearity in position (default {d['reflex_order']})")
+                   help=f"basis order of the reflex nonlinearity in position (default {d['reflex_order']} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--velocity-order", type=int, metavar="N",
-                   help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']})")
+                   help=f"polynomial order of the reflex nonlinearity in velocity (default {d['velocity_order']} with --structure fixed; "
+                        f"chosen by cross-validation otherwise{_given})")
     p.add_argument("--reflex-delay", type=_positive_float, metavar="S",
-                   help=f"reflex delay in s (default {d['reflex_delay']})")
+                   help=f"reflex delay in s (default {d['reflex_delay']} with --structure fixed; chosen by "
+                        f"cross-validation otherwise{_given}; a stationary trial's by BIC among 40-80 ms)")
     p.add_argument("--high-rate-reflex", dest="high_rate_reflex", action="store_const", const=True, default=None,
                    help="identify the reflex nonlinearity on the file's own rate (e.g. 1 kHz) delayed velocity "
                         "instead of the model rate's (better reflex trends on the virtual subject, worse held-out "
@@ -1034,8 +1057,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "extrapolation rule by leave-one-level-out cross-validation (options given here stay fixed); "
                         "fixed: the settings as given")
     p.add_argument("--extrapolation", dest="scheduling_extrapolation", choices=("clip", "linear"),
-                   help="beyond the identified position range the bases are held (clip, default) or continued "
-                        "linearly")
+                   help="beyond the identified position range the bases are held (clip) or continued linearly; "
+                        "default: chosen by the structure selection (--structure cv), clip with --structure fixed")
     p.add_argument("--effect", dest="effects", action="extend", nargs="+", default=None, metavar="NAME",
                    help="add an effect of the catalog (repeatable): " + ", ".join(_effect_names()))
     p.add_argument("--allow-effect", dest="allow_effects", action="extend", nargs="+", default=None, metavar="NAME",
@@ -1143,6 +1166,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL.json")
     p.add_argument("--ut", required=True, metavar="UT", help="the unperturbed trial the model was identified with")
     p.add_argument("-o", "--out", required=True, metavar="WHOLE.json", help="write the whole-joint model here")
+    p.add_argument("--force", action="store_true",
+                   help="write -o even over an existing file that is not a model file (refused otherwise)")
     p.add_argument("--cutoff", type=_positive_float, default=0.5, metavar="HZ",
                    help="cutoff of the operating-angle low-pass (default 0.5 Hz)")
     p.add_argument("--order", type=int, default=5, metavar="N", help="order of the quasi-static curve (default 5)")
@@ -1191,7 +1216,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heldout-ut", metavar="UT2", help="held-out unperturbed trial")
     p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
     p.add_argument("--force", action="store_true",
-                   help="replace the report folder even if it holds files that are not a previous report")
+                   help="replace the report folder even if it holds files that are not a previous report, and "
+                        "-o even if it is not a model file")
     p.add_argument("--json", metavar="LADDER.json", help="write the ladder as JSON")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
     p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")

@@ -28,6 +28,7 @@ TESTS = Path(__file__).resolve().parent
 #: public name -> "test_file.py::test_function" that shows its use (tests elsewhere; the
 #: test's body or the fixtures it requests must use the object)
 REGISTRY = {
+    "lpvpc.identification.identify.time_base_problem": "test_lab_workflow.py::test_time_base_too_fast_is_named",
     "lpvpc.export.actuator.actuator_build_kwargs": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
     "lpvpc.export.actuator.build_actuator_fmu": "test_actuator.py::test_build_is_cached",
     "lpvpc.export.actuator.actuator_source_dir": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",

@@ -433,3 +433,46 @@ def test_replaced_file_keeps_its_mode_and_owner(work, model, capsys):
         st = private.stat()
         assert (st.st_uid, st.st_gid, st.st_mode & 0o777) == (1234, 2345, 0o600)
     capsys.readouterr()
+
+
+# --------------------------------------------------------------------------- a model over a non-model
+MODEL_WRITERS = {
+    "identify": ["identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o", "victim.csv"],
+    "whole-joint": ["whole-joint", "model.json", "--ut", "UT.csv", "-o", "victim.csv"],
+    "improve": ["improve", "--pt", "PT.csv", "--ut", "UT.csv", "--heldout-pt", "PT2.csv", "--heldout-ut", "UT2.csv",
+                "--report", "newrep", "-o", "victim.csv", "--max-steps", "0"],
+}
+
+
+@pytest.mark.parametrize("command", sorted(MODEL_WRITERS))
+def test_model_never_written_over_a_recording(command, work, capsys, monkeypatch):
+    """Every command that saves a model refuses, before any work, an existing file that is not
+    a model file of ours (a recording given as -o by mistake): one line, exit 2, the file
+    unchanged; --force lets it through the check (the work then starts: the trap fires)."""
+    def trap(*a, **k):
+        raise AssertionError("work started")
+
+    _trap_work(monkeypatch, trap)
+    victim = work / "victim.csv"
+    victim.write_bytes((work / "UT2.csv").read_bytes())
+    before = victim.read_bytes()
+    assert main(MODEL_WRITERS[command]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "victim.csv" in err[0] and "not an lpvpc model file" in err[0] and "--force" in err[0]
+    assert victim.read_bytes() == before
+    with pytest.raises(AssertionError, match="work started"):
+        main([*MODEL_WRITERS[command], "--force"])
+    assert victim.read_bytes() == before
+
+
+def test_a_model_may_replace_a_model(work, capsys, monkeypatch):
+    """The check lets a model replace a model file of ours (a re-run), an empty file and a new path."""
+    from lpvpc.cli import COMMAND_IO
+    from lpvpc.io.outputs import is_model_file
+
+    assert is_model_file(work / "model.json") and not is_model_file(work / "PT.csv")
+    (work / "empty.json").write_text("")
+    parser = build_parser()
+    for out in ("model.json", "empty.json", "fresh.json"):
+        args = parser.parse_args(["identify", "--pt", "PT.csv", "--ut", "UT.csv", "-o", out])
+        COMMAND_IO["identify"].check(args)  # no error

@@ -73,11 +73,18 @@ def test_default_delay_subject_keeps_its_accuracy():
     assert held_out(chosen, test) > held_out(fixed, test) - 0.05
 
 
-def test_one_warning_names_the_choice_and_explicit_settings_switch_it_off(late_reflex):
+def test_one_warning_names_the_choice_unless_declared_and_explicit_settings_switch_it_off(late_reflex):
     train = late_reflex[0]
+    # declared stationary (stationary_perturbation, --stationary): the user said so, no warning
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        m = LPVPCEstimator(state_order=2).fit(train).model_
+        LPVPCEstimator(state_order=2).fit(train)
+    assert not [w for w in caught if issubclass(w.category, StationaryWarning)]
+    # found stationary (the same arrays without the declaration): one warning naming the choice
+    undeclared = PerturbationData(train.position, train.torque, train.scheduling, train.fs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = LPVPCEstimator(state_order=2).fit(undeclared).model_
     stationary = [w for w in caught if issubclass(w.category, StationaryWarning)]
     assert len(stationary) == 1
     assert "position-independent (LTI) parallel cascade" in str(stationary[0].message)

@@ -113,9 +113,10 @@ def physiology(model, rho) -> dict:
 
 
 def _ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
-    """``n`` positions (rad) over the central 80 % of the base model's identified range."""
+    """``n`` positions (rad) over the central 80 % of the base model's identified range, to
+    the millimetre-radian the command line prints; a stationary trial's one position once."""
     lo, hi = ladder.rungs[0].model.scheduling_range
-    return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
+    return np.unique(np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 3))
 
 
 def _evaluate(model, data):
@@ -178,6 +179,13 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         if effects != current.effects:
             current.effects = effects
             current.label = "base model + " + ", ".join(effects)
+    # the effects the base model has (a stationary trial's selection chooses its effects without a
+    # "chosen" structure): the rung names what its model holds
+    held = tuple(fe.name for fe in current.model.effects or ())
+    if any(e not in effects for e in held):
+        effects = effects + tuple(e for e in held if e not in effects)
+        current.effects = effects
+        current.label = "base model + " + ", ".join(effects)
     # the stress-relaxation term the base's cross-validation chose (the catalog's, refitted, would
     # change the base too)
     term = {k: current.model.settings[k] for k in ("relaxation_times", "relaxation_order")
@@ -255,7 +263,7 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
     phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
     for key, what in (("K", "Elastic stiffness K (N m/rad)"), ("reflex_gain", "Reflex gain (N m s/rad)")):
         lines += [f"{what} of each model at positions (rad):", "", "| step | model | "
-                  + " | ".join(f"{x:+.2f}" for x in rho) + " |", "|---|---|" + "---|" * len(rho)]
+                  + " | ".join(f"{x:+.3f}" for x in rho) + " |", "|---|---|" + "---|" * len(rho)]
         lines += [f"| {r.index} | {r.label} | " + " | ".join(f"{v:.2f}" for v in phys[r.index][key]) + " |"
                   for r in ladder.rungs]
         lines.append("")
@@ -326,12 +334,14 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
     rho = _ladder_positions(ladder)
     phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
     parts.append("<p>What each step changes in the physiology the models report: elastic stiffness K and reflex gain "
-                 "at five positions (rad; + = dorsiflexion) over the central 80 % of the base model's range.</p>")
+                 + ("at the trial's one operating position (rad; + = dorsiflexion).</p>" if len(rho) == 1 else
+                    f"at {len(rho)} positions (rad; + = dorsiflexion) over the central 80 % of the base model's "
+                    "range.</p>"))
     for key, what, fmt in (("K", "Elastic stiffness K (N m/rad) by position", "{:.1f}"),
                            ("reflex_gain", "Reflex gain (N m s/rad) by position", "{:.2f}")):
         parts.append(f"<h3>{what}</h3>")
         parts.append('<div class="wide">' + _table(
-            ["step", "model"] + [f"{x:+.2f} rad" for x in rho],
+            ["step", "model"] + [f"{x:+.3f} rad" for x in rho],
             [[str(r.index), _e(r.label)] + [fmt.format(v) for v in phys[r.index][key]] for r in ladder.rungs],
             left=(1,)) + "</div>")
     prev = None

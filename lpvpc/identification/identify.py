@@ -397,8 +397,14 @@ class LPVPCEstimator:
         With ``high_rate_reflex``, data that keep their file's higher rate (``high_rate``) get
         the reflex nonlinearity identified on the high-rate velocity; when that fit is not determined (too few
         stretch velocities for its basis: InsufficientExcitationError) it is identified on
-        the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`."""
-        return self._fit_from(data, WarmStart(), stacklevel=3)
+        the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`.
+        The physiology warnings are those of the final model (candidate fits warn in their own
+        numbers, which are never shown)."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            self._fit_from(data, WarmStart(), stacklevel=3)
+        _physiology_of_final(self.model_, caught)
+        return self
 
     def _fit_from(self, data, warm: WarmStart, stacklevel: int = 2) -> "LPVPCEstimator":
         """:meth:`fit` from a warm start (:class:`WarmStart`). ``stacklevel``: the frame, counted
@@ -997,7 +1003,7 @@ class LPVPCEstimator:
         lags = two_sided_lags(L)
         dvel = seg.map(eq.delayed_velocity, p, fs=fs, delay=delay)
 
-        rho_orders = self._scheduling_orders(rho)
+        rho_orders = self._scheduling_orders(rho, declared=bool((getattr(data, "meta", None) or {}).get("stationary")))
         G_i = basis_from_data(rho, self.basis, rho_orders["intrinsic_order"], self.scheduling_extrapolation)
         G_r = basis_from_data(rho, self.basis, rho_orders["reflex_order"], self.scheduling_extrapolation)
         V_b = basis_from_data(dvel, self.velocity_basis, self.velocity_order, extrapolation="linear")
@@ -1346,13 +1352,17 @@ class LPVPCEstimator:
         resid = y_c - Psi_i_c @ theta_i - sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks_c))
         return theta_i, hf, float(resid @ resid)
 
-    def _scheduling_orders(self, rho) -> dict:
-        """Basis orders in rho; both 0 (the LTI parallel cascade, with a StationaryWarning)
-        when rho spans less than ``stationary_range`` rad: a trial at one operating position
-        cannot determine position dependence (its bases would be rank-deficient)."""
+    def _scheduling_orders(self, rho, declared: bool = False) -> dict:
+        """Basis orders in rho; both 0 (the LTI parallel cascade) when rho spans less than
+        ``stationary_range`` rad: a trial at one operating position cannot determine position
+        dependence (its bases would be rank-deficient). A StationaryWarning tells it, unless
+        the data were ``declared`` stationary (``stationary=True``, ``--stationary``): the
+        user said so, and the warning would only repeat it."""
         span = float(np.ptp(rho))
         if span >= self.stationary_range or self.intrinsic_order == self.reflex_order == 0:
             return {"intrinsic_order": self.intrinsic_order, "reflex_order": self.reflex_order}
+        if declared:
+            return {"intrinsic_order": 0, "reflex_order": 0}
         warnings.warn(
             f"the scheduling variable spans only {span * 1e3:.2f} mrad (< {self.stationary_range * 1e3:g} mrad): "
             f"stationary trial, identified the position-independent (LTI) parallel cascade",
@@ -1530,7 +1540,7 @@ def richer_basis_irf(position, rho, rho_basis, lags, segments=None):
     return richer, segments.map(intrinsic_regressor, position, G, lags=lags)
 
 
-def check_physiology(model, stacklevel: int = 3) -> None:
+def check_physiology(model, stacklevel: int = 3, sign_seen: bool = False) -> None:
     """PhysiologyWarning when the elastic stiffness K(rho) is negative over most of the
     identified range: joint tissue is never negative-stiff there, and the usual cause is a
     torque sign convention opposite to the position's.
@@ -1540,6 +1550,14 @@ def check_physiology(model, stacklevel: int = 3) -> None:
     terms have traded with the linear stiffness (seen on a lab stationary trial: the
     amplitude term p|p|, p^3 left K = -41 N m/rad with a positive slope at the trial's
     displacements), and the warning names them instead of the torque sign.
+
+    ``sign_seen``: the effect-free fit of the same data was negative too (the estimator's
+    fit knows it): one line naming the torque sign, in the extended model's numbers.
+
+    Also told, each as one PhysiologyWarning: a negative viscosity B(rho) where K is
+    positive; a relaxed stiffness (stress relaxation) above the short-range one or below
+    zero; a time base that is probably wrong (:func:`_check_time_base`); a reflex gain whose
+    interval lies below zero (:func:`_check_reflex_gain`).
 
     A torque recorded with the opposite sign gives a negative stiffness, and a warning:
 
@@ -1556,13 +1574,21 @@ def check_physiology(model, stacklevel: int = 3) -> None:
     ['PhysiologyWarning']
     """
     lo, hi = model.scheduling_range
-    K = model.elastic_stiffness(np.linspace(lo, hi, 51))
+    rho = np.linspace(lo, hi, 51)
+    K = model.elastic_stiffness(rho)
     negative = float(np.mean(K < 0))
     if negative <= 0.5:  # (a reversed torque sign turns the reflex gain too: one warning)
+        _check_viscosity(model, rho, stacklevel + 1)
+        _check_relaxed_stiffness(model, stacklevel + 1)
+        _check_time_base(model, stacklevel + 1)
         _check_reflex_gain(model, stacklevel + 1)
         return
     where = f"negative over {100 * negative:.0f} % of the identified position range (median {np.median(K):.1f} N m/rad)"
-    if model.effects:
+    if len(rho) and float(np.ptp(rho)) < 1e-6:  # one operating position: its value, as the summary prints it
+        where = f"negative ({K[0]:.1f} N m/rad at {rho[0]:+.3f} rad)"
+    sign = float((model.conventions or {}).get("torque_sign", 1.0))
+    flip = "-1" if sign > 0 else "1"
+    if model.effects and not sign_seen:
         names = ", ".join(fe.name for fe in model.effects)
         warnings.warn(
             f"elastic stiffness K(theta) at zero displacement is {where} in the model extended by {names}: the "
@@ -1570,11 +1596,77 @@ def check_physiology(model, stacklevel: int = 3) -> None:
             f"them (if that one is negative too, the torque sign convention is reversed)", PhysiologyWarning,
             stacklevel=stacklevel)
         return
-    sign = float((model.conventions or {}).get("torque_sign", 1.0))
-    flip = "-1" if sign > 0 else "1"
+    B = model.viscosity(rho)
+    also = " (viscosity too)" if np.mean(B < 0) > 0.5 else ""
+    both = " with and without the effects" if model.effects else ""
     warnings.warn(
-        f"elastic stiffness K(theta) is {where}: the torque sign convention is probably reversed; identify again "
-        f"with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
+        f"elastic stiffness K(theta) is {where}{both}{also}: the torque sign convention is probably reversed; "
+        f"identify again with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
+
+
+#: The sign warning's words (what :func:`_physiology_of_final` looks for in a candidate fit's warnings).
+SIGN_WORDS = "the torque sign convention is probably reversed"
+
+
+def _physiology_of_final(model, caught) -> None:
+    """Re-emit the warnings ``caught`` during a fit, the physiology ones replaced by those of
+    the final ``model``: candidate fits (the effect-free model, other delays) warned in their
+    own numbers, which the user never sees printed. A candidate's sign warning is kept as
+    knowledge: the extended model negative too then names the torque sign (one line)."""
+    physiology = [w for w in caught if issubclass(w.category, PhysiologyWarning)]
+    for w in caught:
+        if not issubclass(w.category, PhysiologyWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if physiology and model is not None:
+        check_physiology(model, stacklevel=4, sign_seen=any(SIGN_WORDS in str(w.message) for w in physiology))
+
+
+def _check_viscosity(model, rho, stacklevel: int) -> None:
+    """PhysiologyWarning when the intrinsic viscosity B(rho) is negative over most of the
+    range while K is positive: tissue does not push along with a movement. Its usual cause
+    is the reflex pathway and the intrinsic IRF sharing the velocity response (their sum is
+    determined, the split is not)."""
+    B = model.viscosity(rho)
+    share = float(np.mean(B < 0))
+    if share <= 0.5:
+        return
+    at = (f"{B[0]:.2f} N m s/rad at {rho[0]:+.3f} rad" if float(np.ptp(rho)) < 1e-6
+          else f"median {np.median(B):.2f} N m s/rad over {100 * share:.0f} % of the range")
+    warnings.warn(
+        f"viscosity B is negative ({at}): not physical. These data cannot tell the intrinsic viscosity from the "
+        f"reflex pathway's velocity response (their sum is what the fit determines); do not read B alone",
+        PhysiologyWarning, stacklevel=stacklevel)
+
+
+def _check_relaxed_stiffness(model, stacklevel: int) -> None:
+    """PhysiologyWarning when a model with stress relaxation has a relaxed stiffness above
+    its short-range stiffness, or below zero: the slow term then does not describe a
+    relaxing tissue (it rises, or overshoots), and the relaxed value is an extrapolation of
+    the slow averages beyond the holds the record contains, not a property of the joint."""
+    entry = (model.fit or {}).get("stiffness")
+    if not entry:
+        return
+    short, relaxed = entry["short_range"]["values"], entry["relaxed"]["values"]
+    bad = [i for i, (sr, r) in enumerate(zip(short, relaxed)) if sr > 0 and not 0.0 < r <= sr]
+    if not bad:  # (a negative short-range K has its own warning)
+        return
+    s_k, r_k, p_k = short[bad[0]], relaxed[bad[0]], entry["scheduling"][bad[0]]
+    how = ("above the short-range stiffness: the slow term adds torque to a held displacement instead of "
+           "relaxing it (a slow drift of tone or of the trial's mean, not stress relaxation)" if r_k > s_k else
+           "below zero: the slow term takes away more torque than the displacement gives")
+    warnings.warn(
+        f"relaxed stiffness {r_k:.1f} N m/rad at {p_k:+.3f} rad is {how}; it extrapolates the slow averages beyond "
+        f"the holds in this record, so these data cannot tell the relaxed stiffness (the short-range "
+        f"{s_k:.1f} N m/rad stands)", PhysiologyWarning, stacklevel=stacklevel)
+
+
+def _check_time_base(model, stacklevel: int) -> None:
+    """PhysiologyWarning when the identified dynamics say the time axis is probably scaled
+    wrong (a time column in other units, a sampling rate given wrong): see
+    :func:`time_base_problem`."""
+    problem = time_base_problem(model)
+    if problem:
+        warnings.warn(problem, PhysiologyWarning, stacklevel=stacklevel)
 
 
 # Share of the identified range over which a negative reflex gain is reported. A stretch
@@ -1587,27 +1679,33 @@ NEGATIVE_GAIN_SHARE = 0.1
 
 
 def _check_reflex_gain(model, stacklevel: int) -> None:
-    """PhysiologyWarning when the reflex rectifier gain is negative over more than
-    NEGATIVE_GAIN_SHARE of the identified range, naming the causes seen and the settings
-    that constrain the nonlinearity more."""
+    """PhysiologyWarning when the reflex rectifier gain is negative, with its confidence
+    interval below zero, over more than NEGATIVE_GAIN_SHARE of the identified range. Where
+    the interval reaches zero the data do not determine the gain (the summary says so):
+    no warning, since no setting was seen to fix it there (on the lab's pilot neither a
+    lower velocity order nor diagnose did). A model without intervals is judged by the
+    estimate alone."""
     lo, hi = model.scheduling_range
     rho = np.linspace(lo, hi, 51)
     gain, _ = model.reflex_gain_threshold(rho)
-    share = float(np.mean(gain < 0))
+    upper = gain
+    judged = bool(getattr(model, "has_intervals", False))
+    if judged:
+        try:
+            _, upper = model.reflex_gain_interval(rho)
+        except (LpvpcError, ValueError, KeyError):  # (no stored reflex interval: the estimate alone)
+            judged = False
+    below = (gain < 0) & (np.asarray(upper) < 0)
+    share = float(np.mean(below))
     if share <= NEGATIVE_GAIN_SHARE:
         return
-    if model.high_rate is not None:
-        setting = ("identify with high_rate_velocity_basis='chebyshev', high_rate_velocity_order=4 (held up on the "
-                   "lab's pilot trial) or with high_rate_reflex=False")
-    else:
-        setting = "identify with a lower velocity_order"
-    k = int(np.argmin(gain))
+    k = int(np.argmin(np.where(below, gain, np.inf)))
+    interval = f", interval up to {float(np.asarray(upper)[k]):.1f}" if judged else " (no interval to judge by)"
     warnings.warn(
-        f"reflex gain is negative over {100 * share:.0f} % of the identified position range ({gain[k]:.1f} N m s/rad at "
-        f"{rho[k]:+.2f} rad): a stretch reflex that lowers the torque is not physiological. Causes seen: an effect "
-        f"the model lacks (lpvpc diagnose on held-out data names it), or perturbation steps all of one size, which "
-        f"leave the nonlinearity free ({setting})",
-        PhysiologyWarning, stacklevel=stacklevel)
+        f"reflex gain is negative over {100 * share:.0f} % of the identified position range ({gain[k]:.1f} N m s/rad "
+        f"at {rho[k]:+.2f} rad{interval}): a stretch reflex that lowers the torque is not physiological, and these "
+        f"data cannot tell why; read the reflex there as not determined (an effect the model lacks would show in "
+        f"lpvpc diagnose on held-out data)", PhysiologyWarning, stacklevel=stacklevel)
 
 
 def _conventions(data) -> dict:
@@ -1763,3 +1861,34 @@ def __getattr__(name):
 
         return getattr(linalg, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+#: (inertia kg m^2, viscosity N m s/rad) both below which, or both above which (the
+#: second pair), the identified intrinsic dynamics are outside an ankle's by a factor of
+#: several: an ankle (with its foot plate) has about 0.005-0.09 kg m^2 and 0.5-3 N m s/rad
+#: (the lab's stationary trials and pilot, the virtual subject). A time axis k times too
+#: fast divides the viscosity by k and the inertia by k^2; the fast pair keeps clear of the
+#: lab's trials, whose inertia estimate is noisy (-0.012 to 0.09) but whose viscosity is not.
+TIME_BASE_TOO_FAST = (3e-3, 0.3)
+TIME_BASE_TOO_SLOW = (0.5, 5.0)
+
+
+def time_base_problem(model) -> str | None:
+    """The one-line reason when the identified inertia and viscosity (median over the
+    identified range) are both far below, or both far above, an ankle's: the time axis is
+    then probably scaled wrong (a time column in other units, a sampling rate given wrong),
+    which leaves the stiffness and the fit's VAF plausible; None otherwise."""
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo, hi, 11)
+    inertia = float(np.median(np.abs(model.inertia(rho))))
+    viscosity = float(np.median(model.viscosity(rho)))
+    fs0 = (model.conventions or {}).get("fs_original") or model.fs
+    seen = (f"identified inertia {inertia:.2g} kg m^2 and viscosity {viscosity:.2g} N m s/rad are far "
+            f"{{}} an ankle's (about 0.005-0.09 kg m^2 and 0.5-3 N m s/rad)")
+    if inertia < TIME_BASE_TOO_FAST[0] and viscosity < TIME_BASE_TOO_FAST[1]:
+        return (seen.format("below") + f": the time axis is probably too fast (the file was read as {fs0:g} Hz): "
+                "check the time column's unit (--time-unit) or --fs; the stiffness and the VAF do not show it")
+    if inertia > TIME_BASE_TOO_SLOW[0] and viscosity > TIME_BASE_TOO_SLOW[1]:
+        return (seen.format("above") + f": the time axis is probably too slow (the file was read as {fs0:g} Hz): "
+                "check the time column's unit (--time-unit) or --fs")
+    return None

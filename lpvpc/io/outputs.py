@@ -19,11 +19,15 @@
   owner where permitted): a private 0600 model stays 0600.
 - A FIFO, a device or a path under /dev (``/dev/stdout``) is written into directly, never
   replaced by a rename.
+- :func:`check_model_output` refuses to write a model over an existing file that is not a
+  model file of ours (a recording given as ``-o`` by mistake) unless ``--force``: every
+  command that saves a model declares that output in :attr:`CommandIO.models`.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import stat
@@ -113,7 +117,9 @@ class CommandIO:
     (``--casadi F`` also writes ``F.json``); ``regular``: file outputs that must be regular
     files (an FMU is built beside its target, a CasADi function has a sidecar beside it: they
     cannot go to a FIFO or device);
-    ``make_folders``: file outputs whose missing folders the command creates (an FMU's).
+    ``make_folders``: file outputs whose missing folders the command creates (an FMU's);
+    ``models``: file outputs that hold a model, which may replace only a model file of ours
+    (:func:`check_model_output`; ``args.force`` replaces any file).
 
     >>> io = CommandIO(inputs={"--pt": "pt"}, files={"-o": "output"})
     >>> from argparse import Namespace
@@ -130,6 +136,7 @@ class CommandIO:
     sidecars: dict = field(default_factory=dict)
     regular: tuple = ()
     make_folders: tuple = ()
+    models: tuple = ()
 
     def resolve(self, args):
         """(inputs, files, folders) as {label: path} from the parsed ``args``, every file
@@ -156,6 +163,8 @@ class CommandIO:
         for label, path in files.items():
             option = label.split(" ")[0]
             check_writable_file(label, path, regular=option in self.regular, make_folders=option in self.make_folders)
+            if label in self.models:
+                check_model_output(label, path, force=bool(getattr(args, "force", False)))
         for label, path in folders.items():
             check_writable_folder(label, path)
 
@@ -232,6 +241,52 @@ def check_writable_file(label, path, *, regular: bool = False, make_folders: boo
         raise OutputPathError(f"output {label} {path}: folder {folder} is not writable")
     if p.is_file() and not os.access(p, os.W_OK):
         raise OutputPathError(f"output {label} {path} is read-only: refusing to replace it")
+
+
+# What a model file of ours starts with: its first key (lpvpc.models.model, lpvpc.export.whole_joint).
+MODEL_FORMATS = ("lpvpc-model", "lpvpc-whole-joint")
+_FORMAT_KEY = re.compile(rb'^\s*\{\s*"format"\s*:\s*"([^"]*)"')
+
+
+def is_model_file(path) -> bool:
+    """True when ``path`` starts like a model file of ours (JSON whose first key is
+    ``"format"`` with a value in :data:`MODEL_FORMATS`); only its first bytes are read.
+
+    >>> import json, tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / "m.json").write_text(json.dumps({"format": MODEL_FORMATS[0]}))
+    >>> _ = (d / "r.csv").write_text("time,position,torque")
+    >>> is_model_file(d / "m.json"), is_model_file(d / "r.csv")
+    (True, False)
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    m = _FORMAT_KEY.match(head)
+    return bool(m) and m.group(1).decode("utf-8", "replace") in MODEL_FORMATS
+
+
+def check_model_output(label, path, force: bool = False) -> None:
+    """Raise OutputPathError when the model output ``path`` exists as a non-empty regular
+    file that is not a model file of ours (a recording or another program's file given as
+    ``-o`` by mistake), unless ``force``: a model replaces only a model.
+
+    >>> import tempfile, pathlib
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     rec = pathlib.Path(tmp) / "PT.csv"
+    ...     _ = rec.write_text("time,position,torque\\n0,0,0\\n")
+    ...     check_model_output("-o", rec)
+    Traceback (most recent call last):
+    ...
+    lpvpc.io.outputs.OutputPathError: ...
+    """
+    p = Path(path)
+    if force or is_special(p) or not p.is_file() or p.stat().st_size == 0 or is_model_file(p):
+        return
+    raise OutputPathError(f"output {label} {path} exists and is not an lpvpc model file: refusing to replace it "
+                          "(give another path, or --force to replace it)")
 
 
 def check_writable_folder(label, path) -> None:

@@ -51,7 +51,10 @@ def summarize(model) -> ModelSummary:
     lines = skew_lines(model)
     if "vaf" in fit:
         lines.append(f"VAF:         {fit['vaf']:.2f} % on the identification data{vaf_c}")
-    lines.append(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms")
+    bic = fit.get("stationary_delay_bic")  # a stationary trial's delay, chosen by BIC among candidates
+    by_bic = (f" (chosen by BIC among {', '.join(f'{1e3 * float(c):g}' for c in bic)} ms; IRF half-width the same)"
+              if bic else "")
+    lines.append(f"reflex:      state order {model.state_order}, delay {model.delay / model.fs * 1000:.0f} ms{by_bic}")
     lines += physiology_lines(model) + selection_lines(fit.get("structure_selection")) + relaxation_lines(model)
     return ModelSummary(lines, physiology_values(model))
 
@@ -112,7 +115,10 @@ def selection_lines(sel) -> list:
     if not sel:
         return []
     if "skipped" in sel:
-        return ([f"structure:   as given (not selected: {sel['skipped']})"] + effects_cv_lines(sel.get("effects"))
+        effects = effects_cv_lines(sel.get("effects"))
+        head = (f"structure:   basis orders and IRF as given (not selected: {sel['skipped']}); the effects "
+                f"selected by CV (next line)" if effects else f"structure:   as given (not selected: {sel['skipped']})")
+        return ([head] + effects
                 + effects_cv_lines(sel.get("relaxation_term"), "relaxation:  forced on, its term by CV:"))
     short = {"irf_length": "L", "intrinsic_order": "intr", "reflex_order": "refl", "velocity_order": "vel",
              "reflex_delay": "delay", "elastic_curvature": "curv", "scheduling_extrapolation": "beyond range"}
@@ -169,10 +175,15 @@ def relaxation_lines(model) -> list:
     entry = (model.fit or {}).get("stiffness")
     if not entry:
         return []
+    def why(x, k):  # a relaxed stiffness outside (0, short-range]: which side, in words
+        return ("" if k <= 0 else "above the short-range: not relaxation; " if x > k else "below zero; " if x <= 0
+                else "")
+
     def at(e):
         ok = e.get("determined", [True] * len(e["values"]))
-        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else f"{x:.1f} (not determined by these data) at {p:+.3f}"
-                         for x, p, good in zip(e["values"], entry["scheduling"], ok))
+        return ", ".join(f"{x:.1f} at {p:+.3f}" if good else
+                         f"{x:.1f} ({why(x, k)}not determined by these data) at {p:+.3f}"
+                         for x, p, good, k in zip(e["values"], entry["scheduling"], ok, entry["short_range"]["values"]))
 
     return [f"stiffness:   {e['label']}: {at(e)} {e['unit']}" for e in (entry["short_range"], entry["relaxed"])]
 
