@@ -27,7 +27,9 @@ DEFAULT_HELDOUT = 0.3
 class StudyResult:
     """What :func:`run_study` did: ``rows`` (the manifest), ``results`` (one dict per record,
     :func:`lpvpc.study.run.analyse_record`'s, with ``cached``), ``grid`` (common grid indices),
-    ``computed`` / ``cached`` / ``failed`` (record counts), ``comparisons`` and ``paths``
+    ``computed`` (records whose job ran in this run, failed or not), ``cached``
+    (taken from the cache) and ``failed`` (record counts; a record whose files cannot be read
+    fails before any job and is neither computed nor cached), ``comparisons`` and ``paths``
     (records, groups, report, summary)."""
 
     rows: list
