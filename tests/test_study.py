@@ -8,7 +8,11 @@ part; the serial study is run once and the others are compared with it.
 
 import csv
 import math
+import re
 import shutil
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -204,12 +208,31 @@ def test_cache_redoes_only_what_changed(serial, cohort, tmp_path):
     changed = run_study(root / "bad.csv", out)
     assert (changed.cached, changed.computed) == (5, len(BAD))
     assert [r["record"] for r in changed.results if r["status"] == "ok" and not r["cached"]] == ["S04"]
-    # a study stopped halfway: two records' entries missing, those two are redone
-    entries = sorted((out / "cache").glob("*.json"), key=lambda p: p.stat().st_mtime)
-    for p in entries[-2:]:
-        p.unlink()
-    resumed = run_study(root / "bad.csv", out)
-    assert (resumed.cached, resumed.computed) == (4, 1 + len(BAD))
+
+
+def _entries(folder):
+    return sorted(p.name for p in (folder / "cache").glob("*.json") if re.fullmatch(r"[0-9a-f]{24}\.json", p.name))
+
+
+def test_a_study_killed_halfway_redoes_only_the_unfinished_records(cohort, tmp_path):
+    """``lpvpc study`` killed (SIGKILL: no clean-up) after its second record; the rerun takes
+    the finished records from the cache and identifies the others only."""
+    out = tmp_path / "study"
+    cmd = [sys.executable, "-m", "lpvpc.cli", "-q", "study", str(cohort / "manifest.csv"), "-o", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None and len(_entries(out) if out.exists() else []) < 2:
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    finished = _entries(out)
+    assert 2 <= len(finished) < 6, finished
+    assert not (out / "records.csv").exists()  # it did not get to the tables
+    resumed = run_study(cohort / "manifest.csv", out)
+    assert (resumed.cached, resumed.computed, resumed.failed) == (len(finished), 6 - len(finished), 0)
+    assert _entries(out) != finished and len(_entries(out)) == 6
 
 
 def test_command_line_exit_status_and_summary(serial, cohort, capsys):

@@ -2,20 +2,14 @@
 
 Columns (header row, any order; names are case-sensitive):
 
-========== ======== ==================================================================
-column     needed   meaning
-========== ======== ==================================================================
-record     yes      the record's unique name (a file-name-safe word)
-subject    yes      the subject it belongs to (sessions of one subject share this)
-group      yes      the group or condition the subject is compared in
-pt, ut     one of   the perturbed and unperturbed trials, as ``lpvpc identify`` takes them
-data       these    or one PT - UT file with a scheduling column
-torque_sign no      1 (default) or -1
-position_unit no    rad (default) or deg
-stationary no       true/false (default false): ``pt`` alone, a stationary trial
-heldout    no       the later fraction of the record held out, in (0, 1) (default: the
-                    study's ``heldout``, 0.3)
-========== ======== ==================================================================
+- ``record`` (needed): the record's unique name, a file-name-safe word;
+- ``subject`` (needed): the subject it belongs to (sessions of one subject share it);
+- ``group`` (needed): the group or condition the subject is compared in;
+- ``pt`` and ``ut``, or ``data``: the trials as ``lpvpc identify`` takes them (perturbed and
+  unperturbed), or one PT - UT file with a scheduling column;
+- ``torque_sign``: 1 (default) or -1; ``position_unit``: rad (default) or deg;
+- ``stationary``: true/false (default false): ``pt`` alone, a stationary trial;
+- ``heldout``: the later fraction of the record held out, in (0, 1) (default: the study's).
 
 Paths are relative to the manifest's folder. Empty optional cells take the default. Any
 other column is refused (a misspelt column would otherwise be silently ignored). Every
