@@ -235,15 +235,18 @@ def _worker_init() -> None:
 
 
 def _dask(specs, scheduler, done) -> None:
+    from ..errors import LpvpcError
+
     try:
         from dask.distributed import Client, as_completed
     except ImportError:
-        from ..errors import LpvpcError
-
         raise LpvpcError("a Dask scheduler was given but dask.distributed is not installed "
                          "(pip install 'lpvpc[study]')") from None
     own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
+    try:
+        client = Client(scheduler) if own else scheduler
+    except OSError as exc:
+        raise LpvpcError(f"cannot reach the Dask scheduler {scheduler}: {_one_line(exc)}") from None
     try:
         futures = client.map(analyse_record, specs, pure=False,
                              key=[f"lpvpc-study-{s['record']}-{s['key']}" for s in specs])
