@@ -4,6 +4,8 @@
 
     lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
     lpvpc simulate --out DIR --population-seed N [--effect NAME [--form FORM]] [--fs 1000|100] [--duration S]
+    lpvpc simulate --out DIR --cohort N [--null] [--population-seed FIRST] [--fs HZ] [--duration S]
+    lpvpc study MANIFEST.csv -o DIR [-j N | --scheduler ADDRESS] [--heldout FRACTION] [--compare REF OTHER]
     lpvpc identify (--pt PT.csv --ut UT.csv [--pt PT2 --ut UT2 ...] | DATA.csv [DATA2 ...]
                     | --pt PT.mat --stationary) -o model.json [estimator settings]
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
@@ -23,7 +25,8 @@
                   --heldout DATA2.csv) --report DIR [--stationary] [--json ladder.json] [--max-steps N]
                   [--effect NAME ...]
 
-``validate`` exits with status 1 when a threshold fails (``--min-vaf``, route agreement).
+``study`` exits with status 1 when a record failed (the others are finished); ``validate`` with 1
+when a threshold fails (``--min-vaf``, route agreement).
 Errors of the package (bad data, corrupt model file, ...) and unreadable or unwritable
 paths are printed as one line ``lpvpc: error: <message>`` on stderr, with exit status 2
 for bad input (1 for other failures); out-of-range and unit warnings as one line
@@ -192,6 +195,7 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
 _DATA = {"DATA": "data", "--pt": "pt", "--ut": "ut"}
 COMMAND_IO = {
     "simulate": CommandIO(folders={"--out": "out"}),
+    "study": CommandIO(inputs={"MANIFEST": "manifest"}, folders={"-o": "out"}),
     "identify": CommandIO(inputs=_DATA, files={"-o": "output"}, models=("-o",)),
     "predict": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json", "--out": "out"}),
     "export": CommandIO(inputs={"MODEL": "model"}, files={"--casadi": "casadi", "--fmu": "fmu"},
@@ -259,6 +263,42 @@ def _simulate_population(args) -> int:
     return 0
 
 
+def _simulate_cohort(args) -> int:
+    """simulate --cohort N: a virtual cohort in two groups with its manifest (lpvpc.study.cohort)."""
+    from .study.cohort import write_cohort
+
+    fixed = [opt for opt, v in (("--seed", args.seed), ("--snr", args.snr), ("--perturbation", args.perturbation),
+                                ("--stiffness-family", args.stiffness_family), ("--form", args.form))
+             if v is not None] + (["--effect"] if args.effect else [])
+    if fixed:
+        raise _UsageError(f"{', '.join(fixed)} cannot be given with --cohort (the population draws the subjects)")
+    if args.cohort < 2:
+        raise _UsageError(f"--cohort needs at least 2 subjects (one per group), got {args.cohort}")
+    first = args.population_seed or 0
+    if first < 0:
+        raise _UsageError(f"--population-seed must be >= 0, got {first}")
+    paths = write_cohort(args.out, args.cohort, first_seed=first, null=args.null, duration=args.duration, fs=args.fs)
+    what = "null cohort (no difference)" if args.null else "cohort (patient: K x1.5 toward dorsiflexion, reflex gain x2)"
+    print(f"virtual {what}: {args.cohort} subjects, population seeds {first}..{first + args.cohort - 1}, "
+          f"{args.duration:g} s at {args.fs:g} Hz")
+    for path in paths.values():
+        print(path)
+    return 0
+
+
+def cmd_study(args) -> int:
+    from .study import run_study
+
+    if args.jobs < 1:
+        raise _UsageError(f"-j must be at least 1, got {args.jobs}")
+    if not 0.0 < args.heldout < 1.0:
+        raise _UsageError(f"--heldout {args.heldout:g}: give a fraction between 0 and 1 (e.g. 0.3)")
+    result = run_study(args.manifest, args.out, jobs=args.jobs, scheduler=args.scheduler, heldout=args.heldout,
+                       compare=tuple(args.compare) if args.compare else None)
+    print("\n".join(result.summary_lines()))
+    return result.exit_status
+
+
 def cmd_simulate(args) -> int:
     from .simulation.simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
 
@@ -267,6 +307,10 @@ def cmd_simulate(args) -> int:
         raise _UsageError(f"--fs {args.fs:g} Hz must divide the simulation rate {FS_SIM:g} Hz (e.g. 1000 or 100)")
     if args.duration * args.fs < 100:
         raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
+    if args.cohort is not None:
+        return _simulate_cohort(args)
+    if args.null:
+        raise _UsageError("--null needs --cohort N")
     if args.population_seed is not None:
         return _simulate_population(args)
     if args.form is not None:
@@ -991,8 +1035,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stiffness-family", default=None, metavar="NAME",
                    help="shape of the elastic stiffness K(theta): standard (default), sum_of_exponentials "
                         "(steeper textbook form), piecewise (piecewise linear with a kink), polynomial (a cubic)")
+    p.add_argument("--cohort", type=int, default=None, metavar="N",
+                   help="write a virtual cohort of N population subjects in two groups (patient: K x1.5 toward "
+                        "dorsiflexion, reflex gain x2) with manifest.csv and truth.json for lpvpc study; "
+                        "--population-seed gives the first subject's seed (default 0)")
+    p.add_argument("--null", action="store_true", help="with --cohort: no difference between the groups")
     p.set_defaults(func=cmd_simulate)
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
+
+    p = sub.add_parser("study", help="identify a cohort of records, compare groups, write tables and a report",
+                       description="Identify every record of a manifest (in parallel, cached by content), "
+                                   "validate each on its held-out later part, and compare the groups: "
+                                   "records.csv, groups.csv and report.html in DIR (docs/guide/study.md).")
+    p.add_argument("manifest", metavar="MANIFEST", help="CSV: record,subject,group,pt,ut (or data) and optional "
+                                                        "torque_sign,position_unit,stationary,heldout")
+    p.add_argument("-o", "--out", required=True, metavar="DIR", help="study folder (created; its cache is kept)")
+    p.add_argument("-j", "--jobs", type=int, default=1, metavar="N", help="records identified at once (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (e.g. tcp://host:8786; "
+                                                          "needs pip install 'lpvpc[study]')")
+    p.add_argument("--heldout", type=float, default=0.3, metavar="FRACTION",
+                   help="later fraction of each record held out (default 0.3; a manifest row's heldout overrides)")
+    p.add_argument("--compare", nargs=2, metavar=("REF", "OTHER"),
+                   help="the two groups to compare (OTHER - REF; default: each group against the first)")
+    p.set_defaults(func=cmd_study)
+    _add_quiet_arg(p)
 
     d = _estimator_defaults()
     _given = ", unless given here"

@@ -21,7 +21,7 @@ LAYERS = (
     ("lpvpc.models",),
     ("lpvpc.identification", "lpvpc.simulation"),
     ("lpvpc.export", "lpvpc.plotting"),
-    ("lpvpc.diagnosis", "lpvpc.validation"),
+    ("lpvpc.diagnosis", "lpvpc.validation", "lpvpc.study"),
     ("lpvpc.cli", "lpvpc.demo"),
 )
 BASE = ("lpvpc._lazy", "lpvpc.errors", "lpvpc.linalg", "lpvpc.progress", "lpvpc.report_html")
