@@ -270,3 +270,37 @@ def test_omsimulator_simulate_runs_to_the_end(oms, model, fmus, kind, fmi, tmp_p
     else:
         assert abs(fmu.getValue("position") - 0.03) < 1e-3
     fmu.terminate()
+
+
+_RUN_SSP = """
+import sys
+from OMSimulator import SSP
+im = SSP(sys.argv[1]).instantiate()
+im.setFixedStepSize(float(sys.argv[2]))
+im.setResultFile(sys.argv[3])
+im.initialize()
+im.simulate()
+im.terminate()
+print("finished")
+"""
+
+
+def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, model, subject, tmp_path):
+    """Both archives ``lpvpc validate`` writes run as written in OMSimulator at 10 ms (one
+    master step for all components, the model FMU's tick) to the stop time, last step
+    included. Each run is its own process: OMSimulator keeps model names per process."""
+    import subprocess
+
+    from lpvpc.data import Trial
+    from lpvpc.validation import validate
+
+    pair, n = subject["novel_pair"], 10_000
+    pt, ut = (Trial(t.time[:n], t.position[:n], t.torque[:n], {k: v[:n] for k, v in t.channels.items()},
+                    name=t.name) for t in (pair.pt, pair.ut))
+    files = validate(model, pt, ut, tmp_path / "report", measure_load_effect=False).files
+    env = {**os.environ, "PYTHONPATH": str(omsimulator_root() / "lib" / "x86_64-linux-gnu")}
+    for key in ("ssp", "portable_ssp"):
+        run = subprocess.run([sys.executable, "-c", _RUN_SSP, str(files[key]), "0.01", str(tmp_path / f"{key}.mat")],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0 and "finished" in run.stdout, (key, run.stdout[-2000:], run.stderr[-2000:])
+        assert "error" not in run.stdout.lower(), (key, run.stdout[-2000:])
