@@ -21,10 +21,19 @@
  *     outputs are those of the last processed sample, held (0 before the first): they do
  *     not depend on the inputs of the current communication point, so every master, whether
  *     it reads outputs before or after setting the next inputs, sees the same values;
- *   - DoStep(t_k, h): h > 0, |t_k - time| <= 1e-9 * max(1, |time|), h an integer
- *     multiple n of SYS_STEP (relative tolerance 1e-9), n <= SYS_MAX_STEPS (the declared
- *     maximum communication step, so one call's work is bounded); applies n updates with the
- *     input held, then time = t_k + h. Every state and output is checked finite;
+ *   - time is kept on the absolute tick grid t_start + i * tick (tick = CS_TICK): the FMU
+ *     holds the index i of the tick it is at, never a running sum of step sizes, so masters
+ *     that build their times by adding steps cannot make its samples drift;
+ *   - DoStep(t_k, h): h > 0; t_k and t_k + h are each rounded to the nearest tick index and
+ *     accepted when they lie within grid_tolerance (1e-6 tick per tick elapsed since the
+ *     start, at least 1e-6 and at most 1e-2 tick) of that grid point: this covers the error
+ *     of times built by adding steps over long runs and a last step that is a sliver shorter
+ *     or longer than whole ticks. t_k must round to the FMU's current tick (steps are
+ *     contiguous); the step covers n = i(t_k + h) - i(t_k) ticks, n <= SYS_MAX_STEPS (the
+ *     declared maximum communication step, so one call's work is bounded). n = 0 (a step of
+ *     a sliver of a tick, which masters that clip their last step to a stop time produce)
+ *     only moves the time. Applies n updates with the input held (sampled mode: the ticks
+ *     whose index is a multiple of N process a sample), then time = t_k + h. Every state and output is checked finite;
  *     a non-finite value or a failing system function rolls the instance back to
  *     t_k, logs why and returns an error (the instance is then in the error state:
  *     get values / FMU state, set FMU state, reset or free).
@@ -83,11 +92,16 @@
 #define SYS_CONST_VALUES {0.0}
 #define SYS_CONST_NAMES {""}
 #endif
+#ifndef CS_MODEL_EXCHANGE
+#define CS_MODEL_EXCHANGE 0 /* 1 in me_core.h: time follows the importer, not the tick grid */
+#endif
 #define SAMPLED (SYS_TICKS_PER_SAMPLE > 0)
 /* the unit of communication steps: the base tick (sampled) or the internal step (direct) */
 #define CS_TICK (SAMPLED ? (double)SYS_STEP / (double)SYS_TICKS_PER_SAMPLE : (double)SYS_STEP)
-#define TIME_TOL 1e-9 /* relative tolerance on the communication point */
-#define STEP_TOL 1e-9 /* relative tolerance on h being a multiple of SYS_STEP */
+#define TIME_TOL 1e-9 /* relative tolerance on a time (Model Exchange time events) */
+#define GRID_TOL_PER_TICK 1e-6 /* tolerance on a communication point, in ticks per tick elapsed */
+#define GRID_TOL_MIN 1e-6      /* ... at least this many ticks */
+#define GRID_TOL_MAX 1e-2      /* ... at most this many ticks (far below the half tick that rounding needs) */
 
 /* Status of a core operation. The values are those of fmi2Status and fmi3Status, so a wrapper
  * returns them with a cast; CS_STATUS_IS(its OK, Warning, Discard, Error) checks that at compile time. */
@@ -118,11 +132,11 @@ typedef struct {
     int32_t mode;
     int32_t x_ready; /* x holds x0(p) (before step mode: parameters may still change) */
     double y_held[DIM(SYS_NY)]; /* sampled mode: outputs of the last processed sample */
-    int32_t phase;              /* sampled mode: base ticks since the last sample time, 0..N-1 */
-    int32_t pad2;
+    int64_t tick;               /* index of the tick the FMU is at: time = t_start + tick * CS_TICK */
+    double t_start;             /* start time: tick 0 of the grid (and sample 0 in sampled mode) */
 } CoreState;
 
-#define STATE_VERSION 2u
+#define STATE_VERSION 3u
 
 typedef struct {
     char magic[8];
@@ -283,6 +297,8 @@ static void set_start_values(Instance *c, double start_time)
     memcpy(c->s.p, param_defaults, sizeof c->s.p);
     memcpy(c->s.u, input_defaults, sizeof c->s.u);
     c->s.time = start_time;
+    c->s.t_start = start_time;
+    c->s.tick = 0;
     c->s.mode = MODE_INSTANTIATED;
     c->s.x_ready = 0;
     c->y_valid = 0;
@@ -427,6 +443,8 @@ static CsStatus cs_setup_experiment(Instance *c, const char *fn, double start_ti
         return CS_ERROR;
     }
     c->s.time = start_time;
+    c->s.t_start = start_time;
+    c->s.tick = 0;
     return CS_OK;
 }
 
@@ -628,8 +646,10 @@ static int valid_state(const Instance *c, const FmuState *st, const char *fn)
                   s->y_held[bad]);
         return 0;
     }
-    if (s->phase < 0 || s->phase >= (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1) || s->pad2 != 0) {
-        log_error(c, "%s: the FMU state has an invalid sample phase %d.", fn, (int)s->phase);
+    if (s->tick < 0 || !isfinite(s->t_start) ||
+        (!CS_MODEL_EXCHANGE && fabs(s->time - (s->t_start + (double)s->tick * CS_TICK)) > GRID_TOL_MAX * CS_TICK)) {
+        log_error(c, "%s: the FMU state's tick %lld does not match its time %.17g (start %.17g).", fn,
+                  (long long)s->tick, s->time, s->t_start);
         return 0;
     }
     return 1;
@@ -736,9 +756,28 @@ static CsStatus cs_deserialize_state(Instance *c, const char *fn, const void *by
 
 /* ---------------------------------------------------------------- stepping */
 
+/* Tolerance (s) of a communication point near tick index i: grows with the ticks elapsed,
+ * as the error of a time built by adding steps does. */
+static double grid_tolerance(double i)
+{
+    double r = GRID_TOL_PER_TICK * (fabs(i) + 1.0);
+    if (r < GRID_TOL_MIN) r = GRID_TOL_MIN;
+    if (r > GRID_TOL_MAX) r = GRID_TOL_MAX;
+    return r * CS_TICK;
+}
+
+/* *index = the nearest tick index of t (a double: t may be far off); 1 if t is within the
+ * tolerance of that grid point. */
+static int grid_index(const Instance *c, double t, double *index)
+{
+    double i = floor((t - c->s.t_start) / CS_TICK + 0.5);
+    *index = i;
+    return fabs(t - (c->s.t_start + i * CS_TICK)) <= grid_tolerance(i);
+}
+
 static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
 {
-    double nsteps, x_next[DIM(SYS_NX)], y_new[DIM(SYS_NY)];
+    double x_next[DIM(SYS_NX)], y_new[DIM(SYS_NY)], i0, i1;
     CoreState saved;
     long long n, k;
     int rc, bad;
@@ -752,33 +791,32 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
         log_error(c, "%s: communicationStepSize = %g must be > 0.", fn, h);
         return CS_ERROR;
     }
-    if (fabs(t - c->s.time) > TIME_TOL * (fabs(c->s.time) > 1.0 ? fabs(c->s.time) : 1.0)) {
-        log_error(c, "%s: currentCommunicationPoint = %.17g does not match the FMU time %.17g "
-                     "(steps must be contiguous; use " CS_SET_STATE_FN " to go back).",
-                  fn, t, c->s.time);
+    if (!grid_index(c, t, &i0) || i0 != (double)c->s.tick) {
+        log_error(c, "%s: currentCommunicationPoint = %.17g does not match the FMU time %.17g (tick %lld of "
+                     "%.17g s from %.17g s; tolerance %.3g s; steps must be contiguous; use " CS_SET_STATE_FN
+                     " to go back).",
+                  fn, t, c->s.time, (long long)c->s.tick, CS_TICK, c->s.t_start, grid_tolerance((double)c->s.tick));
         return CS_ERROR;
     }
-    nsteps = h / CS_TICK;
-    if (nsteps > (double)SYS_MAX_STEPS + 0.5) {
+    if (h / CS_TICK > (double)SYS_MAX_STEPS + 0.5) {
         log_error(c, "%s: communicationStepSize = %g s is larger than this FMU's maximum communication step "
                      "%g s (%d steps of %g s; the bound keeps one doStep short).",
                   fn, h, (double)SYS_MAX_STEPS * CS_TICK, SYS_MAX_STEPS, CS_TICK);
         return CS_ERROR;
     }
-    n = (long long)(nsteps + 0.5);
-    if (n < 1 || fabs(h - (double)n * CS_TICK) > STEP_TOL * h) {
+    if (!grid_index(c, t + h, &i1)) {
         log_error(c, "%s: communicationStepSize = %.17g s is not an integer multiple of the %s %.17g s "
-                     "(ratio %.12g).",
-                  fn, h, SAMPLED ? "base tick" : "internal step", CS_TICK, nsteps);
+                     "(ratio %.12g; the step must end within %.3g s of the tick grid %.17g + i * %.17g s).",
+                  fn, h, SAMPLED ? "base tick" : "internal step", CS_TICK, h / CS_TICK, grid_tolerance(i1),
+                  c->s.t_start, CS_TICK);
         return CS_ERROR;
     }
+    n = (long long)(i1 - i0);
 
     saved = c->s;
     for (k = 0; k < n; k++) {
-        if (SAMPLED && c->s.phase != 0) { /* between sample times: nothing to compute */
-            c->s.phase = (int32_t)((c->s.phase + 1) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1));
-            continue;
-        }
+        if (SAMPLED && (c->s.tick + k) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1) != 0)
+            continue; /* between sample times: nothing to compute */
         if (SAMPLED) {
             rc = sys_output(c->s.x, c->s.u, c->s.p, y_new);
             if (rc != 0) {
@@ -808,11 +846,9 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
             goto fail;
         }
         memcpy(c->s.x, x_next, sizeof(double) * (size_t)SYS_NX);
-        if (SAMPLED) {
-            memcpy(c->s.y_held, y_new, sizeof(double) * (size_t)SYS_NY);
-            c->s.phase = (int32_t)((c->s.phase + 1) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1));
-        }
+        if (SAMPLED) memcpy(c->s.y_held, y_new, sizeof(double) * (size_t)SYS_NY);
     }
+    c->s.tick += n;
     c->s.time = t + h;
     c->y_valid = 0;
     if (!ensure_outputs(c, fn)) goto fail;

@@ -34,6 +34,7 @@
 #pragma GCC diagnostic ignored "-Wunused-function" /* cs_core.h's co-simulation step is not used here */
 #endif
 
+#define CS_MODEL_EXCHANGE 1
 #include "cs_core.h"
 
 enum { ME_EVENT = 1, ME_CONTINUOUS = 2 };

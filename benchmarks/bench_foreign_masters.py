@@ -1,0 +1,164 @@
+"""The model FMUs over 120 s in masters nobody here wrote: OMSimulator 3.0 (its FMU API,
+sample by sample and its own ``simulate`` loop) and fmpy driven with times built by adding
+steps. Virtual subject of the README's quick start (identification seed 0, novel record
+seed 1, repeated to 120 s).
+
+For each model FMU (sampled, causal, exact; FMI 2 and 3): samples wrong (> 1e-9 N m after the
+declared latency) and the largest error, for
+
+- ``stepUntil(t_k+1)``: OMSimulator's FMU API, the call a user writes first;
+- ``stepUntil(t_k+1 - tick/2)``: the call the guide gives for OMSimulator;
+- ``simulate``: OMSimulator's loop to 120 s at the FMU's DefaultExperiment step, inputs held
+  (it ends with a step that is a sliver off whole ticks): "ok" or its error;
+- fmpy at 1 ms and 10 ms master steps, t += h, the last step clipped to the stop time.
+
+Run: ``PYTHONPATH=../shared/tools/omsimulator/lib/x86_64-linux-gnu python
+benchmarks/bench_foreign_masters.py`` (needs ``pip install lxml``). Results:
+benchmarks/results/foreign_masters.txt.
+"""
+
+import os
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+from _results import write_results
+from fmpy import extract
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from fmu_helpers import FMUInstance, reference  # noqa: E402
+
+from lpvpc import export as ex  # noqa: E402
+from lpvpc.identification.identify import identify  # noqa: E402
+from lpvpc.simulation.simulate import simulate_pair  # noqa: E402
+
+SECONDS = 120.0
+TOL = 1e-9
+
+
+def _count(y, ref, lat):
+    e = np.abs(y[lat:] - ref[: len(ref) - lat])
+    return int((e > TOL).sum()), float(e.max())
+
+
+def _oms_step_until(OMS, path, inputs, T, tick, sampled, half):
+    n = len(next(iter(inputs.values())))
+    fmu = OMS.FMU(str(path), instanceName=f"b{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(n * T + 1.0)
+    fmu.initialize()
+    y = np.empty(n)
+    for k in range(n):
+        for name, v in inputs.items():
+            fmu.setValue(name, float(v[k]))
+        if not sampled:
+            y[k] = fmu.getValue("torque")
+        fmu.stepUntil((k + 1) * T - (tick / 2 if half else 0.0))
+        if sampled:
+            y[k] = fmu.getValue("torque")
+    fmu.terminate()
+    return y
+
+
+def _oms_simulate(OMS, path):
+    fmu = OMS.FMU(str(path), instanceName=f"s{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(SECONDS)
+    fmu.initialize()
+    fmu.setValue("position", 0.03)
+    fmu.setValue("scheduling", -0.05)
+    try:
+        fmu.simulate()
+        return "ok"
+    except RuntimeError as exc:
+        return f"error ({exc})"
+    finally:
+        fmu.terminate()
+
+
+def _fmpy_added(path, unzipdir, inputs, T, h, sampled):
+    inst = FMUInstance(path, unzipdir, "f", "cs").initialize()
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    ins, out = inst.refs(names), inst.refs(["torque"])
+    per = int(round(T / h))
+    y, t, j = np.empty(n), 0.0, 0
+    try:
+        for k in range(n):
+            inst.set(ins, [float(inputs[q][k]) for q in names])
+            if not sampled:
+                y[k] = inst.get(out)[0]
+            for _ in range(per):
+                step = n * T - t if j == n * per - 1 else h
+                inst.fmu.doStep(t, step)
+                t += step
+                j += 1
+            if sampled:
+                y[k] = inst.get(out)[0]
+    except Exception:  # noqa: BLE001 - the row reports the FMU's refusal
+        return None, [m for s, m in inst.log if s >= 2][-1:]
+    return y, []
+
+
+def main():
+    lib = Path(os.environ.get("LPVPC_OMSIMULATOR", Path(__file__).resolve().parents[2] / "shared" / "tools"
+                              / "omsimulator")) / "lib" / "x86_64-linux-gnu"
+    sys.path.insert(0, str(lib))
+    import OMSimulator as OMS
+
+    work = Path(tempfile.mkdtemp())
+    model = identify(_load(simulate_pair("multilevel", seed=0), work, "ident"))
+    data = _load(simulate_pair("novel", seed=1), work, "novel")
+    n = int(round(SECONDS * model.fs))
+    reps = int(np.ceil(n / len(data.position)))
+    pos, sch = np.tile(data.position, reps)[:n], np.tile(data.scheduling, reps)[:n]
+    T = 1.0 / model.fs
+    lines = [f"# {SECONDS:g} s per run, {n} samples at {model.fs:g} Hz; wrong = samples off by > 1e-9 N m "
+             "after the declared latency", "",
+             f"{'FMU':<16}{'master / call':<34}{'wrong':>8}{'max err N m':>14}  end"]
+    os.chdir(work)  # OMSimulator writes result files into the working folder
+    for kind in ("sampled", "causal", "exact"):
+        for fmi in (2, 3):
+            path = ex.export_fmu(model, work / f"{kind}{fmi}.fmu", fmi_version=fmi, variant=kind)
+            unzipdir = extract(path, unzipdir=work / f"x{kind}{fmi}")
+            inputs = {k: v.ravel() for k, v in ex.replay_inputs(model, pos, sch, kind).items()}
+            ref = reference(model, pos, sch, kind)["torque"]
+            lat, sampled = ex.latency_samples(model, kind), kind == "sampled"
+            tick = T / ex.ticks_per_sample(model) if sampled else T
+            name = f"{kind} FMI {fmi}"
+            for label, half in (("OMSimulator stepUntil(t_k+1)", False), ("OMSimulator stepUntil(t_k+1-tick/2)", True)):
+                t0 = time.perf_counter()
+                try:
+                    y = _oms_step_until(OMS, path, inputs, T, tick, sampled, half)
+                    w, e = _count(y, ref, lat)
+                    lines.append(f"{name:<16}{label:<34}{w:>8}{e:>14.3g}  ok ({time.perf_counter() - t0:.0f} s)")
+                except RuntimeError as exc:
+                    lines.append(f"{name:<16}{label:<34}{'-':>8}{'-':>14}  error ({exc})")
+            lines.append(f"{name:<16}{'OMSimulator simulate (held)':<34}{'':>8}{'':>14}  {_oms_simulate(OMS, path)}")
+            for h in (1e-3, 1e-2):
+                y, err = _fmpy_added(path, unzipdir, inputs, T, h, sampled)
+                label = f"fmpy t += {h * 1e3:g} ms"
+                if y is None:
+                    lines.append(f"{name:<16}{label:<34}{'-':>8}{'-':>14}  refused: {err[0] if err else ''}")
+                else:
+                    w, e = _count(y, ref, lat)
+                    lines.append(f"{name:<16}{label:<34}{w:>8}{e:>14.3g}  ok")
+            print(*lines[-5:], sep="\n", flush=True)
+    write_results(os.environ.get("BENCH_OUT") and Path(os.environ["BENCH_OUT"]) or "foreign_masters.txt", lines)
+
+
+def _load(pair, folder, stem):
+    """The pair through the loaders a user's files go through (CSV at 1 kHz, decimated)."""
+    from lpvpc.io import load_identification_data, write_trial_csv
+
+    pt, ut = folder / f"{stem}_PT.csv", folder / f"{stem}_UT.csv"
+    write_trial_csv(pair.pt, pt)
+    write_trial_csv(pair.ut, ut)
+    return load_identification_data(pt=pt, ut=ut)
+
+
+if __name__ == "__main__":
+    main()

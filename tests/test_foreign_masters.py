@@ -1,0 +1,305 @@
+"""Every FMU kind the project writes, run as masters nobody here wrote run it.
+
+Two masters:
+
+- fmpy driven the way OMSimulator and most fixed-step masters drive an FMU: the
+  communication time is built by adding the step (``t += h``), so it drifts from the tick
+  grid by rounding, and the last step is clipped to the stop time (a sliver shorter or longer
+  than whole ticks); also a last step of fewer ticks than the master step;
+- OMSimulator 3.0 (OpenModelica's FMI/SSP simulator) through its Python API, where a build
+  is found (``$LPVPC_OMSIMULATOR`` or ``../shared/tools/omsimulator`` beside the
+  repository; a fresh clone has neither and these tests skip, saying so).
+
+Each run must end without error and agree with the offline prediction to 1e-9 N m after the
+FMU's declared latency. The long (120 s) runs are in benchmarks/bench_foreign_masters.py.
+"""
+
+import os
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract
+from fmu_helpers import FMUInstance, reference
+
+from lpvpc.export import exporter as ex
+ABS_TOL = 1e-9  # N m
+RUN_S = 20.0  # s per run (the benchmark runs 120 s)
+KINDS = [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3),
+         ("closed_loop", 2), ("closed_loop", 3)]
+OUTPUTS = ("torque", "torque_intrinsic", "torque_reflex")
+
+
+def omsimulator_root() -> Path:
+    """Where an OMSimulator build is looked for: ``$LPVPC_OMSIMULATOR``, else
+    ``../shared/tools/omsimulator`` next to the repository."""
+    env = os.environ.get("LPVPC_OMSIMULATOR")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[1].parent / "shared" / "tools" / "omsimulator"
+
+
+@pytest.fixture(scope="module")
+def oms():
+    """The OMSimulator Python package, or a skip that says why it is not usable here."""
+    lib = omsimulator_root() / "lib" / "x86_64-linux-gnu"
+    if not (lib / "OMSimulator").is_dir():
+        pytest.skip(f"no OMSimulator build at {omsimulator_root()} (set LPVPC_OMSIMULATOR to one)")
+    sys.path.insert(0, str(lib))
+    try:
+        import OMSimulator
+    except Exception as exc:  # noqa: BLE001 - a missing lxml or shared library fails in many ways
+        pytest.skip(f"OMSimulator at {lib} not importable: {type(exc).__name__}: {exc}")
+    return OMSimulator
+
+
+@pytest.fixture(scope="module")
+def closed_loop(model, subject):
+    from lpvpc.export.closed_loop import distillation_trial, fit_closed_loop
+    from lpvpc.export.whole_joint import fit_whole_joint
+
+    wj = fit_whole_joint(model, subject["ident_pair"].ut)
+    return fit_closed_loop(wj, [distillation_trial(wj, subject["ident_pair"].ut)])
+
+
+@pytest.fixture(scope="module")
+def fmus(model, closed_loop, tmp_path_factory):
+    """{(kind, fmi): (path, extracted folder)} for every model kind and the actuator."""
+    from lpvpc.export.actuator import build_actuator_fmu
+    from lpvpc.export.closed_loop import export_closed_loop_fmu
+
+    folder = tmp_path_factory.mktemp("foreign")
+    out = {}
+    for kind, fmi in KINDS + [("actuator", 2), ("actuator", 3)]:
+        path = folder / f"{kind}_fmi{fmi}.fmu"
+        if kind == "closed_loop":
+            export_closed_loop_fmu(closed_loop, path, fmi)
+        elif kind == "actuator":
+            build_actuator_fmu(path, fmi)
+        else:
+            ex.export_fmu(model, path, fmi_version=fmi, variant=kind)
+        out[(kind, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_{kind}_{fmi}")))
+    return out
+
+
+def _case(model, closed_loop, subject, kind, seconds=RUN_S):
+    """(inputs {name: per-sample array}, expected torque per sample, latency in samples,
+    sampled FMU?) for ``seconds`` of the novel record."""
+    data = subject["novel"]
+    n = int(round(seconds * model.fs))
+    pos, sch = data.position[:n], data.scheduling[:n]
+    if kind == "closed_loop":  # its reference is the tick function, with each sample held over its ticks
+        from lpvpc.export.closed_loop import closed_loop_step, ticks
+
+        vel = np.gradient(pos, 1.0 / model.fs)
+        N = ticks(closed_loop)
+        step = closed_loop_step(closed_loop)
+        out = ex.trajectory_function(step, n * N)(state=np.zeros(step.size1_in(0)),
+                                                  angle=np.repeat(pos, N)[None, :],
+                                                  angular_velocity=np.repeat(vel, N)[None, :])
+        return {"angle": pos, "angular_velocity": vel}, np.asarray(out["torque"]).ravel()[::N], 0, False
+    inputs = {k: v.ravel() for k, v in ex.replay_inputs(model, pos, sch, kind).items()}
+    return inputs, reference(model, pos, sch, kind)["torque"], ex.latency_samples(model, kind), kind == "sampled"
+
+
+def _fmpy_added_times(path, unzipdir, inputs, T, h, sampled, name="m"):
+    """Run with fmpy, communication times built by adding ``h``; the last step clipped to the
+    stop time n T. Returns the torque per sample and the instance's error messages."""
+    inst = FMUInstance(path, unzipdir, name, "cs").initialize()
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    ins, out = inst.refs(names), inst.refs(["torque"])
+    per = int(round(T / h))
+    stop, t, j = n * T, 0.0, 0
+    y = np.empty(n)
+    for k in range(n):
+        inst.set(ins, [float(inputs[q][k]) for q in names])
+        if not sampled:
+            y[k] = inst.get(out)[0]
+        for _ in range(per):
+            step = stop - t if j == n * per - 1 else h
+            inst.fmu.doStep(t, step)
+            t += step
+            j += 1
+        if sampled:
+            y[k] = inst.get(out)[0]
+    inst.fmu.terminate()
+    inst.fmu.freeInstance()
+    return y, [m for s, m in inst.log if s >= 2]
+
+
+def _agreement(y, expected, lat):
+    return float(np.max(np.abs(y[lat:] - expected[: len(expected) - lat])))
+
+
+@pytest.mark.parametrize("kind,fmi", KINDS)
+@pytest.mark.parametrize("master_step", [1e-3, 1e-2])
+def test_fmpy_with_added_times_agrees_to_the_end(model, closed_loop, subject, fmus, kind, fmi, master_step):
+    """Times built by adding steps over 20 s and a clipped last step: no error, and the
+    torque equals the offline prediction. A master step of 1 ms is a whole tick of the
+    sampled and closed-loop FMUs; the causal and exact FMUs (tick = the 10 ms sample) refuse
+    it, saying why."""
+    from fmpy.fmi1 import FMICallException
+
+    inputs, expected, lat, sampled = _case(model, closed_loop, subject, kind)
+    path, unzipdir = fmus[(kind, fmi)]
+    T = 1.0 / model.fs
+    if master_step < T and kind in ("causal", "exact"):
+        with pytest.raises(FMICallException):
+            _fmpy_added_times(path, unzipdir, inputs, T, master_step, sampled)
+        return
+    y, errors = _fmpy_added_times(path, unzipdir, inputs, T, master_step, sampled)
+    assert not errors
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_short_last_step_and_drifted_times_keep_the_grid(model, subject, fmus, fmi):
+    """A last step of fewer ticks than the master step, a sliver step of no tick, and a
+    communication point that drifted (within tolerance) keep the samples on the absolute
+    grid; half a tick is still refused."""
+    from fmpy.fmi1 import FMICallException
+
+    path, unzipdir = fmus[("sampled", fmi)]
+    values = {"position": 0.02, "scheduling": 0.0}
+    inst = FMUInstance(path, unzipdir, "g", "cs").initialize(values)
+    on_grid = FMUInstance(path, unzipdir, "e", "cs").initialize(values)
+    out = inst.refs(["torque"])
+    t = 0.0
+    for k in range(100):  # 1 s at 10 ms, time built by adding
+        inst.set(inst.refs(["position"]), [0.02 + 1e-3 * k])
+        on_grid.set(inst.refs(["position"]), [0.02 + 1e-3 * k])
+        inst.fmu.doStep(t, 0.01)
+        on_grid.fmu.doStep(k * 0.01, 0.01)
+        t += 0.01
+    assert t != 1.0  # the sum drifted off the grid
+    inst.fmu.doStep(t, 1e-12)  # a sliver: no tick
+    inst.fmu.doStep(1.0 + 2e-12, 0.003)  # a short step of 3 ticks from a drifted point
+    on_grid.fmu.doStep(1.0, 0.003)
+    assert inst.get(out) == on_grid.get(out)
+    with pytest.raises(FMICallException):
+        inst.fmu.doStep(1.003, 0.0005)
+    assert any("not an integer multiple" in m for s, m in inst.log if s >= 2)
+    for i in (inst, on_grid):
+        i.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+@pytest.mark.parametrize("master_step", [1e-3, 1e-2])
+def test_actuator_with_added_times_equals_exact_times(fmus, fmi, master_step):
+    """The actuator FMU driven with added-up times ends without error and gives the same
+    positions as when driven at exact multiples of the step."""
+    path, unzipdir = fmus[("actuator", fmi)]
+    rng = np.random.default_rng(3)
+    n = int(RUN_S / master_step)
+    cmd = 0.05 * np.sin(np.arange(n) * master_step * 2 * np.pi) + 1e-3 * rng.standard_normal(n)
+    runs = []
+    for added in (True, False):
+        inst = FMUInstance(path, unzipdir, "a", "cs").initialize()
+        vin, vout = inst.refs(["command"]), inst.refs(["position"])
+        y, t = np.empty(n), 0.0
+        for k in range(n):
+            inst.set(vin, [float(cmd[k])])
+            tk = t if added else k * master_step
+            h = (n * master_step - tk) if (added and k == n - 1) else master_step
+            inst.fmu.doStep(tk, h)
+            t = tk + h
+            y[k] = inst.get(vout)[0]
+        assert not [m for s, m in inst.log if s >= 2]
+        inst.fmu.freeInstance()
+        runs.append(y)
+    assert np.max(np.abs(runs[0] - runs[1])) < ABS_TOL
+
+
+def _oms_fmu(oms, path, stop):
+    fmu = oms.FMU(str(path), instanceName=f"i{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(stop)
+    fmu.initialize()
+    return fmu
+
+
+@pytest.mark.parametrize("kind,fmi", KINDS)
+def test_omsimulator_step_until_replay(oms, model, closed_loop, subject, fmus, kind, fmi, tmp_path, monkeypatch):
+    """OMSimulator's FMU API, sample by sample with the call the guide gives for it:
+    ``stepUntil(t_{k+1} - tick/2)`` (its master adds whole steps until its time reaches the
+    target, so a target on the grid can take one tick more; half a tick before it ends on
+    t_{k+1}). Every sample equals the prediction."""
+    monkeypatch.chdir(tmp_path)  # OMSimulator writes a result file into the working folder
+    inputs, expected, lat, sampled = _case(model, closed_loop, subject, kind)
+    path, _ = fmus[(kind, fmi)]
+    T = 1.0 / model.fs
+    tick = T / ex.ticks_per_sample(model) if kind in ("sampled", "closed_loop") else T
+    n = len(expected)
+    fmu = _oms_fmu(oms, path, n * T + 1.0)
+    y = np.empty(n)
+    for k in range(n):
+        for name, v in inputs.items():
+            fmu.setValue(name, float(v[k]))
+        if not sampled:
+            y[k] = fmu.getValue("torque")
+        fmu.stepUntil((k + 1) * T - tick / 2)
+        if sampled:
+            y[k] = fmu.getValue("torque")
+    fmu.terminate()
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+@pytest.mark.parametrize("kind", ["sampled", "exact", "actuator"])
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_omsimulator_simulate_runs_to_the_end(oms, model, fmus, kind, fmi, tmp_path, monkeypatch):
+    """OMSimulator's own loop (``simulate``: times built by adding its step, the last step
+    clipped to the stop time) runs 20 s to the end without error; with inputs held the
+    model's torque is the prediction's last sample."""
+    monkeypatch.chdir(tmp_path)
+    path, _ = fmus[(kind, fmi)]
+    fmu = _oms_fmu(oms, path, RUN_S)
+    held = {"position": 0.03, "scheduling": -0.05} if kind != "actuator" else {"command": 0.03}
+    for name, v in held.items():
+        fmu.setValue(name, v)
+    fmu.simulate()
+    if kind != "actuator":
+        n = int(round(RUN_S * model.fs))
+        inputs = {k: v.ravel() for k, v in ex.replay_inputs(model, np.full(n, 0.03), np.full(n, -0.05),
+                                                            kind).items()}
+        expected = reference(model, inputs["position"], inputs["scheduling"], kind)["torque"]
+        assert abs(fmu.getValue("torque") - expected[-1]) < ABS_TOL
+    else:
+        assert abs(fmu.getValue("position") - 0.03) < 1e-3
+    fmu.terminate()
+
+
+_RUN_SSP = """
+import sys
+from OMSimulator import SSP
+im = SSP(sys.argv[1]).instantiate()
+im.setFixedStepSize(float(sys.argv[2]))
+im.setResultFile(sys.argv[3])
+im.initialize()
+im.simulate()
+im.terminate()
+print("finished")
+"""
+
+
+def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, model, subject, tmp_path):
+    """Both archives ``lpvpc validate`` writes run as written in OMSimulator at 10 ms (one
+    master step for all components, the model FMU's tick) to the stop time, last step
+    included. Each run is its own process: OMSimulator keeps model names per process."""
+    import subprocess
+
+    from lpvpc.io import Trial
+    from lpvpc.validation import validate
+
+    pair, n = subject["novel_pair"], 10_000
+    pt, ut = (Trial(t.time[:n], t.position[:n], t.torque[:n], {k: v[:n] for k, v in t.channels.items()},
+                    name=t.name) for t in (pair.pt, pair.ut))
+    files = validate(model, pt, ut, tmp_path / "report", measure_load_effect=False).files
+    env = {**os.environ, "PYTHONPATH": str(omsimulator_root() / "lib" / "x86_64-linux-gnu")}
+    for key in ("ssp", "portable_ssp"):
+        run = subprocess.run([sys.executable, "-c", _RUN_SSP, str(files[key]), "0.01", str(tmp_path / f"{key}.mat")],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0 and "finished" in run.stdout, (key, run.stdout[-2000:], run.stderr[-2000:])
+        assert "error" not in run.stdout.lower(), (key, run.stdout[-2000:])
