@@ -281,10 +281,13 @@ class LPVPCModel:
             ("s" or "ms"), ``channel_skew`` (s: the torque channel's lag behind position,
             undone at the file's rate) and ``fs`` (Hz).
         """
+        from ..io.identification_data import CONVENTION_DEFAULTS as d  # the loader's defaults, one place
+
         c = self.conventions or {}
-        return {"position_unit": c.get("position_unit", "rad"), "torque_sign": float(c.get("torque_sign", 1.0)),
-                "time_unit": c.get("time_unit", "s"), "channel_skew": float(c.get("channel_skew_s", 0.0) or 0.0),
-                "fs": float(self.fs)}
+        return {"position_unit": c.get("position_unit", d["position_unit"]),
+                "torque_sign": float(c.get("torque_sign", d["torque_sign"])),
+                "time_unit": c.get("time_unit", d["time_unit"]),
+                "channel_skew": float(c.get("channel_skew_s", d["channel_skew"]) or 0.0), "fs": float(self.fs)}
 
     def load_record(self, pt=None, ut=None, data=None, **settings):
         """A record read the way this model's own record was: its torque sign, units,
