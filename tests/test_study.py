@@ -7,6 +7,7 @@ part; the serial study is run once and the others are compared with it.
 """
 
 import csv
+import json
 import math
 import re
 import shutil
@@ -107,6 +108,7 @@ MANIFESTS = {
     "unit": ("record,subject,group,pt,ut,position_unit\nA,S1,G,p.csv,u.csv,grad\n", ["row 2", "position_unit"]),
     "heldout": ("record,subject,group,pt,ut,heldout\nA,S1,G,p.csv,u.csv,30\n", ["row 2", "heldout", "'30'"]),
     "stationary": ("record,subject,group,pt,ut,stationary\nA,S1,G,p.csv,u.csv,maybe\n", ["row 2", "stationary"]),
+    "diagnose": ("record,subject,group,pt,ut,diagnose\nA,S1,G,p.csv,u.csv,perhaps\n", ["row 2", "diagnose", "'perhaps'"]),
     "record name": ("record,subject,group,pt,ut\na/b,S1,G,p.csv,u.csv\n", ["row 2", "column record"]),
     "no rows": ("record,subject,group,pt,ut\n", ["no records"]),
     "empty": ("", ["empty"]),
@@ -273,3 +275,98 @@ def test_cohort_truth_and_command_line(tmp_path, capsys):
     rows = read_manifest(tmp_path / "c" / "manifest.csv")
     assert [r.group for r in rows] == ["control", "patient"]
     assert main(["-q", "simulate", "--out", str(tmp_path / "d"), "--cohort", "2", "--seed", "3"]) == 2
+
+
+def test_a_within_subject_design_is_compared_in_pairs(tmp_path):
+    """Subjects recorded in both conditions: the difference's interval is the t interval of
+    each subject's own difference (not Welch's over two groups), and says so."""
+    from scipy import stats
+
+    paths = write_cohort(tmp_path / "within", 3, duration=40.0, fs=100.0, design="within")
+    truth = json.loads(paths["truth"].read_text())
+    assert truth["design"] == "within" and [r["subject"] for r in truth["records"]] == ["S01", "S01", "S02", "S02",
+                                                                                        "S03", "S03"]
+    assert len({r["seed"] for r in truth["records"]}) == 6  # each session its own noise
+    out = tmp_path / "study"
+    run_study(paths["manifest"], out)
+    recs = [r for r in _table(out / "records.csv") if r["status"] == "ok"]
+    theta = recs[0]["theta"]
+    k = {(r["subject"], r["group"]): float(r["stiffness"]) for r in recs if r["theta"] == theta}
+    d = np.array([k[(s, "patient")] - k[(s, "control")] for s in ("S01", "S02", "S03")])
+    row = next(r for r in _table(out / "groups.csv") if r["quantity"] == "stiffness" and r["theta"] == theta
+               and r["group"] == "patient - control")
+    assert row["design"] == "paired (3 subjects)" and row["n_subjects"] == "3 pairs"
+    assert float(row["mean"]) == pytest.approx(d.mean(), rel=1e-12)
+    h = stats.t.ppf(0.975, 2) * d.std(ddof=1) / np.sqrt(3)
+    assert float(row["upper"]) - float(row["mean"]) == pytest.approx(h, rel=1e-9)
+
+
+def test_between_groups_keep_welch(serial):
+    out, _ = serial
+    diff = [r for r in _table(out / "groups.csv") if r["group"] == "patient - control"]
+    assert diff and all(r["design"] == "independent groups (Welch)" for r in diff)
+
+
+def test_records_are_diagnosed_when_asked(cohort, tmp_path):
+    """A row with diagnose true is diagnosed on its held-out part: records.csv names the
+    missing effect ("none" when the diagnosis finds none); a held-out part too short for a
+    diagnosis keeps its model and says "not diagnosed" with the reason; rows not asked are
+    left empty."""
+    lines = (cohort / "manifest.csv").read_text().splitlines()
+    text = (lines[0] + ",heldout,diagnose\n" + lines[1] + ",0.5,true\n" + lines[2] + ",,\n"
+            + lines[3] + ",,true\n")
+    manifest = cohort / "diagnose.csv"
+    manifest.write_text(text)
+    out = tmp_path / "study"
+    result = run_study(manifest, out)
+    by = {}
+    for r in _table(out / "records.csv"):
+        by.setdefault(r["record"], set()).add(r["missing_effect"])
+    first, second, third = (line.split(",")[0] for line in lines[1:4])
+    assert by[second] == {""} and by[third] == {"not diagnosed"}
+    assert all(r["status"] == "ok" for r in result.results)
+    assert len(by[first]) == 1 and next(iter(by[first])) not in ("", "not diagnosed")
+    d = result.results[0]["diagnosis"]
+    assert (d["missing"] or "none") == next(iter(by[first])) and d["answer"]
+    html = (out / "report.html").read_text()
+    assert "missing effect (diagnosis)" in html and "not diagnosed: " in html and "too short" in html
+
+
+def test_the_study_pieces_by_hand_give_the_study_tables(serial, cohort, tmp_path):
+    """The steps run_study takes, called one by one on two records (manifest rows, cache key,
+    one job each, the grid, the tables, the report, a record's diagnosis kept as a summary),
+    give the tables run_study wrote for those records."""
+    from lpvpc.diagnosis import diagnose
+    from lpvpc.io import hold_out, load_identification_data
+    from lpvpc.study import StudyResult
+    from lpvpc.study.manifest import ManifestRow
+    from lpvpc.study.report import report_html
+    from lpvpc.study.run import analyse_record, diagnosis_summary, execute, record_key
+    from lpvpc.study.tables import GROUP_COLUMNS, RECORD_COLUMNS, common_grid, group_rows, records_rows, write_csv
+
+    rows = [r for r in read_manifest(cohort / "manifest.csv")][:2]
+    assert all(isinstance(r, ManifestRow) for r in rows)
+    settings = {"heldout": 0.3, "identify": {}, "level": 0.95, "grid_step": 0.01, "diagnose": False}
+    specs = [{"record": r.record, "key": record_key(r, settings), "pt": r.pt, "ut": r.ut, "heldout": 0.3,
+              "level": 0.95} for r in rows]
+    results = execute(specs[1:])
+    results.insert(0, analyse_record(specs[0]))
+    assert [r["status"] for r in results] == ["ok", "ok"]
+    grid = common_grid(results)
+    write_csv(tmp_path / "records.csv", records_rows(results, rows, grid), RECORD_COLUMNS)
+    groups = group_rows(results, rows, grid, [("control", "patient")])
+    write_csv(tmp_path / "groups.csv", groups, GROUP_COLUMNS)
+    study = _table(serial[0] / "records.csv")
+    mine = _table(tmp_path / "records.csv")
+    for r in mine:
+        same = next(x for x in study if x["record"] == r["record"] and x["theta"] == r["theta"])
+        assert float(r["stiffness"]) == float(same["stiffness"]) and r["vaf_heldout"] == same["vaf_heldout"]
+    html = report_html(results, rows, grid, groups, [("control", "patient")], counts={"computed": 2})
+    assert rows[0].record in html and "<img" in html
+    assert isinstance(serial[1], StudyResult) and serial[1].exit_status == 1
+    data = load_identification_data(pt=rows[0].pt, ut=rows[0].ut)
+    ident, held = hold_out(data, 0.5)
+    from lpvpc import identify
+
+    summary = diagnosis_summary(diagnose(identify(ident), held))
+    assert set(summary) >= {"missing", "pathway", "significant", "answer"} and summary["answer"]

@@ -78,7 +78,7 @@ def _comparisons(rows, compare):
 
 def run_study(manifest, out, *, jobs: int = 1, scheduler=None, heldout: float = DEFAULT_HELDOUT,
               identify_settings: dict | None = None, level: float = 0.95, compare=None,
-              report: bool = True) -> StudyResult:
+              report: bool = True, diagnose: bool = False) -> StudyResult:
     """Identify every record of ``manifest`` and compare the groups; write the results to ``out``.
 
     Parameters
@@ -104,6 +104,9 @@ def run_study(manifest, out, *, jobs: int = 1, scheduler=None, heldout: float = 
         the manifest's first.
     report : bool
         Write ``report.html``.
+    diagnose : bool
+        Also diagnose each model on its held-out part (which effect is missing; a row's
+        ``diagnose`` overrides it): ``records.csv`` then names the missing effect.
 
     Returns
     -------
@@ -129,7 +132,7 @@ def run_study(manifest, out, *, jobs: int = 1, scheduler=None, heldout: float = 
     for d in (out, cache, models):
         d.mkdir(parents=True, exist_ok=True)
     study_settings = {"heldout": float(heldout), "identify": identify_settings or {}, "level": float(level),
-                      "grid_step": run.GRID_STEP}
+                      "grid_step": run.GRID_STEP, "diagnose": bool(diagnose)}
     results: list = [None] * len(rows)
     todo, specs = [], []
     for i, row in enumerate(rows):
@@ -150,7 +153,7 @@ def run_study(manifest, out, *, jobs: int = 1, scheduler=None, heldout: float = 
         spec = {"record": row.record, "key": key, "pt": row.pt, "ut": row.ut, "data": row.data,
                 "torque_sign": row.torque_sign, "position_unit": row.position_unit, "stationary": row.stationary,
                 "heldout_row": row.heldout, "heldout": float(heldout), "identify": identify_settings or {},
-                "level": float(level)}
+                "level": float(level), "diagnose": bool(diagnose) if row.diagnose is None else row.diagnose}
         todo.append(i)
         specs.append(spec)
     n_cached = sum(1 for r in results if r is not None and r.get("cached"))

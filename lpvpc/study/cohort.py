@@ -6,8 +6,10 @@ Each subject is the population's subject of its seed with an exponential K(theta
 dorsiflexion exponential is what the stiffness effect scales) and no extra effect. In the
 second group ("patient") the dorsiflexion part of K(theta) is multiplied by
 ``stiffness_factor`` (K x1.5 toward dorsiflexion by default: the constant part is unchanged)
-and the reflex gain by ``reflex_factor`` (x2) at every position. Subjects alternate between
-the groups, so both groups draw from the same population.
+and the reflex gain by ``reflex_factor`` (x2) at every position. In the default
+between-subject design, subjects alternate between the groups, so both groups draw from the
+same population; in a within-subject design (``design="within"``) every subject is recorded
+in both conditions (two sessions with independent noise), as in a before/after study.
 
 The true difference of the group means (``truth.json``, "difference") is that of the
 population means, from the population's ranges (:data:`lpvpc.simulation.population.RANGES`),
@@ -79,22 +81,33 @@ def cohort_subject(seed: int, patient: bool, stiffness_factor: float = 1.5, refl
                                      reflex_gain_df=p.reflex_gain_df * reflex_factor))
 
 
+#: Seed offset of a subject's second session in a within-subject cohort (its own noise).
+SESSION_SEED_OFFSET = 100_000
+#: Cohort designs: subjects in one group each, or every subject in both conditions.
+DESIGNS = ("between", "within")
+
+
 def write_cohort(out, n_subjects: int = 24, *, first_seed: int = 0, null: bool = False, duration: float = 120.0,
-                 fs: float = 100.0, stiffness_factor: float = 1.5, reflex_factor: float = 2.0) -> dict:
+                 fs: float = 100.0, stiffness_factor: float = 1.5, reflex_factor: float = 2.0,
+                 design: str = "between") -> dict:
     """Write a virtual cohort to ``out``: ``SUBJECT/PT.csv`` and ``SUBJECT/UT.csv`` per
     subject (the population's identification trajectory, ``duration`` s at ``fs`` Hz),
     ``manifest.csv`` (:mod:`lpvpc.study.manifest`) and ``truth.json`` (groups, factors, each
-    subject's seed, group and curves, the true difference of the group means; all zero for a
+    record's subject, seed, group and curves, the true difference of the group means; all zero for a
     ``null`` cohort). Subjects take seeds ``first_seed``, ``first_seed + 1``, ... and
-    alternate between :data:`GROUPS`. Returns {"manifest": path, "truth": path}.
+    alternate between :data:`GROUPS` (``design="between"``), or each subject has a record in
+    both (``design="within"``: records ``SUBJECT-GROUP``, the second session's noise seeded
+    apart by :data:`SESSION_SEED_OFFSET`). Returns {"manifest": path, "truth": path}.
     """
     from ..io.outputs import write_text
     from ..io.trial import write_trial_csv
     from ..simulation.population import simulate_subject
     from ..simulation.subject import THETA_DF, THETA_PF
 
+    if design not in DESIGNS:
+        raise ValueError(f"design must be one of {', '.join(DESIGNS)}, not {design!r}")
     if n_subjects < 2:
-        raise ValueError(f"a cohort needs at least 2 subjects (one per group), got {n_subjects}")
+        raise ValueError(f"a cohort needs at least 2 subjects, got {n_subjects}")
     sf, rf = (1.0, 1.0) if null else (float(stiffness_factor), float(reflex_factor))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,25 +116,29 @@ def write_cohort(out, n_subjects: int = 24, *, first_seed: int = 0, null: bool =
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["record", "subject", "group", "pt", "ut"])
-    subjects = []
+    records = []
     for i in range(n_subjects):
         name = f"S{i + 1:0{width}d}"
-        group = GROUPS[i % 2]
-        subject = cohort_subject(first_seed + i, group == GROUPS[1], sf, rf)
-        pair = simulate_subject(subject, duration=duration, fs_out=fs)
-        folder = out / name
-        folder.mkdir(exist_ok=True)
-        write_trial_csv(pair.pt, folder / "PT.csv")
-        write_trial_csv(pair.ut, folder / "UT.csv")
-        w.writerow([name, name, group, f"{name}/PT.csv", f"{name}/UT.csv"])
-        subjects.append({"subject": name, "group": group, "seed": first_seed + i, "design": subject.design,
-                         "stiffness": subject.params.K(theta).tolist(),
-                         "reflex_gain": subject.params.reflex_gain(theta).tolist()})
+        sessions = (GROUPS[i % 2],) if design == "between" else GROUPS
+        for j, group in enumerate(sessions):
+            subject = cohort_subject(first_seed + i, group == GROUPS[1], sf, rf)
+            if j:  # the same subject again: its own measurement noise
+                subject = replace(subject, seed=subject.seed + SESSION_SEED_OFFSET)
+            record = name if design == "between" else f"{name}-{group}"
+            pair = simulate_subject(subject, duration=duration, fs_out=fs)
+            folder = out / record
+            folder.mkdir(exist_ok=True)
+            write_trial_csv(pair.pt, folder / "PT.csv")
+            write_trial_csv(pair.ut, folder / "UT.csv")
+            w.writerow([record, name, group, f"{record}/PT.csv", f"{record}/UT.csv"])
+            records.append({"record": record, "subject": name, "group": group, "seed": subject.seed,
+                             "design": subject.design, "stiffness": subject.params.K(theta).tolist(),
+                             "reflex_gain": subject.params.reflex_gain(theta).tolist()})
     diff = true_difference(theta, sf, rf)
-    truth = {"groups": list(GROUPS), "null": bool(null), "stiffness_factor": sf, "reflex_factor": rf,
+    truth = {"groups": list(GROUPS), "design": design, "null": bool(null), "stiffness_factor": sf, "reflex_factor": rf,
              "duration_s": duration, "fs_hz": fs, "theta": theta.tolist(), "difference": diff,
              "difference_note": "population-mean difference patient - control (lpvpc.study.cohort)",
-             "subjects": subjects}
+             "records": records}
     manifest = write_text(out / "manifest.csv", buf.getvalue())
     truth_path = write_text(out / "truth.json", json.dumps(truth, indent=1))
     return {"manifest": manifest, "truth": truth_path}

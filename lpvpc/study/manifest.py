@@ -9,7 +9,9 @@ Columns (header row, any order; names are case-sensitive):
   unperturbed), or one PT - UT file with a scheduling column;
 - ``torque_sign``: 1 (default) or -1; ``position_unit``: rad (default) or deg;
 - ``stationary``: true/false (default false): ``pt`` alone, a stationary trial;
-- ``heldout``: the later fraction of the record held out, in (0, 1) (default: the study's).
+- ``heldout``: the later fraction of the record held out, in (0, 1) (default: the study's);
+- ``diagnose``: true/false (default: the study's): also diagnose the model on the held-out
+  part (:func:`lpvpc.diagnose`: which effect is missing, if any).
 
 Paths are relative to the manifest's folder. Empty optional cells take the default. Any
 other column is refused (a misspelt column would otherwise be silently ignored). Every
@@ -44,7 +46,7 @@ __all__ = ["ManifestError", "ManifestRow", "read_manifest", "COLUMNS", "REQUIRED
 REQUIRED = ("record", "subject", "group")
 #: Every column a manifest may have.
 COLUMNS = ("record", "subject", "group", "pt", "ut", "data", "torque_sign", "position_unit", "stationary",
-           "heldout")
+           "heldout", "diagnose")
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TRUE = {"true", "1", "yes", "y"}
@@ -58,8 +60,9 @@ class ManifestError(DataError):
 @dataclass(frozen=True)
 class ManifestRow:
     """One record of a study (SI conventions as :func:`lpvpc.load_identification_data` takes
-    them): files as absolute paths (None where not given), ``heldout`` a fraction or None
-    (the study's default), ``line`` the row's line number in the manifest."""
+    them): files as absolute paths (None where not given), ``heldout`` a fraction and
+    ``diagnose`` a bool, each None for the study's default, ``line`` the row's line number in
+    the manifest."""
 
     record: str
     subject: str
@@ -71,6 +74,7 @@ class ManifestRow:
     position_unit: str | None = None
     stationary: bool = False
     heldout: float | None = None
+    diagnose: bool | None = None
     line: int = 0
 
     def files(self) -> list:
@@ -80,7 +84,7 @@ class ManifestRow:
     def settings(self) -> dict:
         """The per-record loading settings that change results (for the cache key)."""
         return {"torque_sign": self.torque_sign, "position_unit": self.position_unit,
-                "stationary": self.stationary, "heldout": self.heldout}
+                "stationary": self.stationary, "heldout": self.heldout, "diagnose": self.diagnose}
 
 
 def read_manifest(path) -> list:
@@ -153,6 +157,10 @@ def _row(cell: dict, line: int, base: Path, seen: dict, src: str) -> ManifestRow
     if stationary not in _TRUE | _FALSE:
         raise bad("stationary", f"{cell['stationary']!r} is not true or false")
     stationary = stationary in _TRUE
+    diagnose = cell.get("diagnose", "").lower()
+    if diagnose not in _TRUE | _FALSE:
+        raise bad("diagnose", f"{cell['diagnose']!r} is not true or false")
+    diagnose = None if not diagnose else diagnose in _TRUE
     pt, ut, data = (cell.get(c, "") for c in ("pt", "ut", "data"))
     if data and (pt or ut):
         raise bad("data", "give either data or pt and ut, not both")
@@ -188,4 +196,4 @@ def _row(cell: dict, line: int, base: Path, seen: dict, src: str) -> ManifestRow
 
     return ManifestRow(record=name, subject=cell["subject"], group=cell["group"], pt=resolve(pt), ut=resolve(ut),
                        data=resolve(data), torque_sign=sign, position_unit=unit, stationary=stationary,
-                       heldout=heldout, line=line)
+                       heldout=heldout, diagnose=diagnose, line=line)

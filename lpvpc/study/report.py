@@ -68,7 +68,7 @@ def _difference_figure(group_rows, comparisons):
         for ref, other in comparisons:
             t, m, lo, hi = _by_quantity(group_rows, q, f"{other} - {ref}")
             ax.fill_between(t, lo, hi, alpha=0.3, lw=0)
-            ax.plot(t, m, lw=2, label=f"{other} - {ref} (Welch 95 % interval)")
+            ax.plot(t, m, lw=2, label=f"{other} - {ref} (95 % interval)")
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xlabel("joint angle (rad)")
         ax.set_ylabel(f"difference of {_LABEL[q]} ({QUANTITIES[q]})")
@@ -96,6 +96,17 @@ def _table(header, body) -> str:
     return f"<table><tr>{head}</tr>{rows}</table>"
 
 
+def _missing_text(r) -> str:
+    d = r.get("diagnosis")
+    if d is None:
+        return "not asked"
+    if d.get("error"):
+        return f"not diagnosed: {d['error']}"
+    if d["missing"] is None:
+        return "none found"
+    return f"{d['missing']} ({d['pathway']} pathway, +{d['vaf_gain']:.2f} pp)"
+
+
 def report_html(results, rows, grid, group_rows, comparisons, *, counts: dict, title: str = "lpvpc study") -> str:
     """The report as one HTML string (no external files)."""
     groups = list(dict.fromkeys(row.group for row in rows))
@@ -114,8 +125,9 @@ def report_html(results, rows, grid, group_rows, comparisons, *, counts: dict, t
         parts.append(f"<h2>Positions compared</h2><p>The range every identified record shares: {lo:+.2f} to "
                      f"{hi:+.2f} rad ({len(grid)} positions, {GRID_STEP:g} rad apart). Each record's own "
                      "identified range is in the table of records below. Group means are over subjects (a "
-                     "subject's sessions averaged first), 95 % t intervals; differences have Welch's 95 % "
-                     "interval. Reflex values not determined by a record's data are left out.</p>")
+                     "subject's sessions averaged first), 95 % t intervals; differences have a 95 % interval, "
+                     "paired over the subjects recorded in both groups, else Welch's. Reflex values not "
+                     "determined by a record's data are left out.</p>")
         for q in ("stiffness", "reflex_gain"):
             parts.append(f"<h2>{_LABEL[q].capitalize()} per subject</h2>"
                          + _subjects_figure(results, rows, grid, group_rows, q, groups))
@@ -126,10 +138,13 @@ def report_html(results, rows, grid, group_rows, comparisons, *, counts: dict, t
                      "comparison along the angle is possible (see each record's range below).</p>")
     if ok:
         parts.append("<h2>Held-out VAF per record</h2>" + _vaf_figure(results, rows))
+        diagnosed = any(r.get("diagnosis") is not None for r in ok)
         parts.append("<h2>Records</h2>" + _table(
-            ["record", "subject", "group", "held-out VAF %", "identified range (rad)", "structure", "cached"],
+            ["record", "subject", "group", "held-out VAF %", "identified range (rad)", "structure"]
+            + (["missing effect (diagnosis)"] if diagnosed else []) + ["cached"],
             [(row.record, row.subject, row.group, f"{r['vaf_heldout']:.1f}",
-              f"{r['range'][0]:+.3f} .. {r['range'][1]:+.3f}", r["structure"], "yes" if r.get("cached") else "no")
+              f"{r['range'][0]:+.3f} .. {r['range'][1]:+.3f}", r["structure"])
+             + ((_missing_text(r),) if diagnosed else ()) + ("yes" if r.get("cached") else "no",)
              for row, r in zip(rows, results) if r["status"] == "ok"]))
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px;"

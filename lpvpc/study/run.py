@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["analyse_record", "record_key", "execute", "GRID_STEP", "CACHE_VERSION"]
+__all__ = ["analyse_record", "record_key", "execute", "diagnosis_summary", "GRID_STEP", "CACHE_VERSION"]
 
 #: rad: the spacing of the absolute position grid every record is evaluated on (multiples of
 #: it within the record's identified range), so that records line up without interpolation
@@ -103,7 +103,9 @@ def analyse_record(spec: dict) -> dict:
     ``viscosity``, ``reflex_gain``, ``reflex_threshold`` with ``*_lower`` / ``*_upper``
     (the ``level`` interval) and, for the reflex, ``*_determined`` (False: "not determined
     by these data"); ``warnings`` (the library's warnings, one line each), ``seconds``,
-    ``peak_rss_mb`` (the worker process's peak so far) and ``model`` (the model's dict).
+    ``peak_rss_mb`` (the worker process's peak so far) and ``model`` (the model's dict);
+    with ``spec["diagnose"]`` also ``diagnosis`` (:func:`diagnosis_summary` of the model
+    diagnosed on the held-out part).
     """
     from threadpoolctl import threadpool_limits
 
@@ -166,8 +168,32 @@ def _analyse(spec: dict) -> dict:
         for name in ("stiffness", "viscosity", "reflex_gain", "reflex_threshold"):
             res[f"{name}_lower"] = res[f"{name}_upper"] = [float("nan")] * len(ks)
         res["reflex_gain_determined"] = res["reflex_threshold_determined"] = [True] * len(ks)
+    if spec.get("diagnose"):
+        from ..diagnosis.diagnose import diagnose
+        from ..errors import LpvpcError
+
+        try:
+            res["diagnosis"] = diagnosis_summary(diagnose(model, held))
+        except LpvpcError as exc:  # the model stands; only its diagnosis is missing, with the reason
+            res["diagnosis"] = {"missing": None, "error": _reason(exc)}
     res["model"] = model.to_dict()
     return res
+
+
+def diagnosis_summary(d) -> dict:
+    """What a study keeps of a :class:`lpvpc.diagnosis.Diagnosis` (JSON-serialisable):
+    ``missing`` (the first significant candidate's effect, or None), its ``pathway``,
+    ``signals``, ``vaf_gain`` (held-out pp) and ``p_value``, the names of all ``significant``
+    candidates, and ``answer`` (the diagnosis' one paragraph). A record the diagnosis refuses
+    (e.g. a held-out part too short) keeps its model and gets ``error`` (one line) instead."""
+    top = d.top
+    return {"missing": None if top is None else top.effect,
+            "pathway": None if top is None else top.pathway,
+            "signals": [] if top is None else list(top.signals),
+            "vaf_gain": None if top is None else float(top.vaf_gain),
+            "p_value": None if top is None else float(top.p_value),
+            "significant": [c.effect for c in d.significant],
+            "answer": _one_line(d.answer(), 600)}
 
 
 # ---------------------------------------------------------------------------------------

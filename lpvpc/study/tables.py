@@ -6,8 +6,11 @@ Statistics. The unit is the subject: a subject's sessions (records) are averaged
 the group's mean and interval are over its subjects' values, a t interval
 ``mean +- t_{n-1} s / sqrt(n)``. The difference of two groups (``other - reference``) has
 Welch's interval ``d +- t_nu sqrt(s_a^2/n_a + s_b^2/n_b)`` with the Welch-Satterthwaite
-degrees of freedom, which does not assume equal variances. Groups are taken as independent
-(a subject in both groups, a within-subject design, is not paired here). A reflex value
+degrees of freedom, which does not assume equal variances, when the groups hold different
+subjects. When subjects were recorded in both groups (a within-subject design: before and
+after an intervention, two conditions), the comparison is paired: a t interval of the
+subjects' own differences, over the subjects in both (those in one group only do not enter
+it; ``design`` says how many pairs). A reflex value
 "not determined by these data" is left out of its subject's mean; a subject with none left
 at a position does not count there (``n`` says how many did). The records' own intervals do
 not enter: the spread between subjects already holds their estimation error.
@@ -24,7 +27,8 @@ from scipy import stats
 
 from .run import GRID_STEP
 
-__all__ = ["QUANTITIES", "common_grid", "records_rows", "group_rows", "write_csv", "t_interval", "welch_interval"]
+__all__ = ["QUANTITIES", "common_grid", "records_rows", "group_rows", "write_csv", "t_interval", "welch_interval",
+           "compare_groups"]
 
 #: Quantities compared along the position grid: name -> unit.
 QUANTITIES = {"stiffness": "N m/rad", "viscosity": "N m s/rad", "reflex_gain": "N m s/rad",
@@ -73,6 +77,28 @@ def welch_interval(a, b, level: float = 0.95):
     return d, d - h, d + h, float(df)
 
 
+def compare_groups(ref: dict, other: dict, level: float = 0.95) -> dict:
+    """The difference ``other - reference`` of two groups' subject values ({subject: value}):
+    paired when at least two subjects are in both (a within-subject design), else Welch's.
+
+    Returns {"mean", "lower", "upper", "df", "n_subjects", "design"}.
+
+    >>> r = compare_groups({"S1": 1.0, "S2": 2.0, "S3": 4.0}, {"S1": 2.0, "S2": 3.5, "S3": 4.5})
+    >>> r["design"], r["mean"], round(r["lower"], 3), round(r["upper"], 3)
+    ('paired (3 subjects)', 1.0, -0.242, 2.242)
+    """
+    both = [s for s in ref if s in other]
+    if len(both) >= 2:
+        m, lo, hi, _, n = t_interval([other[s] - ref[s] for s in both], level)
+        alone = len(ref) + len(other) - 2 * len(both)
+        return {"mean": m, "lower": lo, "upper": hi, "df": n - 1, "n_subjects": f"{n} pairs",
+                "design": f"paired ({n} subjects)" + (f"; {alone} in one group only left out" if alone else "")}
+    a, b = list(ref.values()), list(other.values())
+    d, lo, hi, df = welch_interval(a, b, level)
+    return {"mean": d, "lower": lo, "upper": hi, "df": df, "n_subjects": f"{len(b)}+{len(a)}",
+            "design": "independent groups (Welch)"}
+
+
 def common_grid(results) -> list:
     """Grid indices k (positions k * GRID_STEP rad) inside every successful record's
     identified range: the range all records share (empty when they share none)."""
@@ -103,13 +129,15 @@ RECORD_COLUMNS = ["record", "subject", "group", "status", "reason", "theta", "st
                   "stiffness_upper", "viscosity", "viscosity_lower", "viscosity_upper", "reflex_gain",
                   "reflex_gain_lower", "reflex_gain_upper", "reflex_gain_status", "reflex_threshold",
                   "reflex_threshold_lower", "reflex_threshold_upper", "reflex_threshold_status", "vaf_heldout",
-                  "vaf_identification", "structure", "range_lower", "range_upper", "cached"]
+                  "vaf_identification", "structure", "range_lower", "range_upper", "missing_effect", "cached"]
 
 
 def records_rows(results, rows, grid) -> list:
     """One dict per record and common-grid position (RECORD_COLUMNS; a failed record: one
     row with its reason). A reflex value not determined by the data has empty value and
-    interval cells and ``*_status`` "not determined"."""
+    interval cells and ``*_status`` "not determined". ``missing_effect``: the diagnosis'
+    first significant effect, "none", "not diagnosed" (the diagnosis refused the held-out part:
+    the reason is in the report and summary.json), or empty when not asked."""
     out = []
     for row, r in zip(rows, results):
         base = {"record": row.record, "subject": row.subject, "group": row.group, "status": r["status"],
@@ -118,7 +146,8 @@ def records_rows(results, rows, grid) -> list:
             out.append(base)
             continue
         base.update(vaf_heldout=r["vaf_heldout"], vaf_identification=r["vaf_identification"],
-                    structure=r["structure"], range_lower=r["range"][0], range_upper=r["range"][1])
+                    structure=r["structure"], range_lower=r["range"][0], range_upper=r["range"][1],
+                    missing_effect=_missing(r))
         for k in grid:
             line = dict(base, theta=round(k * GRID_STEP, 10))
             for q in QUANTITIES:
@@ -131,6 +160,13 @@ def records_rows(results, rows, grid) -> list:
                 line.update(zip((q, f"{q}_lower", f"{q}_upper"), vals))
             out.append(line)
     return out
+
+
+def _missing(r) -> str:
+    d = r.get("diagnosis")
+    if d is None:
+        return ""
+    return "not diagnosed" if d.get("error") else (d["missing"] or "none")
 
 
 def subject_values(results, rows, quantity, k) -> dict:
@@ -150,13 +186,14 @@ def subject_values(results, rows, quantity, k) -> dict:
     return {g: {s: float(np.mean(v)) for s, v in subj.items()} for g, subj in per.items()}
 
 
-GROUP_COLUMNS = ["quantity", "unit", "theta", "group", "n_subjects", "mean", "lower", "upper", "sd", "df"]
+GROUP_COLUMNS = ["quantity", "unit", "theta", "group", "n_subjects", "mean", "lower", "upper", "sd", "df", "design"]
 
 
 def group_rows(results, rows, grid, comparisons, level: float = 0.95) -> list:
     """groups.csv's rows (GROUP_COLUMNS): per quantity and grid position, each group's mean
     over subjects with its t interval, then each comparison ``(reference, other)`` as group
-    "other - reference" with Welch's interval (``n_subjects`` "n_other+n_reference")."""
+    "other - reference" with :func:`compare_groups`' interval (paired for subjects in both
+    groups, Welch's otherwise; ``design`` says which)."""
     groups = list(dict.fromkeys(row.group for row in rows))
     out = []
     plan = [(q, k) for q in QUANTITIES for k in grid] + [("vaf_heldout", None)]
@@ -169,11 +206,8 @@ def group_rows(results, rows, grid, comparisons, level: float = 0.95) -> list:
             out.append({"quantity": q, "unit": unit, "theta": theta, "group": g, "n_subjects": n, "mean": m,
                         "lower": lo, "upper": hi, "sd": sd, "df": n - 1 if n else ""})
         for ref, other in comparisons:
-            a, b = list(vals.get(ref, {}).values()), list(vals.get(other, {}).values())
-            d, lo, hi, df = welch_interval(a, b, level)
-            out.append({"quantity": q, "unit": unit, "theta": theta, "group": f"{other} - {ref}",
-                        "n_subjects": f"{len(b)}+{len(a)}", "mean": d, "lower": lo, "upper": hi, "sd": "",
-                        "df": df})
+            c = compare_groups(vals.get(ref, {}), vals.get(other, {}), level)
+            out.append(dict(c, quantity=q, unit=unit, theta=theta, group=f"{other} - {ref}", sd=""))
     return out
 
 
