@@ -23,7 +23,9 @@ held-out VAF, the causal form's held-out VAF, and the parameter count.
 
 Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_forward_selection.py
 (writes benchmarks/results/forward_selection.txt; skips when the recordings are absent;
-``--cache DIR`` keeps each fit's figures there between runs)
+``--cache DIR`` keeps each fit's figures there between runs). With ``--subjects``: the virtual
+subject over bench_selection.py's seeds, the rule before and after
+(benchmarks/results/forward_selection_subjects.txt).
 """
 
 from __future__ import annotations
@@ -171,5 +173,55 @@ def main():
     write_results("forward_selection.txt", lines, echo=True)
 
 
+
+
+def subjects(seeds=range(5)):
+    """The virtual subject over bench_selection.py's seeds (2-minute multilevel records, the novel
+    trajectory of seed + 1000 predicted): the choice rules before ("level") and after ("both"),
+    novel-trajectory VAF and K(theta) error against the truth (central 80 % of the range)."""
+    from lpvpc.io import pair_trials
+    from lpvpc.identification.identify import LPVPCEstimator
+    from lpvpc.simulation.simulate import SubjectParams, simulate_pair
+
+    truth = SubjectParams()
+    lines = ["# Virtual subject, choice rule before ('level') and after ('both') "
+             "(python benchmarks/bench_forward_selection.py --subjects)", "",
+             "| seed | rule | novel VAF (%) | K worst err (%) | K mean abs err (%) | LOLO / forward CV VAF (%) | "
+             "identify (s) | chosen |", "|---|---|---|---|---|---|---|---|"]
+    agg = {"level": [], "both": []}
+    for seed in seeds:
+        ident, novel = simulate_pair("multilevel", seed=seed), simulate_pair("novel", seed=seed + 1000)
+        d, nv = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
+        for rule in agg:
+            S.CHOICE_RULE = rule
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                t = time.perf_counter()
+                model = LPVPCEstimator().fit(d).model_
+                el = time.perf_counter() - t
+                pred = model.predict(nv.position, nv.scheduling).total
+            lo, hi = model.scheduling_range
+            rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
+            k_err = 100 * np.abs(model.elastic_stiffness(rho) / truth.K(rho) - 1)
+            v = vaf(nv.torque, pred)
+            agg[rule].append((v, k_err.max(), k_err.mean(), el))
+            sel = model.fit.get("structure_selection", {})
+            c = sel.get("chosen")
+            what = "" if c is None else (f"orders {c['intrinsic_order']}/{c['reflex_order']}/{c['velocity_order']}, "
+                                         f"L {1e3 * c['irf_length']:g} ms, {c['scheduling_extrapolation']}")
+            cv = f"{sel.get('chosen_cv_vaf', float('nan')):.2f} / {sel.get('chosen_forward_vaf', float('nan')):.2f}"
+            lines.append(f"| {seed} | {rule} | {v:.2f} | {k_err.max():.1f} | {k_err.mean():.1f} | {cv} | {el:.2f} | "
+                         f"{what} |")
+            print(lines[-1], flush=True)
+    S.CHOICE_RULE = "both"
+    lines.append("")
+    for rule, rows in agg.items():
+        a = np.array(rows)
+        lines.append(f"- rule '{rule}': median novel VAF {np.median(a[:, 0]):.2f} %, worst {a[:, 0].min():.2f} %; "
+                     f"median worst K error {np.median(a[:, 1]):.1f} %, median mean K error {np.median(a[:, 2]):.1f} %, "
+                     f"median identify time {np.median(a[:, 3]):.2f} s")
+    write_results("forward_selection_subjects.txt", lines)
+
+
 if __name__ == "__main__":
-    main()
+    subjects() if "--subjects" in sys.argv else main()
