@@ -73,6 +73,10 @@ BLOCK_FOLDS = 5
 #: HOLD_SPEED rad/s (smoothed over 0.2 s); levels within LEVEL_TOL rad of each other are one.
 HOLD_S, HOLD_SPEED, LEVEL_TOL = 1.0, 0.05, 0.015
 MIN_LEVELS = 4
+#: Forward-in-time folds: the last FORWARD_FOLDS x FORWARD_BLOCK of the record in contiguous
+#: stretches, each predicted by a model fitted on everything before it (expanding window)
+#: less a gap of the longest IRF lag (no input sample of the scored stretch enters a training row).
+FORWARD_FOLDS, FORWARD_BLOCK = 3, 0.1
 RIDGE = 1e-10  # relative to the scaled Gram matrix's unit diagonal
 
 
@@ -265,23 +269,49 @@ def level_folds(rho, fs):
     return np.argmin(np.abs(rho[:, None] - centres[None, :]), axis=1), "level"
 
 
+def forward_folds(n: int, n_folds: int | None = None, block: float | None = None, gap: int = 0) -> list:
+    """Forward-in-time folds of an n-sample record: (training rows, scored rows) as
+    ``(slice(0, a - gap), slice(a, b))`` pairs, the scored stretches ``block`` of the record each,
+    the last ending at the record's end, each fitted on the record before it (expanding window)
+    less ``gap`` samples (the IRF's forward lags: no input of the scored stretch enters training).
+
+    >>> [(t.stop, (s.start, s.stop)) for t, s in forward_folds(100, 3, 0.1, gap=2)]
+    [(68, (70, 80)), (78, (80, 90)), (88, (90, 100))]
+    """
+    n_folds = FORWARD_FOLDS if n_folds is None else n_folds
+    m = max(1, int(round((FORWARD_BLOCK if block is None else block) * n)))
+    starts = [n - (n_folds - k) * m for k in range(n_folds)]
+    return [(slice(0, a - gap), slice(a, n if k == n_folds - 1 else a + m))
+            for k, a in enumerate(starts) if a - gap > 0]
+
+
 @dataclass
 class Scored:
     """One structure's cross-validated score: its settings, parameter count, held-out
     squared error per fold and pooled CV VAF.
 
+    ``forward_sse`` / ``forward_vaf``: the same on forward-in-time folds (:func:`forward_folds`;
+    the VAF over the scored stretches, each about its own mean), when they were scored.
+
     >>> s = Scored({"intrinsic_order": 3}, 40, np.array([1.0, 2.0]), 97.5)
     >>> s.to_dict()
     {'settings': {'intrinsic_order': 3}, 'n_params': 40, 'cv_vaf': 97.5}
+    >>> Scored({}, 40, np.ones(2), 97.5, np.ones(3), 95.25).to_dict()["forward_vaf"]
+    95.25
     """
 
     settings: dict
     n_params: int
     fold_sse: np.ndarray  # N m^2 per fold
     cv_vaf: float = float("nan")  # %
+    forward_sse: np.ndarray | None = None  # N m^2 per forward-in-time fold
+    forward_vaf: float = float("nan")  # %
 
     def to_dict(self) -> dict:
-        return {"settings": dict(self.settings), "n_params": int(self.n_params), "cv_vaf": float(self.cv_vaf)}
+        out = {"settings": dict(self.settings), "n_params": int(self.n_params), "cv_vaf": float(self.cv_vaf)}
+        if self.forward_sse is not None:
+            out["forward_vaf"] = float(self.forward_vaf)
+        return out
 
 
 @dataclass
@@ -301,6 +331,9 @@ class Selection:
     n_folds: int
     scored: list = field(default_factory=list)  # Scored, best CV first
     best: dict = field(default_factory=dict)
+    rule: str = "level"  # the choice rule (:func:`choose`)
+    n_forward: int = 0  # forward-in-time folds scored (0: none)
+    forward_best: dict = field(default_factory=dict)  # the best structure on them
 
     def table(self, top: int = 6) -> list:
         """Rows (settings, n_params, CV VAF %) of the chosen, the best and the next best."""
@@ -310,9 +343,21 @@ class Selection:
 
     def to_dict(self) -> dict:
         chosen = next(s for s in self.scored if s.settings == self.chosen)
-        return {"method": f"leave-one-{self.fold_kind}-out cross-validation ({self.n_folds} folds), one-standard-error "
-                          f"rule toward fewer parameters", "chosen": _jsonable(structure_settings(self.chosen)),
-                "start": _jsonable(structure_settings(self.start)), "chosen_cv_vaf": float(chosen.cv_vaf),
+        lolo = f"leave-one-{self.fold_kind}-out cross-validation ({self.n_folds} folds)"
+        if self.n_forward:
+            method = (f"{lolo} and forward in time ({self.n_forward} folds: each later "
+                      f"{100 * FORWARD_BLOCK:g} % predicted from the record before it), "
+                      + ("one-standard-error rule toward fewer parameters among the structures near the best on both "
+                         "(else the best worse rank)" if self.rule == "both" else
+                         "the best worse rank over the two" if self.rule == "worst_rank" else
+                         "one-standard-error rule toward fewer parameters on the first"))
+        else:
+            method = f"{lolo}, one-standard-error rule toward fewer parameters"
+        forward = ({"chosen_forward_vaf": float(chosen.forward_vaf), "n_forward_folds": int(self.n_forward),
+                    "forward_best": _jsonable(structure_settings(self.forward_best)), "rule": self.rule}
+                   if self.n_forward else {})
+        return {"method": method, "chosen": _jsonable(structure_settings(self.chosen)),
+                "start": _jsonable(structure_settings(self.start)), "chosen_cv_vaf": float(chosen.cv_vaf), **forward,
                 "best": _jsonable(structure_settings(self.best)), "fold_kind": self.fold_kind,
                 "n_folds": int(self.n_folds),
                 "table": [{**s.to_dict(), "settings": _jsonable(structure_settings(s.settings)),
@@ -347,7 +392,7 @@ class _Design:
     narrower, its rows' Gram matrices under each extrapolation rule (``end[rule][f]``)."""
 
     def __init__(self, p, y, rho, fs, labels, n_folds, family, velocity_family, dynamics, top, rules, segments,
-                 reflex_input=None, effects=None):
+                 reflex_input=None, effects=None, forward=()):
         self.p, self.rho, self.fs, (self.A, self.C, self.bd) = p, rho, fs, dynamics
         self.seg = segments
         self.L_max, self.ni_max, self.nr_max, self.nv_max, self.delays = top
@@ -381,16 +426,50 @@ class _Design:
             if t_lo <= lo and t_hi >= hi:
                 continue
             for rule in rules:  # an end level: its model's basis spans only the other levels
-                Xe = X[r] + self._change(Gi, Gr, _held_basis(self.G_i, rho, t_lo, t_hi, rule),
-                                         _held_basis(self.G_r, rho, t_lo, t_hi, rule), r,
-                                         _Evaluates(lambda x, a=t_lo, b=t_hi, u=rule: _held_basis(self.G_r, x, a, b, u)
-                                                    - self.G_r.evaluate(x)))
-                for key, (F, eff_basis, const) in self.effects.items():  # the effect's basis takes the rule too
-                    dG = (_held_basis(eff_basis, rho[r], t_lo, t_hi, rule)
-                          - eff_basis.evaluate(rho[r]))[:, 0 if const else 1:]
-                    Xe[:, self.effect_cols[key]] += (F[r][:, :, None] * dG[:, None, :]).reshape(len(r), -1)
+                Xe = self._held_rows(X, Gi, Gr, r, t_lo, t_hi, rule)
                 self.end[rule][f] = (Xe.T @ Xe, Xe.T @ y[r])
+        # Forward-in-time folds: the training rows' normal equations (sums of pieces between the
+        # folds' edges) and the scored rows'; a scored stretch that leaves its training range takes
+        # each extrapolation rule on its basis, as an end level does.
+        self.forward = list(forward)
+        nf = len(self.forward)
+        self.fG_train = np.zeros((nf, self.n_cols, self.n_cols))
+        self.fb_train = np.zeros((nf, self.n_cols) + np.shape(y)[1:])
+        self.fG, self.fb = np.zeros_like(self.fG_train), np.zeros_like(self.fb_train)
+        self.f_end = {rule: {} for rule in rules}
+        if nf:
+            cuts = sorted({0, *(t.stop for t, _ in self.forward), *(sc.start for _, sc in self.forward)})
+            pieces = {}
+            for a, c in zip(cuts[:-1], cuts[1:]):
+                pieces[(a, c)] = (X[a:c].T @ X[a:c], X[a:c].T @ y[a:c])
+            for k, (t, sc) in enumerate(self.forward):
+                for (a, c), (g, bb) in pieces.items():
+                    if c <= t.stop:
+                        self.fG_train[k] += g
+                        self.fb_train[k] += bb
+                self.fG[k], self.fb[k] = X[sc].T @ X[sc], X[sc].T @ y[sc]
+                t_lo, t_hi = float(np.min(rho[t])), float(np.max(rho[t]))
+                r = np.arange(sc.start, sc.stop)
+                if np.min(rho[r]) >= t_lo and np.max(rho[r]) <= t_hi:
+                    continue
+                for rule in rules:
+                    Xe = self._held_rows(X, Gi, Gr, r, t_lo, t_hi, rule)
+                    self.f_end[rule][k] = (Xe.T @ Xe, Xe.T @ y[r])
         del X
+
+    def _held_rows(self, X, Gi, Gr, r, t_lo, t_hi, rule):
+        """Rows ``r`` of the largest regressor as a model whose bases span only [t_lo, t_hi] takes
+        them (``rule``: beyond it held at the boundary or continued along the tangent)."""
+        rho = self.rho
+        Xe = X[r] + self._change(Gi, Gr, _held_basis(self.G_i, rho, t_lo, t_hi, rule),
+                                 _held_basis(self.G_r, rho, t_lo, t_hi, rule), r,
+                                 _Evaluates(lambda x, a=t_lo, b=t_hi, u=rule: _held_basis(self.G_r, x, a, b, u)
+                                            - self.G_r.evaluate(x)))
+        for key, (F, eff_basis, const) in self.effects.items():  # the effect's basis takes the rule too
+            dG = (_held_basis(eff_basis, rho[r], t_lo, t_hi, rule)
+                  - eff_basis.evaluate(rho[r]))[:, 0 if const else 1:]
+            Xe[:, self.effect_cols[key]] += (F[r][:, :, None] * dG[:, None, :]).reshape(len(r), -1)
+        return Xe
 
     def _change(self, Gi, Gr, Gi_held, Gr_held, r, reflex_change=None):
         """Rows ``r`` of the regressor's change when the basis values change from (Gi, Gr) to
@@ -565,6 +644,70 @@ def _zero_column(D) -> int:
     return (2 * D.L_max + 1) * (D.ni_max + 1) + (D.ni_max + 1) + len(D.delays) * (D.nv_max + 1) * (D.nr_max + 1)
 
 
+#: Choice rules over the scored structures (:func:`choose`).
+CHOICE_RULES = ("level", "both", "worst_rank")
+CHOICE_RULE = "both"
+
+
+def _within(s, best, forward=False) -> bool:
+    """``s`` within one paired standard error (over folds) of ``best``'s squared error: on the
+    leave-one-level-out folds, or on the forward-in-time folds."""
+    a, b = (s.forward_sse, best.forward_sse) if forward else (s.fold_sse, best.fold_sse)
+    K = len(a)
+    diff = K * (a - b)
+    se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
+    return bool(np.mean(diff) <= se)
+
+
+def choose(scored: list, rule: str = CHOICE_RULE):
+    """The structure a rule picks among :class:`Scored` structures.
+
+    - ``"level"``: the one-standard-error rule on the leave-one-level-out folds: the fewest
+      parameters among the structures within one paired standard error of the best, its IRF
+      no shorter than the best's.
+    - ``"both"``: the same among the structures within one paired standard error of the best
+      on both fold kinds (leave-one-level-out and forward in time), the IRF no shorter than
+      the shorter of the two bests'; when no structure is within on both, the one whose worse
+      rank over the two criteria is best (``"worst_rank"``).
+    - ``"worst_rank"``: the structure whose worse rank over the two criteria is best (ties:
+      the smaller sum of ranks, then fewer parameters).
+
+    The IRF half-width is not shortened for simplicity: K(theta) is the IRF's sum over lags,
+    and an IRF shorter than the best's truncates the decimated inertia and viscosity terms
+    into that sum, a bias the torque cross-validation hardly sees.
+
+    >>> def row(o, n, level, forward):
+    ...     return Scored({"irf_length": 0.04, "scheduling_extrapolation": "clip", "o": o}, n, np.array(level),
+    ...                   float("nan"), np.array(forward), float("nan"))
+    >>> a = row(5, 60, [1.0, 1.0, 1.1], [3.0, 3.2, 3.0])  # best on levels, poor forward
+    >>> b = row(2, 30, [1.2, 1.3, 1.4], [1.0, 1.1, 1.0])  # best forward, poor on levels
+    >>> c = row(3, 40, [0.98, 1.05, 1.1], [1.0, 1.12, 0.98])  # near the best on both
+    >>> d = row(1, 20, [1.0, 1.0, 1.12], [2.0, 2.1, 2.0])  # near the best on levels, poor forward
+    >>> for s in (a, b, c, d):
+    ...     s.cv_vaf, s.forward_vaf = 100 - s.fold_sse.sum(), 100 - s.forward_sse.sum()
+    >>> choose([a, b, c, d], "level").settings["o"], choose([a, b, c, d], "both").settings["o"]
+    (1, 3)
+    >>> choose([a, b], "both").settings["o"]  # none near the best on both: the best worse rank, then fewer parameters
+    2
+    """
+    if rule not in CHOICE_RULES:
+        raise ValueError(f"rule must be one of {CHOICE_RULES}, not {rule!r}")
+    best = max(scored, key=lambda s: s.cv_vaf)
+    key = lambda s: (s.n_params, s.settings["scheduling_extrapolation"] != "clip", -s.cv_vaf)  # noqa: E731
+    if rule == "level" or any(s.forward_sse is None for s in scored):
+        return min((s for s in scored if _within(s, best) and s.settings["irf_length"] >= best.settings["irf_length"]),
+                   key=key)
+    fbest = max(scored, key=lambda s: s.forward_vaf)
+    if rule == "both":
+        irf = min(best.settings["irf_length"], fbest.settings["irf_length"])
+        ok = [s for s in scored if _within(s, best) and _within(s, fbest, forward=True) and s.settings["irf_length"] >= irf]
+        if ok:
+            return min(ok, key=key)
+    by_level = {id(s): i for i, s in enumerate(sorted(scored, key=lambda s: -s.cv_vaf))}
+    by_fwd = {id(s): i for i, s in enumerate(sorted(scored, key=lambda s: -s.forward_vaf))}
+    return min(scored, key=lambda s: (max(by_level[id(s)], by_fwd[id(s)]), by_level[id(s)] + by_fwd[id(s)], *key(s)))
+
+
 class StructureSearch:
     """Cross-validated scores of structures on one record, given the reflex dynamics.
 
@@ -596,8 +739,11 @@ class StructureSearch:
     """
 
     def __init__(self, p, y, rho, fs, dynamics, family="chebyshev", velocity_family="chebyshev", search=None,
-                 segments=None, reflex_input=None, effects=None):
+                 segments=None, reflex_input=None, effects=None, forward_folds_n=None, rule=None):
         self.fs = float(fs)
+        self.rule = CHOICE_RULE if rule is None else rule
+        if self.rule not in CHOICE_RULES:
+            raise ValueError(f"rule must be one of {CHOICE_RULES}, not {self.rule!r}")
         self.search = dict(SEARCH if search is None else search)
         # allowed effects (effect_candidates): settings of the same search, off or one of its variants
         self.effects = dict(effects or {})
@@ -607,6 +753,11 @@ class StructureSearch:
         self.y = np.asarray(y, dtype=float)
         self.labels, self.kind = level_folds(rho, fs)
         self.n_folds = int(self.labels.max()) + 1
+        # forward-in-time folds (none on a record too short for them, nor for a single-fold search)
+        gap = max(max(1, int(round(x * fs))) for x in self.search["irf_length"])
+        n_fwd = FORWARD_FOLDS if forward_folds_n is None else forward_folds_n
+        self.forward = forward_folds(len(self.y), n_fwd, None, gap) if n_fwd else []
+        self.forward = self.forward if len(self.forward) >= 2 else []
         self.lags = sorted({max(1, int(round(x * fs))) for x in self.search["irf_length"]})
         self.delays = sorted({max(1, int(round(x * fs))) for x in self.search["reflex_delay"]})
         top = (max(self.lags), max(self.search["intrinsic_order"]), max(self.search["reflex_order"]),
@@ -615,9 +766,11 @@ class StructureSearch:
                               self.n_folds, family, velocity_family, dynamics, top,
                               self.search["scheduling_extrapolation"],
                               segments if segments is not None else Segments((), len(self.y)), reflex_input,
-                              self.effects)
+                              self.effects, self.forward)
         self.yy = np.array([self.y[self.labels == f] @ self.y[self.labels == f] for f in range(self.n_folds)])
         self.sst = float(np.sum((self.y - self.y.mean()) ** 2))
+        self.f_yy = np.array([self.y[sc] @ self.y[sc] for _, sc in self.forward])
+        self.f_sst = float(sum(np.sum((self.y[sc] - self.y[sc].mean()) ** 2) for _, sc in self.forward))
         self._cache = {}
 
     def score(self, settings: dict) -> Scored | None:
@@ -642,6 +795,15 @@ class StructureSearch:
             Gc[f], bc[f] = _mapped(Ge, be, idx, cur)
         sse = held_out_sse(self.yy, theta, Gc, bc)
         out = Scored(dict(settings), len(idx), sse, 100.0 * (1.0 - float(sse.sum()) / self.sst))
+        if self.forward:  # each stretch predicted by a fit on the record before it
+            rule = settings["scheduling_extrapolation"]
+            Gt, bt = _mapped(D.fG_train, D.fb_train, idx, cur)
+            theta = solve_normal(Gt, bt, RIDGE)
+            Gs, bs = _mapped(D.fG, D.fb, idx, cur)
+            for k, (Ge, be) in D.f_end[rule].items():
+                Gs[k], bs[k] = _mapped(Ge, be, idx, cur)
+            out.forward_sse = held_out_sse(self.f_yy, theta, Gs, bs)
+            out.forward_vaf = 100.0 * (1.0 - float(out.forward_sse.sum()) / self.f_sst)
         self._cache[key] = out
         return out
 
@@ -681,20 +843,11 @@ class StructureSearch:
         scored = sorted(self._cache.values(), key=lambda s: -s.cv_vaf)
         best = scored[0]
         K = self.n_folds
-
-        def within(s):
-            diff = K * (s.fold_sse - best.fold_sse)
-            se = np.std(diff, ddof=1) / np.sqrt(K) if K > 1 else 0.0
-            return np.mean(diff) <= se
-
-        # The IRF half-width is not shortened for simplicity: K(theta) is the IRF's sum over
-        # lags, and a shorter IRF than the best's truncates the decimated inertia and viscosity
-        # terms into that sum, a bias the torque CV hardly sees (virtual subject, seeds 3 and 4:
-        # worst central K error 2.44 / 2.52 % at 30 ms against 2.20 / 2.06 % at the best's 40 ms).
-        simplest = min((s for s in scored if within(s) and s.settings["irf_length"] >= best.settings["irf_length"]),
-                       key=lambda s: (s.n_params, s.settings["scheduling_extrapolation"] != "clip", -s.cv_vaf))
-        return Selection(chosen=dict(simplest.settings), start=dict(first.settings), fold_kind=self.kind, n_folds=K,
-                         scored=scored, best=dict(best.settings))
+        chosen = choose(scored, self.rule if self.forward else "level")
+        fwd_best = max(scored, key=lambda s: s.forward_vaf) if self.forward else None
+        return Selection(chosen=dict(chosen.settings), start=dict(first.settings), fold_kind=self.kind, n_folds=K,
+                         scored=scored, best=dict(best.settings), rule=self.rule if self.forward else "level",
+                         n_forward=len(self.forward), forward_best=dict(fwd_best.settings) if fwd_best else {})
 
 
 def compare_state_orders(p, y, rho, fs, chosen: dict, dynamics: dict, bic_order: int, bic_score: Scored,

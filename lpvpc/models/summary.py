@@ -133,11 +133,15 @@ def selection_lines(sel) -> list:
     chosen_effects = sel["effects"]["chosen"] if sel.get("effects") else None
     lines = [f"structure:   chosen by {sel['method']}: {text(sel['chosen'])}"
              + ("" if chosen_effects is None else f", effects {'+'.join(chosen_effects) or 'none'}"),
-             f"             {'CV VAF %':>9} {'params':>6}  structure"]
+             f"             {'CV VAF %':>9} " + (f"{'later %':>8} " if "chosen_forward_vaf" in sel else "")
+             + f"{'params':>6}  structure"]
     for row in sel["table"][:4]:  # the chosen, the best and the next: a few lines
         mark = "*" if row["settings"] == sel["chosen"] and row.get("effects", chosen_effects or []) == (
             chosen_effects or []) else " "
-        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {row['n_params']:6d}  {text(row['settings'])}{effects(row)}")
+        later = f"{row['forward_vaf']:8.2f} " if "chosen_forward_vaf" in sel and "forward_vaf" in row else (
+            f"{'':8} " if "chosen_forward_vaf" in sel else "")
+        lines.append(f"           {mark} {row['cv_vaf']:9.2f} {later}{row['n_params']:6d}  {text(row['settings'])}"
+                     f"{effects(row)}")
     orders = sel.get("state_order", {})
     if orders.get("cv_vaf"):
         lines.append(f"             reflex state order by CV: {orders['chosen']} (BIC {orders['bic']}; CV VAF % "
