@@ -192,7 +192,7 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
     - "curves": gain vs frequency for ``positions`` positions (the curves start at K(rho));
     - "surface": the paper's 3-D surface; ``ax`` must be a 3-D axes or None.
 
-    A stationary trial's model (one operating position, :attr:`LPVPCModel.one_position`) is
+    A stationary trial's model (one operating position, :attr:`LPVPCModel.one_position <lpvpc.models.model.LPVPCModel.one_position>`) is
     drawn as "curves": its one curve; there is no position axis.
     """
     freqs = np.linspace(0.0, model.fs / 2, n_freq)
@@ -271,7 +271,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     figure.
 
     ``truth``: optional object with ``reflex_gain(theta)`` and ``reflex_threshold(theta)``
-    (e.g. :class:`lpvpc.simulation.simulate.SubjectParams`); its half-wave rectifiers are drawn dashed.
+    (e.g. :class:`~lpvpc.simulation.subject.SubjectParams`); its half-wave rectifiers are drawn dashed.
     """
     ax = _new_axes(ax)
     rho = _positions(model, positions) if np.ndim(positions) == 0 else np.asarray(positions, dtype=float)

@@ -34,10 +34,10 @@ SMALL_GAIN = 0.6
 STRONG_EVIDENCE = 10.0
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
 LEAK_R2 = 0.2  # a signal this well explained by the model's reflex drive is not used to name an effect
-# Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
-# reflex's slow activation dynamics, a reflex delay that changes with position and reflex
-# dynamics that change with it give nearly the same phase lag (measured on the virtual
-# subject: their held-out gains within 0.03 pp of each other on a delay of 30-80 ms).
+#: Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
+#: reflex's slow activation dynamics, a reflex delay that changes with position and reflex
+#: dynamics that change with it give nearly the same phase lag (measured on the virtual
+#: subject: their held-out gains within 0.03 pp of each other on a delay of 30-80 ms).
 TIES = {
     frozenset(("position_dependent_reflex_delay", "position_dependent_reflex_dynamics")):
         "reflex timing varies with position: delay or dynamics (not separable at this sampling rate)",

@@ -6,7 +6,7 @@ in percent / percentage points (pp).
 
 Two questions (see :func:`diagnose`):
 
-1. *Where does it fail?* (:func:`where_it_fails`) The residual (measured minus predicted
+1. *Where does it fail?* (:func:`~lpvpc.diagnosis.where.where_it_fails`) The residual (measured minus predicted
    torque) of the model as it is, binned by position, perturbation velocity and its sign,
    slow-movement direction, time in the trial, frequency band, around perturbation steps
    and trajectory transitions; its whiteness; its cross-correlation with the perturbation
@@ -40,7 +40,7 @@ Two questions (see :func:`diagnose`):
    alarm. (The thresholds were set on the virtual subject; benchmarks/bench_diagnose.py
    records the false-alarm and detection rates they give.)
 
-   When no candidate is significant, :func:`signal_dependence` says which measured or
+   When no candidate is significant, :func:`~lpvpc.diagnosis.signals.signal_dependence` says which measured or
    derived signal the residual depends on most, and through which pathway: the same
    cross-validated test for probes "static function of s", "intrinsic IRF modulated by
    s" and "reflex modulated by s" for each signal s. A probe's shape follows the signal's
@@ -52,7 +52,7 @@ Two questions (see :func:`diagnose`):
 
 :class:`Diagnosis` holds the answer; ``to_dict()`` is the ``diagnosis.json`` format
 (candidates in rank order with ``effect``, ``vaf_gain``, ``significant``,
-``explanation``, ...), :func:`write_report` writes a markdown report with plots.
+``explanation``, ...), :func:`~lpvpc.diagnosis.report.write_report` writes a markdown report with plots.
 
 The parts live in modules of their own, re-exported here: :mod:`lpvpc.diagnosis.cv` (blocked
 cross-validation, the paired test), :mod:`lpvpc.diagnosis.surrogate` (the model's structure as

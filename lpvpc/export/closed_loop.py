@@ -24,7 +24,7 @@ angular acceleration (its coefficient is the inertia I, one constant). Offline, 
 acceleration come from the angle record by 5-point central differences (the model's stencil);
 in a loop the plant supplies omega, and I joins the plant's inertia. A recording whose torque
 channel lags its position channel (a measurement artefact: ~1 ms on the lab's pilot trial, 4 of
-the form's points there) is lined up for the fit (``position_delay``, :func:`estimate_channel_skew`);
+the form's points there) is lined up for the fit (``position_delay``, :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`);
 the model itself answers the plant's angle without delay.
 
 Timing of the exported step and FMU: the model samples every 1/fs s (rho, the delay line,
@@ -212,7 +212,7 @@ def fit_closed_loop(whole, trials, *, memory: int = 0, position_delay: float = 0
     the acceleration (coefficient: the inertia). Without the PT trial, pass
     ``[distillation_trial(whole, ut)]``. ``position_delay`` (s): each trial's angle is delayed by
     it before the fit, to undo a torque channel recorded that much late (a measurement artefact,
-    :func:`estimate_channel_skew`; the lab's pilot trial: ~1 ms). The model itself has no delay:
+    :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`; the lab's pilot trial: ~1 ms). The model itself has no delay:
     it answers a plant's angle at once, as the ankle does.
     """
     from ..models.model import vaf
@@ -369,7 +369,7 @@ def closed_loop_step(cl: ClosedLoopModel, parametric: bool = False, name: str = 
     """One base tick (1 / (fs N) s) of the closed-loop model as a ``casadi.Function``.
 
     Inputs: ``state`` (zeros at the start), ``angle`` (rad), ``angular_velocity`` (rad/s)
-    [, ``params``]. Outputs: ``next_state`` and :data:`OUTPUT_NAMES` at the tick's instant,
+    [, ``params``]. Outputs: ``next_state`` and ``OUTPUT_NAMES`` at the tick's instant,
     from the current inputs. At ticks 0, N, 2N, ... (the model's samples) the outputs equal
     :meth:`ClosedLoopModel.predict` at that sample:
 
@@ -488,7 +488,7 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
                            fmi_type: str = "cs") -> Path:
     """The closed-loop model as an FMI 2.0 or 3.0 FMU: co-simulation (``fmi_type="cs"``) or Model
     Exchange (``"me"``, a time event per base tick). Inputs ``angle`` (rad), ``angular_velocity``
-    (rad/s); outputs :data:`OUTPUT_NAMES` from the current inputs (direct feedthrough); constant
+    (rad/s); outputs ``OUTPUT_NAMES`` from the current inputs (direct feedthrough); constant
     outputs ``inertia`` (kg m^2, for the plant to add to its own), ``sample_period`` (s) and
     ``latency`` (0 s); internal step (base tick) 1 / (fs N) s."""
     from .. import __version__

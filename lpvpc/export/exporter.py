@@ -129,7 +129,7 @@ __all__ = [
 
 VARIANTS = ("sampled", "causal", "exact")
 #: The variant written when none is named, by ``lpvpc export`` (``--casadi`` and ``--fmu``),
-#: :meth:`lpvpc.LPVPCModel.export_casadi`, :meth:`lpvpc.LPVPCModel.export_fmu` and
+#: :meth:`lpvpc.LPVPCModel.export_casadi <lpvpc.models.model.LPVPCModel.export_casadi>`, :meth:`lpvpc.LPVPCModel.export_fmu <lpvpc.models.model.LPVPCModel.export_fmu>` and
 #: :func:`export_casadi`: positions in, velocity and acceleration by central differences
 #: inside, a declared latency of half the difference stencil.
 DEFAULT_VARIANT = "sampled"
@@ -638,7 +638,7 @@ def export_casadi(model, path, variant=DEFAULT_VARIANT) -> Path:
                    scheduling=scheduling[None, :])
         torque = np.asarray(out["torque"]).ravel()  # sample k - latency_samples at row k
 
-    The sidecar ``<path>.json`` (:func:`casadi_metadata`) records the variant, tick and
+    The sidecar ``<path>.json`` (``casadi_metadata``) records the variant, tick and
     sample period, latency (samples and s), units, input and output names, initial state,
     state layout, inertia, model hash and lpvpc version; :func:`load_casadi` returns the
     function with it and refuses host steps that are not the tick.
@@ -668,7 +668,7 @@ class CasadiExport(NamedTuple):
 
     def check_step(self, dt) -> None:
         """Raise :class:`lpvpc.errors.StepSizeError` unless ``dt`` (s) is the tick within
-        :data:`STEP_TOLERANCE` (relative)."""
+        ``STEP_TOLERANCE`` (relative)."""
         from ..errors import StepSizeError
 
         tick = self.tick
@@ -1092,7 +1092,7 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     ``"sampled"`` (what ``lpvpc export --fmu`` makes): sampled every 1/fs s, communication
     steps are multiples of the base tick 1/(fs * :func:`ticks_per_sample`) (1 ms at 100 Hz,
     the DefaultExperiment step); outputs are the torque of the previous sample from the end
-    of the step that starts at a sample time (see :func:`fmu_description`). ``"causal"`` and
+    of the step that starts at a sample time (see ``fmu_description``). ``"causal"`` and
     ``"exact"``: step size 1/fs, communication steps multiples of it, outputs with direct
     feedthrough of the current inputs (for masters that set inputs before reading outputs,
     such as :mod:`lpvpc.validation`).

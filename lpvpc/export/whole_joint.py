@@ -258,7 +258,7 @@ def whole_joint_step(wj: WholeJointModel, parametric: bool = False, name: str = 
     """The whole-joint model's step as a ``casadi.Function``.
 
     Inputs: ``state`` (zeros at the start of a record), ``angle`` (rad)[, ``params``].
-    Outputs: ``next_state`` and :data:`OUTPUT_NAMES` of sample k - L (0 for k < L).
+    Outputs: ``next_state`` and ``OUTPUT_NAMES`` of sample k - L (0 for k < L).
 
     The CasADi step reproduces the offline prediction, L samples later:
 
@@ -346,7 +346,7 @@ def replay(wj: WholeJointModel, angle) -> dict:
 def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
                            fmi_type: str = "cs") -> Path:
     """The whole-joint model as an FMI 2.0 or 3.0 co-simulation FMU (input ``angle`` rad,
-    outputs :data:`OUTPUT_NAMES`, step 1/fs, outputs of sample k - L; parameters: the
+    outputs ``OUTPUT_NAMES``, step 1/fs, outputs of sample k - L; parameters: the
     LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz);
     ``fmi_type="me"``: Model Exchange, a time event per sample (see :func:`lpvpc.export.exporter.export_fmu`)."""
     from .. import __version__

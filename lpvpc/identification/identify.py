@@ -188,7 +188,7 @@ class LPVPCEstimator:
     Hammerstein fit of the reflex nonlinearity by separable least squares, then the
     intervals. By default the structure (IRF half-width, basis orders, reflex delay and the
     optional terms) is chosen by cross-validation over the record's position levels. The
-    fitted model is ``model_`` (:class:`lpvpc.LPVPCModel`). Why each default is what it is,
+    fitted model is ``model_`` (:class:`lpvpc.LPVPCModel <lpvpc.models.model.LPVPCModel>`). Why each default is what it is,
     with the evidence, is in the documentation's design notes.
 
     Parameters
@@ -223,7 +223,7 @@ class LPVPCEstimator:
         Its iteration limit.
     refine : bool, default True
         Refine the MOESP poles by variable projection.
-    effects : tuple of str, default ()
+    effects : tuple of str, default ``()``
         Effects of :data:`lpvpc.models.effects.CATALOG` always included (an extended model);
         the data must carry the signals they need.
     irf_length : float, default 0.040
@@ -234,9 +234,9 @@ class LPVPCEstimator:
     causal_derivatives : {"central5", "central3"}, default "central5"
         Difference stencil of the velocity and acceleration of the causal form (latency 2
         or 1 sample in the default FMU).
-    stationary_delays : tuple of float, default (0.04, 0.05, 0.06, 0.07, 0.08)
+    stationary_delays : tuple of float, optional
         On a stationary trial, the reflex delays (s) among which BIC chooses, with the IRF
-        half-width equal to it (``()``: off).
+        half-width equal to it (``()``: off). Default ``(0.04, 0.05, 0.06, 0.07, 0.08)``.
     high_rate_velocity_basis : {"chebyshev", "legendre", "hinge"}, default "hinge"
         Velocity basis of the reflex nonlinearity on the file's own rate (``high_rate_reflex``).
     high_rate_velocity_order : int, default 8
@@ -261,8 +261,9 @@ class LPVPCEstimator:
     scheduling_extrapolation : {"clip", "linear"}, default "clip"
         Beyond the identified position range the bases are held at the boundary, or
         continued along their tangent.
-    allow_effects : tuple of str, default ("stress_relaxation",)
-        Effects the cross-validation may switch on (``()``: none).
+    allow_effects : tuple of str, optional
+        Effects the cross-validation may switch on (``()``: none). Default
+        ``("stress_relaxation",)``.
     relaxation_times : tuple of float or None, default None
         Stress relaxation's averaging times (s); None: chosen with the effect.
     relaxation_order : int or None, default None
@@ -270,12 +271,12 @@ class LPVPCEstimator:
 
     Attributes
     ----------
-    model_ : lpvpc.LPVPCModel
+    model_ : lpvpc.models.model.LPVPCModel
         The fitted model (after :meth:`fit`).
 
     See Also
     --------
-    lpvpc.identify : the same, as one call returning the model.
+    lpvpc.identification.identify.identify : the same, as one call returning the model.
 
     Examples
     --------
@@ -1556,8 +1557,8 @@ def check_physiology(model, stacklevel: int = 3, sign_seen: bool = False) -> Non
 
     Also told, each as one PhysiologyWarning: a negative viscosity B(rho) where K is
     positive; a relaxed stiffness (stress relaxation) above the short-range one or below
-    zero; a time base that is probably wrong (:func:`_check_time_base`); a reflex gain whose
-    interval lies below zero (:func:`_check_reflex_gain`).
+    zero; a time base that is probably wrong (``_check_time_base``); a reflex gain whose
+    interval lies below zero (``_check_reflex_gain``).
 
     A torque recorded with the opposite sign gives a negative stiffness, and a warning:
 
@@ -1604,7 +1605,7 @@ def check_physiology(model, stacklevel: int = 3, sign_seen: bool = False) -> Non
         f"identify again with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
 
 
-#: The sign warning's words (what :func:`_physiology_of_final` looks for in a candidate fit's warnings).
+#: The sign warning's words (what ``_physiology_of_final`` looks for in a candidate fit's warnings).
 SIGN_WORDS = "the torque sign convention is probably reversed"
 
 
@@ -1818,7 +1819,7 @@ def with_base_model_activation(data, settings):
     """``data`` ready for identifying a model with ``settings`` (estimator settings): when its
     effects read the background activation, the estimates computed with the reflex drive of
     a base model (the same settings without effects; one extra fit) and stored
-    (:func:`with_model_activation`), as predict, diagnose and improve estimate them.
+    (:func:`~lpvpc.models.effects.with_model_activation`), as predict, diagnose and improve estimate them.
     Without it the extended model was fitted on the velocity-hinge estimate and
     evaluated on the drive's. Unchanged otherwise (no such effect, no EMG, estimates stored).
 

@@ -31,7 +31,7 @@ CANDIDATES = np.arange(-2.0, 3.01, 0.5) * 1e-3
 @dataclass
 class ChannelSkew:
     """The relative delay of the torque channel behind the position channel (s; negative: the
-    torque leads) that :func:`estimate_channel_skew` found: ``delay`` (the parabola's peak
+    torque leads) that :func:`~lpvpc.identification.channel_skew.estimate_channel_skew` found: ``delay`` (the parabola's peak
     through the best grid point and its neighbours), ``candidates`` (s) and ``scores`` (the
     two-sided model's in-sample VAF, %, on the data aligned by each candidate).
 
@@ -99,7 +99,7 @@ def _candidates(candidates) -> np.ndarray:
 def edge_samples(settings: dict, fs: float) -> int:
     """Samples at each trial's start and end that a skew estimate leaves out for a structure
     ``settings`` (its ``irf_length`` and ``reflex_delay``, s) at ``fs`` Hz: the IRF's half-width,
-    the reflex delay and the fractional-delay filter's reach (:func:`delayed`).
+    the reflex delay and the fractional-delay filter's reach (:func:`~lpvpc.io.identification_data.delayed`).
 
     >>> edge_samples({"irf_length": 0.04, "reflex_delay": 0.04}, 100.0)
     25
@@ -113,7 +113,7 @@ def scan_channel_skew(model, data, candidates=None) -> ChannelSkew:
     (its bases' orders, IRF half-width, reflex delay and curvature term, the reflex on the
     model-rate velocity, no effects) with its reflex dynamics held, fitted to the torque
     advanced by the candidate (the same alignment as the position delayed by it); the estimate
-    is the parabola's peak as in :func:`estimate_channel_skew`. One regressor serves every
+    is the parabola's peak as in :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`. One regressor serves every
     candidate (:func:`lpvpc.identification.selection.in_sample_vaf`), so the scan costs about one least-squares
     solve. Each trial's first and last samples are left out (see the comment below). The
     dynamics are not refitted per candidate: the estimate reads 0.13-0.29 ms later than the

@@ -53,7 +53,7 @@ explicit 1 kHz path.) A structure the caller fixed, and the explicit
 On the explicit 1 kHz path (``high_rate_reflex=True`` given: the selection never compared the
 reflex velocity paths) the model-rate path is one more structure the data were not asked to
 exclude: ``path`` stores the model's IRF minus the model structure's refit with the
-model-rate reflex columns (the search's), counted for :data:`PATH_QUANTITIES` (viscosity).
+model-rate reflex columns (the search's), counted for :data:`~lpvpc.models.modelfile.PATH_QUANTITIES` (viscosity).
 Choosing on seeds 0-19 of 1 kHz files: viscosity coverage 92.8 -> 95.6 % (standard), 91.7 ->
 96.1 % (sum of exponentials), check seeds 20-39 of the standard family 88.3 -> 93.9 %
 (median half-width 17.4 -> 19.8 % of the estimate).
@@ -62,12 +62,12 @@ An extended model (an allowed effect chosen by the selection, e.g. stress relaxa
 more structures:
 
 - the effect's other variants the selection could not exclude (another relaxation time:
-  :func:`effect_variant_shifts`, refitted in identify's effect search), and a single time's
+  ``effect_variant_shifts``, refitted in identify's effect search), and a single time's
   neighbours on the grid whatever their score: K trades with the relaxation's time, which the
   data hardly determine;
 - its own structure without the effects (the search's refit of it, the effects' columns
   absent, minus the model's IRF), when the effect won narrowly (less than
-  :data:`ESTABLISHED_EFFECT_GAIN` of the CV error). The selection compared the effects on and
+  ``ESTABLISHED_EFFECT_GAIN`` of the CV error). The selection compared the effects on and
   off and the effect can win by a margin just above its bar (clean sum-of-exponentials
   records, seeds 8 and 16 of 1 kHz files: CV gain 6.5 and 8.3 % against the 5 % bar); the
   effects' slow columns then trade with the IRF (K errors -28..+16 %, viscosity's position
@@ -275,7 +275,7 @@ def structural_term(model, data, search=None, selection=None, effects=None) -> d
     run on these data with these dynamics (identify's), else one is run here. ``effects``:
     of a model whose effects identify's selection chose, {"gain": the fraction by which they
     lowered the CV squared error, "variants": [(settings, CV VAF, IRF shift)] of
-    :func:`effect_variant_shifts`}.
+    ``effect_variant_shifts``}.
 
     >>> import warnings
     >>> from lpvpc.io import pair_trials

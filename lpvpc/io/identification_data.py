@@ -405,8 +405,8 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
     (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg`` (of the PT trial) and
-    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
-    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`load_trial` (the lab's
+    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`~lpvpc.io.readers.load_trial` and
+    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`~lpvpc.io.readers.load_trial` (the lab's
     pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
     found without options). ``channel_skew`` as in :func:`pair_trials`.
     """
@@ -431,7 +431,7 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
 
 def _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees="warn"):
     """(Trial in SI units at the file's rate with a ``scheduling`` channel, path) of a PT - UT file
-    (``degrees``: as in :func:`load_trial`)."""
+    (``degrees``: as in :func:`~lpvpc.io.readers.load_trial`)."""
     _check_settings(position_unit, torque_sign)
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
@@ -450,7 +450,7 @@ def perturbation_file_trials(path, *, position_unit: str = "rad", torque_sign: f
     actuator with each): UT = the scheduling position, PT = the scheduling plus the perturbation
     position with the perturbation torque. The UT torque is not in such a file: the UT trial's
     torque is zero, so :func:`pair_trials` of the two gives back the file's perturbation data.
-    ``degrees`` as in :func:`load_trial`.
+    ``degrees`` as in :func:`~lpvpc.io.readers.load_trial`.
 
     >>> t = np.arange(2000) / 1000.0
     >>> rng = np.random.default_rng(1)
@@ -630,7 +630,7 @@ class RecordSource:
     inputs : dict
         The loader's ``pt``, ``ut``, ``data``, ``variable``, ``channels`` and ``stationary``.
     settings : dict
-        Every convention of :data:`CONVENTION_DEFAULTS`, as used.
+        Every convention of :data:`~lpvpc.io.identification_data.CONVENTION_DEFAULTS`, as used.
     given : frozenset
         The conventions the caller gave explicitly (the others took their defaults).
 
@@ -674,7 +674,7 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
     ``position_unit`` ("rad", the default, or "deg") and ``torque_sign`` (+1, the default, or
     -1) describe the inputs (applied to Trials too);
     ``target_fs`` (Hz, None keeps the rate); ``variable`` and ``channels`` choose within
-    .mat files (:func:`load_trial`; a path ``"file.mat:NAME"`` names its own variable).
+    .mat files (:func:`~lpvpc.io.readers.load_trial`; a path ``"file.mat:NAME"`` names its own variable).
     Several trials: lists for ``pt`` and ``ut`` (paired in order) or for ``data``, joined by
     :func:`join_trials` for one joint identification. ``stationary=True``: ``pt`` alone, a
     perturbed trial (or a list) around a fixed operating position recorded without UT
@@ -692,7 +692,7 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
 
     The data remember how they were loaded (``data.origin``, :class:`RecordSource`): a
     model given them loads them again with its own conventions where these were not given
-    here (:meth:`lpvpc.LPVPCModel.conform`), and refuses those given otherwise.
+    here (:meth:`LPVPCModel.conform <lpvpc.models.model.LPVPCModel.conform>`), and refuses those given otherwise.
     """
     settings = {"position_unit": position_unit, "torque_sign": torque_sign, "time_unit": time_unit,
                 "channel_skew": channel_skew, "target_fs": target_fs}
@@ -797,8 +797,8 @@ def hold_out(data: PerturbationData, heldout) -> tuple:
 
     Raises
     ------
-    lpvpc.DataError
-        A fraction or range that leaves either part shorter than :data:`MIN_PART_S`.
+    lpvpc.errors.DataError
+        A fraction or range that leaves either part shorter than :data:`~lpvpc.io.identification_data.MIN_PART_S`.
 
     Examples
     --------

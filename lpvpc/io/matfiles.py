@@ -111,9 +111,9 @@ class Record:
 
 
 # --------------------------------------------------------------------------- declared sizes
-MAX_VARIABLE_BYTES = 1 << 30  # 1 GiB per variable (a 30-minute 1 kHz record of 6 channels is 86 MB)
+MAX_VARIABLE_BYTES = 1 << 30  #: 1 GiB per variable (a 30-minute 1 kHz record of 6 channels is 86 MB)
 LIMIT_ENV = "LPVPC_MAX_VARIABLE_BYTES"  # environment variable that sets another limit (bytes)
-SUBSYSTEM = "(class object data)"  # where MATLAB keeps classdef objects' contents (v5 and v7.3)
+SUBSYSTEM = "(class object data)"  #: where MATLAB keeps classdef objects' contents (v5 and v7.3)
 
 
 def max_variable_bytes() -> int:

@@ -1,4 +1,4 @@
-"""Reading CSV and MATLAB ``.mat`` files into trials (:func:`load_trial`).
+"""Reading CSV and MATLAB ``.mat`` files into trials (:func:`~lpvpc.io.readers.load_trial`).
 
 A file's columns (or a ``.mat`` record's channels, see :mod:`lpvpc.io.matfiles`) are picked by
 role (time, position, torque, optional channels), converted to SI

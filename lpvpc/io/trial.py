@@ -29,7 +29,7 @@ JITTER_TOLERANCE = 1e-3
 # The samples are then read as uniform, with a warning; a dropped or doubled sample moves
 # the grid by half a step or more and stays an error.
 GRID_TOLERANCE = 0.1
-# Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
+#: Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
 RATE_TOLERANCE = 1e-4
 
 
@@ -49,7 +49,7 @@ def check_model_rate(fs, model_fs, *, what: str = "data", source=None, tolerance
     source : str, optional
         The file the data came from, named in the error.
     tolerance : float
-        Largest relative difference accepted (default :data:`RATE_TOLERANCE`).
+        Largest relative difference accepted (default :data:`~lpvpc.io.trial.RATE_TOLERANCE`).
 
     Raises
     ------
@@ -223,7 +223,7 @@ def trial_problems(trial: Trial) -> list[str]:
 
 
 def check_trial(trial: Trial, source=None) -> Trial:
-    """Raise one :class:`DataError` listing every problem of ``trial``; return it if usable.
+    """Raise one :class:`~lpvpc.errors.DataError` listing every problem of ``trial``; return it if usable.
 
     Checks: NaN/inf per channel, unequal channel lengths, time not strictly increasing,
     uneven sampling (a step deviating from the median step by more than 1e-3 of it, unless

@@ -80,25 +80,22 @@ FRICTION_SCALES = (0.01, 0.03, 0.1)  # rad/s: velocity scales of the smoothed fr
 DIRECTION_V_MIN = 0.05  # rad/s: slower movement does not change the remembered direction
 DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the latch
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
-# s: time constants of the stress-relaxation memory when nothing chose them (the diagnosis's
-# candidate, structure="fixed"); identify's cross-validation chooses a record's own
-# (lpvpc.identification.selection.RELAXATION_VARIANTS) and the fitted effect stores them (options
-# "relaxation_times_s"), which its prediction, CasADi step and FMU then use
+#: s: time constants of the stress-relaxation memory when nothing chose them (the diagnosis's
+#: candidate, structure="fixed"); identify's cross-validation chooses a record's own
+#: (``lpvpc.identification.selection.RELAXATION_VARIANTS``) and the fitted effect stores them
+#: (options "relaxation_times_s"), which its prediction, CasADi step and FMU then use.
 RELAXATION_TIMES = (0.3, 1.0, 3.0)
 QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
 ACTIVATION_CUTOFF = (0.5, 3.0)  # Hz: range of the background activation estimate's low-pass (activation_cutoff)
 BURST_MAX_LAG = 0.15  # s: the EMG's reflex-evoked part is explained by the stretch velocity 0..this long ago
-BURST_HINGES = (0.0, 0.25, 0.5, 1.0)  # rad/s: thresholds of the hinge functions of velocity that model the reflex drive
-# s: resolution in time of the bursts' slowly varying gain. 60 s (a cubic over 2 minutes) could not
-# follow a reflex gain swinging with a 35-s period: the bursts' remainder leaked into the activation
-# estimate (error correlated +0.37..+0.64 with the gain) and activation_reflex_gain was named on 4/4
-# seeds (PRALDS), reflex habituation on lab pulses seed 2 too once the test was robust; 15 s: 0/4, none
-# (the error's correlation with the gain +0.18..+0.34: less, not gone; tests/test_emg_background.py).
+BURST_HINGES = (0.0, 0.25, 0.5, 1.0)  #: rad/s: thresholds of the hinge functions of velocity that model the reflex drive
+# s: resolution in time of the bursts' slowly varying gain: short enough to follow a reflex gain
+# that swings within a trial (docs/design_notes.md, "EMG burst gain resolution").
 BURST_GAIN_S = 15.0
-BURST_TONIC_S = 5.0  # s: resolution in time of the tonic level fitted next to the bursts
+BURST_TONIC_S = 5.0  #: s: resolution in time of the tonic level fitted next to the bursts
 MIN_BURST_CORRELATION = 0.2  # reflex_latency: a block's EMG-drive peak correlation below this is noise
-# s: delay changes about the model's delay at which the position-dependent reflex delay
-# entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
+#: s: delay changes about the model's delay at which the position-dependent reflex delay
+#: entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
 REFLEX_DELAY_STEPS = (-0.02, -0.01, 0.01, 0.02, 0.03)
 
 
@@ -236,10 +233,11 @@ def _amplitude_features(c, ops, options):
     return [p * ops.fmax(p, -p), p * p * p]
 
 
-# Each entry names its pathway, the signals its regressor reads (``signals``, ``derived``)
-# and its term (``channels``: an IRF scheduled by those signals; ``features``: static or
-# reflex-state features). Its virtual-subject counterpart is the entry of the same name in
-# lpvpc.simulation.simulate.EFFECTS (``subject``).
+#: The effects a model may carry, by name. Each entry names its pathway, the signals its
+#: regressor reads (``signals``, ``derived``) and its term (``channels``: an IRF scheduled by
+#: those signals; ``features``: static or reflex-state features). Its virtual-subject
+#: counterpart is the entry of the same name in :data:`lpvpc.simulation.simulated_effects.EFFECTS`
+#: (``subject``).
 CATALOG: dict[str, Effect] = {
     e.name: e
     for e in (
@@ -399,6 +397,7 @@ def _irf_variants(s, fs):
     return [{"irf_lags": L} for L in range(s["irf_lags"] + 1, min(s["irf_lags"] + 3, d) + 1)]
 
 
+#: The estimator's settings the diagnosis may change, by name, each with the variants it tries.
 SETTINGS: dict[str, Setting] = {
     c.name: c
     for c in (
@@ -561,7 +560,7 @@ def signals_from_data(data, model=None) -> dict:
     :data:`SIGNALS` (trial_time from its time column, starting at 0). The background
     activation (``activation``, and ``emg_ut`` from the unperturbed trial's EMG) is
     :func:`background_emg` of the EMG: its reflex-evoked part explained by ``model``'s reflex
-    drive when a model is given (:func:`_emg_reflex_drives`), else by the measured velocity;
+    drive when a model is given (``_emg_reflex_drives``), else by the measured velocity;
     estimates stored in the data (:func:`with_model_activation`) are used as they are."""
     extra = getattr(data, "extra", {}) or {}
     out = {}

@@ -309,7 +309,7 @@ class LPVPCModel:
 
         Raises
         ------
-        lpvpc.DataError
+        lpvpc.errors.DataError
             A convention given that contradicts the model's (both named), or bad data.
         """
         from ..io import load_identification_data
@@ -347,7 +347,7 @@ class LPVPCModel:
 
         Raises
         ------
-        lpvpc.DataError
+        lpvpc.errors.DataError
             A torque sign or unit that differs from the model's, or a channel skew given
             explicitly that does.
         """

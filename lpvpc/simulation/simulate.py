@@ -25,7 +25,7 @@ The chain, one function per physical element::
 Both trials record an EMG envelope (V): tonic activation in both, reflex-evoked bursts
 (~40 ms after each velocity pulse, with the reflex's gain and threshold) in the perturbed
 one, measurement noise. Effects the base LPV-PC model does not contain are switchable by
-name through the :data:`EFFECTS` registry; each has its diagnosis-catalog counterpart of
+name through the :data:`~lpvpc.simulation.simulated_effects.EFFECTS` registry; each has its diagnosis-catalog counterpart of
 the same name in :data:`lpvpc.models.effects.CATALOG`, except those marked "outside the diagnosis
 catalog" (they test what the diagnosis says of effects it has no entry for).
 
@@ -37,13 +37,13 @@ Where each part lives (every public name is importable from here as before):
 - :mod:`lpvpc.simulation.physics`: the servo, intrinsic mechanics, stretch reflex and torque noise
   (elements 3-6);
 - :mod:`lpvpc.simulation.emg`: the EMG envelope from activation and reflex drive;
-- :mod:`lpvpc.simulation.simulated_effects`: the :data:`EFFECTS` registry of effects the base model lacks;
+- :mod:`lpvpc.simulation.simulated_effects`: the :data:`~lpvpc.simulation.simulated_effects.EFFECTS` registry of effects the base model lacks;
 - this module: the pair (:func:`simulate_pair`) and the dataset files (:func:`write_dataset`).
 
-Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
-:func:`write_dataset`, :data:`EFFECTS`, and the element functions
-:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`lab_pulses`, :func:`prbs`, :func:`servo`,
-:func:`intrinsic_torque`, :func:`reflex_torque`, :func:`coloured_noise`.
+Public API: :class:`~lpvpc.simulation.subject.SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
+:func:`write_dataset`, :data:`~lpvpc.simulation.simulated_effects.EFFECTS`, and the element functions
+:func:`~lpvpc.simulation.trajectories.multilevel_trajectory`, :func:`~lpvpc.simulation.trajectories.novel_trajectory`, :func:`~lpvpc.simulation.trajectories.pralds`, :func:`~lpvpc.simulation.trajectories.lab_pulses`, :func:`~lpvpc.simulation.trajectories.prbs`, :func:`~lpvpc.simulation.physics.servo`,
+:func:`~lpvpc.simulation.physics.intrinsic_torque`, :func:`~lpvpc.simulation.physics.reflex_torque`, :func:`~lpvpc.simulation.physics.coloured_noise`.
 """
 
 from __future__ import annotations
@@ -137,15 +137,15 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     ``snr_db``: SNR of the PERTURBATION torque, 10 log10(var(PT-UT clean) / var(PT-UT
     noise)), exact at the output rate (``inf`` or ``None``: no noise).
     ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``perturbation``:
-    "pralds" (:func:`pralds`), "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
-    design: every step large) or "prbs" (:func:`prbs`: +-amplitude switching every
+    "pralds" (:func:`~lpvpc.simulation.trajectories.pralds`), "lab_pulses" (:func:`~lpvpc.simulation.trajectories.lab_pulses`, the lab pilot trial's
+    design: every step large) or "prbs" (:func:`~lpvpc.simulation.trajectories.prbs`: +-amplitude switching every
     50-150 ms, no quiet windows). ``effects``:
-    names from :data:`EFFECTS` or :class:`lpvpc.simulation.simulated_effects.CustomEffect` objects. Position has no sensor noise (an optical encoder's
+    names from :data:`~lpvpc.simulation.simulated_effects.EFFECTS` or :class:`lpvpc.simulation.simulated_effects.CustomEffect` objects. Position has no sensor noise (an optical encoder's
     quantisation is negligible next to the torque noise). Both trials carry channel
-    'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
+    'emg' (:func:`~lpvpc.simulation.emg.emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
     in ``emg_unit`` ("V", "mV" or "uV"). ``stiffness_family``: the subject's elastic
     stiffness shape (:data:`lpvpc.simulation.subject.STIFFNESS_FAMILIES`; None: that of ``params``,
-    "standard" by default), set with :meth:`SubjectParams.with_stiffness_family`; it draws
+    "standard" by default), set with :meth:`SubjectParams.with_stiffness_family <lpvpc.simulation.subject.SubjectParams.with_stiffness_family>`; it draws
     no random numbers, so a seed gives the same trajectory, perturbation and noise streams
     in every family.
     """

@@ -57,7 +57,7 @@ class ManifestError(DataError):
 
 @dataclass(frozen=True)
 class ManifestRow:
-    """One record of a study (SI conventions as :func:`lpvpc.load_identification_data` takes
+    """One record of a study (SI conventions as :func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>` takes
     them): files as absolute paths (None where not given), ``heldout`` a fraction or None
     (the study's default), ``line`` the row's line number in the manifest."""
 

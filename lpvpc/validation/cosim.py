@@ -16,7 +16,7 @@ back to their time (``latency`` of :func:`run_cosimulation`). Commands come from
 record without one is driven by its measured positions passed through the inverse of the
 servo loop (a feedforward command under which the servo reproduces the measured
 position; see :func:`feedforward_command`), then refined by iterative learning
-(:func:`validation.harness.refined_drive`: each pass adds :func:`actuator_inverse` of the
+(``lpvpc.validation.harness.refined_drive``: each pass adds :func:`actuator_inverse` of the
 remaining position error and co-simulates again).
 
 Decisions (each a :class:`CosimSettings` field; the defaults are what the report uses)
@@ -321,7 +321,7 @@ def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, 
     """Fit the servo loop's bandwidth (Hz) and damping to a record: the perturbation
     command (PT - UT, at the actuator rate 1/``step``) against the measured perturbation
     position (PT - UT, at ``fs_record``), by least squares on the simulated position
-    (:func:`servo_response`, brought to the record's rate). Returns the fitted values,
+    (``servo_response``, brought to the record's rate). Returns the fitted values,
     the VAF of the fit (percent) and the number of evaluations."""
     from scipy.optimize import least_squares
 
@@ -353,7 +353,7 @@ def connections(settings: CosimSettings, signals=(), variant: str = "causal", la
     """The signal connections of the experiment, by variable name, as readable lines
     (``signals``: names of an extended model's extra inputs, fed from the record;
     ``variant``/``latency``: of the model FMU, :func:`model_fmu_variant`; ``points``: of a
-    causal FMU's central differences, :func:`model_fmu_derivative_points`)."""
+    causal FMU's central differences, ``model_fmu_derivative_points``)."""
     load_ut = {"measured_ut+model": "record.UT torque (measured, at the actuator rate)",
                "model": "0", "none": "0"}[settings.load]
     load_pt = {"measured_ut+model": "record.UT torque + model.torque",

@@ -8,13 +8,13 @@ FMUs) so that bad input fails in well under a second with one :class:`lpvpc.erro
 (exit status 2 on the command line), then runs:
 
 1. the offline routes (numpy two-sided and causal, CasADi causal and exact) and the model
-   FMU replaying the measured positions (:mod:`validation.routes`);
-2. the co-simulation of the lab experiment (:mod:`validation.cosim`): calibrated actuator
+   FMU replaying the measured positions (:mod:`lpvpc.validation.routes`);
+2. the co-simulation of the lab experiment (:mod:`lpvpc.validation.cosim`): calibrated actuator
    runs driven by the record's commands, the model FMU closing the loop; once more
    without load to measure what the load changes;
-3. the comparison (:mod:`validation.compare`) and the report (:mod:`validation.report`):
+3. the comparison (:mod:`lpvpc.validation.compare`) and the report (:mod:`lpvpc.validation.report`):
    ``report.html``, ``metrics.json``, the figures as PNG and the co-simulation set-up as an
-   SSP archive (``cosimulation.ssp``, :mod:`validation.ssp`) in the report folder.
+   SSP archive (``cosimulation.ssp``, :mod:`lpvpc.validation.ssp`) in the report folder.
 """
 
 from __future__ import annotations
@@ -51,10 +51,10 @@ __all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROU
 #: Largest max|a - b| / max|b| allowed between the numpy causal prediction and the CasADi
 #: and FMU routes (they evaluate the same equations; measured ~1e-15).
 DEFAULT_ROUTE_TOLERANCE = 1e-9
-#: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`validation.ssp`).
+#: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`lpvpc.validation.ssp`).
 SSP_FILE = "cosimulation.ssp"
 #: The same set-up for engines that only connect outputs to inputs (libcosim, ECOS): every
-#: signal the master computes is done by a record-player FMU (:func:`validation.ssp.write_portable_ssp`).
+#: signal the master computes is done by a record-player FMU (:func:`lpvpc.validation.ssp.write_portable_ssp`).
 PORTABLE_SSP_FILE = "cosimulation_portable.ssp"
 #: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
 CALIBRATION_WARN_VAF = 99.0
@@ -237,7 +237,7 @@ def refined_drive(drive: ActuatorDrive, targets, run, parameters: dict):
     Each pass takes the UT and PT position errors where the model sees them (the actuators
     sampled at the model rate, against ``targets``: the measured UT and PT positions at the model
     rate, as identification reads them), brings them to the actuator rate by the commands'
-    band-limited interpolation, adds their :func:`~validation.cosim.actuator_inverse` and runs
+    band-limited interpolation, adds their :func:`~lpvpc.validation.cosim.actuator_inverse` and runs
     again (``run(drive) -> CosimResult``; ``parameters``: the actuator's). Returns (drive, its
     co-simulation, {"passes", "tracking_rms_mrad" per pass}).
 
@@ -396,18 +396,18 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     (percent): threshold for ``vaf``, ``vaf_fmu`` and ``vaf_cosim``; ``route_tolerance``:
     for the CasADi and FMU routes against numpy; ``band_limit_command`` (default on):
     low-pass the record's commands (zero-phase) to the model's band before they drive the
-    actuators (:func:`validation.cosim.band_limit`): the measured record is the
+    actuators (:func:`lpvpc.validation.cosim.band_limit`): the measured record is the
     anti-aliased view of the experiment, and a model sampled at fs sees nothing above
     fs/2; off, the actuators' faster motion reaches the model sampled, not anti-aliased.
     ``whole_joint``: a :class:`lpvpc.export.whole_joint.WholeJointModel` (or its JSON path) built on
-    this model, validated on the PT trial's total torque as well (:mod:`validation.whole_joint`;
+    this model, validated on the PT trial's total torque as well (:mod:`lpvpc.validation.whole_joint`;
     a report section and ``metrics["whole_joint"]``). ``variable`` and ``channels``: the .mat
-    variable and the column or channel names of the record's files (:func:`load_record`).
+    variable and the column or channel names of the record's files (:meth:`LPVPCModel.load_record <lpvpc.models.model.LPVPCModel.load_record>`).
     ``data`` instead of ``pt`` and ``ut`` (None): one PT - UT file with a scheduling column
     (the lab pilot's format); its UT torque is unknown, so the co-simulation loads the PT
     actuator with the model's torque only (``CosimSettings.load`` "model"), and a whole-joint
     model, which needs the PT trial's total torque, is refused. ``stationary``: ``pt`` alone,
-    recorded around one fixed position (:func:`load_record`). Returns a :class:`ValidationResult`
+    recorded around one fixed position (:meth:`LPVPCModel.load_record <lpvpc.models.model.LPVPCModel.load_record>`). Returns a :class:`ValidationResult`
     whose ``passed`` is False when a threshold fails.
     """
     t_all = time.perf_counter()
