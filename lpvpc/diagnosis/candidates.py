@@ -239,8 +239,7 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None) -> bool:
     SMALL_GAIN x min_gain with ``p_mean`` (the t test's p of the mean gain; None: ``p``)
     <= level / STRONG_EVIDENCE. The small-gain tier rests on the mean alone: the
     signed-rank half of the robust p says most blocks improve, which a tiny systematic gain
-    does too (PRBS clean seed 45: position_dependent_reflex_dynamics +0.092 pp, signed rank
-    p = 6.7e-5, t p = 4.7e-3).
+    does too (docs/design_notes.md, "Diagnosis significance").
 
     >>> passes(0.2, 5e-3, 0.15, 1e-2), passes(0.12, 5e-3, 0.15, 1e-2), passes(0.12, 5e-4, 0.15, 1e-2)
     (True, False, True)
@@ -406,8 +405,8 @@ def _prefer_underived(sur, best, r1, scored, min_gain, level, block_s, *, unscor
     changes; which of two tied signals carries it is one question more, asked of the rival
     at the unadjusted level ``alpha`` with a positive gain.
     ``unscored``: (rival, residual over the same base) when the rival is not among the
-    significant ones (lab pulses, habituation seed 2: activation_reflex_gain +0.20 pp,
-    trial time +0.10 pp at p = 0.06, tie p = 0.19: it was named activation)."""
+    significant ones (else a habituating reflex could be named activation:
+    docs/design_notes.md, "Diagnosis significance")."""
     rival_name = PREFER_UNDERIVED.get(best.effect)
     hit = next(((r, res) for r, res in scored if r.effect == rival_name), None) or unscored
     if hit is None or hit[0].effect != rival_name or _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:

@@ -64,23 +64,17 @@ STATIONARY_DELAYS = (0.04, 0.05, 0.06, 0.07, 0.08)  # s
 #: regressor would take more than this: a 30-minute 100 Hz record's takes 260 MB; a 1 kHz
 #: record's IRF has 10x the lags.
 DESIGN_BUDGET_BYTES = 400e6
-#: s: structure="cv" is skipped on shorter records (the settings as given, the reason recorded).
-#: Virtual subject, seeds 0-5, worst K(theta) error over the central 80 % of the range: 30-s
-#: records 2.5-28 % with the selection (small structures: IRF 20 ms, intrinsic order 2-3)
-#: against 3.7-6.9 % at the fixed settings; 45-s records 2.2-5.4 % against 2.7-4.9 %;
-#: 60-s records (seeds 0-3, five positions) within 2.5 %, as good or better.
+#: s: structure="cv" is skipped on shorter records (the settings as given, the reason recorded):
+#: there the selection picks structures too small to follow K(theta) (docs/design_notes.md,
+#: "Shortest record for structure selection").
 MIN_SELECTION_S = 45.0
 #: Effects structure="cv" may switch on (``allow_effects``): stress relaxation, on every
 #: record (docs/guide/structure_selection.md, "Effects chosen by cross-validation").
 DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: An allowed effect is kept only if, beyond the one-standard-error rule, it lowers the
-#: cross-validated squared error by at least this fraction. Why: with 5-10 folds a tiny but
-#: consistent gain passes the paired rule (stationary virtual subject without relaxation, seed 0:
-#: +0.002 points of CV VAF, chosen), and an effect costs more than its parameters (an extended
-#: model's K interval is about twice as wide, lpvpc.models.uncertainty; the FMU gets its states). 5 %: on
-#: clean 1 kHz records of the standard and sum-of-exponentials stiffness (seed 3) relaxation was
-#: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
-#: present gave 16-35 % (benchmarks/results/effect_selection.txt).
+#: cross-validated squared error by at least this fraction: with 5-10 folds a tiny but
+#: consistent gain passes the paired rule, and an effect costs more than its parameters (wider
+#: K intervals, the FMU's states). Evidence for 5 %: docs/design_notes.md, "Effects' bar".
 MIN_EFFECT_GAIN = 0.05
 #: Why structure="cv" fits forced effects as given (then only stress relaxation's term is chosen).
 EXTENDED_GIVEN = "extended model (effects)"
@@ -629,8 +623,7 @@ class LPVPCEstimator:
             chosen["effects"] = tuple(effects_cv["chosen"])
             chosen.update(effects_cv["settings"])  # e.g. the relaxation's times and order
             if self.state_order is None and "state_order" not in fixed:  # BIC again, with the effects' columns:
-                # the order chosen without them can hold a slow pole that took the relaxation (virtual
-                # subject seed 1, 100 Hz: order 3, K +19 %; BIC with them: order 2, K within 3 %)
+                # the order chosen without them can hold a slow pole that took the relaxation
                 chosen["state_order"] = None
         est = LPVPCEstimator(**{**base, **chosen})
         warm = WarmStart(subspace=first.subspace_)
@@ -645,8 +638,7 @@ class LPVPCEstimator:
         if path is not None and path.chosen["high_rate_reflex"]:
             est = self._fit_high_rate_chosen(data, est, path, first, order)
         else:  # effects chosen: joined in the subspace step, as in the fit whose dynamics the CV held
-            # (fitted both ways, the fit after the reflex was kept on seed 10 of the virtual subject
-            # that relaxes, 100 Hz: in-sample VAF alike, its reflex had taken the relaxing torque, K -16 %)
+            # (fitted after the reflex instead, the reflex takes the relaxing torque: design notes)
             est._fit(data, warm, late=False if "effects" in chosen else None)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
@@ -682,8 +674,8 @@ class LPVPCEstimator:
         one design: column subsets), the one-standard-error rule and ``MIN_EFFECT_GAIN``. The
         reflex dynamics held come from a fit of that structure with the effects' columns in
         the subspace step's intrinsic regressor: held from the first fit, a slow reflex pole
-        had taken part of the relaxation and the effect looked useless (virtual subject seed 100:
-        CV gain +0.19 points, not chosen; +0.95 with these dynamics, chosen). Scored after the
+        had taken part of the relaxation and the effect looked useless (docs/design_notes.md,
+        "Effects in the structure selection"). Scored after the
         structure, not inside its search, so a record without the effect gets exactly the model
         it got before effects were allowed. The effects' fit uses ``terms`` (the first look's
         best variants; the catalog's when None); when the best variant under its dynamics is
@@ -697,16 +689,14 @@ class LPVPCEstimator:
         t = time.perf_counter()
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
         # the effects' terms of the fit whose dynamics are held: first the first look's best (else the
-        # catalog's). The catalog's three times there left the effect off on a record that relaxes
-        # (virtual subject seed 18, 100 Hz: first look 9.4 %, then 1.1 % with those dynamics)
+        # catalog's, which can leave the effect off on a record that relaxes)
         terms, tried = dict(terms or {}), []
         while True:
             fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered), **terms})
             if terms and self.state_order is None:  # BIC's order with the chosen terms (_fit_selected)
                 fit.state_order = None
             # its own subspace step: started from the first fit's (no effect columns) the pole refinement
-            # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
-            # 95.25; from its own, 97.19 and 96.13); bare: the model is not kept
+            # stays near poles that take the relaxation; bare: the model is not kept
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -729,9 +719,7 @@ class LPVPCEstimator:
             tried.append(terms)
             # The best term under these dynamics (the chosen one, else the best-scoring), if not
             # the fitted one (another relaxation time), is scored again under dynamics fitted with
-            # it: the held dynamics had taken part of the other term's misfit (relaxing virtual
-            # subject, 100 Hz, seed 5: the first look's 3 s, then off; the catalog's term there
-            # left seed 18 off)
+            # it: the held dynamics had taken part of the other term's misfit
             best_terms = {}
             for n, by_value in cands.items():
                 v = pick[effect_key(n)] or max(by_value, key=lambda u: search.score({**pick, effect_key(n): u}).cv_vaf)

@@ -90,7 +90,7 @@ ACTIVATION_CUTOFF = (0.5, 3.0)  # Hz: range of the background activation estimat
 BURST_MAX_LAG = 0.15  # s: the EMG's reflex-evoked part is explained by the stretch velocity 0..this long ago
 BURST_HINGES = (0.0, 0.25, 0.5, 1.0)  #: rad/s: thresholds of the hinge functions of velocity that model the reflex drive
 # s: resolution in time of the bursts' slowly varying gain: short enough to follow a reflex gain
-# that swings within a trial (docs/design_notes.md, "EMG burst gain resolution").
+# that swings within a trial (docs/design_notes.md, "Background activation from EMG").
 BURST_GAIN_S = 15.0
 BURST_TONIC_S = 5.0  #: s: resolution in time of the tonic level fitted next to the bursts
 MIN_BURST_CORRELATION = 0.2  # reflex_latency: a block's EMG-drive peak correlation below this is noise
@@ -611,10 +611,9 @@ def with_model_activation(data, model):
     estimator's refits read the data's signals without the model). Unchanged without EMG,
     without a reflex pathway, or when the estimates are there already.
 
-    Measured on the issue-23 activation subject (bench_diagnose.py --activation-why): the
-    lagged hinges of measured velocity (~400 columns) also fit part of the slow activation
-    itself, in the unperturbed trial most (its slow movement gives slow hinges); the model's
-    drive (16 lags) does not.
+    Why the model's drive: the lagged hinges of measured velocity (~400 columns) also fit part
+    of the slow activation itself, the model's drive (16 lags) does not (docs/design_notes.md,
+    "Background activation from EMG").
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -680,10 +679,9 @@ def _slow_time_basis(n, fs, resolution):
 def _gain_time_basis(n, fs, resolution):
     """(n, K + 2) Legendre polynomials of trial time, degrees 0..K + 1 for K = T / ``resolution``:
     a gain that changes over ``resolution`` s or more, including an exponential decay from
-    the record's start. The cosines of :func:`_slow_time_basis` have zero slope at both ends:
-    a habituating reflex (gain 1 -> 0.33 with a 40-s time constant over 2 minutes) was left
-    16 % too high at the start, its bursts stayed in the tonic estimate, and that estimate then
-    explained the habituation (activation_reflex_gain named first, lab pulses seed 2)."""
+    the record's start. The cosines of ``_slow_time_basis`` have zero slope at both ends and
+    leave a habituating reflex's early bursts in the tonic estimate (docs/design_notes.md,
+    "Background activation from EMG")."""
     T = max(n / fs, 1e-9)
     k = max(1, int(round(T / resolution))) + 1
     return np.polynomial.legendre.legvander(2.0 * np.arange(n) / max(n - 1, 1) - 1.0, k)
@@ -695,9 +693,8 @@ def fast_drive(drive, fs, window_s=1.0) -> np.ndarray:
     A burst lasts tens of ms; what the drive does over seconds the EMG cannot tell from
     tonic activation, so only its fast part explains bursts and its slow part is left to
     the tonic estimate. On the slow movement of a held-out record the model's drive can be
-    mostly slow (73 % of its variance over 1 s on lab_pulses seed 0): fitted whole, the
-    lagged drive took half the unperturbed trial's activation (estimate error 70 %, 11 %
-    with the fast part; bench_diagnose.py --activation-why).
+    mostly slow, and fitted whole it takes the unperturbed trial's activation
+    (docs/design_notes.md, "Background activation from EMG").
 
     >>> slow = np.linspace(0.0, 1.0, 300)  # a ramp over 3 s at 100 Hz: no burst
     >>> burst = slow.copy(); burst[150:153] += 2.0  # a 30-ms burst on it
@@ -1199,8 +1196,8 @@ class EffectDesign:
 #: Bounds (c, 1/c) of the base reflex's rescaling in an extended fit with reflex effects.
 MIN_REFLEX_RESCALE = 0.05
 # For effects marked refit_poles: refit the reflex poles, the nonlinearity (False: hold the
-# base fit's; bench_reflex_dynamics_range compares). One round of each: a second changed the
-# held-out VAF by 0.03 points at most (PRBS 3x range, seeds 1 and 2).
+# base fit's; bench_reflex_dynamics_range compares). One round of each: a second hardly
+# changes the held-out VAF (docs/design_notes.md, "Extended fits").
 REFIT_POLES = True
 REFIT_DRIVE = True
 

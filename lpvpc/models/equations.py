@@ -176,8 +176,8 @@ def acceleration(position, fs):
 
 #: Velocity and acceleration estimates of the causal form: "central3" (3-point central
 #: differences, models saved before format key intrinsic.derivatives) or "central5" (5-point,
-#: fourth-order: less attenuation of fast velocities; docs/design_notes.md, "Causal form's
-#: derivatives").
+#: fourth-order: less attenuation of fast velocities; docs/design_notes.md, "Causal-form
+#: derivative stencils").
 DERIVATIVE_STENCILS = ("central3", "central5")
 
 
