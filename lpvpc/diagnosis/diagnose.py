@@ -301,17 +301,69 @@ def check_record(model, data) -> dict:
 
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
              candidates=None, dependence=True, design="auto") -> Diagnosis:
-    """Diagnose ``model`` on ``data`` (:class:`lpvpc.io.PerturbationData`, ideally not used
-    to fit the model). ``candidates``: names to score (default: the whole catalog and all
-    settings candidates, minus effects the model already has).
+    """Where ``model`` fails on ``data`` and which missing effect or setting would explain it.
 
-    ``design``: "refit" (the model's structure refitted with each candidate, blocked
-    cross-validation), "fixed" (the model held, candidates fitted to its residual) or
-    "auto": refit, unless the refitted base's cross-validated VAF falls more than
-    SANE_DROP pp below the model's own VAF on these data (a record too short or too narrow
-    for the structure: each fold holds positions the others do not visit), then fixed.
-    Records shorter than MIN_RECORD_S or mostly outside the identified range are refused
-    (InsufficientExcitationError); samples outside the range are left out of the scores."""
+    Every candidate (an effect of :data:`lpvpc.models.effects.CATALOG` or a setting of
+    :data:`lpvpc.models.effects.SETTINGS`) is scored by blocked cross-validation on the
+    record and tested for a significant held-out gain; samples outside the identified range
+    are left out of the scores.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to diagnose.
+    data : lpvpc.io.PerturbationData
+        One record at the model's rate, ideally not used to fit the model, at least
+        ``MIN_RECORD_S`` (20 s) long and mostly inside the identified range.
+    folds : int, default 10
+        Blocks of the cross-validation.
+    min_gain : float, default 0.15
+        Held-out VAF gain (percentage points) below which a candidate needs stronger
+        evidence.
+    alpha : float, default 0.1
+        Family-wise significance level (Bonferroni over the candidates tested).
+    block_s : float, default 2.0
+        Length (s) of the blocks of the paired test's variance estimate.
+    candidates : list of str, optional
+        Names to score; default the whole catalog and every setting candidate, minus the
+        effects the model already has.
+    dependence : bool, default True
+        Also report how the residual depends on each signal (:func:`~lpvpc.diagnosis.signals.signal_dependence`).
+    design : {"auto", "refit", "fixed"}, default "auto"
+        "refit": the model's structure refitted with each candidate; "fixed": the model held,
+        candidates fitted to its residual; "auto": refit, unless the refitted base's
+        cross-validated VAF falls more than ``SANE_DROP`` pp below the model's own VAF on
+        these data (a record too short or too narrow for the structure), then fixed.
+
+    Returns
+    -------
+    Diagnosis
+        The candidates' scores, the significant ones (``significant``), the answer in words
+        (:meth:`Diagnosis.answer`) and where in the record the model fails (``where``).
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Data at another rate than the model's, or joined trials.
+    lpvpc.errors.InsufficientExcitationError
+        A record shorter than ``MIN_RECORD_S`` or mostly outside the identified range.
+    ValueError
+        An unknown ``design``.
+
+    Examples
+    --------
+    A model of the virtual subject diagnosed on another record of it: nothing is missing.
+
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> train = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(train.pt, train.ut))
+    >>> test = simulate_pair("multilevel", seed=1, duration=24.0, fs_out=100.0)
+    >>> diagnosis = diagnose(model, pair_trials(test.pt, test.ut))
+    >>> diagnosis.significant, bool(diagnosis.vaf > 90.0)
+    ([], True)
+    """
     if design not in ("auto", "refit", "fixed"):
         raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()

@@ -385,16 +385,45 @@ class LPVPCEstimator:
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
-        """Identify the model from :class:`lpvpc.io.PerturbationData` (or any object with
-        ``position``, ``torque``, ``scheduling`` arrays and ``fs``), or from a list of them:
-        several trials fitted jointly (:func:`lpvpc.io.join_trials`).
+        """Identify the model from a record, or from several trials jointly.
 
         With ``high_rate_reflex``, data that keep their file's higher rate (``high_rate``) get
-        the reflex nonlinearity identified on the high-rate velocity; when that fit is not determined (too few
-        stretch velocities for its basis: InsufficientExcitationError) it is identified on
-        the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`.
-        The physiology warnings are those of the final model (candidate fits warn in their own
-        numbers, which are never shown)."""
+        the reflex nonlinearity identified on the high-rate velocity; when that fit is not
+        determined (too few stretch velocities for its basis) it is identified on the
+        model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`. The
+        physiology warnings are those of the final model (candidate fits warn in their own
+        numbers, which are never shown).
+
+        Parameters
+        ----------
+        data : lpvpc.io.PerturbationData or list of lpvpc.io.PerturbationData
+            The record (or any object with ``position``, ``torque``, ``scheduling`` arrays
+            and ``fs``), or a list of them: several trials fitted jointly
+            (:func:`lpvpc.io.join_trials <lpvpc.io.identification_data.join_trials>`).
+
+        Returns
+        -------
+        LPVPCEstimator
+            This estimator, fitted: the model is ``model_``.
+
+        Raises
+        ------
+        lpvpc.errors.DataError
+            The record is unusable (or the settings contradict each other).
+        lpvpc.errors.InsufficientExcitationError
+            The record cannot determine the requested parameters.
+        lpvpc.errors.IdentificationError
+            The algorithm failed on data that passed the checks.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> est = LPVPCEstimator(intrinsic_order=3).fit(pair_trials(sim.pt, sim.ut))
+        >>> est.model_.intrinsic_basis.order, bool(est.model_.fit["vaf"] > 90.0)
+        (3, True)
+        """
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             self._fit_from(data, WarmStart(), stacklevel=3)
@@ -1830,6 +1859,46 @@ def with_base_model_activation(data, settings):
 
 def identify(data, **settings) -> LPVPCModel:
     """Identify an LPV-PC model with the given estimator settings; returns the model.
+
+    The same fit as ``lpvpc identify``: ``LPVPCEstimator(**settings).fit(data).model_``, with
+    the background activation estimated once from the EMG when the data carry it and an
+    effect reads it.
+
+    Parameters
+    ----------
+    data : lpvpc.io.PerturbationData or list of lpvpc.io.PerturbationData
+        The record (:func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>`),
+        or several trials fitted jointly.
+    **settings
+        Estimator settings, as :class:`LPVPCEstimator` takes them (its defaults where not
+        given).
+
+    Returns
+    -------
+    lpvpc.models.model.LPVPCModel
+        The identified model; it carries the record's conventions (units, torque sign,
+        channel skew), which every door applies to the records it reads later.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        The record is unusable (NaN, a rate that is not the model's, too short).
+    lpvpc.errors.InsufficientExcitationError
+        The record cannot determine the requested parameters (too little movement or
+        too few samples for the bases and lags asked for).
+    lpvpc.errors.IdentificationError
+        The algorithm failed on data that passed the checks.
+    TypeError
+        A setting the estimator does not have.
+
+    See Also
+    --------
+    LPVPCEstimator : the same, as a scikit-learn style estimator.
+
+    Examples
+    --------
+    Thirty seconds of the virtual subject at 100 Hz; the stiffness found against the
+    subject's own:
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.simulation.simulate import SubjectParams, simulate_pair

@@ -264,8 +264,26 @@ class LPVPCModel:
         return model_signals(self)
 
     def summary(self):
-        """What the model says about the ankle: lines to read and the same figures as numbers
-        (:class:`lpvpc.models.summary.ModelSummary`; ``lpvpc identify`` prints its lines)."""
+        """What the model says about the ankle: lines to read and the same figures as numbers.
+
+        Returns
+        -------
+        lpvpc.models.summary.ModelSummary
+            ``lines`` (the text ``lpvpc identify`` prints) and ``values`` (the same figures
+            in SI units, None where the data do not determine them).
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> summary = model.summary()
+        >>> summary.lines[1].startswith("VAF:"), sorted(summary.values)[:3]
+        (True, ['channel_skew_s', 'effects', 'reflex_delay_s'])
+        """
         from .summary import summarize
 
         return summarize(self)
@@ -385,20 +403,60 @@ class LPVPCModel:
 
     def predict(self, position, scheduling=None, *, causal: bool = False, velocity=None, acceleration=None,
                 warn: bool = True, signals: dict | None = None) -> Prediction:
-        """Torque (N m) for a perturbation position record (rad) and its scheduling record
-        (rad), or for a loaded data object: ``model.predict(data)`` with the
-        :class:`lpvpc.io.PerturbationData` that ``load_identification_data`` returns
-        (its ``position``, ``scheduling``, extra signals; its ``fs`` must be the model's;
-        joined trials are predicted trial by trial, each from rest).
+        """Torque (N m) for a perturbation position record and its scheduling record, or for
+        a loaded record.
 
-        ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
-        velocity and acceleration) that the default FMU runs without latency; velocity
-        (rad/s) and acceleration (rad/s^2) default to the model's difference stencil of
-        ``position`` (``causal_derivatives``: 5-point central for new models).
-        The default uses the identified two-sided IRF. ``signals``: the extra channels an
-        extended model needs (``self.signals``; e.g. ``{"emg": ...}``), N samples each;
-        ``trial_time`` defaults to k / fs and ``scheduling_velocity`` to the gradient of
-        ``scheduling``.
+        Parameters
+        ----------
+        position : array_like or lpvpc.io.PerturbationData
+            The perturbation position (rad), N samples at the model's rate; or a record as
+            :func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>`
+            returns it (its ``position``, ``scheduling`` and extra signals; its ``fs`` must be
+            the model's; joined trials are predicted trial by trial, each from rest).
+        scheduling : array_like, optional
+            The scheduling variable (rad, the slow joint position), N samples; omitted when
+            ``position`` is a record.
+        causal : bool, default False
+            Use the causal intrinsic IRF (lags 0..Lc plus the current velocity and
+            acceleration) that the default FMU runs; False: the identified two-sided IRF.
+        velocity, acceleration : array_like, optional
+            With ``causal``: rad/s and rad/s^2; by default the model's difference stencil of
+            ``position`` (``causal_derivatives``: 5-point central for new models).
+        warn : bool, default True
+            Warn when the scheduling leaves the identified range
+            (:class:`~lpvpc.errors.OutOfRangeWarning`) or a record was lined up differently
+            from the model's.
+        signals : dict, optional
+            The extra channels an extended model needs (``self.signals``; e.g.
+            ``{"emg": ...}``), N samples each; ``trial_time`` defaults to k / fs and
+            ``scheduling_velocity`` to the gradient of ``scheduling``.
+
+        Returns
+        -------
+        Prediction
+            ``total``, ``intrinsic`` and ``reflex`` torque (N m), the fraction of samples
+            outside the identified range, and each effect's torque.
+
+        Raises
+        ------
+        lpvpc.errors.DataError
+            Arrays of different lengths, NaN or inf values, a record at another rate, or a
+            record whose conventions contradict the model's.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> prediction = model.predict(data)  # the record as loaded
+        >>> prediction.total.shape, bool(vaf(data.torque, prediction.total) > 95.0)
+        ((3000,), True)
+        >>> same = model.predict(data.position, data.scheduling)  # or its arrays
+        >>> bool(np.allclose(same.total, prediction.total))
+        True
         """
         if scheduling is None:
             position = self.conform(position)
@@ -512,24 +570,95 @@ class LPVPCModel:
         return data.position, data.scheduling, signals
 
     def export_fmu(self, path, fmi_version: int = 2, variant: str | None = None, **options):
-        """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
-        path. Thin method over :func:`lpvpc.export.exporter.export_fmu` (which documents variables,
-        units and ``variant``). The default, :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, is what
-        ``lpvpc export --fmu`` makes: ``"sampled"``, inputs position and scheduling only,
-        derivatives computed inside, a declared latency (2 samples with the default 5-point
-        differences), the same timing in every co-simulation master (README, "timing
-        contract"); ``"causal"`` takes velocity and acceleration inputs and has direct
-        feedthrough; ``"exact"`` is the two-sided IRF delayed by L samples."""
+        """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU.
+
+        A thin method over :func:`lpvpc.export.exporter.export_fmu`, which documents the
+        variables, units and variants.
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The ``.fmu`` file to write (its folder is created).
+        fmi_version : {2, 3}, default 2
+            The FMI version.
+        variant : {"sampled", "causal", "exact"}, optional
+            Default :data:`lpvpc.export.exporter.DEFAULT_VARIANT` (``"sampled"``, what
+            ``lpvpc export --fmu`` makes): inputs position and scheduling only, derivatives
+            computed inside, a declared latency (2 samples with the default 5-point
+            differences), the same timing in every co-simulation master. ``"causal"`` takes
+            velocity and acceleration inputs and has direct feedthrough; ``"exact"`` is the
+            two-sided IRF delayed by L samples.
+        **options
+            Passed to :func:`lpvpc.export.exporter.export_fmu` (e.g. ``interface="me"``).
+
+        Returns
+        -------
+        pathlib.Path
+            The FMU's path.
+
+        Raises
+        ------
+        lpvpc.errors.ExportError
+            An unknown variant, no C compiler, or a compiler error.
+        TypeError
+            An option :func:`lpvpc.export.exporter.export_fmu` does not take.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> import tempfile, zipfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = model.export_fmu(f"{folder}/ankle.fmu")
+        ...     "modelDescription.xml" in zipfile.ZipFile(path).namelist()
+        True
+        """
         from ..export.exporter import DEFAULT_VARIANT, export_fmu
 
         return export_fmu(self, path, fmi_version=fmi_version, variant=variant or DEFAULT_VARIANT, **options)
 
     def export_casadi(self, path, variant: str | None = None):
-        """Save the model's CasADi step function to ``path`` with its metadata in
-        ``<path>.json``; returns the path. ``variant`` defaults to
-        :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, what ``lpvpc export --casadi`` writes.
+        """Save the model's CasADi step function with its metadata in ``<path>.json``.
+
         ``casadi.Function.load`` reads the function back, :func:`lpvpc.export.exporter.load_casadi`
-        the function with its metadata. See :func:`lpvpc.export.exporter.export_casadi`."""
+        the function with its metadata. See :func:`lpvpc.export.exporter.export_casadi`.
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The ``.casadi`` file to write.
+        variant : {"sampled", "causal", "exact"}, optional
+            Default :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, what
+            ``lpvpc export --casadi`` writes.
+
+        Returns
+        -------
+        pathlib.Path
+            The function's path.
+
+        Raises
+        ------
+        lpvpc.errors.ExportError
+            An unknown variant.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> import casadi, tempfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     step = casadi.Function.load(str(model.export_casadi(f"{folder}/ankle.casadi")))
+        >>> step.name_in(), step.name_out()[:2]
+        (['state', 'position', 'scheduling'], ['next_state', 'torque'])
+        """
         from ..export.exporter import DEFAULT_VARIANT, export_casadi
 
         return export_casadi(self, path, variant=variant or DEFAULT_VARIANT)
