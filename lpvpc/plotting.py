@@ -122,10 +122,31 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
     - ``ax`` a sequence of three axes: the same, drawn into them;
     - ``ax`` one axes: everything overlaid in it.
 
-    Returns the figure.
+    Parameters
+    ----------
+    time : array_like
+        Time stamps (s).
+    measured : array_like
+        The measured perturbation torque (N m).
+    prediction : lpvpc.models.model.Prediction or array_like
+        The prediction (total, intrinsic, reflex), or the predicted total torque (N m).
+    ax : matplotlib.axes.Axes or list of matplotlib.axes.Axes, optional
+        Where to draw (layout above); None: three new stacked axes.
+    fig : matplotlib.figure.Figure, optional
+        The figure for new axes; None: a new figure.
+    window : tuple of float, optional
+        ``(t0, t1)`` in s: restricts the plot to that interval (the whole record is
+        unreadable at 100 Hz over 2 minutes).
 
-    ``window`` = (t0, t1) in s restricts the plot to that interval (the whole record
-    is unreadable at 100 Hz over 2 minutes).
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure drawn into.
+
+    Raises
+    ------
+    ValueError
+        ``ax`` a sequence of other than three axes.
     """
     time = np.asarray(time, dtype=float)
     measured = np.asarray(measured, dtype=float)

@@ -43,12 +43,7 @@ ENTRY_POINTS_PENDING = {
 EXAMPLE_BUDGET_S = 30.0
 
 #: top-level public names (lpvpc.__all__) whose docstrings still lack numpydoc sections
-SECTIONS_PENDING = {
-    "load_trial", "pair_trials", "join_trials", "write_perturbation_csv", "PerturbationData", "Trial",
-    "LPVPCModel", "Prediction", "vaf", "Interval", "SubjectParams", "export_fmu", "export_casadi",
-    "fit_whole_joint", "fit_closed_loop", "ClosedLoopModel", "ValidationResult", "Diagnosis", "Ladder",
-    "plot_torque_fit", "improve",
-}
+SECTIONS_PENDING = {"LPVPCModel", "SubjectParams", "Diagnosis", "Ladder", "improve"}
 
 SECTION = re.compile(r"^[ \t]*([A-Z][A-Za-z ]*)\n[ \t]*-{3,}[ \t]*$", re.M)
 
@@ -61,12 +56,17 @@ def _resolve(module: str, qualname: str):
 
 
 def sections(obj) -> set:
-    return set(SECTION.findall(inspect.getdoc(obj) or ""))
+    """The numpydoc section headings of ``obj``'s docstring (a class's Attributes count as its
+    Parameters: a dataclass's fields are both)."""
+    found = set(SECTION.findall(inspect.getdoc(obj) or ""))
+    if inspect.isclass(obj) and "Attributes" in found:
+        found.add("Parameters")
+    return found
 
 
 def required_sections(obj) -> set:
-    """Parameters when it takes any; Returns for a function; Raises when its own body raises;
-    Examples always."""
+    """Parameters when it takes any; Returns for a function not annotated ``-> None``; Raises
+    when its own body raises; Examples always."""
     need = {"Examples"}
     target = obj.__init__ if inspect.isclass(obj) else obj
     try:
@@ -76,7 +76,12 @@ def required_sections(obj) -> set:
     if params:
         need.add("Parameters")
     if not inspect.isclass(obj):
-        need.add("Returns")
+        try:
+            returns_none = inspect.signature(obj).return_annotation in (None, "None")
+        except (TypeError, ValueError):
+            returns_none = False
+        if not returns_none:
+            need.add("Returns")
         try:
             body = inspect.getsource(obj)
         except (OSError, TypeError):

@@ -642,6 +642,25 @@ def export_casadi(model, path, variant=DEFAULT_VARIANT) -> Path:
     sample period, latency (samples and s), units, input and output names, initial state,
     state layout, inertia, model hash and lpvpc version; :func:`load_casadi` returns the
     function with it and refuses host steps that are not the tick.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to export.
+    path : str or pathlib.Path
+        The ``.casadi`` file to write.
+    variant : {"sampled", "causal", "exact"}, default "sampled"
+        The form exported (:data:`DEFAULT_VARIANT`).
+
+    Returns
+    -------
+    pathlib.Path
+        The function's path.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        An unknown variant.
     """
     _check_variant(variant)
     return save_casadi(step_function(model, variant), path, casadi_metadata(model, variant))
@@ -1100,6 +1119,36 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     ``fmi_type="me"``: a Model Exchange FMU of the same model instead, sampled with a time
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
     sample k; model identifier suffixed ``_me``).
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to export.
+    path : str or pathlib.Path
+        The ``.fmu`` file to write.
+    fmi_version : {2, 3}, default 2
+        The FMI version.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The form exported (above); :meth:`LPVPCModel.export_fmu
+        <lpvpc.models.model.LPVPCModel.export_fmu>` defaults to
+        :data:`DEFAULT_VARIANT` instead.
+    timings : dict, optional
+        Receives ``codegen``, ``compile`` and ``total`` seconds.
+    reuse_existing : bool, default False
+        Return an existing FMU at ``path`` built from the same sources and settings
+        without rebuilding it.
+    fmi_type : {"cs", "me"}, default "cs"
+        Co-simulation, or Model Exchange (above).
+
+    Returns
+    -------
+    pathlib.Path
+        The FMU's path.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        An unknown variant, no C compiler, or a compiler error.
     """
     import time
 

@@ -213,8 +213,24 @@ def fit_quasi_static(angle, torque, order: int = DEFAULT_ORDER, family: str = "c
 def fit_whole_joint(model, ut, *, cutoff: float = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER) -> WholeJointModel:
     """Whole-joint model from an identified LPV-PC ``model`` and the UT trial it came from.
 
-    ``ut``: :class:`lpvpc.io.Trial` (any rate above ``model.fs``; it is resampled and
-    decimated with the package's anti-alias filter, as the identification data) or a ``(angle, torque)`` pair at ``model.fs``.
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The identified perturbation model.
+    ut : lpvpc.io.trial.Trial or tuple of numpy.ndarray
+        The unperturbed trial (any rate above ``model.fs``; it is resampled and decimated
+        with the package's anti-alias filter, as the identification data), or an
+        ``(angle, torque)`` pair (rad, N m) at ``model.fs``.
+    cutoff : float, default 0.5
+        Cutoff (Hz) of the first-order low-pass that estimates the operating angle (module
+        notes).
+    order : int, default 5
+        Polynomial order of the quasi-static torque curve of the operating angle.
+
+    Returns
+    -------
+    WholeJointModel
+        The model of the total joint torque: the quasi-static curve plus ``model``.
     """
     from ..io import Trial, decimate_trial, to_multiple_rate
 

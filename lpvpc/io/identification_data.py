@@ -152,18 +152,34 @@ class HighRate:
 
 @dataclass
 class PerturbationData:
-    """Identification data: perturbation position ``position`` (rad), perturbation torque
-    ``torque`` (N m), scheduling variable ``scheduling`` (rho, rad), sampling rate ``fs`` (Hz).
+    """Identification data: one record (or several joined) at the model rate.
 
-    ``extra`` holds other channels aligned with them (``time`` (s), ``emg``,
-    ``ut_velocity`` (rad/s) ...); ``source`` says where the data came from; ``meta`` records
-    the loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
-    ``decimation``) so a model can report them. ``segments`` lists the ``(start, stop)``
-    sample ranges of the trials when several are joined (:func:`join_trials`; empty: one
-    trial); identification builds its regressors trial by trial (:mod:`lpvpc.io.segments`).
-    ``high_rate`` (:class:`HighRate` or None) keeps the perturbation position and the
-    scheduling at the file's rate when it was decimated (the reflex nonlinearity is
-    identified there).
+    Parameters
+    ----------
+    position : numpy.ndarray
+        Perturbation position (rad).
+    torque : numpy.ndarray
+        Perturbation torque (N m).
+    scheduling : numpy.ndarray
+        Scheduling variable (rho, rad).
+    fs : float
+        Sampling rate (Hz).
+    extra : dict, optional
+        Other channels aligned with them (``time`` (s), ``emg``, ``ut_velocity`` (rad/s) ...).
+    source : str, default ""
+        Where the data came from.
+    meta : dict, optional
+        The loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
+        ``decimation``) so a model can report them.
+    segments : tuple, default ``()``
+        The ``(start, stop)`` sample ranges of the trials when several are joined
+        (:func:`join_trials`; empty: one trial); identification builds its regressors trial
+        by trial (:mod:`lpvpc.io.segments`).
+    high_rate : HighRate, optional
+        The perturbation position and the scheduling at the file's rate when it was
+        decimated (the reflex nonlinearity is identified there).
+    origin : RecordSource, optional
+        How the record was loaded, so that a model can load it again with its conventions.
     """
 
     position: np.ndarray
@@ -342,15 +358,33 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0, channel_skew: float = 
     """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
 
     position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
-    scheduling = UT position (rad), all decimated with one anti-alias FIR filter to
-    ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
-    ``ut_velocity`` (rad/s, gradient of the decimated UT position), ``emg`` from PT and
-    ``emg_ut`` from UT if present (decimated as given with the same filter: rectify/envelope
-    raw EMG first). ``channel_skew`` (s): the torque channels' lag behind the position channels,
-    undone at the file's rate before decimation (the position and scheduling delayed by it;
-    recorded as ``meta["channel_skew_s"]``; docs/guide/data.md).
-    Raises DataError (problems of both trials, different lengths or rates) or
-    InsufficientExcitationError (no perturbation).
+    scheduling = UT position (rad), all decimated with one anti-alias FIR filter. Extra
+    channels: ``time`` (s, from PT), ``ut_velocity`` (rad/s, gradient of the decimated UT
+    position), ``emg`` from PT and ``emg_ut`` from UT if present (decimated as given with the
+    same filter: rectify/envelope raw EMG first).
+
+    Parameters
+    ----------
+    pt, ut : lpvpc.io.trial.Trial
+        The perturbed and the unperturbed trial, same rate and length.
+    target_fs : float or None, default 100.0
+        The model rate (Hz); None keeps the trials' rate.
+    channel_skew : float, default 0.0
+        The torque channels' lag behind the position channels (s), undone at the file's
+        rate before decimation (the position and scheduling delayed by it; recorded as
+        ``meta["channel_skew_s"]``; docs/guide/data.md).
+
+    Returns
+    -------
+    PerturbationData
+        The record at ``target_fs``.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Problems of either trial, different lengths or rates.
+    lpvpc.errors.InsufficientExcitationError
+        No perturbation (PT and UT positions the same).
     """
     source = f"PT={pt.name or '?'}, UT={ut.name or '?'}"
     problems = [f"PT: {p}" for p in trial_problems(pt)] + [f"UT: {p}" for p in trial_problems(ut)]
@@ -550,6 +584,21 @@ def join_trials(trials) -> PerturbationData:
     (:mod:`lpvpc.io.segments`). The trials must share the sampling rate (that of their files
     too), the position unit and the torque sign (DataError otherwise); extra channels
     (``time``, ``emg``, ...) are kept when every trial has them.
+
+    Parameters
+    ----------
+    trials : list of PerturbationData
+        The trials, in order.
+
+    Returns
+    -------
+    PerturbationData
+        One record with ``segments`` marking each trial.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        No trials, or trials of different rates, position units or torque signs.
     """
     trials = list(trials)
     if not trials:
@@ -888,7 +937,15 @@ def _refuse_milliseconds(data: PerturbationData, time_unit: str) -> None:
 
 def write_perturbation_csv(data: PerturbationData, path) -> None:
     """Write ``time,position,torque,scheduling[,emg][,emg_ut]`` (s, rad, N m, rad) so
-    that :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
+    that :func:`load_perturbation_file` reads it back exactly (17 significant digits).
+
+    Parameters
+    ----------
+    data : PerturbationData
+        The record to write.
+    path : str or pathlib.Path
+        The CSV file to write.
+    """
     names = ["time", "position", "torque", "scheduling"]
     cols = [data.time, data.position, data.torque, data.scheduling]
     for c in PERTURBATION_EMG:

@@ -71,7 +71,21 @@ def check_model_rate(fs, model_fs, *, what: str = "data", source=None, tolerance
 @dataclass
 class Trial:
     """One recorded (or simulated) trial: time (s), position (rad), torque (N m) and
-    optional extra channels (``emg``, ``command`` (rad), ``scheduling`` (rad))."""
+    optional extra channels.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Time stamps (s), evenly spaced.
+    position : numpy.ndarray
+        Joint position (rad).
+    torque : numpy.ndarray
+        Joint torque (N m).
+    channels : dict, optional
+        Extra channels of the same length (``emg``, ``command`` (rad), ``scheduling``
+        (rad)).
+    name : str, default ""
+        The trial's name in messages."""
 
     time: np.ndarray
     position: np.ndarray

@@ -79,6 +79,17 @@ class Prediction:
     """Predicted torques (N m): total = intrinsic + reflex. In an extended model the
     effect terms are included in the pathway they belong to and listed in ``effects``.
 
+    Parameters
+    ----------
+    total, intrinsic, reflex : numpy.ndarray
+        The predicted torque and its two pathways (N m), one value per sample.
+    out_of_range_fraction : float, default 0.0
+        Fraction of the samples whose scheduling lies outside the identified range.
+    effects : dict, optional
+        Each effect's torque (N m) by name; empty for a model without effects.
+
+    Examples
+    --------
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
     >>> from lpvpc.simulation.simulate import simulate_pair
@@ -991,7 +1002,23 @@ def _interval_pair(model, quantity, theta, level):
 
 
 def vaf(measured, predicted) -> float:
-    """Variance accounted for, in percent: 100 (1 - var(measured - predicted) / var(measured))."""
+    """Variance accounted for, in percent: 100 (1 - var(measured - predicted) / var(measured)).
+
+    Parameters
+    ----------
+    measured, predicted : array_like
+        The measured and the predicted signal, same length.
+
+    Returns
+    -------
+    float
+        The VAF (%): 100 for a perfect prediction, 0 for the mean, negative for worse.
+
+    Examples
+    --------
+    >>> vaf([1.0, -1.0, 1.0, -1.0], [0.9, -0.9, 0.9, -0.9])
+    99.0
+    """
     measured = np.asarray(measured, dtype=float)
     predicted = np.asarray(predicted, dtype=float)
     return float(100.0 * (1.0 - np.var(measured - predicted) / np.var(measured)))

@@ -586,12 +586,23 @@ def bias_aware_critical_value(t, level: float = 0.95):
 
 
 class Interval(tuple):
-    """(lower, upper) arrays of a confidence interval, unpacked like a pair. ``biased`` is
-    True when the estimate is known to be biased (``note`` says why and how the interval
-    allows for it). ``determined`` (bool array, default all True) is False where the
-    interval spans most of the plausible range: the quantity is "not determined by these
-    data" there (:data:`NOT_DETERMINED`).
+    """(lower, upper) arrays of a confidence interval, unpacked like a pair.
 
+    Parameters
+    ----------
+    lower, upper : numpy.ndarray
+        The interval's bounds, in the quantity's unit.
+    biased : bool, default False
+        True when the estimate is known to be biased (``note`` says why and how the
+        interval allows for it).
+    note : str, default ""
+        Why the estimate is biased and how the interval allows for it.
+    determined : numpy.ndarray of bool, optional
+        False where the interval spans most of the plausible range: the quantity is "not
+        determined by these data" there (:data:`NOT_DETERMINED`); default all True.
+
+    Examples
+    --------
     >>> lo, hi = Interval(np.array([1.0]), np.array([2.0]))
     >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why")
     (1.0, Interval(lower=array([1.]), upper=array([2.]), biased=True))

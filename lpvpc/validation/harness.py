@@ -92,6 +92,25 @@ class Record:
 
 @dataclass
 class ValidationResult:
+    """What :func:`validate` measured and wrote.
+
+    Parameters
+    ----------
+    metrics : dict
+        Every VAF (%), RMSE (N m), route agreement and check, as in ``metrics.json``;
+        ``metrics["pass"]`` is False when a threshold failed.
+    report_dir : pathlib.Path
+        The report folder.
+    files : dict, optional
+        The files written, by role (report, metrics, FMUs, figures).
+
+    Examples
+    --------
+    >>> result = ValidationResult({"pass": True, "vaf": 96.5, "vaf_fmu": 96.5}, Path("report"))
+    >>> result.passed, result
+    (True, ValidationResult(pass; vaf 96.50 %, vaf_fmu 96.50 %; report 'report'))
+    """
+
     metrics: dict
     report_dir: Path
     files: dict = field(default_factory=dict)
