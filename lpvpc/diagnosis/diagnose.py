@@ -96,6 +96,47 @@ TRANSFER_GAP = SANE_DROP
 
 @dataclass
 class Diagnosis:
+    """What :func:`diagnose` found: the candidates' scores and where the model fails.
+
+    Attributes
+    ----------
+    model_hash, data_source : str
+        The diagnosed model's hash and the record's source.
+    n_samples : int
+        Samples of the record.
+    fs : float
+        Its rate (Hz).
+    vaf : float
+        The model's VAF (%) on the record, as it is.
+    rmse : float
+        Its RMS error (N m).
+    surrogate_vaf : float
+        Cross-validated VAF (%) of the model's structure refitted on the record.
+    candidates : list
+        Every candidate's score: held-out gain (pp), p-values, significance.
+    dependence : list
+        How the residual depends on each signal.
+    where : dict
+        Where in the record (positions, velocities, time) the model fails.
+    settings, timings : dict
+        The diagnosis's settings, and its durations (s).
+    residual, prediction : numpy.ndarray or None
+        The model's residual and prediction (N m) on the record.
+    design : {"refit", "fixed"}
+        The design the candidates were scored with.
+    design_reason : str
+        Why that design.
+    coverage, leaks : dict
+        How much of the record lies within the identified range; signals the model's
+        reflex drive already explains.
+    base_residual : numpy.ndarray or None
+        The held-out (cross-validated) residual of the surrogate base (N m).
+
+    See Also
+    --------
+    diagnose : makes it (with an example).
+    """
+
     model_hash: str
     data_source: str
     n_samples: int

@@ -151,8 +151,49 @@ class LPVPCModel:
     ``intrinsic_basis`` of rho in rad), the reflex nonlinearity ``Omega`` of the velocity
     (rad/s) delayed by ``delay`` samples, and the reflex dynamics ``A, B, C, D``. Predicts
     torque (N m), reports the physical quantities with confidence intervals, saves, loads
-    and exports without the estimator that made it.
+    and exports without the estimator that made it. Made by :func:`lpvpc.identify
+    <lpvpc.identification.identify.identify>` or read by :meth:`LPVPCModel.load <lpvpc.models.model.LPVPCModel.load>`, not built by hand.
 
+    Attributes
+    ----------
+    fs : float
+        The model's sampling rate (Hz).
+    lags, H : list of int, numpy.ndarray
+        The two-sided intrinsic IRF's lags (samples) and weights (N m/rad per sample), one
+        column per ``intrinsic_basis`` function.
+    intrinsic_basis : lpvpc.models.basis.Basis
+        The basis in the scheduling variable (rad) that schedules the intrinsic IRF.
+    causal_lags, H_causal : list of int, numpy.ndarray
+        The causal form's lags and weights (lags 0..Lc plus velocity and acceleration).
+    delay : int
+        The reflex delay (samples).
+    velocity_basis, reflex_rho_basis : lpvpc.models.basis.Basis
+        The bases of the reflex nonlinearity in velocity (rad/s) and in the scheduling
+        variable (rad).
+    Omega : numpy.ndarray
+        The reflex nonlinearity's coefficients on those bases.
+    A, B, C, D : numpy.ndarray, numpy.ndarray, numpy.ndarray, float
+        The reflex dynamics' state-space matrices (one sample per step).
+    settings, provenance, conventions, fit : dict
+        The estimator's settings, where the record came from, the record's conventions
+        (units, torque sign, channel skew, original rate), and how the fit went (VAF, orders,
+        selection, timings).
+    effects : list
+        The fitted effect terms of an extended model (:mod:`lpvpc.models.effects`); empty
+        otherwise.
+    causal_derivatives : {"central3", "central5"}
+        The stencil of the causal form's velocity and acceleration.
+    uncertainty : dict
+        What the confidence intervals need (:mod:`lpvpc.models.uncertainty`); empty: no
+        intervals.
+    high_rate : HighRateNonlinearity or None
+        The reflex nonlinearity identified at the file's rate (module notes).
+    curvature : numpy.ndarray or None
+        The elastic curvature coefficients (N m/rad^2), one per intrinsic basis function;
+        None: no such term.
+
+    Examples
+    --------
     >>> import tempfile
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -976,12 +1017,36 @@ class LPVPCModel:
             raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems))
 
     def save(self, path) -> None:
+        """Write the model as JSON (the model file format, docs/guide/model_format.md).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The file to write (a temporary file renamed into place: never half written).
+        """
         from ..io.outputs import write_text
 
         write_text(path, json.dumps(self.to_dict(), indent=1))  # temporary file + rename
 
     @classmethod
     def load(cls, path) -> "LPVPCModel":
+        """Read a model file written by :meth:`save` (or ``lpvpc identify -o``).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The model file.
+
+        Returns
+        -------
+        LPVPCModel
+            The model, as it was saved.
+
+        Raises
+        ------
+        lpvpc.errors.ModelFileError
+            A missing, unreadable or corrupt file, or an unknown format version.
+        """
         return cls.from_dict(read_model_file(path), source=str(path))
 
     @property
