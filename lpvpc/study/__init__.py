@@ -25,12 +25,24 @@ DEFAULT_HELDOUT = 0.3
 
 @dataclass
 class StudyResult:
-    """What :func:`run_study` did: ``rows`` (the manifest), ``results`` (one dict per record,
-    :func:`lpvpc.study.run.analyse_record`'s, with ``cached``), ``grid`` (common grid indices),
-    ``computed`` (records whose job ran in this run, failed or not), ``cached``
-    (taken from the cache) and ``failed`` (record counts; a record whose files cannot be read
-    fails before any job and is neither computed nor cached), ``comparisons`` and ``paths``
-    (records, groups, report, summary)."""
+    """What :func:`run_study` did.
+
+    Parameters
+    ----------
+    rows : list of lpvpc.study.manifest.ManifestRow
+        The manifest.
+    results : list of dict
+        One per record (:func:`lpvpc.study.run.analyse_record`'s, with ``cached``).
+    grid : list
+        The common position grid's indices.
+    computed, cached, failed : int
+        Records whose job ran in this run (failed or not), records taken from the cache,
+        and records that failed (a record whose files cannot be read fails before any job
+        and is neither computed nor cached).
+    comparisons : list, optional
+        The group comparisons.
+    paths : dict, optional
+        The files written (records, groups, report, summary)."""
 
     rows: list
     results: list
