@@ -46,11 +46,7 @@ EXAMPLE_BUDGET_S = 30.0
 #: public names (lpvpc.__all__, then "subpackage.name") whose docstrings still lack numpydoc
 #: sections (Ladder and improve: their module is being rewritten by another change)
 SECTIONS_PENDING = {
-    "Ladder", "improve", "io.HighRate", "io.check_trial", "io.decimate_signal", "io.decimate_trial",
-    "io.decimation_factor", "io.grid_deviation", "io.load_perturbation_file", "io.multiple_rate",
-    "io.perturbation_file_trials", "io.resample_trial", "io.split_variable", "io.stationary_perturbation",
-    "io.stationary_ut", "io.to_multiple_rate", "io.trial_problems", "io.write_trial_csv", "models.Basis",
-    "simulation.SimulatedPair", "export.CasadiExport", "export.StateLayout", "export.derivative_points",
+    "Ladder", "improve", "models.Basis", "simulation.SimulatedPair", "export.CasadiExport", "export.StateLayout", "export.derivative_points",
     "export.fmu_constants", "export.fmu_description", "export.fmu_parameter_name", "export.fmu_variables",
     "export.generate_c", "export.input_names", "export.latency_samples", "export.model_source_dir",
     "export.parameter_info", "export.parameter_names", "export.parameter_vector", "export.replay_inputs",

@@ -121,6 +121,17 @@ class HighRate:
     rate when trials are joined. Memory: two float64 arrays at the file's rate (16 bytes
     per sample: 1.9 MB for 2 minutes at 1 kHz).
 
+    Parameters
+    ----------
+    position, scheduling : numpy.ndarray
+        The perturbation position and the scheduling variable (rad) at ``fs``.
+    fs : float
+        The file's rate (Hz).
+    segments : tuple, default ``()``
+        The joined trials' ``(start, stop)`` bounds at this rate.
+
+    Examples
+    --------
     >>> from lpvpc.simulation.simulate import simulate_pair
     >>> sim = simulate_pair("multilevel", seed=0, duration=2.0)  # 1 kHz trials
     >>> data = pair_trials(sim.pt, sim.ut)  # decimated to 100 Hz, the 1 kHz signals kept
@@ -443,6 +454,23 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
     :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`~lpvpc.io.readers.load_trial` (the lab's
     pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
     found without options). ``channel_skew`` as in :func:`pair_trials`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV or .mat file.
+    position_unit, torque_sign, target_fs, variable, channels, time_unit, channel_skew
+        As in :func:`load_identification_data`.
+
+    Returns
+    -------
+    PerturbationData
+        The record at ``target_fs``.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        An unreadable file, missing columns, or a mistake in units or time base.
     """
     skew = check_channel_skew(channel_skew)
     trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit)
@@ -486,6 +514,20 @@ def perturbation_file_trials(path, *, position_unit: str = "rad", torque_sign: f
     torque is zero, so :func:`pair_trials` of the two gives back the file's perturbation data.
     ``degrees`` as in :func:`~lpvpc.io.readers.load_trial`.
 
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The PT - UT file.
+    position_unit, torque_sign, variable, channels, time_unit, degrees
+        As in :func:`~lpvpc.io.readers.load_trial`.
+
+    Returns
+    -------
+    tuple of lpvpc.io.trial.Trial
+        ``(pt, ut)`` at the file's rate.
+
+    Examples
+    --------
     >>> t = np.arange(2000) / 1000.0
     >>> rng = np.random.default_rng(1)
     >>> pert = 0.03 * np.sign(np.sin(2 * np.pi * 4 * t))
@@ -533,6 +575,22 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float =
     same as the lab's own stationary analysis, which removes it too). ``meta`` records
     ``stationary``, ``operating_point`` (rad) and ``torque_offset`` (N m).
 
+    Parameters
+    ----------
+    pt : lpvpc.io.trial.Trial
+        The perturbed trial.
+    target_fs : float or None, default 100.0
+        The model rate (Hz); None keeps the trial's rate.
+    channel_skew : float, default 0.0
+        The torque channel's lag behind position (s), as in :func:`pair_trials`.
+
+    Returns
+    -------
+    PerturbationData
+        The record, its scheduling constant.
+
+    Examples
+    --------
     >>> t = np.arange(3000) / 1000.0  # a 3 s trial held at -0.1 rad, 1 kHz
     >>> rng = np.random.default_rng(0)
     >>> pos = -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t))
@@ -552,8 +610,25 @@ def stationary_ut(pt: Trial) -> Trial:
     """The UT trial a stationary experiment (one perturbed trial around a fixed operating
     position, no UT recorded) stands for: the PT trial's mean position and mean torque,
     constant (:func:`stationary_perturbation`; the validation's co-simulation drives an
-    actuator with it). DataError for a bad trial or one whose slow mean position moves.
+    actuator with it).
 
+    Parameters
+    ----------
+    pt : lpvpc.io.trial.Trial
+        The perturbed trial.
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        The constant UT trial, on the PT trial's time stamps.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        A bad trial, or one whose slow mean position moves (not stationary).
+
+    Examples
+    --------
     >>> t = np.arange(3000) / 1000.0
     >>> pt = Trial(t, -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t)), np.full(3000, 2.0))
     >>> ut = stationary_ut(pt)

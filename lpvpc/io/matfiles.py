@@ -717,6 +717,18 @@ def split_variable(path) -> tuple[Path, str | None]:
     """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
     (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None).
 
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The path, with or without a variable name.
+
+    Returns
+    -------
+    tuple
+        ``(pathlib.Path, str or None)``: the file and the variable's name.
+
+    Examples
+    --------
     >>> split_variable("experimental_data.mat:z_df")
     (PosixPath('experimental_data.mat'), 'z_df')
     >>> split_variable("PT.csv")

@@ -107,7 +107,15 @@ class Trial:
 
 
 def write_trial_csv(trial: Trial, path) -> None:
-    """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``."""
+    """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (SI units).
+    path : str or pathlib.Path
+        The CSV file (a temporary file renamed into place).
+    """
     names = ["time", "position", "torque"] + [c for c in OPTIONAL_CHANNELS if c in trial.channels]
     cols = [trial.time, trial.position, trial.torque] + [trial.channels[c] for c in names[3:]]
     from .outputs import atomic_path
@@ -153,6 +161,18 @@ def grid_deviation(t) -> float:
     """Largest distance of the time stamps from the uniform grid through the first and the
     last one, in steps of that grid (0 for uniform sampling).
 
+    Parameters
+    ----------
+    t : array_like
+        Time stamps (s).
+
+    Returns
+    -------
+    float
+        The largest deviation, in grid steps.
+
+    Examples
+    --------
     >>> t = np.arange(6) / 1000.0
     >>> round(grid_deviation(t + np.array([0, 2e-5, -3e-5, 0, 1e-5, 0])), 6)  # jitter by 3 % of a step
     0.03
@@ -202,6 +222,18 @@ def _time_problems(t: np.ndarray) -> list[str]:
 def trial_problems(trial: Trial) -> list[str]:
     """Every problem of a trial as a list of messages (empty if the trial is usable).
 
+    Parameters
+    ----------
+    trial : Trial
+        The trial to check.
+
+    Returns
+    -------
+    list of str
+        One message per problem.
+
+    Examples
+    --------
     >>> t = np.arange(5) / 100.0  # s
     >>> trial_problems(Trial(t, np.array([0.0, np.nan, 0.0, np.nan, 0.0]), np.zeros(5)))
     ["channel 'position': 2 NaN values, first at index 1"]
@@ -242,7 +274,24 @@ def check_trial(trial: Trial, source=None) -> Trial:
     Checks: NaN/inf per channel, unequal channel lengths, time not strictly increasing,
     uneven sampling (a step deviating from the median step by more than 1e-3 of it, unless
     every stamp lies within 0.1 step of the uniform grid: then an LpvpcWarning), fewer than
-    2 samples. ``source`` (default: the trial's name) prefixes the message.
+    2 samples.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial to check.
+    source : str, optional
+        Prefixes the message; default the trial's name.
+
+    Returns
+    -------
+    Trial
+        ``trial`` itself, when usable.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Every problem of the trial, in one message.
     """
     problems = trial_problems(trial)
     where = str(source) if source is not None else (trial.name or None)
