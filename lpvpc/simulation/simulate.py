@@ -72,16 +72,25 @@ from .trajectories import (PERTURBATIONS, _TRAJECTORIES, lab_pulses, multilevel_
 
 @dataclass
 class SimulatedPair:
-    """A simulated PT/UT pair at the output rate.
+    """A simulated PT/UT pair at the output rate (:func:`simulate_pair` makes it).
 
-    ``pt``, ``ut``: noisy trials (channels 'command' and 'emg', the EMG envelope
-    in ``emg_unit``); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
-    ``truth``: JSON-serialisable parameters, curves and measured quantities;
-    ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
-    'ut_intrinsic', 'ut_reflex'; ``activation``: each trial's true background activation
-    (1; tonic level plus any slow activation, the EMG's drive without the reflex bursts),
-    {'PT': ..., 'UT': ...} at the output rate.
+    Parameters
+    ----------
+    pt, ut : lpvpc.io.trial.Trial
+        Noisy trials (channels 'command' and 'emg', the EMG envelope in ``emg_unit``).
+    pt_clean, ut_clean : lpvpc.io.trial.Trial
+        The same with noise-free torque.
+    truth : dict
+        JSON-serialisable parameters, curves and measured quantities.
+    components : dict
+        Noise-free torques (N m) 'pt_intrinsic', 'pt_reflex', 'ut_intrinsic', 'ut_reflex'.
+    activation : dict, optional
+        Each trial's true background activation (1; tonic level plus any slow activation,
+        the EMG's drive without the reflex bursts), {'PT': ..., 'UT': ...} at the output
+        rate.
 
+    Examples
+    --------
     >>> pair = simulate_pair("multilevel", seed=0, duration=10.0, fs_out=100.0)
     >>> pair.pt.fs, len(pair.pt.time), sorted(pair.pt.channels)  # Hz, samples, recorded channels
     (100.0, 1000, ['command', 'emg'])
