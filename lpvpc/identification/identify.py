@@ -1364,7 +1364,7 @@ class LPVPCEstimator:
         hf = fit_hammerstein(blocks_c, tq_r, orientation, tol=self.tol, max_iter=self.max_iter)
         # On the high-rate path, then intrinsic and rank-1 reflex together: the projection's
         # unstructured reflex space can take up elastic torque there (lpvpc.models.reflex.refit_jointly;
-        # at the model rate it cost the lab pilot's leave-one-level-out 0.15 points, so not there)
+        # at the model rate it predicted left-out levels worse, so not there)
         if joint:
             theta_i, hf = refit_jointly(blocks_c, Psi_i_c, y_c, hf, orientation)
         resid = y_c - Psi_i_c @ theta_i - sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks_c))

@@ -19,10 +19,9 @@ from ..io.identification_data import SINC_HALF_WIDTH, delayed
 __all__ = ["ChannelSkew", "scan_channel_skew", "skew_from_dict", "MIN_RESIDUAL_REDUCTION", "CANDIDATES"]
 
 # A skew is undone only when lining the channels up removes at least this share of the
-# in-sample residual variance (and the best candidate is inside the grid: ChannelSkew.interior).
-# Measured (benchmarks/results/real_pilot.txt), refitting per candidate / identify's scan: the
-# virtual subject without skew 0.0-0.5 % / 0.2-0.5 % (its estimate then 0.2-0.4 ms: noise, not a
-# skew), with its torque 1 ms late 5.7-6.1 % / 3.9-4.8 %, the lab's pilot trial 4.9 % / 3.4 %.
+# in-sample residual variance (and the best candidate is inside the grid: ChannelSkew.interior):
+# above what records without a skew show, below what a 1-ms skew shows (docs/design_notes.md,
+# "Channel skew").
 MIN_RESIDUAL_REDUCTION = 0.02
 #: Candidate skews (s): -2..+3 ms in 0.5 ms steps (a torque channel late is the usual case).
 CANDIDATES = np.arange(-2.0, 3.01, 0.5) * 1e-3

@@ -342,9 +342,8 @@ CATALOG: dict[str, Effect] = {
             derived=("reflex",),
             features=_reflex_dynamics_features,
             # Order 3: the states' weights are a first-order expansion about the model's poles,
-            # so a wide change needs more shape in position. PRBS, natural frequency 5-48 rad/s
-            # over the range (bench_diagnose's 3x entry): named first 5/5 (order 2: 4/5, the
-            # delay once), held-out VAF after the step +0.18..+0.32 pp; the 1.5x entry 5/5 significant.
+            # so a wide change needs more shape in position (docs/design_notes.md, "Diagnosis
+            # catalog").
             feature_order=3,
             # Without the constant: only the change WITH position, so that a model whose
             # (position-independent) reflex dynamics are merely off is not taken for this effect.
@@ -363,8 +362,8 @@ CATALOG: dict[str, Effect] = {
             features=_reflex_delay_features,
             feature_order=2,
             # Without the constant, as the dynamics entry: only the change WITH position (a
-            # delay that is merely off everywhere is the reflex_delay setting's). With it, a
-            # clean model gained up to 0.07 pp and the dynamics entry's truth was taken for a delay.
+            # delay that is merely off everywhere is the reflex_delay setting's); with it, the
+            # dynamics entry's truth was taken for a delay (docs/design_notes.md, "Diagnosis catalog").
             feature_constant=False,
             feature_names=lambda opt: [f"reflex torque at delay {j:+d} samples - at the model's delay"
                                        for j in opt["steps"]],
@@ -1356,7 +1355,7 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         # The base reflex's scale joins the solve: a reflex effect modulates the gain about
         # a base level (e.g. activation scales it by 1 + b a, a >= 0), whereas the base fit
         # absorbed the trial's mean gain; held at that level, the effect could only add to
-        # it (measured: the refit then recovered 0.1 of the 1.8 points the effect cost).
+        # it (docs/design_notes.md, "Extended fits").
         X = np.hstack([Psi_i_base, design.columns, X_r, tq_r[:, None]])
         scale = np.sqrt(np.mean(X**2, axis=0))
         scale[scale == 0] = 1.0
