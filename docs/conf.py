@@ -47,6 +47,7 @@ napoleon_type_aliases = {
 # Every cross-reference must resolve (-W makes a broken one an error). The build runs without
 # internet, hence without intersphinx: names from other packages are listed here, and only
 # those; a reference to an lpvpc name must point at a documented object.
+nitpicky = True
 nitpick_ignore_regex = [
     (r"py:.*", r"(numpy|np|scipy|casadi|matplotlib|pandas|fmpy|dask)(\..*)?"),
     (r"py:obj", r"True|False|None"),
