@@ -35,6 +35,25 @@ napoleon_google_docstring = True
 napoleon_numpy_docstring = True
 # LPVPCEstimator's parameter section carries a note in its heading
 napoleon_custom_sections = [("Parameters (defaults suit 100 Hz ankle data)", "params_style")]
+# Types in parameter sections are read as types: "optional", "default 5" and {"a", "b"} become
+# text and literals, and the short names below point where Sphinx can find them.
+napoleon_preprocess_types = True
+napoleon_type_aliases = {
+    "array_like": "numpy.typing.ArrayLike",
+    "array-like": "numpy.typing.ArrayLike",
+    "callable": "collections.abc.Callable",
+}
+
+# Every cross-reference must resolve (-W makes a broken one an error). The build runs without
+# internet, hence without intersphinx: names from other packages are listed here, and only
+# those; a reference to an lpvpc name must point at a documented object.
+nitpicky = True
+nitpick_ignore_regex = [
+    (r"py:.*", r"(numpy|np|scipy|casadi|matplotlib|pandas|fmpy|dask)(\..*)?"),
+    (r"py:obj", r"True|False|None"),
+    (r"py:class", r"Path|ndarray|'numpy\.ndarray'|'pathlib\.Path'"),  # pathlib.Path, numpy.ndarray
+    (r"py:.*", r"(pathlib|os|collections\.abc|typing|types|io|enum|dataclasses|concurrent)\..*"),
+]
 
 html_theme = "furo"
 html_title = f"lpvpc {release}"

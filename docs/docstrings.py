@@ -8,8 +8,11 @@ introduced by a colon. Before napoleon sees them (priority < 500) this hook
 - escapes a ``*`` that starts a continuation line (a formula wrapped at an operator),
   which rST would take for a bullet without a blank line before it;
 - in a numpy-style parameter section, reads ``name : a description in words`` as a
-  name and its description (lpvpc writes descriptions there, not types), so napoleon does
-  not take the description for a type;
+  name and its description (older lpvpc docstrings write descriptions there, not types), so
+  napoleon does not take the description for a type; a line that states ``, default ...`` or
+  ends in ``, optional`` is a numpydoc type and is left alone;
+- in the docstring of an attribute or constant (a ``#:`` comment), keeps napoleon from reading
+  the words before the first colon ("s: the shortest part ...") as the attribute's type;
 - in module docstrings, renames a "Parameters" heading (there a narrative section, not a
   function's parameter list) so napoleon leaves it alone.
 """
@@ -19,6 +22,7 @@ import re
 NARRATIVE_HEADINGS = {"parameters": "The parameters"}
 PARAMETER_HEADINGS = ("parameters", "parameters (defaults suit 100 hz ankle data)", "other parameters")
 DESCRIBED = re.compile(r"^(\s*)([A-Za-z_][\w, ]*?) : (\S+(?: \S+){3,}.*)$")  # 4+ words: a description
+NUMPYDOC_TYPE = re.compile(r",\s*(default\b|optional\s*$)")  # ... unless it states a default
 
 
 def _escape_pipes(line: str) -> str:
@@ -67,6 +71,8 @@ def _described_parameters(lines):
         elif underlined and section and s.strip() and _indent(s) <= base:
             section = False  # the next section's heading
         m = DESCRIBED.match(s) if section and _indent(s) == base else None
+        if m and NUMPYDOC_TYPE.search(m.group(3)):
+            m = None  # "name : type, default value": a numpydoc type, left to napoleon
         out += [m.group(1) + m.group(2), m.group(1) + "    " + m.group(3)] if m else [s]
     return out
 
@@ -81,11 +87,22 @@ def _narrative_headings(lines):
     return out
 
 
+def _no_inline_type(lines):
+    """napoleon reads "words: more words" on an attribute's first line as "type: description";
+    lpvpc's attribute comments start with a unit or a phrase, never a type. An empty rST
+    comment as the first line leaves napoleon nothing to read as the type (it renders as
+    nothing; napoleon skips blank lines, so a blank line would not do)."""
+    first = re.sub(r"``.*?``|`.*?`", "", lines[0]) if lines else ""
+    return ["..", ""] + list(lines) if re.search(r"(?<!:):(?!:)", first) else list(lines)
+
+
 def prepare(app, what, name, obj, options, lines):
     out = [_escape_pipes(s) for s in lines]
     out = _described_parameters(_literal_displays(_escape_continued_products(out)))
     if what == "module":
         out = _narrative_headings(out)
+    if what in ("attribute", "data", "property"):
+        out = _no_inline_type(out)
     lines[:] = out
 
 

@@ -122,10 +122,31 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
     - ``ax`` a sequence of three axes: the same, drawn into them;
     - ``ax`` one axes: everything overlaid in it.
 
-    Returns the figure.
+    Parameters
+    ----------
+    time : array_like
+        Time stamps (s).
+    measured : array_like
+        The measured perturbation torque (N m).
+    prediction : lpvpc.models.model.Prediction or array_like
+        The prediction (total, intrinsic, reflex), or the predicted total torque (N m).
+    ax : matplotlib.axes.Axes or list of matplotlib.axes.Axes, optional
+        Where to draw (layout above); None: three new stacked axes.
+    fig : matplotlib.figure.Figure, optional
+        The figure for new axes; None: a new figure.
+    window : tuple of float, optional
+        ``(t0, t1)`` in s: restricts the plot to that interval (the whole record is
+        unreadable at 100 Hz over 2 minutes).
 
-    ``window`` = (t0, t1) in s restricts the plot to that interval (the whole record
-    is unreadable at 100 Hz over 2 minutes).
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure drawn into.
+
+    Raises
+    ------
+    ValueError
+        ``ax`` a sequence of other than three axes.
     """
     time = np.asarray(time, dtype=float)
     measured = np.asarray(measured, dtype=float)
@@ -192,7 +213,7 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
     - "curves": gain vs frequency for ``positions`` positions (the curves start at K(rho));
     - "surface": the paper's 3-D surface; ``ax`` must be a 3-D axes or None.
 
-    A stationary trial's model (one operating position, :attr:`LPVPCModel.one_position`) is
+    A stationary trial's model (one operating position, :attr:`LPVPCModel.one_position <lpvpc.models.model.LPVPCModel.one_position>`) is
     drawn as "curves": its one curve; there is no position axis.
     """
     freqs = np.linspace(0.0, model.fs / 2, n_freq)
@@ -271,7 +292,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
     figure.
 
     ``truth``: optional object with ``reflex_gain(theta)`` and ``reflex_threshold(theta)``
-    (e.g. :class:`lpvpc.simulation.simulate.SubjectParams`); its half-wave rectifiers are drawn dashed.
+    (e.g. :class:`~lpvpc.simulation.subject.SubjectParams`); its half-wave rectifiers are drawn dashed.
     """
     ax = _new_axes(ax)
     rho = _positions(model, positions) if np.ndim(positions) == 0 else np.asarray(positions, dtype=float)

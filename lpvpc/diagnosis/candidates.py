@@ -24,20 +24,17 @@ from ..models.intrinsic import two_sided_lags
 
 MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains need stronger evidence (SMALL_GAIN)
 # A gain between SMALL_GAIN x min_gain and min_gain is significant only with a p-value
-# STRONG_EVIDENCE times below the Bonferroni level. Reflex-pathway effects carry a small
-# share of the torque: habituation (gain to 30 % over 40 s) gains 0.10-0.19 pp at p ~3e-4
-# on the lab's pulses, where min_gain alone named it on 1 of 5 seeds; the clean records'
-# largest gains with p below the level/10 stay under 0.09 pp on PRALDS, lab pulses and PRBS
-# (the PRBS ones, 0.04-0.06 pp at p ~1e-13, are systematic: the floor is what stops them).
-# Measured in benchmarks/results/diagnose_significance.txt.
+# STRONG_EVIDENCE times below the Bonferroni level: reflex-pathway effects carry a small
+# share of the torque, and a floor is what stops tiny systematic gains on clean records
+# (docs/design_notes.md, "Diagnosis significance"; benchmarks/results/diagnose_significance.txt).
 SMALL_GAIN = 0.6
 STRONG_EVIDENCE = 10.0
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
 LEAK_R2 = 0.2  # a signal this well explained by the model's reflex drive is not used to name an effect
-# Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
-# reflex's slow activation dynamics, a reflex delay that changes with position and reflex
-# dynamics that change with it give nearly the same phase lag (measured on the virtual
-# subject: their held-out gains within 0.03 pp of each other on a delay of 30-80 ms).
+#: Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
+#: reflex's slow activation dynamics, a reflex delay that changes with position and reflex
+#: dynamics that change with it give nearly the same phase lag (docs/design_notes.md,
+#: "Diagnosis catalog").
 TIES = {
     frozenset(("position_dependent_reflex_delay", "position_dependent_reflex_dynamics")):
         "reflex timing varies with position: delay or dynamics (not separable at this sampling rate)",
@@ -113,9 +110,8 @@ class CandidateResult:
 
 # Amplitude-dependent stiffness needs displacements of several sizes: under a PRBS (every
 # step +-A) its columns p|p| and p^3 are A p and A^2 p but for the transitions, so the
-# candidate gained 0.04-0.05 pp with or without the effect, 0.24 pp on one clean seed (45),
-# and took the misfit of too low an intrinsic basis. Spread (P90 - P10) / P50 of the larger
-# displacements: PRBS 0.28, lab pulses 0.58, PRALDS 0.94-1.13.
+# candidate cannot tell the effect from the misfit of too low an intrinsic basis. Spread:
+# (P90 - P10) / P50 of the larger displacements (docs/design_notes.md, "Diagnosis catalog").
 MIN_AMPLITUDE_SPREAD = 0.4
 
 
@@ -239,8 +235,7 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None) -> bool:
     SMALL_GAIN x min_gain with ``p_mean`` (the t test's p of the mean gain; None: ``p``)
     <= level / STRONG_EVIDENCE. The small-gain tier rests on the mean alone: the
     signed-rank half of the robust p says most blocks improve, which a tiny systematic gain
-    does too (PRBS clean seed 45: position_dependent_reflex_dynamics +0.092 pp, signed rank
-    p = 6.7e-5, t p = 4.7e-3).
+    does too (docs/design_notes.md, "Diagnosis significance").
 
     >>> passes(0.2, 5e-3, 0.15, 1e-2), passes(0.12, 5e-3, 0.15, 1e-2), passes(0.12, 5e-4, 0.15, 1e-2)
     (True, False, True)
@@ -406,8 +401,8 @@ def _prefer_underived(sur, best, r1, scored, min_gain, level, block_s, *, unscor
     changes; which of two tied signals carries it is one question more, asked of the rival
     at the unadjusted level ``alpha`` with a positive gain.
     ``unscored``: (rival, residual over the same base) when the rival is not among the
-    significant ones (lab pulses, habituation seed 2: activation_reflex_gain +0.20 pp,
-    trial time +0.10 pp at p = 0.06, tie p = 0.19: it was named activation)."""
+    significant ones (else a habituating reflex could be named activation:
+    docs/design_notes.md, "Diagnosis significance")."""
     rival_name = PREFER_UNDERIVED.get(best.effect)
     hit = next(((r, res) for r, res in scored if r.effect == rival_name), None) or unscored
     if hit is None or hit[0].effect != rival_name or _tie_p(hit[1], r1, sur.fs, block_s) <= TIE_P:

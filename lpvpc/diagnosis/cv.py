@@ -136,10 +136,8 @@ def robust_paired_test(r0, r1, fs, block_s=BLOCK_S):
     holds).
 
     The t test alone loses its power to one or two blocks where a candidate predicts much
-    worse or better than elsewhere (a slow signal extrapolated into a held-out fold): on
-    the lab's pulses activation_reflex_gain seed 3 gained +0.42 pp with signed-rank
-    p = 2.9e-5, but one 2-s block 40 times the median block's size the wrong way (-0.21
-    against +0.005 N m^2) gave t p = 4.9e-2. The signed-rank test alone misses effects
+    worse or better than elsewhere (a slow signal extrapolated into a held-out fold;
+    docs/design_notes.md, "Diagnosis significance"). The signed-rank test alone misses effects
     confined to a few blocks (reflex habituation, early in the trial); together they keep
     both. It says most blocks improve, not by how much: tiny systematic gains pass it too,
     so small gains are judged on ``p_mean`` (:func:`lpvpc.diagnosis.candidates.passes`).

@@ -6,7 +6,7 @@ in percent / percentage points (pp).
 
 Two questions (see :func:`diagnose`):
 
-1. *Where does it fail?* (:func:`where_it_fails`) The residual (measured minus predicted
+1. *Where does it fail?* (:func:`~lpvpc.diagnosis.where.where_it_fails`) The residual (measured minus predicted
    torque) of the model as it is, binned by position, perturbation velocity and its sign,
    slow-movement direction, time in the trial, frequency band, around perturbation steps
    and trajectory transitions; its whiteness; its cross-correlation with the perturbation
@@ -40,7 +40,7 @@ Two questions (see :func:`diagnose`):
    alarm. (The thresholds were set on the virtual subject; benchmarks/bench_diagnose.py
    records the false-alarm and detection rates they give.)
 
-   When no candidate is significant, :func:`signal_dependence` says which measured or
+   When no candidate is significant, :func:`~lpvpc.diagnosis.signals.signal_dependence` says which measured or
    derived signal the residual depends on most, and through which pathway: the same
    cross-validated test for probes "static function of s", "intrinsic IRF modulated by
    s" and "reflex modulated by s" for each signal s. A probe's shape follows the signal's
@@ -52,7 +52,7 @@ Two questions (see :func:`diagnose`):
 
 :class:`Diagnosis` holds the answer; ``to_dict()`` is the ``diagnosis.json`` format
 (candidates in rank order with ``effect``, ``vaf_gain``, ``significant``,
-``explanation``, ...), :func:`write_report` writes a markdown report with plots.
+``explanation``, ...), :func:`~lpvpc.diagnosis.report.write_report` writes a markdown report with plots.
 
 The parts live in modules of their own, re-exported here: :mod:`lpvpc.diagnosis.cv` (blocked
 cross-validation, the paired test), :mod:`lpvpc.diagnosis.surrogate` (the model's structure as
@@ -96,6 +96,47 @@ TRANSFER_GAP = SANE_DROP
 
 @dataclass
 class Diagnosis:
+    """What :func:`diagnose` found: the candidates' scores and where the model fails.
+
+    Attributes
+    ----------
+    model_hash, data_source : str
+        The diagnosed model's hash and the record's source.
+    n_samples : int
+        Samples of the record.
+    fs : float
+        Its rate (Hz).
+    vaf : float
+        The model's VAF (%) on the record, as it is.
+    rmse : float
+        Its RMS error (N m).
+    surrogate_vaf : float
+        Cross-validated VAF (%) of the model's structure refitted on the record.
+    candidates : list
+        Every candidate's score: held-out gain (pp), p-values, significance.
+    dependence : list
+        How the residual depends on each signal.
+    where : dict
+        Where in the record (positions, velocities, time) the model fails.
+    settings, timings : dict
+        The diagnosis's settings, and its durations (s).
+    residual, prediction : numpy.ndarray or None
+        The model's residual and prediction (N m) on the record.
+    design : {"refit", "fixed"}
+        The design the candidates were scored with.
+    design_reason : str
+        Why that design.
+    coverage, leaks : dict
+        How much of the record lies within the identified range; signals the model's
+        reflex drive already explains.
+    base_residual : numpy.ndarray or None
+        The held-out (cross-validated) residual of the surrogate base (N m).
+
+    See Also
+    --------
+    diagnose : makes it (with an example).
+    """
+
     model_hash: str
     data_source: str
     n_samples: int
@@ -301,17 +342,69 @@ def check_record(model, data) -> dict:
 
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
              candidates=None, dependence=True, design="auto") -> Diagnosis:
-    """Diagnose ``model`` on ``data`` (:class:`lpvpc.io.PerturbationData`, ideally not used
-    to fit the model). ``candidates``: names to score (default: the whole catalog and all
-    settings candidates, minus effects the model already has).
+    """Where ``model`` fails on ``data`` and which missing effect or setting would explain it.
 
-    ``design``: "refit" (the model's structure refitted with each candidate, blocked
-    cross-validation), "fixed" (the model held, candidates fitted to its residual) or
-    "auto": refit, unless the refitted base's cross-validated VAF falls more than
-    SANE_DROP pp below the model's own VAF on these data (a record too short or too narrow
-    for the structure: each fold holds positions the others do not visit), then fixed.
-    Records shorter than MIN_RECORD_S or mostly outside the identified range are refused
-    (InsufficientExcitationError); samples outside the range are left out of the scores."""
+    Every candidate (an effect of :data:`lpvpc.models.effects.CATALOG` or a setting of
+    :data:`lpvpc.models.effects.SETTINGS`) is scored by blocked cross-validation on the
+    record and tested for a significant held-out gain; samples outside the identified range
+    are left out of the scores.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to diagnose.
+    data : lpvpc.io.PerturbationData
+        One record at the model's rate, ideally not used to fit the model, at least
+        ``MIN_RECORD_S`` (20 s) long and mostly inside the identified range.
+    folds : int, default 10
+        Blocks of the cross-validation.
+    min_gain : float, default 0.15
+        Held-out VAF gain (percentage points) below which a candidate needs stronger
+        evidence.
+    alpha : float, default 0.1
+        Family-wise significance level (Bonferroni over the candidates tested).
+    block_s : float, default 2.0
+        Length (s) of the blocks of the paired test's variance estimate.
+    candidates : list of str, optional
+        Names to score; default the whole catalog and every setting candidate, minus the
+        effects the model already has.
+    dependence : bool, default True
+        Also report how the residual depends on each signal (:func:`~lpvpc.diagnosis.signals.signal_dependence`).
+    design : {"auto", "refit", "fixed"}, default "auto"
+        "refit": the model's structure refitted with each candidate; "fixed": the model held,
+        candidates fitted to its residual; "auto": refit, unless the refitted base's
+        cross-validated VAF falls more than ``SANE_DROP`` pp below the model's own VAF on
+        these data (a record too short or too narrow for the structure), then fixed.
+
+    Returns
+    -------
+    Diagnosis
+        The candidates' scores, the significant ones (``significant``), the answer in words
+        (:meth:`Diagnosis.answer`) and where in the record the model fails (``where``).
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Data at another rate than the model's, or joined trials.
+    lpvpc.errors.InsufficientExcitationError
+        A record shorter than ``MIN_RECORD_S`` or mostly outside the identified range.
+    ValueError
+        An unknown ``design``.
+
+    Examples
+    --------
+    A model of the virtual subject diagnosed on another record of it: nothing is missing.
+
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> train = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(train.pt, train.ut))
+    >>> test = simulate_pair("multilevel", seed=1, duration=24.0, fs_out=100.0)
+    >>> diagnosis = diagnose(model, pair_trials(test.pt, test.ut))
+    >>> diagnosis.significant, bool(diagnosis.vaf > 90.0)
+    ([], True)
+    """
     if design not in ("auto", "refit", "fixed"):
         raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()

@@ -115,10 +115,10 @@ def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, lea
     channels; ``folds``: "contiguous" or "interleaved", the cross-validation the probe was
     scored with, its gain relative to the base on the same folds).
 
-    Each signal's shape is :func:`_rank_cheb` (T1..T3 static; T1, T2 modulating the
+    Each signal's shape is ``_rank_cheb`` (T1..T3 static; T1, T2 modulating the
     intrinsic IRF's lags and the reflex's states and drive). Trial time: the model's
     intrinsic and reflex torques (``pathways``, default the model's prediction), each times
-    :func:`time_basis`, and the basis alone (static), on :meth:`Surrogate.interleaved`
+    :func:`time_basis`, and the basis alone (static), on :meth:`~lpvpc.diagnosis.surrogate.Surrogate.interleaved`
     folds."""
     leaks = leaks or {}
     cv = sur.cv

@@ -24,7 +24,7 @@ angular acceleration (its coefficient is the inertia I, one constant). Offline, 
 acceleration come from the angle record by 5-point central differences (the model's stencil);
 in a loop the plant supplies omega, and I joins the plant's inertia. A recording whose torque
 channel lags its position channel (a measurement artefact: ~1 ms on the lab's pilot trial, 4 of
-the form's points there) is lined up for the fit (``position_delay``, :func:`estimate_channel_skew`);
+the form's points there) is lined up for the fit (``position_delay``, :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`);
 the model itself answers the plant's angle without delay.
 
 Timing of the exported step and FMU: the model samples every 1/fs s (rho, the delay line,
@@ -90,10 +90,21 @@ class ClosedLoopPrediction:
 
 @dataclass
 class ClosedLoopModel:
-    """Causal whole-joint model: ``whole`` (:class:`lpvpc.export.whole_joint.WholeJointModel`, its
-    quasi-static curve, low-pass and LPV-PC reflex), ``W`` ((3 + memory) x n_i impedance
-    coefficients on the intrinsic scheduling basis: K N m/rad, B N m s/rad, curvature
-    N m/rad^2, memory N m/rad), ``inertia`` (kg m^2, for the plant)."""
+    """Causal whole-joint model, made by :func:`fit_closed_loop`.
+
+    Parameters
+    ----------
+    whole : lpvpc.export.whole_joint.WholeJointModel
+        Its quasi-static curve, low-pass and LPV-PC reflex.
+    W : numpy.ndarray
+        (3 + memory) x n_i impedance coefficients on the intrinsic scheduling basis: K
+        N m/rad, B N m s/rad, curvature N m/rad^2, memory N m/rad.
+    inertia : float
+        The joint's inertia (kg m^2), for the plant.
+    memory : int, default 0
+        Past perturbation samples in the impedance.
+    fit : dict, optional
+        How the fit went (VAF, settings)."""
 
     whole: object
     W: np.ndarray
@@ -204,16 +215,34 @@ def _at_model_rate(trial, fs):
 def fit_closed_loop(whole, trials, *, memory: int = 0, position_delay: float = 0.0) -> ClosedLoopModel:
     """Identify the closed-loop form from a whole-joint model and the trials it came from.
 
-    ``whole``: :class:`lpvpc.export.whole_joint.WholeJointModel`; ``trials``: the PT and UT trials
-    (:class:`lpvpc.io.Trial`, any rate the identification accepts, or (angle rad, torque N m)
-    pairs at the model rate), each predicted from rest. ``memory``: past perturbation samples
-    in the impedance (0: none; module notes). With the reflex held, least squares of the
-    torque minus quasi-static curve and reflex on the causal features times G_i(rho) and on
-    the acceleration (coefficient: the inertia). Without the PT trial, pass
-    ``[distillation_trial(whole, ut)]``. ``position_delay`` (s): each trial's angle is delayed by
-    it before the fit, to undo a torque channel recorded that much late (a measurement artefact,
-    :func:`estimate_channel_skew`; the lab's pilot trial: ~1 ms). The model itself has no delay:
-    it answers a plant's angle at once, as the ankle does.
+    With the reflex held, least squares of the torque minus quasi-static curve and reflex on
+    the causal features times G_i(rho) and on the acceleration (coefficient: the inertia).
+    The model itself has no delay: it answers a plant's angle at once, as the ankle does.
+
+    Parameters
+    ----------
+    whole : lpvpc.export.whole_joint.WholeJointModel
+        The whole-joint model.
+    trials : list
+        The PT and UT trials (:class:`lpvpc.io.trial.Trial`, any rate the identification
+        accepts, or (angle rad, torque N m) pairs at the model rate), each predicted from
+        rest. Without the PT trial, pass ``[distillation_trial(whole, ut)]``.
+    memory : int, default 0
+        Past perturbation samples in the impedance (0: none; module notes), at most 10.
+    position_delay : float, default 0.0
+        Each trial's angle is delayed by it (s) before the fit, to undo a torque channel
+        recorded that much late (a measurement artefact,
+        :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`).
+
+    Returns
+    -------
+    ClosedLoopModel
+        The closed-loop form.
+
+    Raises
+    ------
+    ValueError
+        A ``memory`` outside 0..10.
     """
     from ..models.model import vaf
 
@@ -369,7 +398,7 @@ def closed_loop_step(cl: ClosedLoopModel, parametric: bool = False, name: str = 
     """One base tick (1 / (fs N) s) of the closed-loop model as a ``casadi.Function``.
 
     Inputs: ``state`` (zeros at the start), ``angle`` (rad), ``angular_velocity`` (rad/s)
-    [, ``params``]. Outputs: ``next_state`` and :data:`OUTPUT_NAMES` at the tick's instant,
+    [, ``params``]. Outputs: ``next_state`` and ``OUTPUT_NAMES`` at the tick's instant,
     from the current inputs. At ticks 0, N, 2N, ... (the model's samples) the outputs equal
     :meth:`ClosedLoopModel.predict` at that sample:
 
@@ -488,7 +517,7 @@ def export_closed_loop_fmu(cl: ClosedLoopModel, path, fmi_version: int = 2, *, r
                            fmi_type: str = "cs") -> Path:
     """The closed-loop model as an FMI 2.0 or 3.0 FMU: co-simulation (``fmi_type="cs"``) or Model
     Exchange (``"me"``, a time event per base tick). Inputs ``angle`` (rad), ``angular_velocity``
-    (rad/s); outputs :data:`OUTPUT_NAMES` from the current inputs (direct feedthrough); constant
+    (rad/s); outputs ``OUTPUT_NAMES`` from the current inputs (direct feedthrough); constant
     outputs ``inertia`` (kg m^2, for the plant to add to its own), ``sample_period`` (s) and
     ``latency`` (0 s); internal step (base tick) 1 / (fs N) s."""
     from .. import __version__

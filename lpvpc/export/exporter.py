@@ -129,7 +129,7 @@ __all__ = [
 
 VARIANTS = ("sampled", "causal", "exact")
 #: The variant written when none is named, by ``lpvpc export`` (``--casadi`` and ``--fmu``),
-#: :meth:`lpvpc.LPVPCModel.export_casadi`, :meth:`lpvpc.LPVPCModel.export_fmu` and
+#: :meth:`lpvpc.LPVPCModel.export_casadi <lpvpc.models.model.LPVPCModel.export_casadi>`, :meth:`lpvpc.LPVPCModel.export_fmu <lpvpc.models.model.LPVPCModel.export_fmu>` and
 #: :func:`export_casadi`: positions in, velocity and acceleration by central differences
 #: inside, a declared latency of half the difference stencil.
 DEFAULT_VARIANT = "sampled"
@@ -162,6 +162,22 @@ def input_names(variant="causal", parametric=False, model=None):
     """Names of the step function's inputs, in order (with ``model``: including the extra
     signals of an extended model).
 
+    Parameters
+    ----------
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form.
+    parametric : bool, default False
+        Include the ``params`` input.
+    model : lpvpc.models.model.LPVPCModel, optional
+        With it, the extra signals of an extended model too.
+
+    Returns
+    -------
+    list of str
+        The input names, in order.
+
+    Examples
+    --------
     >>> input_names("causal")
     ['state', 'position', 'scheduling', 'velocity', 'acceleration']
     >>> input_names("sampled", parametric=True)  # positions only; the coefficients as an input
@@ -211,7 +227,24 @@ def _effect_states(model) -> list:
 # Layout of the state
 @dataclass(frozen=True)
 class StateLayout:
-    """Where things live in the step's state vector (see the module docstring)."""
+    """Where things live in the step's state vector (see the module docstring).
+
+    Parameters
+    ----------
+    latency : int
+        Output delay in samples (0 for causal).
+    n_pos, n_sched : int
+        Position and scheduling history lengths.
+    m : int
+        Reflex state order.
+    start : int
+        Saturation value of the sample counter (latency + delay, + the largest effect
+        delay step).
+    signals : tuple of str, default ``()``
+        Extra input signals of an extended model (history kept for latency > 0).
+    effect_states : tuple of str, default ``()``
+        Names of the effect states.
+    """
 
     latency: int  # output delay in samples (0 for causal)
     n_pos: int  # position history length P
@@ -236,7 +269,20 @@ class StateLayout:
 
 
 def latency_samples(model, variant="causal") -> int:
-    """Output delay of the exported step in samples: 0 for causal, L for exact."""
+    """Output delay of the exported step in samples: 0 for causal, L for exact.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    int
+        The delay in samples.
+    """
     _check_variant(variant)
     if variant == "sampled":  # the differences of sample k need position k + 1 (5-point: k + 2)
         return derivative_points(model) // 2
@@ -244,6 +290,20 @@ def latency_samples(model, variant="causal") -> int:
 
 
 def state_layout(model, variant="causal") -> StateLayout:
+    """Where things live in the exported step's state vector for ``variant``.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    StateLayout
+        The layout.
+    """
     _check_variant(variant)
     d = int(model.delay)
     lat = latency_samples(model, variant)
@@ -283,13 +343,37 @@ def _coefficient_blocks(model, variant):
 
 def parameter_vector(model, variant="causal") -> np.ndarray:
     """The identified coefficients the variant uses, as one vector (row-major blocks
-    H_causal or H, Omega, A, B, C, D), the ``params`` input of the parametric step."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    numpy.ndarray
+        The coefficients.
+    """
     return np.concatenate([a.ravel() for _, a in _coefficient_blocks(model, variant)])
 
 
 def parameter_names(model, variant="causal") -> list:
     """Names matching :func:`parameter_vector`: ``"H_causal[2,1]"``, ``"Omega[0,3]"``,
-    ``"A[0,1]"``, ``"B[0]"``, ``"C[0]"``, ``"D"``."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    list of str
+        One name per coefficient.
+    """
     names = []
     for name, a in _coefficient_blocks(model, variant):
         if name == "D":
@@ -304,7 +388,19 @@ def parameter_names(model, variant="causal") -> list:
 def parameter_info(model, variant="causal") -> list:
     """(description, unit) of each parameter, matching :func:`parameter_names`. Units are
     FMI unit names ("" where a coefficient has no physical unit of its own, e.g. the
-    reflex nonlinearity scale, which is shared between Omega and B, C, D)."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    list of tuple
+        ``(description, unit)`` per parameter.
+    """
     out = []
     lags = model.causal_lags if _irf(variant) == "causal" else model.lags
     for name, a in _coefficient_blocks(model, variant):
@@ -367,6 +463,22 @@ def step_function(model, variant="causal", parametric=False, name=None):
     Outputs: ``next_state``, ``torque``, ``torque_intrinsic``, ``torque_reflex`` (N m) of
     sample k (causal), k - 1 (sampled: its central differences need position k) or k - L
     (exact). Start from ``state = 0``.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+    parametric : bool, default False
+        Take the coefficients as a ``params`` input instead of constants.
+    name : str, optional
+        The function's name.
+
+    Returns
+    -------
+    casadi.Function
+        The step.
     """
     import casadi as ca
 
@@ -638,10 +750,29 @@ def export_casadi(model, path, variant=DEFAULT_VARIANT) -> Path:
                    scheduling=scheduling[None, :])
         torque = np.asarray(out["torque"]).ravel()  # sample k - latency_samples at row k
 
-    The sidecar ``<path>.json`` (:func:`casadi_metadata`) records the variant, tick and
+    The sidecar ``<path>.json`` (``casadi_metadata``) records the variant, tick and
     sample period, latency (samples and s), units, input and output names, initial state,
     state layout, inertia, model hash and lpvpc version; :func:`load_casadi` returns the
     function with it and refuses host steps that are not the tick.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to export.
+    path : str or pathlib.Path
+        The ``.casadi`` file to write.
+    variant : {"sampled", "causal", "exact"}, default "sampled"
+        The form exported (:data:`DEFAULT_VARIANT`).
+
+    Returns
+    -------
+    pathlib.Path
+        The function's path.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        An unknown variant.
     """
     _check_variant(variant)
     return save_casadi(step_function(model, variant), path, casadi_metadata(model, variant))
@@ -655,6 +786,13 @@ class CasadiExport(NamedTuple):
     :meth:`trajectory` take the host's time step and refuse one that is not the tick
     (:class:`lpvpc.errors.StepSizeError`): a simulator stepping at half the tick would
     otherwise run the model's time twice as fast, silently.
+
+    Parameters
+    ----------
+    function : casadi.Function
+        The step function.
+    metadata : dict
+        Its sidecar's metadata (variant, tick, latency, units, names, initial state).
     """
 
     function: Any
@@ -668,7 +806,7 @@ class CasadiExport(NamedTuple):
 
     def check_step(self, dt) -> None:
         """Raise :class:`lpvpc.errors.StepSizeError` unless ``dt`` (s) is the tick within
-        :data:`STEP_TOLERANCE` (relative)."""
+        ``STEP_TOLERANCE`` (relative)."""
         from ..errors import StepSizeError
 
         tick = self.tick
@@ -755,6 +893,23 @@ def trajectory_function(step_or_path, n: int):
     the state after sample k; the last column continues a record), ``torque``,
     ``torque_intrinsic``, ``torque_reflex`` (1 x n rows, N m; for the exact variant
     column k is the torque of sample k - L).
+
+    Parameters
+    ----------
+    step_or_path : casadi.Function or str or pathlib.Path
+        A step function, or the path of a ``.casadi`` file.
+    n : int
+        Samples of the record (at least 1).
+
+    Returns
+    -------
+    casadi.Function
+        The whole-record function.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        ``n`` below 1.
     """
     import casadi as ca
 
@@ -769,7 +924,23 @@ def replay_inputs(model, position, scheduling, variant="causal", signals=None) -
     """Named rows for :func:`trajectory_function` from a record (velocity/acceleration by
     the model's difference stencil for the causal variant, as in ``model.predict(causal=True)``).
     ``signals``: the extra channels of an extended model (as for ``model.predict``;
-    ``trial_time`` and ``scheduling_velocity`` default as there)."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    position, scheduling : array_like
+        The record (rad), one value per sample.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+    signals : dict, optional
+        The extra channels of an extended model.
+
+    Returns
+    -------
+    dict
+        Input name -> 1 x n row.
+    """
     position = np.asarray(position, dtype=float)
     scheduling = np.asarray(scheduling, dtype=float)
     args = {"position": position[None, :], "scheduling": scheduling[None, :]}
@@ -814,6 +985,13 @@ _OUTPUT_INFO = {
 def model_source_dir() -> Path:
     """Folder with the generic C adapter ``model_system.c`` (next to the FMU wrapper).
 
+    Returns
+    -------
+    pathlib.Path
+        The folder.
+
+    Examples
+    --------
     >>> (model_source_dir() / "model_system.c").is_file()
     True
     """
@@ -823,7 +1001,18 @@ def model_source_dir() -> Path:
 
 
 def fmu_parameter_name(name: str) -> str:
-    """FMU variable name of a parameter (C identifier): ``"H_causal[2,1]"`` -> ``"H_causal_2_1"``."""
+    """FMU variable name of a parameter (C identifier): ``"H_causal[2,1]"`` -> ``"H_causal_2_1"``.
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name in :func:`parameter_names`.
+
+    Returns
+    -------
+    str
+        A C identifier.
+    """
     return name.replace("[", "_").replace("]", "").replace(",", "_")
 
 
@@ -891,13 +1080,40 @@ def system_functions(model, variant="causal"):
     acceleration]) and y = (torque, torque_intrinsic, torque_reflex). They call the
     parametric :func:`step_function` (:func:`step_system_functions`). Returns (initial,
     output, update, output_dependencies) where ``output_dependencies[name]`` lists the
-    inputs an output depends on directly."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    tuple
+        ``(initial, output, update, dependencies)``: the three ``casadi.Function`` objects
+        and, per output, the inputs it depends on.
+    """
     return step_system_functions(step_function(model, variant, parametric=True))
 
 
 def generate_c(model, folder, variant="causal") -> list:
     """Write the CasADi-generated C code (``lpvpc_model_casadi.c`` and ``.h``) into
-    ``folder``; returns the paths."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    folder : str or pathlib.Path
+        Where to write (created).
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The C source and header.
+    """
     init, output, update, _ = system_functions(model, variant)
     return write_system_c((init, output, update), folder)
 
@@ -905,7 +1121,24 @@ def generate_c(model, folder, variant="causal") -> list:
 def write_system_c(functions, folder) -> list:
     """Generate C for the three system functions (initial, output, update, named as in
     :func:`system_functions`) into ``folder`` as ``lpvpc_model_casadi.c`` and ``.h``, the
-    files the adapter ``model_system.c`` includes; returns the paths."""
+
+    Parameters
+    ----------
+    functions : tuple of casadi.Function
+        ``(initial, output, update)`` as :func:`system_functions` returns them.
+    folder : str or pathlib.Path
+        Where to write (created).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The C source and header.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        CasADi's code generation did not write the files.
+    """
     import casadi as ca
 
     folder = Path(folder)
@@ -983,7 +1216,17 @@ def build_step_fmu(path, step, *, model_identifier: str, fmi_type: str = "cs", p
 
 def ticks_per_sample(model) -> int:
     """Base ticks per sample period of the sampled FMU: the tick closest to 1 ms that
-    divides the period (10 at 100 Hz), so that masters can step at about 1 ms."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+
+    Returns
+    -------
+    int
+        Ticks per sample period.
+    """
     return max(1, int(round(1.0 / (float(model.fs) * 1e-3))))
 
 
@@ -991,7 +1234,19 @@ def fmu_constants(model, variant="causal"):
     """Constant outputs that state the timing contract in the FMU itself: ``latency`` (s,
     the delay of a sample's torque in sample periods times the period) and
     ``sample_period`` (s); the causal variant adds ``derivative_points`` (3 or 5: the central
-    differences its velocity and acceleration inputs must be)."""
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    list of lpvpc.export.fmu_build.FmuVariable
+        The constant outputs.
+    """
     from .fmu_build import FmuVariable
 
     T = 1.0 / float(model.fs)
@@ -1015,6 +1270,18 @@ def derivative_points(model) -> int:
     """Points of the central differences (velocity rad/s, acceleration rad/s^2) the model's
     causal form was identified with: 3 or 5 (files without the key: 3).
 
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+
+    Returns
+    -------
+    int
+        3 or 5.
+
+    Examples
+    --------
     >>> from types import SimpleNamespace
     >>> derivative_points(SimpleNamespace(causal_derivatives="central5")), derivative_points(SimpleNamespace())
     (5, 3)
@@ -1023,7 +1290,20 @@ def derivative_points(model) -> int:
 
 
 def fmu_variables(model, variant="causal"):
-    """(outputs, inputs, parameters) as :class:`lpvpc.export.fmu_build.FmuVariable` lists."""
+    """(outputs, inputs, parameters) as :class:`lpvpc.export.fmu_build.FmuVariable` lists.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    tuple of list
+        ``(outputs, inputs, parameters)``.
+    """
     from .fmu_build import FmuVariable
 
     _, _, _, deps = system_functions(model, variant)
@@ -1045,6 +1325,20 @@ def fmu_variables(model, variant="causal"):
 
 
 def fmu_description(model, variant="causal") -> str:
+    """The FMU's description text: what the model is, its variant and timing contract, its range.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The exported form (:func:`export_fmu`).
+
+    Returns
+    -------
+    str
+        The FMU's description text.
+    """
     from .. import __version__
 
     lo, hi = model.scheduling_range
@@ -1092,7 +1386,7 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     ``"sampled"`` (what ``lpvpc export --fmu`` makes): sampled every 1/fs s, communication
     steps are multiples of the base tick 1/(fs * :func:`ticks_per_sample`) (1 ms at 100 Hz,
     the DefaultExperiment step); outputs are the torque of the previous sample from the end
-    of the step that starts at a sample time (see :func:`fmu_description`). ``"causal"`` and
+    of the step that starts at a sample time (see ``fmu_description``). ``"causal"`` and
     ``"exact"``: step size 1/fs, communication steps multiples of it, outputs with direct
     feedthrough of the current inputs (for masters that set inputs before reading outputs,
     such as :mod:`lpvpc.validation`).
@@ -1100,6 +1394,36 @@ def export_fmu(model, path, fmi_version: int = 2, variant: str = "causal", *, ti
     ``fmi_type="me"``: a Model Exchange FMU of the same model instead, sampled with a time
     event every 1/fs s (inputs sampled there; outputs at t_k equal the co-simulation FMU's at
     sample k; model identifier suffixed ``_me``).
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model to export.
+    path : str or pathlib.Path
+        The ``.fmu`` file to write.
+    fmi_version : {2, 3}, default 2
+        The FMI version.
+    variant : {"causal", "sampled", "exact"}, default "causal"
+        The form exported (above); :meth:`LPVPCModel.export_fmu
+        <lpvpc.models.model.LPVPCModel.export_fmu>` defaults to
+        :data:`DEFAULT_VARIANT` instead.
+    timings : dict, optional
+        Receives ``codegen``, ``compile`` and ``total`` seconds.
+    reuse_existing : bool, default False
+        Return an existing FMU at ``path`` built from the same sources and settings
+        without rebuilding it.
+    fmi_type : {"cs", "me"}, default "cs"
+        Co-simulation, or Model Exchange (above).
+
+    Returns
+    -------
+    pathlib.Path
+        The FMU's path.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        An unknown variant, no C compiler, or a compiler error.
     """
     import time
 

@@ -213,8 +213,24 @@ def fit_quasi_static(angle, torque, order: int = DEFAULT_ORDER, family: str = "c
 def fit_whole_joint(model, ut, *, cutoff: float = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER) -> WholeJointModel:
     """Whole-joint model from an identified LPV-PC ``model`` and the UT trial it came from.
 
-    ``ut``: :class:`lpvpc.io.Trial` (any rate above ``model.fs``; it is resampled and
-    decimated with the package's anti-alias filter, as the identification data) or a ``(angle, torque)`` pair at ``model.fs``.
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The identified perturbation model.
+    ut : lpvpc.io.trial.Trial or tuple of numpy.ndarray
+        The unperturbed trial (any rate above ``model.fs``; it is resampled and decimated
+        with the package's anti-alias filter, as the identification data), or an
+        ``(angle, torque)`` pair (rad, N m) at ``model.fs``.
+    cutoff : float, default 0.5
+        Cutoff (Hz) of the first-order low-pass that estimates the operating angle (module
+        notes).
+    order : int, default 5
+        Polynomial order of the quasi-static torque curve of the operating angle.
+
+    Returns
+    -------
+    WholeJointModel
+        The model of the total joint torque: the quasi-static curve plus ``model``.
     """
     from ..io import Trial, decimate_trial, to_multiple_rate
 
@@ -258,7 +274,7 @@ def whole_joint_step(wj: WholeJointModel, parametric: bool = False, name: str = 
     """The whole-joint model's step as a ``casadi.Function``.
 
     Inputs: ``state`` (zeros at the start of a record), ``angle`` (rad)[, ``params``].
-    Outputs: ``next_state`` and :data:`OUTPUT_NAMES` of sample k - L (0 for k < L).
+    Outputs: ``next_state`` and ``OUTPUT_NAMES`` of sample k - L (0 for k < L).
 
     The CasADi step reproduces the offline prediction, L samples later:
 
@@ -346,7 +362,7 @@ def replay(wj: WholeJointModel, angle) -> dict:
 def export_whole_joint_fmu(wj: WholeJointModel, path, fmi_version: int = 2, *, reuse_existing: bool = False,
                            fmi_type: str = "cs") -> Path:
     """The whole-joint model as an FMI 2.0 or 3.0 co-simulation FMU (input ``angle`` rad,
-    outputs :data:`OUTPUT_NAMES`, step 1/fs, outputs of sample k - L; parameters: the
+    outputs ``OUTPUT_NAMES``, step 1/fs, outputs of sample k - L; parameters: the
     LPV-PC coefficients, the curve coefficients ``curve_i`` and ``cutoff`` Hz);
     ``fmi_type="me"``: Model Exchange, a time event per sample (see :func:`lpvpc.export.exporter.export_fmu`)."""
     from .. import __version__

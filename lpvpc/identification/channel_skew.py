@@ -9,9 +9,9 @@ delayed by it). This module finds it from the record itself:
 
 - :func:`estimate_channel_skew`: the peak of the in-sample VAF of a fixed-structure model
   over candidate skews -2..+3 ms (aligned at the model rate, a fraction of a sample allowed);
-  :attr:`ChannelSkew.chosen` keeps it only when it removes at least MIN_RESIDUAL_REDUCTION of
+  :attr:`ChannelSkew.chosen <lpvpc.identification.skew_scan.ChannelSkew.chosen>` keeps it only when it removes at least MIN_RESIDUAL_REDUCTION of
   the residual variance (the virtual subject without skew: 0; its torque 1 ms late: ~1.3 ms);
-- :func:`scan_channel_skew`: the same peak from one fitted model, its structure and reflex
+- :func:`~lpvpc.identification.skew_scan.scan_channel_skew`: the same peak from one fitted model, its structure and reflex
   dynamics held, its least squares solved once per candidate on the torque shifted by it (one
   regressor for every candidate: ~15 ms, 1 % of an identify, against ~11 fits). identify runs
   it on every record it fits (``model.fit["channel_skew"]``) and warns when it finds a skew;
@@ -43,7 +43,7 @@ __all__ = ["delay_position", "estimate_channel_skew", "load_aligned"]  # (Channe
 
 def delay_position(data, delay: float):
     """Perturbation data (:class:`lpvpc.io.PerturbationData`) with the position channel delayed
-    by ``delay`` s relative to the torque (a fraction of a sample allowed; :func:`delayed`), to
+    by ``delay`` s relative to the torque (a fraction of a sample allowed; :func:`~lpvpc.io.identification_data.delayed`), to
     undo a torque channel recorded ``delay`` s late. The scheduling is left as is (it moves at
     < 1 Hz); the high-rate copy of the position, when present, is delayed the same.
     ``meta["position_delay_s"]`` records the delay.
@@ -78,7 +78,7 @@ def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
     bases cannot), so its fit peaks at the channels' alignment; on the virtual subject (no
     skew) the estimate is within ~0.4 ms of 0 and of an imposed 1 ms (the subject's own
     half-millisecond: tests). Each trial's first and last samples are left out of the score, as
-    in :func:`scan_channel_skew`. Use the identification part only, then
+    in :func:`~lpvpc.identification.skew_scan.scan_channel_skew`. Use the identification part only, then
     :func:`delay_position` the whole record by the estimate.
 
     A torque channel recorded 2 ms late (the virtual subject's 1 kHz torque shifted by 2 samples):
@@ -115,10 +115,10 @@ def estimate_channel_skew(data, candidates=None, **settings) -> ChannelSkew:
 def load_aligned(pt=None, ut=None, data=None, *, channel_skew="auto", **load_settings):
     """:func:`lpvpc.io.load_identification_data` with the channel skew undone at the file's
     rate: ``channel_skew`` in s, or ``"auto"``: found by the default identify's scan of the
-    record loaded as is (:func:`scan_channel_skew`, :attr:`ChannelSkew.chosen`; one extra fit;
+    record loaded as is (:func:`~lpvpc.identification.skew_scan.scan_channel_skew`, :attr:`ChannelSkew.chosen <lpvpc.identification.skew_scan.ChannelSkew.chosen>`; one extra fit;
     everything given is treated as identification data, so load only what you identify
     from). ``meta["channel_skew_s"]`` records the skew applied (absent when 0),
-    ``meta["channel_skew_choice"]`` the scan (:meth:`ChannelSkew.to_dict`). Records the scan
+    ``meta["channel_skew_choice"]`` the scan (:meth:`ChannelSkew.to_dict <lpvpc.identification.skew_scan.ChannelSkew.to_dict>`). Records the scan
     does not apply to (stationary, or a model with effects) are returned as recorded.
 
     >>> from lpvpc.simulation.simulate import simulate_pair

@@ -84,18 +84,18 @@ def fold_fits(G, b, ridge: float, reference: str = "diagonal"):
 
     Parameters
     ----------
-    G : ndarray, shape (K, n, n)
-        Each fold's Gram matrix ``X_f^T X_f``.
-    b : ndarray, shape (K, n)
-        Each fold's ``X_f^T y_f``.
+    G : numpy.ndarray
+        Each fold's Gram matrix ``X_f^T X_f``, shape (K, n, n).
+    b : numpy.ndarray
+        Each fold's ``X_f^T y_f``, shape (K, n).
     ridge, reference
         As in :func:`solve_normal`.
 
     Returns
     -------
-    theta : ndarray, shape (K, n)
-        ``theta[f]``: fitted on every fold but f.
-    G_train, b_train : ndarray
+    theta : numpy.ndarray
+        ``theta[f]``: fitted on every fold but f; shape (K, n).
+    G_train, b_train : numpy.ndarray
         The training systems (the sums over the other folds) it solved.
 
     Examples
@@ -118,16 +118,17 @@ def held_out_sse(yy, theta, G, b) -> np.ndarray:
 
     Parameters
     ----------
-    yy : ndarray, shape (K,)
-        Each fold's ``y_f^T y_f``.
-    theta : ndarray, shape (K, n)
-        The coefficients scored on fold f (:func:`fold_fits`).
-    G, b : ndarray, shapes (K, n, n) and (K, n)
-        The scored rows' Gram matrices and ``X^T y``.
+    yy : numpy.ndarray
+        Each fold's ``y_f^T y_f``, shape (K,).
+    theta : numpy.ndarray
+        The coefficients scored on fold f (:func:`fold_fits`), shape (K, n).
+    G, b : numpy.ndarray
+        The scored rows' Gram matrices and ``X^T y``, shapes (K, n, n) and (K, n).
 
     Returns
     -------
-    ndarray, shape (K,)
+    numpy.ndarray
+        The squared error on each fold, shape (K,).
 
     Examples
     --------

@@ -64,23 +64,17 @@ STATIONARY_DELAYS = (0.04, 0.05, 0.06, 0.07, 0.08)  # s
 #: regressor would take more than this: a 30-minute 100 Hz record's takes 260 MB; a 1 kHz
 #: record's IRF has 10x the lags.
 DESIGN_BUDGET_BYTES = 400e6
-#: s: structure="cv" is skipped on shorter records (the settings as given, the reason recorded).
-#: Virtual subject, seeds 0-5, worst K(theta) error over the central 80 % of the range: 30-s
-#: records 2.5-28 % with the selection (small structures: IRF 20 ms, intrinsic order 2-3)
-#: against 3.7-6.9 % at the fixed settings; 45-s records 2.2-5.4 % against 2.7-4.9 %;
-#: 60-s records (seeds 0-3, five positions) within 2.5 %, as good or better.
+#: s: structure="cv" is skipped on shorter records (the settings as given, the reason recorded):
+#: there the selection picks structures too small to follow K(theta) (docs/design_notes.md,
+#: "Shortest record for structure selection").
 MIN_SELECTION_S = 45.0
 #: Effects structure="cv" may switch on (``allow_effects``): stress relaxation, on every
 #: record (docs/guide/structure_selection.md, "Effects chosen by cross-validation").
 DEFAULT_ALLOWED_EFFECTS = ("stress_relaxation",)
 #: An allowed effect is kept only if, beyond the one-standard-error rule, it lowers the
-#: cross-validated squared error by at least this fraction. Why: with 5-10 folds a tiny but
-#: consistent gain passes the paired rule (stationary virtual subject without relaxation, seed 0:
-#: +0.002 points of CV VAF, chosen), and an effect costs more than its parameters (an extended
-#: model's K interval is about twice as wide, lpvpc.models.uncertainty; the FMU gets its states). 5 %: on
-#: clean 1 kHz records of the standard and sum-of-exponentials stiffness (seed 3) relaxation was
-#: chosen at 1.5 and 2.2 % (absorbing what the position basis misses), while relaxation
-#: present gave 16-35 % (benchmarks/results/effect_selection.txt).
+#: cross-validated squared error by at least this fraction: with 5-10 folds a tiny but
+#: consistent gain passes the paired rule, and an effect costs more than its parameters (wider
+#: K intervals, the FMU's states). Evidence for 5 %: docs/design_notes.md, "Effects' bar".
 MIN_EFFECT_GAIN = 0.05
 #: Why structure="cv" fits forced effects as given (then only stress relaxation's term is chosen).
 EXTENDED_GIVEN = "extended model (effects)"
@@ -188,7 +182,7 @@ class LPVPCEstimator:
     Hammerstein fit of the reflex nonlinearity by separable least squares, then the
     intervals. By default the structure (IRF half-width, basis orders, reflex delay and the
     optional terms) is chosen by cross-validation over the record's position levels. The
-    fitted model is ``model_`` (:class:`lpvpc.LPVPCModel`). Why each default is what it is,
+    fitted model is ``model_`` (:class:`lpvpc.LPVPCModel <lpvpc.models.model.LPVPCModel>`). Why each default is what it is,
     with the evidence, is in the documentation's design notes.
 
     Parameters
@@ -223,7 +217,7 @@ class LPVPCEstimator:
         Its iteration limit.
     refine : bool, default True
         Refine the MOESP poles by variable projection.
-    effects : tuple of str, default ()
+    effects : tuple of str, default ``()``
         Effects of :data:`lpvpc.models.effects.CATALOG` always included (an extended model);
         the data must carry the signals they need.
     irf_length : float, default 0.040
@@ -234,9 +228,9 @@ class LPVPCEstimator:
     causal_derivatives : {"central5", "central3"}, default "central5"
         Difference stencil of the velocity and acceleration of the causal form (latency 2
         or 1 sample in the default FMU).
-    stationary_delays : tuple of float, default (0.04, 0.05, 0.06, 0.07, 0.08)
+    stationary_delays : tuple of float, optional
         On a stationary trial, the reflex delays (s) among which BIC chooses, with the IRF
-        half-width equal to it (``()``: off).
+        half-width equal to it (``()``: off). Default ``(0.04, 0.05, 0.06, 0.07, 0.08)``.
     high_rate_velocity_basis : {"chebyshev", "legendre", "hinge"}, default "hinge"
         Velocity basis of the reflex nonlinearity on the file's own rate (``high_rate_reflex``).
     high_rate_velocity_order : int, default 8
@@ -261,8 +255,9 @@ class LPVPCEstimator:
     scheduling_extrapolation : {"clip", "linear"}, default "clip"
         Beyond the identified position range the bases are held at the boundary, or
         continued along their tangent.
-    allow_effects : tuple of str, default ("stress_relaxation",)
-        Effects the cross-validation may switch on (``()``: none).
+    allow_effects : tuple of str, optional
+        Effects the cross-validation may switch on (``()``: none). Default
+        ``("stress_relaxation",)``.
     relaxation_times : tuple of float or None, default None
         Stress relaxation's averaging times (s); None: chosen with the effect.
     relaxation_order : int or None, default None
@@ -270,12 +265,12 @@ class LPVPCEstimator:
 
     Attributes
     ----------
-    model_ : lpvpc.LPVPCModel
+    model_ : lpvpc.models.model.LPVPCModel
         The fitted model (after :meth:`fit`).
 
     See Also
     --------
-    lpvpc.identify : the same, as one call returning the model.
+    lpvpc.identification.identify.identify : the same, as one call returning the model.
 
     Examples
     --------
@@ -390,16 +385,45 @@ class LPVPCEstimator:
 
     # ------------------------------------------------------------------------------------
     def fit(self, data) -> "LPVPCEstimator":
-        """Identify the model from :class:`lpvpc.io.PerturbationData` (or any object with
-        ``position``, ``torque``, ``scheduling`` arrays and ``fs``), or from a list of them:
-        several trials fitted jointly (:func:`lpvpc.io.join_trials`).
+        """Identify the model from a record, or from several trials jointly.
 
         With ``high_rate_reflex``, data that keep their file's higher rate (``high_rate``) get
-        the reflex nonlinearity identified on the high-rate velocity; when that fit is not determined (too few
-        stretch velocities for its basis: InsufficientExcitationError) it is identified on
-        the model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`.
-        The physiology warnings are those of the final model (candidate fits warn in their own
-        numbers, which are never shown)."""
+        the reflex nonlinearity identified on the high-rate velocity; when that fit is not
+        determined (too few stretch velocities for its basis) it is identified on the
+        model-rate velocity instead, with an :class:`~lpvpc.errors.LpvpcWarning`. The
+        physiology warnings are those of the final model (candidate fits warn in their own
+        numbers, which are never shown).
+
+        Parameters
+        ----------
+        data : lpvpc.io.PerturbationData or list of lpvpc.io.PerturbationData
+            The record (or any object with ``position``, ``torque``, ``scheduling`` arrays
+            and ``fs``), or a list of them: several trials fitted jointly
+            (:func:`lpvpc.io.join_trials <lpvpc.io.identification_data.join_trials>`).
+
+        Returns
+        -------
+        LPVPCEstimator
+            This estimator, fitted: the model is ``model_``.
+
+        Raises
+        ------
+        lpvpc.errors.DataError
+            The record is unusable (or the settings contradict each other).
+        lpvpc.errors.InsufficientExcitationError
+            The record cannot determine the requested parameters.
+        lpvpc.errors.IdentificationError
+            The algorithm failed on data that passed the checks.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> est = LPVPCEstimator(intrinsic_order=3).fit(pair_trials(sim.pt, sim.ut))
+        >>> est.model_.intrinsic_basis.order, bool(est.model_.fit["vaf"] > 90.0)
+        (3, True)
+        """
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             self._fit_from(data, WarmStart(), stacklevel=3)
@@ -628,8 +652,7 @@ class LPVPCEstimator:
             chosen["effects"] = tuple(effects_cv["chosen"])
             chosen.update(effects_cv["settings"])  # e.g. the relaxation's times and order
             if self.state_order is None and "state_order" not in fixed:  # BIC again, with the effects' columns:
-                # the order chosen without them can hold a slow pole that took the relaxation (virtual
-                # subject seed 1, 100 Hz: order 3, K +19 %; BIC with them: order 2, K within 3 %)
+                # the order chosen without them can hold a slow pole that took the relaxation
                 chosen["state_order"] = None
         est = LPVPCEstimator(**{**base, **chosen})
         warm = WarmStart(subspace=first.subspace_)
@@ -644,8 +667,7 @@ class LPVPCEstimator:
         if path is not None and path.chosen["high_rate_reflex"]:
             est = self._fit_high_rate_chosen(data, est, path, first, order)
         else:  # effects chosen: joined in the subspace step, as in the fit whose dynamics the CV held
-            # (fitted both ways, the fit after the reflex was kept on seed 10 of the virtual subject
-            # that relaxes, 100 Hz: in-sample VAF alike, its reflex had taken the relaxing torque, K -16 %)
+            # (fitted after the reflex instead, the reflex takes the relaxing torque: design notes)
             est._fit(data, warm, late=False if "effects" in chosen else None)
         est.model_.settings["state_order"] = self.state_order  # chosen (BIC, then CV)
         est.model_.fit["singular_values"] = m.fit["singular_values"]
@@ -681,8 +703,8 @@ class LPVPCEstimator:
         one design: column subsets), the one-standard-error rule and ``MIN_EFFECT_GAIN``. The
         reflex dynamics held come from a fit of that structure with the effects' columns in
         the subspace step's intrinsic regressor: held from the first fit, a slow reflex pole
-        had taken part of the relaxation and the effect looked useless (virtual subject seed 100:
-        CV gain +0.19 points, not chosen; +0.95 with these dynamics, chosen). Scored after the
+        had taken part of the relaxation and the effect looked useless (docs/design_notes.md,
+        "Effects in the structure selection"). Scored after the
         structure, not inside its search, so a record without the effect gets exactly the model
         it got before effects were allowed. The effects' fit uses ``terms`` (the first look's
         best variants; the catalog's when None); when the best variant under its dynamics is
@@ -696,16 +718,14 @@ class LPVPCEstimator:
         t = time.perf_counter()
         p, y, rho = (np.asarray(x, dtype=float) for x in (data.position, data.torque, data.scheduling))
         # the effects' terms of the fit whose dynamics are held: first the first look's best (else the
-        # catalog's). The catalog's three times there left the effect off on a record that relaxes
-        # (virtual subject seed 18, 100 Hz: first look 9.4 %, then 1.1 % with those dynamics)
+        # catalog's, which can leave the effect off on a record that relaxes)
         terms, tried = dict(terms or {}), []
         while True:
             fit = LPVPCEstimator(**{**fit_settings, "effects": tuple(offered), **terms})
             if terms and self.state_order is None:  # BIC's order with the chosen terms (_fit_selected)
                 fit.state_order = None
             # its own subspace step: started from the first fit's (no effect columns) the pole refinement
-            # stayed near poles that take the relaxation (seed 102: CV VAF with the effect 93.80 %, without
-            # 95.25; from its own, 97.19 and 96.13); bare: the model is not kept
+            # stays near poles that take the relaxation; bare: the model is not kept
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -728,9 +748,7 @@ class LPVPCEstimator:
             tried.append(terms)
             # The best term under these dynamics (the chosen one, else the best-scoring), if not
             # the fitted one (another relaxation time), is scored again under dynamics fitted with
-            # it: the held dynamics had taken part of the other term's misfit (relaxing virtual
-            # subject, 100 Hz, seed 5: the first look's 3 s, then off; the catalog's term there
-            # left seed 18 off)
+            # it: the held dynamics had taken part of the other term's misfit
             best_terms = {}
             for n, by_value in cands.items():
                 v = pick[effect_key(n)] or max(by_value, key=lambda u: search.score({**pick, effect_key(n): u}).cv_vaf)
@@ -1346,7 +1364,7 @@ class LPVPCEstimator:
         hf = fit_hammerstein(blocks_c, tq_r, orientation, tol=self.tol, max_iter=self.max_iter)
         # On the high-rate path, then intrinsic and rank-1 reflex together: the projection's
         # unstructured reflex space can take up elastic torque there (lpvpc.models.reflex.refit_jointly;
-        # at the model rate it cost the lab pilot's leave-one-level-out 0.15 points, so not there)
+        # at the model rate it predicted left-out levels worse, so not there)
         if joint:
             theta_i, hf = refit_jointly(blocks_c, Psi_i_c, y_c, hf, orientation)
         resid = y_c - Psi_i_c @ theta_i - sum(c * (blk @ hf.omega) for c, blk in zip(np.append(hf.b, hf.d), blocks_c))
@@ -1556,8 +1574,8 @@ def check_physiology(model, stacklevel: int = 3, sign_seen: bool = False) -> Non
 
     Also told, each as one PhysiologyWarning: a negative viscosity B(rho) where K is
     positive; a relaxed stiffness (stress relaxation) above the short-range one or below
-    zero; a time base that is probably wrong (:func:`_check_time_base`); a reflex gain whose
-    interval lies below zero (:func:`_check_reflex_gain`).
+    zero; a time base that is probably wrong (``_check_time_base``); a reflex gain whose
+    interval lies below zero (``_check_reflex_gain``).
 
     A torque recorded with the opposite sign gives a negative stiffness, and a warning:
 
@@ -1604,7 +1622,7 @@ def check_physiology(model, stacklevel: int = 3, sign_seen: bool = False) -> Non
         f"identify again with --torque-sign {flip} (torque_sign={flip})", PhysiologyWarning, stacklevel=stacklevel)
 
 
-#: The sign warning's words (what :func:`_physiology_of_final` looks for in a candidate fit's warnings).
+#: The sign warning's words (what ``_physiology_of_final`` looks for in a candidate fit's warnings).
 SIGN_WORDS = "the torque sign convention is probably reversed"
 
 
@@ -1818,7 +1836,7 @@ def with_base_model_activation(data, settings):
     """``data`` ready for identifying a model with ``settings`` (estimator settings): when its
     effects read the background activation, the estimates computed with the reflex drive of
     a base model (the same settings without effects; one extra fit) and stored
-    (:func:`with_model_activation`), as predict, diagnose and improve estimate them.
+    (:func:`~lpvpc.models.effects.with_model_activation`), as predict, diagnose and improve estimate them.
     Without it the extended model was fitted on the velocity-hinge estimate and
     evaluated on the drive's. Unchanged otherwise (no such effect, no EMG, estimates stored).
 
@@ -1841,6 +1859,46 @@ def with_base_model_activation(data, settings):
 
 def identify(data, **settings) -> LPVPCModel:
     """Identify an LPV-PC model with the given estimator settings; returns the model.
+
+    The same fit as ``lpvpc identify``: ``LPVPCEstimator(**settings).fit(data).model_``, with
+    the background activation estimated once from the EMG when the data carry it and an
+    effect reads it.
+
+    Parameters
+    ----------
+    data : lpvpc.io.PerturbationData or list of lpvpc.io.PerturbationData
+        The record (:func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>`),
+        or several trials fitted jointly.
+    **settings
+        Estimator settings, as :class:`LPVPCEstimator` takes them (its defaults where not
+        given).
+
+    Returns
+    -------
+    lpvpc.models.model.LPVPCModel
+        The identified model; it carries the record's conventions (units, torque sign,
+        channel skew), which every door applies to the records it reads later.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        The record is unusable (NaN, a rate that is not the model's, too short).
+    lpvpc.errors.InsufficientExcitationError
+        The record cannot determine the requested parameters (too little movement or
+        too few samples for the bases and lags asked for).
+    lpvpc.errors.IdentificationError
+        The algorithm failed on data that passed the checks.
+    TypeError
+        A setting the estimator does not have.
+
+    See Also
+    --------
+    LPVPCEstimator : the same, as a scikit-learn style estimator.
+
+    Examples
+    --------
+    Thirty seconds of the virtual subject at 100 Hz; the stiffness found against the
+    subject's own:
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.simulation.simulate import SubjectParams, simulate_pair

@@ -19,10 +19,9 @@ from ..io.identification_data import SINC_HALF_WIDTH, delayed
 __all__ = ["ChannelSkew", "scan_channel_skew", "skew_from_dict", "MIN_RESIDUAL_REDUCTION", "CANDIDATES"]
 
 # A skew is undone only when lining the channels up removes at least this share of the
-# in-sample residual variance (and the best candidate is inside the grid: ChannelSkew.interior).
-# Measured (benchmarks/results/real_pilot.txt), refitting per candidate / identify's scan: the
-# virtual subject without skew 0.0-0.5 % / 0.2-0.5 % (its estimate then 0.2-0.4 ms: noise, not a
-# skew), with its torque 1 ms late 5.7-6.1 % / 3.9-4.8 %, the lab's pilot trial 4.9 % / 3.4 %.
+# in-sample residual variance (and the best candidate is inside the grid: ChannelSkew.interior):
+# above what records without a skew show, below what a 1-ms skew shows (docs/design_notes.md,
+# "Channel skew").
 MIN_RESIDUAL_REDUCTION = 0.02
 #: Candidate skews (s): -2..+3 ms in 0.5 ms steps (a torque channel late is the usual case).
 CANDIDATES = np.arange(-2.0, 3.01, 0.5) * 1e-3
@@ -31,7 +30,7 @@ CANDIDATES = np.arange(-2.0, 3.01, 0.5) * 1e-3
 @dataclass
 class ChannelSkew:
     """The relative delay of the torque channel behind the position channel (s; negative: the
-    torque leads) that :func:`estimate_channel_skew` found: ``delay`` (the parabola's peak
+    torque leads) that :func:`~lpvpc.identification.channel_skew.estimate_channel_skew` found: ``delay`` (the parabola's peak
     through the best grid point and its neighbours), ``candidates`` (s) and ``scores`` (the
     two-sided model's in-sample VAF, %, on the data aligned by each candidate).
 
@@ -99,7 +98,7 @@ def _candidates(candidates) -> np.ndarray:
 def edge_samples(settings: dict, fs: float) -> int:
     """Samples at each trial's start and end that a skew estimate leaves out for a structure
     ``settings`` (its ``irf_length`` and ``reflex_delay``, s) at ``fs`` Hz: the IRF's half-width,
-    the reflex delay and the fractional-delay filter's reach (:func:`delayed`).
+    the reflex delay and the fractional-delay filter's reach (:func:`~lpvpc.io.identification_data.delayed`).
 
     >>> edge_samples({"irf_length": 0.04, "reflex_delay": 0.04}, 100.0)
     25
@@ -113,7 +112,7 @@ def scan_channel_skew(model, data, candidates=None) -> ChannelSkew:
     (its bases' orders, IRF half-width, reflex delay and curvature term, the reflex on the
     model-rate velocity, no effects) with its reflex dynamics held, fitted to the torque
     advanced by the candidate (the same alignment as the position delayed by it); the estimate
-    is the parabola's peak as in :func:`estimate_channel_skew`. One regressor serves every
+    is the parabola's peak as in :func:`~lpvpc.identification.channel_skew.estimate_channel_skew`. One regressor serves every
     candidate (:func:`lpvpc.identification.selection.in_sample_vaf`), so the scan costs about one least-squares
     solve. Each trial's first and last samples are left out (see the comment below). The
     dynamics are not refitted per candidate: the estimate reads 0.13-0.29 ms later than the

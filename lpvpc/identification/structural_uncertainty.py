@@ -19,7 +19,7 @@ holds richer structures that follow the curve more closely. So:
   model's) count: they are the other descriptions of K(theta) the data support. A structure
   that changes the reflex pathway moves K through the intrinsic/reflex split instead, which
   the joint covariance of the noise intervals already carries; counted as structure it
-  over-covered (100 % on the sum-of-exponentials K from 1 kHz files, 20 of 20 seeds);
+  over-covered (docs/design_notes.md, "Structural uncertainty");
 - each of them and the model's own structure are refitted to the whole record in that same
   linear problem (the dynamics held: a small solve on the summed per-fold normal
   equations, no new regressor);
@@ -36,46 +36,34 @@ holds richer structures that follow the curve more closely. So:
 
 The reflex gain has a term of its own (``reflex``; :func:`lpvpc.models.uncertainty.reflex_interval`
 adds it to the gain's bias bound), stored only when the model's structure was chosen by
-identify's cross-validation. Measured cause of the gain's under-coverage at the defaults
-(76.7 % on the sum-of-exponentials family from 1 kHz files): the one-standard-error rule
-picks the simplest reflex structure within noise of the best, and on the seeds that missed it
-was a constant or linear reflex scheduling basis that cannot follow the gain's exponential
-trend (seed 8: reflex order 0, gain errors +86 % to -42 % across the range). The alternatives
+identify's cross-validation. Why: the one-standard-error rule picks the simplest reflex
+structure within noise of the best, which can be a constant or linear reflex scheduling basis
+that cannot follow an exponential gain trend (measured under-coverage: docs/design_notes.md,
+"Structural uncertainty"). The alternatives
 the selection could not exclude are the reflex scheduling basis one order higher and the
 near-equivalent structures that differ from the model's in :data:`REFLEX_SETTINGS` only; each
 is refitted like the model's own structure, and the largest shift of the rectifier's gain is
-the term. (Intrinsic-only structures moved the gain by 0-2 %: the intrinsic misfit is not
-what leaks. Every near-equivalent structure instead: 93.3 % with a median half-width of
-30.8 % of the gain, against 91.1 % and 26.8 % for the set kept, and 99.4-100 % on the
-explicit 1 kHz path.) A structure the caller fixed, and the explicit
+the term (intrinsic-only structures hardly move the gain). A structure the caller fixed, and the explicit
 1 kHz path (selection skipped), get no reflex term.
 
 On the explicit 1 kHz path (``high_rate_reflex=True`` given: the selection never compared the
 reflex velocity paths) the model-rate path is one more structure the data were not asked to
 exclude: ``path`` stores the model's IRF minus the model structure's refit with the
-model-rate reflex columns (the search's), counted for :data:`PATH_QUANTITIES` (viscosity).
-Choosing on seeds 0-19 of 1 kHz files: viscosity coverage 92.8 -> 95.6 % (standard), 91.7 ->
-96.1 % (sum of exponentials), check seeds 20-39 of the standard family 88.3 -> 93.9 %
-(median half-width 17.4 -> 19.8 % of the estimate).
+model-rate reflex columns (the search's), counted for :data:`~lpvpc.models.modelfile.PATH_QUANTITIES` (viscosity).
 
 An extended model (an allowed effect chosen by the selection, e.g. stress relaxation) counts
 more structures:
 
 - the effect's other variants the selection could not exclude (another relaxation time:
-  :func:`effect_variant_shifts`, refitted in identify's effect search), and a single time's
+  ``effect_variant_shifts``, refitted in identify's effect search), and a single time's
   neighbours on the grid whatever their score: K trades with the relaxation's time, which the
   data hardly determine;
 - its own structure without the effects (the search's refit of it, the effects' columns
   absent, minus the model's IRF), when the effect won narrowly (less than
-  :data:`ESTABLISHED_EFFECT_GAIN` of the CV error). The selection compared the effects on and
-  off and the effect can win by a margin just above its bar (clean sum-of-exponentials
-  records, seeds 8 and 16 of 1 kHz files: CV gain 6.5 and 8.3 % against the 5 % bar); the
-  effects' slow columns then trade with the IRF (K errors -28..+16 %, viscosity's position
-  trend +-0.4 N m s/rad on seed 8). Without that structure the extended models' K and
-  viscosity intervals covered 33-44 % there, with it 67-100 % (sum of exponentials at the
-  defaults from 1 kHz files, seeds 0-19, pooled: K 90.0 -> 94.4 %, median half-width 9.6 ->
-  9.9 % of K; viscosity 90.0 -> 96.7 %; benchmarks/results/coverage_families.txt). On a
-  subject that relaxes (gain 16-35 %) it spanned short-range and relaxed stiffness alike.
+  ``ESTABLISHED_EFFECT_GAIN`` of the CV error). The selection compared the effects on and
+  off and the effect can win by a margin just above its bar; the effects' slow columns then
+  trade with the IRF, and without that structure the extended models' K and viscosity
+  intervals under-cover (docs/design_notes.md, "Structural uncertainty").
 
 identify adds it whenever its selection ran (reusing that search: only the refits);
 :func:`add_structural_uncertainty` adds it to any other model with intervals.
@@ -114,10 +102,9 @@ METHOD = ("spread of the IRF's quantities over the structures within one standar
           "each refitted to the record with the reflex dynamics held")
 #: An effect chosen by identify's selection that lowered the CV squared error by at least this
 #: fraction (twice identify's bar, MIN_EFFECT_GAIN) is established: the structure without it no
-#: longer counts as near-equivalent. Below it, the effect won narrowly (clean sum-of-exponentials
-#: records, 1 kHz, seeds 8 and 16: 6.5 and 8.3 %) and its columns trade with the IRF; a subject that
-#: relaxes gave 16-35 % (benchmarks/results/effect_selection.txt), where counting the structure
-#: without it made K's interval span short-range and relaxed stiffness alike (half-width 31-33 %).
+#: longer counts as near-equivalent. Below it the effect won narrowly and its columns trade with
+#: the IRF; above it the structure without it would make K's interval span short-range and
+#: relaxed stiffness alike (docs/design_notes.md, "Structural uncertainty").
 ESTABLISHED_EFFECT_GAIN = 0.10
 #: The search's settings of the intrinsic pathway: the near-equivalent structures that count
 #: differ from the model's in these only (the reflex order, velocity order, delay and
@@ -275,7 +262,7 @@ def structural_term(model, data, search=None, selection=None, effects=None) -> d
     run on these data with these dynamics (identify's), else one is run here. ``effects``:
     of a model whose effects identify's selection chose, {"gain": the fraction by which they
     lowered the CV squared error, "variants": [(settings, CV VAF, IRF shift)] of
-    :func:`effect_variant_shifts`}.
+    ``effect_variant_shifts``}.
 
     >>> import warnings
     >>> from lpvpc.io import pair_trials

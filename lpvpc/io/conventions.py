@@ -23,9 +23,8 @@ MS_MAX_RATE = 50.0
 MS_MIN_RATE = 50.0
 # PT and UT given the wrong way round: the perturbation is then in the "UT" trial. The power
 # of each position about its SWAP_WINDOW-s moving average (what is faster than the slow
-# movement) tells: correct pairs of the virtual subject, UT/PT 0.0005-0.14 (24 pairs: seeds 0-5,
-# both trajectories, both perturbation designs, 60 s at 1 kHz; 100 Hz files alike); swapped,
-# the inverse, 7 or more. Refused above SWAP_RATIO.
+# movement) tells: correct pairs give a UT/PT ratio far below 1, swapped ones far above
+# (docs/design_notes.md, "PT and UT swapped"). Refused above SWAP_RATIO.
 SWAP_WINDOW = 0.1
 SWAP_RATIO = 2.0
 

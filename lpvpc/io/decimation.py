@@ -55,8 +55,29 @@ def _stage_factors(q: int) -> list[int]:
 def decimation_factor(fs: float, target_fs, source=None) -> int:
     """Integer factor from ``fs`` to ``target_fs`` (Hz); 1 if ``target_fs`` is None.
 
-    Raises DataError if ``fs`` is below ``target_fs`` or not an integer multiple of it.
+    Parameters
+    ----------
+    fs : float
+        The file's rate (Hz).
+    target_fs : float or None
+        The model rate (Hz); None: no decimation.
+    source : str, optional
+        Names the file in the message.
 
+    Returns
+    -------
+    int
+        The decimation factor q = fs / target_fs.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        ``fs`` below ``target_fs`` or not an integer multiple of it.
+    ValueError
+        A ``target_fs`` that is not positive.
+
+    Examples
+    --------
     >>> decimation_factor(1000.0, 100.0), decimation_factor(1000.0, None)  # Hz
     (10, 1)
     >>> decimation_factor(1000.0, 300.0)
@@ -95,6 +116,20 @@ def decimate_signal(x, q: int) -> np.ndarray:
     Same polyphase zero-phase path as ``scipy.signal.decimate(x, q, ftype="fir",
     zero_phase=True)`` (``resample_poly``), with a sharper, flatter filter.
 
+    Parameters
+    ----------
+    x : array_like
+        The signal.
+    q : int
+        The decimation factor.
+
+    Returns
+    -------
+    numpy.ndarray
+        The decimated signal, ``ceil(len(x) / q)`` samples.
+
+    Examples
+    --------
     A 1 Hz sine sampled at 1 kHz keeps its shape at 100 Hz; a 300 Hz one is removed, not aliased:
 
     >>> t = np.arange(5000) / 1000.0  # s
@@ -122,6 +157,20 @@ def multiple_rate(fs: float, target_fs) -> float:
     itself when it is an integer multiple of ``target_fs`` (or ``target_fs`` is None, or
     above ``fs``: decimation_factor says so), else the largest multiple below it.
 
+    Parameters
+    ----------
+    fs : float
+        The file's rate (Hz).
+    target_fs : float or None
+        The model rate (Hz).
+
+    Returns
+    -------
+    float
+        The rate (Hz) to resample to before decimating.
+
+    Examples
+    --------
     >>> multiple_rate(1000.0, 100.0), multiple_rate(1024.0, 100.0), multiple_rate(250.0, 100.0)
     (1000.0, 1000.0, 200.0)
     """
@@ -140,6 +189,25 @@ def resample_trial(trial: Trial, fs_new: float) -> Trial:
     rate is not a multiple of the model rate (1024 Hz -> 1000 Hz: 125/128; 250 Hz -> 200 Hz:
     4/5). Time restarts from the first stamp at the new step.
 
+    Parameters
+    ----------
+    trial : lpvpc.io.trial.Trial
+        The trial.
+    fs_new : float
+        The new rate (Hz).
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        The resampled trial.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Fewer than 2 samples after resampling.
+
+    Examples
+    --------
     A 3 Hz sine at 1024 Hz keeps its shape at 1000 Hz:
 
     >>> t = np.arange(2048) / 1024.0
@@ -178,6 +246,20 @@ def to_multiple_rate(trial: Trial, target_fs) -> Trial:
     the largest multiple below (:func:`multiple_rate`, :func:`resample_trial`): what every
     reader does before decimating (identification, validation, the whole-joint fit).
 
+    Parameters
+    ----------
+    trial : lpvpc.io.trial.Trial
+        The trial.
+    target_fs : float or None
+        The model rate (Hz).
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        ``trial``, or the resampled trial.
+
+    Examples
+    --------
     >>> t, u = np.arange(1024) / 1024.0, np.arange(1000) / 1000.0  # 1 s at 1024 and at 1000 Hz
     >>> at_1024, at_1000 = Trial(t, np.sin(t), np.cos(t)), Trial(u, np.sin(u), np.cos(u))
     >>> to_multiple_rate(at_1024, 100.0).fs, to_multiple_rate(at_1000, 100.0) is at_1000
@@ -193,6 +275,23 @@ def decimate_trial(trial: Trial, target_fs) -> Trial:
     ``target_fs`` None or equal to the trial's rate returns an unchanged copy. The trial's
     rate must be an integer multiple of ``target_fs`` (DataError otherwise); time keeps
     every q-th stamp, so output sample k is aligned with input sample k*q.
+
+    Parameters
+    ----------
+    trial : lpvpc.io.trial.Trial
+        The trial.
+    target_fs : float or None
+        The model rate (Hz).
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        The decimated trial.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        A rate that is not an integer multiple of ``target_fs``.
     """
     q = decimation_factor(trial.fs, target_fs, source=trial.name or None)
     n_out = -(-len(trial.time) // q)

@@ -121,6 +121,17 @@ class HighRate:
     rate when trials are joined. Memory: two float64 arrays at the file's rate (16 bytes
     per sample: 1.9 MB for 2 minutes at 1 kHz).
 
+    Parameters
+    ----------
+    position, scheduling : numpy.ndarray
+        The perturbation position and the scheduling variable (rad) at ``fs``.
+    fs : float
+        The file's rate (Hz).
+    segments : tuple, default ``()``
+        The joined trials' ``(start, stop)`` bounds at this rate.
+
+    Examples
+    --------
     >>> from lpvpc.simulation.simulate import simulate_pair
     >>> sim = simulate_pair("multilevel", seed=0, duration=2.0)  # 1 kHz trials
     >>> data = pair_trials(sim.pt, sim.ut)  # decimated to 100 Hz, the 1 kHz signals kept
@@ -152,18 +163,34 @@ class HighRate:
 
 @dataclass
 class PerturbationData:
-    """Identification data: perturbation position ``position`` (rad), perturbation torque
-    ``torque`` (N m), scheduling variable ``scheduling`` (rho, rad), sampling rate ``fs`` (Hz).
+    """Identification data: one record (or several joined) at the model rate.
 
-    ``extra`` holds other channels aligned with them (``time`` (s), ``emg``,
-    ``ut_velocity`` (rad/s) ...); ``source`` says where the data came from; ``meta`` records
-    the loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
-    ``decimation``) so a model can report them. ``segments`` lists the ``(start, stop)``
-    sample ranges of the trials when several are joined (:func:`join_trials`; empty: one
-    trial); identification builds its regressors trial by trial (:mod:`lpvpc.io.segments`).
-    ``high_rate`` (:class:`HighRate` or None) keeps the perturbation position and the
-    scheduling at the file's rate when it was decimated (the reflex nonlinearity is
-    identified there).
+    Parameters
+    ----------
+    position : numpy.ndarray
+        Perturbation position (rad).
+    torque : numpy.ndarray
+        Perturbation torque (N m).
+    scheduling : numpy.ndarray
+        Scheduling variable (rho, rad).
+    fs : float
+        Sampling rate (Hz).
+    extra : dict, optional
+        Other channels aligned with them (``time`` (s), ``emg``, ``ut_velocity`` (rad/s) ...).
+    source : str, default ""
+        Where the data came from.
+    meta : dict, optional
+        The loading settings (``position_unit``, ``torque_sign``, ``fs_original``,
+        ``decimation``) so a model can report them.
+    segments : tuple, default ``()``
+        The ``(start, stop)`` sample ranges of the trials when several are joined
+        (:func:`join_trials`; empty: one trial); identification builds its regressors trial
+        by trial (:mod:`lpvpc.io.segments`).
+    high_rate : HighRate, optional
+        The perturbation position and the scheduling at the file's rate when it was
+        decimated (the reflex nonlinearity is identified there).
+    origin : RecordSource, optional
+        How the record was loaded, so that a model can load it again with its conventions.
     """
 
     position: np.ndarray
@@ -342,15 +369,33 @@ def pair_trials(pt: Trial, ut: Trial, *, target_fs=100.0, channel_skew: float = 
     """Perturbation data from a perturbed (PT) and an unperturbed (UT) trial.
 
     position = PT position - UT position (rad), torque = PT torque - UT torque (N m),
-    scheduling = UT position (rad), all decimated with one anti-alias FIR filter to
-    ``target_fs`` (Hz; None keeps the rate). Extra channels: ``time`` (s, from PT),
-    ``ut_velocity`` (rad/s, gradient of the decimated UT position), ``emg`` from PT and
-    ``emg_ut`` from UT if present (decimated as given with the same filter: rectify/envelope
-    raw EMG first). ``channel_skew`` (s): the torque channels' lag behind the position channels,
-    undone at the file's rate before decimation (the position and scheduling delayed by it;
-    recorded as ``meta["channel_skew_s"]``; docs/guide/data.md).
-    Raises DataError (problems of both trials, different lengths or rates) or
-    InsufficientExcitationError (no perturbation).
+    scheduling = UT position (rad), all decimated with one anti-alias FIR filter. Extra
+    channels: ``time`` (s, from PT), ``ut_velocity`` (rad/s, gradient of the decimated UT
+    position), ``emg`` from PT and ``emg_ut`` from UT if present (decimated as given with the
+    same filter: rectify/envelope raw EMG first).
+
+    Parameters
+    ----------
+    pt, ut : lpvpc.io.trial.Trial
+        The perturbed and the unperturbed trial, same rate and length.
+    target_fs : float or None, default 100.0
+        The model rate (Hz); None keeps the trials' rate.
+    channel_skew : float, default 0.0
+        The torque channels' lag behind the position channels (s), undone at the file's
+        rate before decimation (the position and scheduling delayed by it; recorded as
+        ``meta["channel_skew_s"]``; docs/guide/data.md).
+
+    Returns
+    -------
+    PerturbationData
+        The record at ``target_fs``.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Problems of either trial, different lengths or rates.
+    lpvpc.errors.InsufficientExcitationError
+        No perturbation (PT and UT positions the same).
     """
     source = f"PT={pt.name or '?'}, UT={ut.name or '?'}"
     problems = [f"PT: {p}" for p in trial_problems(pt)] + [f"UT: {p}" for p in trial_problems(ut)]
@@ -405,10 +450,27 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
 
     Required columns: ``time`` (s), ``position`` (perturbation, rad), ``torque``
     (perturbation, N m), ``scheduling`` (rho, rad); optional ``emg`` (of the PT trial) and
-    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`load_trial` and
-    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`load_trial` (the lab's
+    ``emg_ut`` (of the UT trial). Units, sign and decimation as in :func:`~lpvpc.io.readers.load_trial` and
+    :func:`pair_trials`; ``variable`` and ``channels`` as in :func:`~lpvpc.io.readers.load_trial` (the lab's
     pilot file: ``io`` holds ``posPert1``, ``tqPert1``, and ``sv`` the scheduling position:
     found without options). ``channel_skew`` as in :func:`pair_trials`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV or .mat file.
+    position_unit, torque_sign, target_fs, variable, channels, time_unit, channel_skew
+        As in :func:`load_identification_data`.
+
+    Returns
+    -------
+    PerturbationData
+        The record at ``target_fs``.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        An unreadable file, missing columns, or a mistake in units or time base.
     """
     skew = check_channel_skew(channel_skew)
     trial, path = _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit)
@@ -431,7 +493,7 @@ def load_perturbation_file(path, *, position_unit: str = "rad", torque_sign: flo
 
 def _perturbation_file_trial(path, position_unit, torque_sign, variable, channels, time_unit, degrees="warn"):
     """(Trial in SI units at the file's rate with a ``scheduling`` channel, path) of a PT - UT file
-    (``degrees``: as in :func:`load_trial`)."""
+    (``degrees``: as in :func:`~lpvpc.io.readers.load_trial`)."""
     _check_settings(position_unit, torque_sign)
     path, variable = _path_and_variable(path, variable)
     table, path = _read_table(path, REQUIRED_CHANNELS + ("scheduling",), PERTURBATION_EMG, variable=variable,
@@ -450,8 +512,22 @@ def perturbation_file_trials(path, *, position_unit: str = "rad", torque_sign: f
     actuator with each): UT = the scheduling position, PT = the scheduling plus the perturbation
     position with the perturbation torque. The UT torque is not in such a file: the UT trial's
     torque is zero, so :func:`pair_trials` of the two gives back the file's perturbation data.
-    ``degrees`` as in :func:`load_trial`.
+    ``degrees`` as in :func:`~lpvpc.io.readers.load_trial`.
 
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The PT - UT file.
+    position_unit, torque_sign, variable, channels, time_unit, degrees
+        As in :func:`~lpvpc.io.readers.load_trial`.
+
+    Returns
+    -------
+    tuple of lpvpc.io.trial.Trial
+        ``(pt, ut)`` at the file's rate.
+
+    Examples
+    --------
     >>> t = np.arange(2000) / 1000.0
     >>> rng = np.random.default_rng(1)
     >>> pert = 0.03 * np.sign(np.sin(2 * np.pi * 4 * t))
@@ -499,6 +575,22 @@ def stationary_perturbation(pt: Trial, *, target_fs=100.0, channel_skew: float =
     same as the lab's own stationary analysis, which removes it too). ``meta`` records
     ``stationary``, ``operating_point`` (rad) and ``torque_offset`` (N m).
 
+    Parameters
+    ----------
+    pt : lpvpc.io.trial.Trial
+        The perturbed trial.
+    target_fs : float or None, default 100.0
+        The model rate (Hz); None keeps the trial's rate.
+    channel_skew : float, default 0.0
+        The torque channel's lag behind position (s), as in :func:`pair_trials`.
+
+    Returns
+    -------
+    PerturbationData
+        The record, its scheduling constant.
+
+    Examples
+    --------
     >>> t = np.arange(3000) / 1000.0  # a 3 s trial held at -0.1 rad, 1 kHz
     >>> rng = np.random.default_rng(0)
     >>> pos = -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t))
@@ -518,8 +610,25 @@ def stationary_ut(pt: Trial) -> Trial:
     """The UT trial a stationary experiment (one perturbed trial around a fixed operating
     position, no UT recorded) stands for: the PT trial's mean position and mean torque,
     constant (:func:`stationary_perturbation`; the validation's co-simulation drives an
-    actuator with it). DataError for a bad trial or one whose slow mean position moves.
+    actuator with it).
 
+    Parameters
+    ----------
+    pt : lpvpc.io.trial.Trial
+        The perturbed trial.
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        The constant UT trial, on the PT trial's time stamps.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        A bad trial, or one whose slow mean position moves (not stationary).
+
+    Examples
+    --------
     >>> t = np.arange(3000) / 1000.0
     >>> pt = Trial(t, -0.1 + 0.02 * np.sign(np.sin(2 * np.pi * 3 * t)), np.full(3000, 2.0))
     >>> ut = stationary_ut(pt)
@@ -550,6 +659,21 @@ def join_trials(trials) -> PerturbationData:
     (:mod:`lpvpc.io.segments`). The trials must share the sampling rate (that of their files
     too), the position unit and the torque sign (DataError otherwise); extra channels
     (``time``, ``emg``, ...) are kept when every trial has them.
+
+    Parameters
+    ----------
+    trials : list of PerturbationData
+        The trials, in order.
+
+    Returns
+    -------
+    PerturbationData
+        One record with ``segments`` marking each trial.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        No trials, or trials of different rates, position units or torque signs.
     """
     trials = list(trials)
     if not trials:
@@ -630,7 +754,7 @@ class RecordSource:
     inputs : dict
         The loader's ``pt``, ``ut``, ``data``, ``variable``, ``channels`` and ``stationary``.
     settings : dict
-        Every convention of :data:`CONVENTION_DEFAULTS`, as used.
+        Every convention of :data:`~lpvpc.io.identification_data.CONVENTION_DEFAULTS`, as used.
     given : frozenset
         The conventions the caller gave explicitly (the others took their defaults).
 
@@ -668,31 +792,68 @@ def load_identification_data(pt=None, ut=None, data=None, *, position_unit: str 
                              torque_sign: float | None = None, target_fs=DEFAULT_RATE,
                              variable=None, channels=None, stationary: bool = False, time_unit: str | None = None,
                              channel_skew=None) -> PerturbationData:
-    """The one entry point: either ``pt`` and ``ut`` (paths or Trials) or ``data`` (a path to
-    a perturbation file, or a PerturbationData returned as is).
+    """Read a record for identification or prediction: the one entry point.
 
-    ``position_unit`` ("rad", the default, or "deg") and ``torque_sign`` (+1, the default, or
-    -1) describe the inputs (applied to Trials too);
-    ``target_fs`` (Hz, None keeps the rate); ``variable`` and ``channels`` choose within
-    .mat files (:func:`load_trial`; a path ``"file.mat:NAME"`` names its own variable).
-    Several trials: lists for ``pt`` and ``ut`` (paired in order) or for ``data``, joined by
-    :func:`join_trials` for one joint identification. ``stationary=True``: ``pt`` alone, a
-    perturbed trial (or a list) around a fixed operating position recorded without UT
-    (:func:`stationary_perturbation`). Wrong combinations raise DataError.
+    The mistakes that would give a wrong model are refused (DataError naming the fix):
+    angles that look like degrees read as rad, a time column that looks like milliseconds
+    read as s, PT and UT swapped (the perturbation in the UT trial). The data remember how
+    they were loaded (``data.origin``, :class:`RecordSource`): a model given them loads them
+    again with its own conventions where these were not given here
+    (:meth:`LPVPCModel.conform <lpvpc.models.model.LPVPCModel.conform>`), and refuses those
+    given otherwise.
 
-    ``time_unit`` ("s" or "ms") is the unit of the time columns. The mistakes that would
-    give a wrong model are refused (DataError naming the fix): angles that look like
-    degrees read as rad, a time column that looks like milliseconds read as s, PT and UT
-    swapped (the perturbation in the UT trial).
+    Parameters
+    ----------
+    pt, ut : str, pathlib.Path, lpvpc.io.trial.Trial or list, optional
+        The perturbed and the unperturbed trial (CSV or .mat paths, or Trials); lists are
+        paired in order and joined by :func:`join_trials` for one joint identification.
+        Give either both, or ``data`` alone.
+    data : str, pathlib.Path, PerturbationData or list, optional
+        A perturbation file (time, position, scheduling, torque), or a PerturbationData,
+        returned as is (align it when loading it).
+    position_unit : {"rad", "deg"}, optional
+        The unit of the position columns (applied to Trials too); default "rad".
+    torque_sign : {1, -1}, optional
+        The sign that turns the files' torque into lpvpc's (dorsiflexion positive);
+        default +1.
+    target_fs : float or None, default 100.0
+        The model rate (Hz) the record is decimated to; None keeps the file's rate.
+    variable, channels : optional
+        Which variable and channels of a .mat file (:func:`~lpvpc.io.readers.load_trial`;
+        a path ``"file.mat:NAME"`` names its own variable).
+    stationary : bool, default False
+        ``pt`` alone: a perturbed trial (or a list) around a fixed operating position
+        recorded without UT (:func:`stationary_perturbation`).
+    time_unit : {"s", "ms"}, optional
+        The unit of the time columns; default "s".
+    channel_skew : float, optional
+        The torque channel's lag behind the position channel (s), a measurement artefact
+        undone at the file's rate before decimation (:func:`pair_trials`); to choose it from
+        the data, :func:`lpvpc.identification.channel_skew.load_aligned`. Default 0.
 
-    ``channel_skew`` (s): the torque channel's lag behind the position channel, a measurement
-    artefact undone at the file's rate before decimation (:func:`pair_trials`); to choose it
-    from the data, :func:`lpvpc.identification.channel_skew.load_aligned`. A PerturbationData passed as
-    ``data`` is returned as is (align it when loading it).
+    Returns
+    -------
+    PerturbationData
+        Position, scheduling and perturbation torque at ``target_fs`` (SI units), with
+        ``meta`` and ``origin`` saying how they were read.
 
-    The data remember how they were loaded (``data.origin``, :class:`RecordSource`): a
-    model given them loads them again with its own conventions where these were not given
-    here (:meth:`lpvpc.LPVPCModel.conform`), and refuses those given otherwise.
+    Raises
+    ------
+    lpvpc.errors.DataError
+        A wrong combination of arguments, an unreadable file, or a mistake in units, time
+        base, sign or trial order (one message naming each problem and its fix).
+
+    Examples
+    --------
+    The virtual subject's files, written at 1 kHz and read at the default 100 Hz:
+
+    >>> import tempfile
+    >>> from lpvpc.simulation.simulate import write_dataset
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     files = write_dataset(folder, duration=20.0)
+    ...     data = load_identification_data(pt=files["ident_PT"], ut=files["ident_UT"])
+    >>> data.fs, len(data.torque), data.meta["position_unit"]
+    (100.0, 2000, 'rad')
     """
     settings = {"position_unit": position_unit, "torque_sign": torque_sign, "time_unit": time_unit,
                 "channel_skew": channel_skew, "target_fs": target_fs}
@@ -797,8 +958,8 @@ def hold_out(data: PerturbationData, heldout) -> tuple:
 
     Raises
     ------
-    lpvpc.DataError
-        A fraction or range that leaves either part shorter than :data:`MIN_PART_S`.
+    lpvpc.errors.DataError
+        A fraction or range that leaves either part shorter than :data:`~lpvpc.io.identification_data.MIN_PART_S`.
 
     Examples
     --------
@@ -851,7 +1012,15 @@ def _refuse_milliseconds(data: PerturbationData, time_unit: str) -> None:
 
 def write_perturbation_csv(data: PerturbationData, path) -> None:
     """Write ``time,position,torque,scheduling[,emg][,emg_ut]`` (s, rad, N m, rad) so
-    that :func:`load_perturbation_file` reads it back exactly (17 significant digits)."""
+    that :func:`load_perturbation_file` reads it back exactly (17 significant digits).
+
+    Parameters
+    ----------
+    data : PerturbationData
+        The record to write.
+    path : str or pathlib.Path
+        The CSV file to write.
+    """
     names = ["time", "position", "torque", "scheduling"]
     cols = [data.time, data.position, data.torque, data.scheduling]
     for c in PERTURBATION_EMG:

@@ -111,9 +111,9 @@ class Record:
 
 
 # --------------------------------------------------------------------------- declared sizes
-MAX_VARIABLE_BYTES = 1 << 30  # 1 GiB per variable (a 30-minute 1 kHz record of 6 channels is 86 MB)
+MAX_VARIABLE_BYTES = 1 << 30  #: 1 GiB per variable (a 30-minute 1 kHz record of 6 channels is 86 MB)
 LIMIT_ENV = "LPVPC_MAX_VARIABLE_BYTES"  # environment variable that sets another limit (bytes)
-SUBSYSTEM = "(class object data)"  # where MATLAB keeps classdef objects' contents (v5 and v7.3)
+SUBSYSTEM = "(class object data)"  #: where MATLAB keeps classdef objects' contents (v5 and v7.3)
 
 
 def max_variable_bytes() -> int:
@@ -717,6 +717,18 @@ def split_variable(path) -> tuple[Path, str | None]:
     """``"file.mat:NAME"`` -> (``file.mat``, ``"NAME"``): a variable named with the path
     (e.g. ``--pt experimental_data.mat:z_df``); other paths -> (path, None).
 
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The path, with or without a variable name.
+
+    Returns
+    -------
+    tuple
+        ``(pathlib.Path, str or None)``: the file and the variable's name.
+
+    Examples
+    --------
     >>> split_variable("experimental_data.mat:z_df")
     (PosixPath('experimental_data.mat'), 'z_df')
     >>> split_variable("PT.csv")

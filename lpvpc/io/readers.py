@@ -1,4 +1,4 @@
-"""Reading CSV and MATLAB ``.mat`` files into trials (:func:`load_trial`).
+"""Reading CSV and MATLAB ``.mat`` files into trials (:func:`~lpvpc.io.readers.load_trial`).
 
 A file's columns (or a ``.mat`` record's channels, see :mod:`lpvpc.io.matfiles`) are picked by
 role (time, position, torque, optional channels), converted to SI
@@ -220,18 +220,42 @@ def load_trial(path, *, position_unit: str = "rad", torque_sign: float = +1.0, n
     """Load one trial from CSV or MATLAB ``.mat`` (v4 to v7.3, the lab's ``nldat`` objects too).
 
     Required columns/variables: ``time`` (s), ``position``, ``torque``; optional ``emg``,
-    ``command``, ``scheduling``; other columns are ignored. ``position_unit`` ("rad" or
-    "deg") is the unit of position, command and scheduling in the file; ``torque_sign``
-    multiplies torque (N m) to bring the lab's sign convention to the package's.
-    In a .mat file ``variable`` names the variable (e.g. an ``nldat`` object; also
-    ``"file.mat:NAME"``) and ``channels`` maps roles to channel names
-    (``{"position": "pos1", "torque": "tq1"}``); what they leave open is chosen
-    automatically when only one choice fits (:func:`lpvpc.io.matfiles.select_channels`), and
-    time comes from a ``time`` channel or the variable's sample period; ``time_unit`` ("s" or
-    "ms") is the unit of a time column.
-    Raises DataError listing every problem; when angles read as rad look like degrees it warns
-    (UnitWarning), or with ``degrees="refuse"`` raises DataError (where a result computed from
-    them would be meaningless: a held-out record, a trial a model is fitted to).
+    ``command``, ``scheduling``; other columns are ignored.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV or .mat file (``"file.mat:NAME"`` names the variable too).
+    position_unit : {"rad", "deg"}, default "rad"
+        The unit of position, command and scheduling in the file.
+    torque_sign : {1.0, -1.0}, default 1.0
+        Multiplies torque (N m) to bring the lab's sign convention to the package's.
+    name : str, optional
+        The trial's name in messages; default the file name.
+    variable : str, optional
+        In a .mat file, the variable (e.g. an ``nldat`` object); chosen automatically when
+        only one fits (:func:`lpvpc.io.matfiles.select_channels`).
+    channels : dict, optional
+        In a .mat file, roles to channel names (``{"position": "pos1", "torque": "tq1"}``);
+        time comes from a ``time`` channel or the variable's sample period.
+    time_unit : {"s", "ms"}, default "s"
+        The unit of a time column.
+    degrees : {"warn", "refuse"}, default "warn"
+        When angles read as rad look like degrees: warn (:class:`~lpvpc.errors.UnitWarning`),
+        or refuse where a result computed from them would be meaningless (a held-out record,
+        a trial a model is fitted to).
+
+    Returns
+    -------
+    lpvpc.io.trial.Trial
+        Time (s), position (rad), torque (N m) and the optional channels.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        An unreadable file, missing columns, an uneven time base, NaN values, or (with
+        ``degrees="refuse"``) angles that look like degrees; one message listing every
+        problem.
     """
     _check_settings(position_unit, torque_sign)
     if degrees not in ("warn", "refuse"):

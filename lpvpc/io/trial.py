@@ -29,7 +29,7 @@ JITTER_TOLERANCE = 1e-3
 # The samples are then read as uniform, with a warning; a dropped or doubled sample moves
 # the grid by half a step or more and stays an error.
 GRID_TOLERANCE = 0.1
-# Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
+#: Relative tolerance on sampling rates (PT vs UT, and fs as a multiple of target_fs).
 RATE_TOLERANCE = 1e-4
 
 
@@ -49,7 +49,7 @@ def check_model_rate(fs, model_fs, *, what: str = "data", source=None, tolerance
     source : str, optional
         The file the data came from, named in the error.
     tolerance : float
-        Largest relative difference accepted (default :data:`RATE_TOLERANCE`).
+        Largest relative difference accepted (default :data:`~lpvpc.io.trial.RATE_TOLERANCE`).
 
     Raises
     ------
@@ -71,7 +71,21 @@ def check_model_rate(fs, model_fs, *, what: str = "data", source=None, tolerance
 @dataclass
 class Trial:
     """One recorded (or simulated) trial: time (s), position (rad), torque (N m) and
-    optional extra channels (``emg``, ``command`` (rad), ``scheduling`` (rad))."""
+    optional extra channels.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Time stamps (s), evenly spaced.
+    position : numpy.ndarray
+        Joint position (rad).
+    torque : numpy.ndarray
+        Joint torque (N m).
+    channels : dict, optional
+        Extra channels of the same length (``emg``, ``command`` (rad), ``scheduling``
+        (rad)).
+    name : str, default ""
+        The trial's name in messages."""
 
     time: np.ndarray
     position: np.ndarray
@@ -93,7 +107,15 @@ class Trial:
 
 
 def write_trial_csv(trial: Trial, path) -> None:
-    """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``."""
+    """Write a trial as CSV with header ``time,position,torque[,emg,command,scheduling]``.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (SI units).
+    path : str or pathlib.Path
+        The CSV file (a temporary file renamed into place).
+    """
     names = ["time", "position", "torque"] + [c for c in OPTIONAL_CHANNELS if c in trial.channels]
     cols = [trial.time, trial.position, trial.torque] + [trial.channels[c] for c in names[3:]]
     from .outputs import atomic_path
@@ -139,6 +161,18 @@ def grid_deviation(t) -> float:
     """Largest distance of the time stamps from the uniform grid through the first and the
     last one, in steps of that grid (0 for uniform sampling).
 
+    Parameters
+    ----------
+    t : array_like
+        Time stamps (s).
+
+    Returns
+    -------
+    float
+        The largest deviation, in grid steps.
+
+    Examples
+    --------
     >>> t = np.arange(6) / 1000.0
     >>> round(grid_deviation(t + np.array([0, 2e-5, -3e-5, 0, 1e-5, 0])), 6)  # jitter by 3 % of a step
     0.03
@@ -188,6 +222,18 @@ def _time_problems(t: np.ndarray) -> list[str]:
 def trial_problems(trial: Trial) -> list[str]:
     """Every problem of a trial as a list of messages (empty if the trial is usable).
 
+    Parameters
+    ----------
+    trial : Trial
+        The trial to check.
+
+    Returns
+    -------
+    list of str
+        One message per problem.
+
+    Examples
+    --------
     >>> t = np.arange(5) / 100.0  # s
     >>> trial_problems(Trial(t, np.array([0.0, np.nan, 0.0, np.nan, 0.0]), np.zeros(5)))
     ["channel 'position': 2 NaN values, first at index 1"]
@@ -223,12 +269,29 @@ def trial_problems(trial: Trial) -> list[str]:
 
 
 def check_trial(trial: Trial, source=None) -> Trial:
-    """Raise one :class:`DataError` listing every problem of ``trial``; return it if usable.
+    """Raise one :class:`~lpvpc.errors.DataError` listing every problem of ``trial``; return it if usable.
 
     Checks: NaN/inf per channel, unequal channel lengths, time not strictly increasing,
     uneven sampling (a step deviating from the median step by more than 1e-3 of it, unless
     every stamp lies within 0.1 step of the uniform grid: then an LpvpcWarning), fewer than
-    2 samples. ``source`` (default: the trial's name) prefixes the message.
+    2 samples.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial to check.
+    source : str, optional
+        Prefixes the message; default the trial's name.
+
+    Returns
+    -------
+    Trial
+        ``trial`` itself, when usable.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        Every problem of the trial, in one message.
     """
     problems = trial_problems(trial)
     where = str(source) if source is not None else (trial.name or None)

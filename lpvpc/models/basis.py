@@ -107,6 +107,20 @@ class Basis:
     (continuous piecewise-linear functions: a rectifier's kink is representable, and
     the functions are linear beyond the range).
 
+    Parameters
+    ----------
+    family : {"chebyshev", "legendre", "gaussian", "hinge"}
+        The basis family (above).
+    order : int
+        Its order: ``order + 1`` functions.
+    lo, hi : float
+        The identified range of the variable.
+    extrapolation : {"clip", "linear"}, default "clip"
+        Beyond the range the functions are held at the edge value, or continued along their
+        tangent (the gaussian family: "clip" only; another value raises ValueError).
+
+    Examples
+    --------
     A cubic Chebyshev basis of the scheduling angle (rad) identified on [-0.4, 0.2] rad:
     inside the range its functions are the polynomials, outside they hold the edge value.
 

@@ -80,25 +80,22 @@ FRICTION_SCALES = (0.01, 0.03, 0.1)  # rad/s: velocity scales of the smoothed fr
 DIRECTION_V_MIN = 0.05  # rad/s: slower movement does not change the remembered direction
 DIRECTION_V_WIDTH = 0.01  # rad/s: width of the ramp replacing the jumps of the latch
 DIRECTION_TAU = 0.2  # s: time constant with which stiffness follows the direction
-# s: time constants of the stress-relaxation memory when nothing chose them (the diagnosis's
-# candidate, structure="fixed"); identify's cross-validation chooses a record's own
-# (lpvpc.identification.selection.RELAXATION_VARIANTS) and the fitted effect stores them (options
-# "relaxation_times_s"), which its prediction, CasADi step and FMU then use
+#: s: time constants of the stress-relaxation memory when nothing chose them (the diagnosis's
+#: candidate, structure="fixed"); identify's cross-validation chooses a record's own
+#: (``lpvpc.identification.selection.RELAXATION_VARIANTS``) and the fitted effect stores them
+#: (options "relaxation_times_s"), which its prediction, CasADi step and FMU then use.
 RELAXATION_TIMES = (0.3, 1.0, 3.0)
 QUIET_AFTER_STEP = 0.15  # s: a reflex burst ends this long after the perturbation stops moving
 ACTIVATION_CUTOFF = (0.5, 3.0)  # Hz: range of the background activation estimate's low-pass (activation_cutoff)
 BURST_MAX_LAG = 0.15  # s: the EMG's reflex-evoked part is explained by the stretch velocity 0..this long ago
-BURST_HINGES = (0.0, 0.25, 0.5, 1.0)  # rad/s: thresholds of the hinge functions of velocity that model the reflex drive
-# s: resolution in time of the bursts' slowly varying gain. 60 s (a cubic over 2 minutes) could not
-# follow a reflex gain swinging with a 35-s period: the bursts' remainder leaked into the activation
-# estimate (error correlated +0.37..+0.64 with the gain) and activation_reflex_gain was named on 4/4
-# seeds (PRALDS), reflex habituation on lab pulses seed 2 too once the test was robust; 15 s: 0/4, none
-# (the error's correlation with the gain +0.18..+0.34: less, not gone; tests/test_emg_background.py).
+BURST_HINGES = (0.0, 0.25, 0.5, 1.0)  #: rad/s: thresholds of the hinge functions of velocity that model the reflex drive
+# s: resolution in time of the bursts' slowly varying gain: short enough to follow a reflex gain
+# that swings within a trial (docs/design_notes.md, "Background activation from EMG").
 BURST_GAIN_S = 15.0
-BURST_TONIC_S = 5.0  # s: resolution in time of the tonic level fitted next to the bursts
+BURST_TONIC_S = 5.0  #: s: resolution in time of the tonic level fitted next to the bursts
 MIN_BURST_CORRELATION = 0.2  # reflex_latency: a block's EMG-drive peak correlation below this is noise
-# s: delay changes about the model's delay at which the position-dependent reflex delay
-# entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
+#: s: delay changes about the model's delay at which the position-dependent reflex delay
+#: entry re-runs the model's reflex (-20..+30 ms: a delay of 20-70 ms around the default 40)
 REFLEX_DELAY_STEPS = (-0.02, -0.01, 0.01, 0.02, 0.03)
 
 
@@ -236,10 +233,11 @@ def _amplitude_features(c, ops, options):
     return [p * ops.fmax(p, -p), p * p * p]
 
 
-# Each entry names its pathway, the signals its regressor reads (``signals``, ``derived``)
-# and its term (``channels``: an IRF scheduled by those signals; ``features``: static or
-# reflex-state features). Its virtual-subject counterpart is the entry of the same name in
-# lpvpc.simulation.simulate.EFFECTS (``subject``).
+#: The effects a model may carry, by name. Each entry names its pathway, the signals its
+#: regressor reads (``signals``, ``derived``) and its term (``channels``: an IRF scheduled by
+#: those signals; ``features``: static or reflex-state features). Its virtual-subject
+#: counterpart is the entry of the same name in :data:`lpvpc.simulation.simulated_effects.EFFECTS`
+#: (``subject``).
 CATALOG: dict[str, Effect] = {
     e.name: e
     for e in (
@@ -344,9 +342,8 @@ CATALOG: dict[str, Effect] = {
             derived=("reflex",),
             features=_reflex_dynamics_features,
             # Order 3: the states' weights are a first-order expansion about the model's poles,
-            # so a wide change needs more shape in position. PRBS, natural frequency 5-48 rad/s
-            # over the range (bench_diagnose's 3x entry): named first 5/5 (order 2: 4/5, the
-            # delay once), held-out VAF after the step +0.18..+0.32 pp; the 1.5x entry 5/5 significant.
+            # so a wide change needs more shape in position (docs/design_notes.md, "Diagnosis
+            # catalog").
             feature_order=3,
             # Without the constant: only the change WITH position, so that a model whose
             # (position-independent) reflex dynamics are merely off is not taken for this effect.
@@ -365,8 +362,8 @@ CATALOG: dict[str, Effect] = {
             features=_reflex_delay_features,
             feature_order=2,
             # Without the constant, as the dynamics entry: only the change WITH position (a
-            # delay that is merely off everywhere is the reflex_delay setting's). With it, a
-            # clean model gained up to 0.07 pp and the dynamics entry's truth was taken for a delay.
+            # delay that is merely off everywhere is the reflex_delay setting's); with it, the
+            # dynamics entry's truth was taken for a delay (docs/design_notes.md, "Diagnosis catalog").
             feature_constant=False,
             feature_names=lambda opt: [f"reflex torque at delay {j:+d} samples - at the model's delay"
                                        for j in opt["steps"]],
@@ -399,6 +396,7 @@ def _irf_variants(s, fs):
     return [{"irf_lags": L} for L in range(s["irf_lags"] + 1, min(s["irf_lags"] + 3, d) + 1)]
 
 
+#: The estimator's settings the diagnosis may change, by name, each with the variants it tries.
 SETTINGS: dict[str, Setting] = {
     c.name: c
     for c in (
@@ -561,7 +559,7 @@ def signals_from_data(data, model=None) -> dict:
     :data:`SIGNALS` (trial_time from its time column, starting at 0). The background
     activation (``activation``, and ``emg_ut`` from the unperturbed trial's EMG) is
     :func:`background_emg` of the EMG: its reflex-evoked part explained by ``model``'s reflex
-    drive when a model is given (:func:`_emg_reflex_drives`), else by the measured velocity;
+    drive when a model is given (``_emg_reflex_drives``), else by the measured velocity;
     estimates stored in the data (:func:`with_model_activation`) are used as they are."""
     extra = getattr(data, "extra", {}) or {}
     out = {}
@@ -612,10 +610,9 @@ def with_model_activation(data, model):
     estimator's refits read the data's signals without the model). Unchanged without EMG,
     without a reflex pathway, or when the estimates are there already.
 
-    Measured on the issue-23 activation subject (bench_diagnose.py --activation-why): the
-    lagged hinges of measured velocity (~400 columns) also fit part of the slow activation
-    itself, in the unperturbed trial most (its slow movement gives slow hinges); the model's
-    drive (16 lags) does not.
+    Why the model's drive: the lagged hinges of measured velocity (~400 columns) also fit part
+    of the slow activation itself, the model's drive (16 lags) does not (docs/design_notes.md,
+    "Background activation from EMG").
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -681,10 +678,9 @@ def _slow_time_basis(n, fs, resolution):
 def _gain_time_basis(n, fs, resolution):
     """(n, K + 2) Legendre polynomials of trial time, degrees 0..K + 1 for K = T / ``resolution``:
     a gain that changes over ``resolution`` s or more, including an exponential decay from
-    the record's start. The cosines of :func:`_slow_time_basis` have zero slope at both ends:
-    a habituating reflex (gain 1 -> 0.33 with a 40-s time constant over 2 minutes) was left
-    16 % too high at the start, its bursts stayed in the tonic estimate, and that estimate then
-    explained the habituation (activation_reflex_gain named first, lab pulses seed 2)."""
+    the record's start. The cosines of ``_slow_time_basis`` have zero slope at both ends and
+    leave a habituating reflex's early bursts in the tonic estimate (docs/design_notes.md,
+    "Background activation from EMG")."""
     T = max(n / fs, 1e-9)
     k = max(1, int(round(T / resolution))) + 1
     return np.polynomial.legendre.legvander(2.0 * np.arange(n) / max(n - 1, 1) - 1.0, k)
@@ -696,9 +692,8 @@ def fast_drive(drive, fs, window_s=1.0) -> np.ndarray:
     A burst lasts tens of ms; what the drive does over seconds the EMG cannot tell from
     tonic activation, so only its fast part explains bursts and its slow part is left to
     the tonic estimate. On the slow movement of a held-out record the model's drive can be
-    mostly slow (73 % of its variance over 1 s on lab_pulses seed 0): fitted whole, the
-    lagged drive took half the unperturbed trial's activation (estimate error 70 %, 11 %
-    with the fast part; bench_diagnose.py --activation-why).
+    mostly slow, and fitted whole it takes the unperturbed trial's activation
+    (docs/design_notes.md, "Background activation from EMG").
 
     >>> slow = np.linspace(0.0, 1.0, 300)  # a ramp over 3 s at 100 Hz: no burst
     >>> burst = slow.copy(); burst[150:153] += 2.0  # a 30-ms burst on it
@@ -1200,8 +1195,8 @@ class EffectDesign:
 #: Bounds (c, 1/c) of the base reflex's rescaling in an extended fit with reflex effects.
 MIN_REFLEX_RESCALE = 0.05
 # For effects marked refit_poles: refit the reflex poles, the nonlinearity (False: hold the
-# base fit's; bench_reflex_dynamics_range compares). One round of each: a second changed the
-# held-out VAF by 0.03 points at most (PRBS 3x range, seeds 1 and 2).
+# base fit's; bench_reflex_dynamics_range compares). One round of each: a second hardly
+# changes the held-out VAF (docs/design_notes.md, "Extended fits").
 REFIT_POLES = True
 REFIT_DRIVE = True
 
@@ -1360,7 +1355,7 @@ def finish_extended_fit(design: EffectDesign, model, theta_effects, Psi_i_base, 
         # The base reflex's scale joins the solve: a reflex effect modulates the gain about
         # a base level (e.g. activation scales it by 1 + b a, a >= 0), whereas the base fit
         # absorbed the trial's mean gain; held at that level, the effect could only add to
-        # it (measured: the refit then recovered 0.1 of the 1.8 points the effect cost).
+        # it (docs/design_notes.md, "Extended fits").
         X = np.hstack([Psi_i_base, design.columns, X_r, tq_r[:, None]])
         scale = np.sqrt(np.mean(X**2, axis=0))
         scale[scale == 0] = 1.0

@@ -174,11 +174,10 @@ def acceleration(position, fs):
     return central_acceleration(p[2:], p[1:-1], p[:-2], fs)
 
 
-# Velocity and acceleration estimates of the causal form: "central3" (3-point central
-# differences, models saved before format key intrinsic.derivatives) or "central5" (5-point,
-# fourth-order: on the lab's pilot trial the causal form lost 4.3 VAF points to the
-# two-sided IRF with central3, 1.0 with central5; 3-point differences attenuate a 20 Hz
-# velocity by 24 % at 100 Hz, 5-point by 6 %).
+#: Velocity and acceleration estimates of the causal form: "central3" (3-point central
+#: differences, models saved before format key intrinsic.derivatives) or "central5" (5-point,
+#: fourth-order: less attenuation of fast velocities; docs/design_notes.md, "Causal-form
+#: derivative stencils").
 DERIVATIVE_STENCILS = ("central3", "central5")
 
 

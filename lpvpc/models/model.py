@@ -79,6 +79,17 @@ class Prediction:
     """Predicted torques (N m): total = intrinsic + reflex. In an extended model the
     effect terms are included in the pathway they belong to and listed in ``effects``.
 
+    Parameters
+    ----------
+    total, intrinsic, reflex : numpy.ndarray
+        The predicted torque and its two pathways (N m), one value per sample.
+    out_of_range_fraction : float, default 0.0
+        Fraction of the samples whose scheduling lies outside the identified range.
+    effects : dict, optional
+        Each effect's torque (N m) by name; empty for a model without effects.
+
+    Examples
+    --------
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
     >>> from lpvpc.simulation.simulate import simulate_pair
@@ -140,8 +151,49 @@ class LPVPCModel:
     ``intrinsic_basis`` of rho in rad), the reflex nonlinearity ``Omega`` of the velocity
     (rad/s) delayed by ``delay`` samples, and the reflex dynamics ``A, B, C, D``. Predicts
     torque (N m), reports the physical quantities with confidence intervals, saves, loads
-    and exports without the estimator that made it.
+    and exports without the estimator that made it. Made by :func:`lpvpc.identify
+    <lpvpc.identification.identify.identify>` or read by :meth:`LPVPCModel.load <lpvpc.models.model.LPVPCModel.load>`, not built by hand.
 
+    Attributes
+    ----------
+    fs : float
+        The model's sampling rate (Hz).
+    lags, H : list of int, numpy.ndarray
+        The two-sided intrinsic IRF's lags (samples) and weights (N m/rad per sample), one
+        column per ``intrinsic_basis`` function.
+    intrinsic_basis : lpvpc.models.basis.Basis
+        The basis in the scheduling variable (rad) that schedules the intrinsic IRF.
+    causal_lags, H_causal : list of int, numpy.ndarray
+        The causal form's lags and weights (lags 0..Lc plus velocity and acceleration).
+    delay : int
+        The reflex delay (samples).
+    velocity_basis, reflex_rho_basis : lpvpc.models.basis.Basis
+        The bases of the reflex nonlinearity in velocity (rad/s) and in the scheduling
+        variable (rad).
+    Omega : numpy.ndarray
+        The reflex nonlinearity's coefficients on those bases.
+    A, B, C, D : numpy.ndarray, numpy.ndarray, numpy.ndarray, float
+        The reflex dynamics' state-space matrices (one sample per step).
+    settings, provenance, conventions, fit : dict
+        The estimator's settings, where the record came from, the record's conventions
+        (units, torque sign, channel skew, original rate), and how the fit went (VAF, orders,
+        selection, timings).
+    effects : list
+        The fitted effect terms of an extended model (:mod:`lpvpc.models.effects`); empty
+        otherwise.
+    causal_derivatives : {"central3", "central5"}
+        The stencil of the causal form's velocity and acceleration.
+    uncertainty : dict
+        What the confidence intervals need (:mod:`lpvpc.models.uncertainty`); empty: no
+        intervals.
+    high_rate : HighRateNonlinearity or None
+        The reflex nonlinearity identified at the file's rate (module notes).
+    curvature : numpy.ndarray or None
+        The elastic curvature coefficients (N m/rad^2), one per intrinsic basis function;
+        None: no such term.
+
+    Examples
+    --------
     >>> import tempfile
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -264,8 +316,26 @@ class LPVPCModel:
         return model_signals(self)
 
     def summary(self):
-        """What the model says about the ankle: lines to read and the same figures as numbers
-        (:class:`lpvpc.models.summary.ModelSummary`; ``lpvpc identify`` prints its lines)."""
+        """What the model says about the ankle: lines to read and the same figures as numbers.
+
+        Returns
+        -------
+        lpvpc.models.summary.ModelSummary
+            ``lines`` (the text ``lpvpc identify`` prints) and ``values`` (the same figures
+            in SI units, None where the data do not determine them).
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> summary = model.summary()
+        >>> summary.lines[1].startswith("VAF:"), sorted(summary.values)[:3]
+        (True, ['channel_skew_s', 'effects', 'reflex_delay_s'])
+        """
         from .summary import summarize
 
         return summarize(self)
@@ -309,7 +379,7 @@ class LPVPCModel:
 
         Raises
         ------
-        lpvpc.DataError
+        lpvpc.errors.DataError
             A convention given that contradicts the model's (both named), or bad data.
         """
         from ..io import load_identification_data
@@ -347,7 +417,7 @@ class LPVPCModel:
 
         Raises
         ------
-        lpvpc.DataError
+        lpvpc.errors.DataError
             A torque sign or unit that differs from the model's, or a channel skew given
             explicitly that does.
         """
@@ -385,20 +455,60 @@ class LPVPCModel:
 
     def predict(self, position, scheduling=None, *, causal: bool = False, velocity=None, acceleration=None,
                 warn: bool = True, signals: dict | None = None) -> Prediction:
-        """Torque (N m) for a perturbation position record (rad) and its scheduling record
-        (rad), or for a loaded data object: ``model.predict(data)`` with the
-        :class:`lpvpc.io.PerturbationData` that ``load_identification_data`` returns
-        (its ``position``, ``scheduling``, extra signals; its ``fs`` must be the model's;
-        joined trials are predicted trial by trial, each from rest).
+        """Torque (N m) for a perturbation position record and its scheduling record, or for
+        a loaded record.
 
-        ``causal=True`` uses the causal intrinsic IRF (lags 0..Lc plus the current
-        velocity and acceleration) that the default FMU runs without latency; velocity
-        (rad/s) and acceleration (rad/s^2) default to the model's difference stencil of
-        ``position`` (``causal_derivatives``: 5-point central for new models).
-        The default uses the identified two-sided IRF. ``signals``: the extra channels an
-        extended model needs (``self.signals``; e.g. ``{"emg": ...}``), N samples each;
-        ``trial_time`` defaults to k / fs and ``scheduling_velocity`` to the gradient of
-        ``scheduling``.
+        Parameters
+        ----------
+        position : array_like or lpvpc.io.PerturbationData
+            The perturbation position (rad), N samples at the model's rate; or a record as
+            :func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>`
+            returns it (its ``position``, ``scheduling`` and extra signals; its ``fs`` must be
+            the model's; joined trials are predicted trial by trial, each from rest).
+        scheduling : array_like, optional
+            The scheduling variable (rad, the slow joint position), N samples; omitted when
+            ``position`` is a record.
+        causal : bool, default False
+            Use the causal intrinsic IRF (lags 0..Lc plus the current velocity and
+            acceleration) that the default FMU runs; False: the identified two-sided IRF.
+        velocity, acceleration : array_like, optional
+            With ``causal``: rad/s and rad/s^2; by default the model's difference stencil of
+            ``position`` (``causal_derivatives``: 5-point central for new models).
+        warn : bool, default True
+            Warn when the scheduling leaves the identified range
+            (:class:`~lpvpc.errors.OutOfRangeWarning`) or a record was lined up differently
+            from the model's.
+        signals : dict, optional
+            The extra channels an extended model needs (``self.signals``; e.g.
+            ``{"emg": ...}``), N samples each; ``trial_time`` defaults to k / fs and
+            ``scheduling_velocity`` to the gradient of ``scheduling``.
+
+        Returns
+        -------
+        Prediction
+            ``total``, ``intrinsic`` and ``reflex`` torque (N m), the fraction of samples
+            outside the identified range, and each effect's torque.
+
+        Raises
+        ------
+        lpvpc.errors.DataError
+            Arrays of different lengths, NaN or inf values, a record at another rate, or a
+            record whose conventions contradict the model's.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> prediction = model.predict(data)  # the record as loaded
+        >>> prediction.total.shape, bool(vaf(data.torque, prediction.total) > 95.0)
+        ((3000,), True)
+        >>> same = model.predict(data.position, data.scheduling)  # or its arrays
+        >>> bool(np.allclose(same.total, prediction.total))
+        True
         """
         if scheduling is None:
             position = self.conform(position)
@@ -512,24 +622,95 @@ class LPVPCModel:
         return data.position, data.scheduling, signals
 
     def export_fmu(self, path, fmi_version: int = 2, variant: str | None = None, **options):
-        """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU at ``path``; returns the
-        path. Thin method over :func:`lpvpc.export.exporter.export_fmu` (which documents variables,
-        units and ``variant``). The default, :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, is what
-        ``lpvpc export --fmu`` makes: ``"sampled"``, inputs position and scheduling only,
-        derivatives computed inside, a declared latency (2 samples with the default 5-point
-        differences), the same timing in every co-simulation master (README, "timing
-        contract"); ``"causal"`` takes velocity and acceleration inputs and has direct
-        feedthrough; ``"exact"`` is the two-sided IRF delayed by L samples."""
+        """Export as an FMI 2.0 (default) or 3.0 co-simulation FMU.
+
+        A thin method over :func:`lpvpc.export.exporter.export_fmu`, which documents the
+        variables, units and variants.
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The ``.fmu`` file to write (its folder is created).
+        fmi_version : {2, 3}, default 2
+            The FMI version.
+        variant : {"sampled", "causal", "exact"}, optional
+            Default :data:`lpvpc.export.exporter.DEFAULT_VARIANT` (``"sampled"``, what
+            ``lpvpc export --fmu`` makes): inputs position and scheduling only, derivatives
+            computed inside, a declared latency (2 samples with the default 5-point
+            differences), the same timing in every co-simulation master. ``"causal"`` takes
+            velocity and acceleration inputs and has direct feedthrough; ``"exact"`` is the
+            two-sided IRF delayed by L samples.
+        **options
+            Passed to :func:`lpvpc.export.exporter.export_fmu` (e.g. ``interface="me"``).
+
+        Returns
+        -------
+        pathlib.Path
+            The FMU's path.
+
+        Raises
+        ------
+        lpvpc.errors.ExportError
+            An unknown variant, no C compiler, or a compiler error.
+        TypeError
+            An option :func:`lpvpc.export.exporter.export_fmu` does not take.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> import tempfile, zipfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = model.export_fmu(f"{folder}/ankle.fmu")
+        ...     "modelDescription.xml" in zipfile.ZipFile(path).namelist()
+        True
+        """
         from ..export.exporter import DEFAULT_VARIANT, export_fmu
 
         return export_fmu(self, path, fmi_version=fmi_version, variant=variant or DEFAULT_VARIANT, **options)
 
     def export_casadi(self, path, variant: str | None = None):
-        """Save the model's CasADi step function to ``path`` with its metadata in
-        ``<path>.json``; returns the path. ``variant`` defaults to
-        :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, what ``lpvpc export --casadi`` writes.
+        """Save the model's CasADi step function with its metadata in ``<path>.json``.
+
         ``casadi.Function.load`` reads the function back, :func:`lpvpc.export.exporter.load_casadi`
-        the function with its metadata. See :func:`lpvpc.export.exporter.export_casadi`."""
+        the function with its metadata. See :func:`lpvpc.export.exporter.export_casadi`.
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The ``.casadi`` file to write.
+        variant : {"sampled", "causal", "exact"}, optional
+            Default :data:`lpvpc.export.exporter.DEFAULT_VARIANT`, what
+            ``lpvpc export --casadi`` writes.
+
+        Returns
+        -------
+        pathlib.Path
+            The function's path.
+
+        Raises
+        ------
+        lpvpc.errors.ExportError
+            An unknown variant.
+
+        Examples
+        --------
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data)
+        >>> import casadi, tempfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     step = casadi.Function.load(str(model.export_casadi(f"{folder}/ankle.casadi")))
+        >>> step.name_in(), step.name_out()[:2]
+        (['state', 'position', 'scheduling'], ['next_state', 'torque'])
+        """
         from ..export.exporter import DEFAULT_VARIANT, export_casadi
 
         return export_casadi(self, path, variant=variant or DEFAULT_VARIANT)
@@ -836,12 +1017,36 @@ class LPVPCModel:
             raise ModelFileError(f"{source}: corrupt model file: " + "; ".join(problems))
 
     def save(self, path) -> None:
+        """Write the model as JSON (the model file format, docs/guide/model_format.md).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The file to write (a temporary file renamed into place: never half written).
+        """
         from ..io.outputs import write_text
 
         write_text(path, json.dumps(self.to_dict(), indent=1))  # temporary file + rename
 
     @classmethod
     def load(cls, path) -> "LPVPCModel":
+        """Read a model file written by :meth:`save` (or ``lpvpc identify -o``).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+            The model file.
+
+        Returns
+        -------
+        LPVPCModel
+            The model, as it was saved.
+
+        Raises
+        ------
+        lpvpc.errors.ModelFileError
+            A missing, unreadable or corrupt file, or an unknown format version.
+        """
         return cls.from_dict(read_model_file(path), source=str(path))
 
     @property
@@ -862,7 +1067,23 @@ def _interval_pair(model, quantity, theta, level):
 
 
 def vaf(measured, predicted) -> float:
-    """Variance accounted for, in percent: 100 (1 - var(measured - predicted) / var(measured))."""
+    """Variance accounted for, in percent: 100 (1 - var(measured - predicted) / var(measured)).
+
+    Parameters
+    ----------
+    measured, predicted : array_like
+        The measured and the predicted signal, same length.
+
+    Returns
+    -------
+    float
+        The VAF (%): 100 for a perfect prediction, 0 for the mean, negative for worse.
+
+    Examples
+    --------
+    >>> vaf([1.0, -1.0, 1.0, -1.0], [0.9, -0.9, 0.9, -0.9])
+    99.0
+    """
     measured = np.asarray(measured, dtype=float)
     predicted = np.asarray(predicted, dtype=float)
     return float(100.0 * (1.0 - np.var(measured - predicted) / np.var(measured)))

@@ -44,8 +44,8 @@ FORMAT_VERSION_EFFECTS = 2  # written (only) by extended models: older readers r
 FORMAT_VERSION_CURVATURE = 3  # written by models with the elastic curvature term (any effects)
 
 # --------------------------------------------------------------------------- limits
-MAX_FILE_BYTES = 8 * 1024 * 1024  # bytes read from a model file (the default model is ~6 KB)
-MAX_NESTING_DEPTH = 32  # JSON nesting (a model needs 5)
+MAX_FILE_BYTES = 8 * 1024 * 1024  #: bytes read from a model file (the default model is ~6 KB)
+MAX_NESTING_DEPTH = 32  #: JSON nesting (a model needs 5)
 MAX_FS = 100_000.0  # Hz: sampling rate
 MAX_LAG = 100  # samples: |lag| of the two-sided intrinsic IRF (the causal IRF: MAX_LAG + 2, its default)
 MAX_DELAY = 250  # samples: reflex delay (250 ms at 1 kHz; ankle reflexes: 40-120 ms)
@@ -625,7 +625,7 @@ def _n_channels(effect) -> int:
 
 #: Checks of the top-level sections, in order: name -> check(value, where, problems, d,
 #: budget). ``budget`` is a one-element list counting coefficients against
-#: MAX_COEFFICIENTS (pass it to :func:`_array`). Sections not listed are allowed.
+#: MAX_COEFFICIENTS (pass it to ``_array``). Sections not listed are allowed.
 SECTION_CHECKS = {
     "intrinsic": _check_intrinsic,
     "reflex": _check_reflex,

@@ -315,14 +315,12 @@ def refit_jointly(blocks, Psi_i, y, hf, orientation, tol=1e-9, max_iter=50):
     model has. With a slow reflex mode (a pole near the time-constant cap: its filter
     integrates the velocity columns into position-like ones) or a richer velocity basis
     (the 1 kHz hinge one) that space overlaps the elastic torque, and K(theta) takes the
-    difference (virtual subject, seed 1, three reflex states: worst central K error 5.1 %
-    by projection, 2.7 % jointly, at the 30 ms IRF then chosen). Joint least squares holds
+    difference (docs/design_notes.md, "Joint intrinsic-reflex refit"). Joint least squares holds
     the reflex to the rank-1 form the selection's cross-validation scores
     (lpvpc.identification.selection): each half-step is linear
     (Omega with [B; d] held, then [B; d]), the intrinsic columns in both. Used where the
-    nonlinearity acts on the high-rate velocity (identify); at the model rate the lab pilot's
-    leave-one-level-out VAF fell 0.15 points with it (one end plateau: 76.0 -> 70.9 %), so the
-    projection's estimate stays there.
+    nonlinearity acts on the high-rate velocity (identify); at the model rate it predicted
+    left-out levels worse, so the projection's estimate stays there.
 
     >>> v = np.random.default_rng(2).standard_normal(3000)
     >>> U_r = reflex_input_regressor(np.column_stack([v, np.maximum(v, 0.0)]), np.ones((3000, 1)))

@@ -3,7 +3,7 @@ takes further: the identified physiology (K(theta), viscosity, the reflex gain a
 with "not determined" where the data do not determine them), the structure chosen and its
 cross-validation, and both stiffnesses of a model with stress relaxation.
 
-``lpvpc identify`` prints these lines; :meth:`lpvpc.LPVPCModel.summary` returns them.
+``lpvpc identify`` prints these lines; :meth:`lpvpc.LPVPCModel.summary <lpvpc.models.model.LPVPCModel.summary>` returns them.
 """
 
 from __future__ import annotations

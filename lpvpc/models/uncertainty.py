@@ -586,12 +586,23 @@ def bias_aware_critical_value(t, level: float = 0.95):
 
 
 class Interval(tuple):
-    """(lower, upper) arrays of a confidence interval, unpacked like a pair. ``biased`` is
-    True when the estimate is known to be biased (``note`` says why and how the interval
-    allows for it). ``determined`` (bool array, default all True) is False where the
-    interval spans most of the plausible range: the quantity is "not determined by these
-    data" there (:data:`NOT_DETERMINED`).
+    """(lower, upper) arrays of a confidence interval, unpacked like a pair.
 
+    Parameters
+    ----------
+    lower, upper : numpy.ndarray
+        The interval's bounds, in the quantity's unit.
+    biased : bool, default False
+        True when the estimate is known to be biased (``note`` says why and how the
+        interval allows for it).
+    note : str, default ""
+        Why the estimate is biased and how the interval allows for it.
+    determined : numpy.ndarray of bool, optional
+        False where the interval spans most of the plausible range: the quantity is "not
+        determined by these data" there (:data:`NOT_DETERMINED`); default all True.
+
+    Examples
+    --------
     >>> lo, hi = Interval(np.array([1.0]), np.array([2.0]))
     >>> float(hi[0] - lo[0]), Interval(lo, hi, biased=True, note="why")
     (1.0, Interval(lower=array([1.]), upper=array([2.]), biased=True))
@@ -908,7 +919,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     (either sign) and the velocity basis's knee rounding (of known sign: the interval extends
     by it on one side only; :func:`bias_aware_critical_value` over the bias's range). That
     rounding depends on where the true knee is, so the threshold's interval is the set of
-    thresholds t whose own shift s(t) (:func:`_threshold_shift_curve`) leaves them inside it:
+    thresholds t whose own shift s(t) (``_threshold_shift_curve``) leaves them inside it:
     the test of each t inverted (s taken at the estimate instead covered 97.2-99.4 % at every
     default and 93.1-95.0 % on the 1 kHz path; this 95.8-98.9 % and 94.7-96.4 %, 40 seeds per
     stiffness family: benchmarks/results/threshold_alternatives.txt). The gain's interval takes the
@@ -920,7 +931,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     On a model whose nonlinearity saw velocity below ``RECTIFIER_MIN_FS`` (model rate,
     ``Interval.biased``) the ~20 ms reflex-evoking pulses are smoothed: the threshold is
     not observable (its interval is the whole fitted range, so "not determined"), and the
-    gain's interval is widened for :func:`_knee_softness_bound`.
+    gain's interval is widened for ``_knee_softness_bound``.
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify

@@ -184,7 +184,7 @@ def run_loop(source, reference, setup: LoopSetup = LoopSetup(), comm_step: float
              assist=None) -> LoopRun:
     """Run the compliant loop (module notes) with ``source`` as the ankle, ``reference`` (rad) at
     1 kHz, communicating every ``comm_step`` s (a multiple of 1 ms). Starts at rest at the
-    reference's first angle. Stops when the angle leaves the reference by :data:`DIVERGED` rad,
+    reference's first angle. Stops when the angle leaves the reference by ``DIVERGED`` rad,
     turns non-finite, or the source fails (the time is ``diverged_at``). ``assist``: a
     feed-forward exoskeleton torque (N m, one value per 1 ms, positive toward dorsiflexion)
     added to the PD controller's (with ``kp = kd = 0``: the profile alone)."""

@@ -12,7 +12,7 @@ from scipy import signal
 from .subject import SubjectParams
 
 
-#: EMG units of :func:`simulate_pair` and the factor from volts.
+#: EMG units of :func:`~lpvpc.simulation.simulate.simulate_pair` and the factor from volts.
 EMG_UNITS = {"V": 1.0, "mV": 1e3, "uV": 1e6}
 
 #: How the envelope is made (``SubjectParams.emg_form``): "modulated_noise" (band-limited noise

@@ -25,7 +25,7 @@ The chain, one function per physical element::
 Both trials record an EMG envelope (V): tonic activation in both, reflex-evoked bursts
 (~40 ms after each velocity pulse, with the reflex's gain and threshold) in the perturbed
 one, measurement noise. Effects the base LPV-PC model does not contain are switchable by
-name through the :data:`EFFECTS` registry; each has its diagnosis-catalog counterpart of
+name through the :data:`~lpvpc.simulation.simulated_effects.EFFECTS` registry; each has its diagnosis-catalog counterpart of
 the same name in :data:`lpvpc.models.effects.CATALOG`, except those marked "outside the diagnosis
 catalog" (they test what the diagnosis says of effects it has no entry for).
 
@@ -37,13 +37,13 @@ Where each part lives (every public name is importable from here as before):
 - :mod:`lpvpc.simulation.physics`: the servo, intrinsic mechanics, stretch reflex and torque noise
   (elements 3-6);
 - :mod:`lpvpc.simulation.emg`: the EMG envelope from activation and reflex drive;
-- :mod:`lpvpc.simulation.simulated_effects`: the :data:`EFFECTS` registry of effects the base model lacks;
+- :mod:`lpvpc.simulation.simulated_effects`: the :data:`~lpvpc.simulation.simulated_effects.EFFECTS` registry of effects the base model lacks;
 - this module: the pair (:func:`simulate_pair`) and the dataset files (:func:`write_dataset`).
 
-Public API: :class:`SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
-:func:`write_dataset`, :data:`EFFECTS`, and the element functions
-:func:`multilevel_trajectory`, :func:`novel_trajectory`, :func:`pralds`, :func:`lab_pulses`, :func:`prbs`, :func:`servo`,
-:func:`intrinsic_torque`, :func:`reflex_torque`, :func:`coloured_noise`.
+Public API: :class:`~lpvpc.simulation.subject.SubjectParams`, :class:`SimulatedPair`, :func:`simulate_pair`,
+:func:`write_dataset`, :data:`~lpvpc.simulation.simulated_effects.EFFECTS`, and the element functions
+:func:`~lpvpc.simulation.trajectories.multilevel_trajectory`, :func:`~lpvpc.simulation.trajectories.novel_trajectory`, :func:`~lpvpc.simulation.trajectories.pralds`, :func:`~lpvpc.simulation.trajectories.lab_pulses`, :func:`~lpvpc.simulation.trajectories.prbs`, :func:`~lpvpc.simulation.physics.servo`,
+:func:`~lpvpc.simulation.physics.intrinsic_torque`, :func:`~lpvpc.simulation.physics.reflex_torque`, :func:`~lpvpc.simulation.physics.coloured_noise`.
 """
 
 from __future__ import annotations
@@ -72,16 +72,25 @@ from .trajectories import (PERTURBATIONS, _TRAJECTORIES, lab_pulses, multilevel_
 
 @dataclass
 class SimulatedPair:
-    """A simulated PT/UT pair at the output rate.
+    """A simulated PT/UT pair at the output rate (:func:`simulate_pair` makes it).
 
-    ``pt``, ``ut``: noisy trials (channels 'command' and 'emg', the EMG envelope
-    in ``emg_unit``); ``pt_clean``, ``ut_clean``: the same with noise-free torque;
-    ``truth``: JSON-serialisable parameters, curves and measured quantities;
-    ``components``: noise-free torques (N m) 'pt_intrinsic', 'pt_reflex',
-    'ut_intrinsic', 'ut_reflex'; ``activation``: each trial's true background activation
-    (1; tonic level plus any slow activation, the EMG's drive without the reflex bursts),
-    {'PT': ..., 'UT': ...} at the output rate.
+    Parameters
+    ----------
+    pt, ut : lpvpc.io.trial.Trial
+        Noisy trials (channels 'command' and 'emg', the EMG envelope in ``emg_unit``).
+    pt_clean, ut_clean : lpvpc.io.trial.Trial
+        The same with noise-free torque.
+    truth : dict
+        JSON-serialisable parameters, curves and measured quantities.
+    components : dict
+        Noise-free torques (N m) 'pt_intrinsic', 'pt_reflex', 'ut_intrinsic', 'ut_reflex'.
+    activation : dict, optional
+        Each trial's true background activation (1; tonic level plus any slow activation,
+        the EMG's drive without the reflex bursts), {'PT': ..., 'UT': ...} at the output
+        rate.
 
+    Examples
+    --------
     >>> pair = simulate_pair("multilevel", seed=0, duration=10.0, fs_out=100.0)
     >>> pair.pt.fs, len(pair.pt.time), sorted(pair.pt.channels)  # Hz, samples, recorded channels
     (100.0, 1000, ['command', 'emg'])
@@ -129,25 +138,64 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
                   stiffness_family: str | None = None) -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
-    ``trajectory``: "multilevel" (identification), "novel" (held-out shapes that also
-    leave the identified range briefly) or "stationary" (one position, -0.1 rad). ``seed`` selects all random streams (trajectory,
-    PRALDS, noise, effects); the novel trajectory uses a different stream than the
-    multilevel one for the same seed. ``duration`` s; ``fs_out`` Hz must divide 1000
-    (1000: no decimation; 100: ``scipy.signal.decimate(q=10, ftype='fir', zero_phase=True)``).
-    ``snr_db``: SNR of the PERTURBATION torque, 10 log10(var(PT-UT clean) / var(PT-UT
-    noise)), exact at the output rate (``inf`` or ``None``: no noise).
-    ``perturbation_amplitude`` rad: PRALDS levels uniform in +-amplitude. ``perturbation``:
-    "pralds" (:func:`pralds`), "lab_pulses" (:func:`lab_pulses`, the lab pilot trial's
-    design: every step large) or "prbs" (:func:`prbs`: +-amplitude switching every
-    50-150 ms, no quiet windows). ``effects``:
-    names from :data:`EFFECTS` or :class:`lpvpc.simulation.simulated_effects.CustomEffect` objects. Position has no sensor noise (an optical encoder's
-    quantisation is negligible next to the torque noise). Both trials carry channel
-    'emg' (:func:`emg_envelope`: tonic activation in both, reflex-evoked bursts, noise)
-    in ``emg_unit`` ("V", "mV" or "uV"). ``stiffness_family``: the subject's elastic
-    stiffness shape (:data:`lpvpc.simulation.subject.STIFFNESS_FAMILIES`; None: that of ``params``,
-    "standard" by default), set with :meth:`SubjectParams.with_stiffness_family`; it draws
-    no random numbers, so a seed gives the same trajectory, perturbation and noise streams
-    in every family.
+    Position has no sensor noise (an optical encoder's quantisation is negligible next to
+    the torque noise). Both trials carry channel 'emg'
+    (:func:`~lpvpc.simulation.emg.emg_envelope`: tonic activation in both, reflex-evoked
+    bursts, noise).
+
+    Parameters
+    ----------
+    trajectory : {"multilevel", "novel", "stationary"}, default "multilevel"
+        "multilevel" (identification), "novel" (held-out shapes that also leave the
+        identified range briefly) or "stationary" (one position, -0.1 rad).
+    seed : int, default 0
+        Selects all random streams (trajectory, PRALDS, noise, effects); the novel
+        trajectory uses a different stream than the multilevel one for the same seed.
+    duration : float, default 120.0
+        Length of each trial (s).
+    fs_out : float, default 1000.0
+        Output rate (Hz); must divide 1000 (1000: no decimation; 100:
+        ``scipy.signal.decimate(q=10, ftype='fir', zero_phase=True)``).
+    snr_db : float or None, default 18.0
+        SNR of the perturbation torque, 10 log10(var(PT-UT clean) / var(PT-UT noise)),
+        exact at the output rate (``inf`` or None: no noise).
+    perturbation_amplitude : float, default 0.04
+        Perturbation levels uniform in +-amplitude (rad).
+    params : lpvpc.simulation.subject.SubjectParams, optional
+        The subject; default ``SubjectParams()``.
+    effects : tuple, default ``()``
+        Names from :data:`~lpvpc.simulation.simulated_effects.EFFECTS` or
+        :class:`lpvpc.simulation.simulated_effects.CustomEffect` objects.
+    emg_unit : {"V", "mV", "uV"}, default "V"
+        The unit of the 'emg' channel.
+    perturbation : {"pralds", "lab_pulses", "prbs"}, default "pralds"
+        :func:`~lpvpc.simulation.trajectories.pralds`,
+        :func:`~lpvpc.simulation.trajectories.lab_pulses` (the lab pilot trial's design:
+        every step large) or :func:`~lpvpc.simulation.trajectories.prbs` (+-amplitude
+        switching every 50-150 ms, no quiet windows).
+    stiffness_family : str, optional
+        The subject's elastic stiffness shape (:data:`lpvpc.simulation.subject.STIFFNESS_FAMILIES`;
+        None: that of ``params``, "standard" by default), set with
+        :meth:`SubjectParams.with_stiffness_family <lpvpc.simulation.subject.SubjectParams.with_stiffness_family>`;
+        it draws no random numbers, so a seed gives the same streams in every family.
+
+    Returns
+    -------
+    SimulatedPair
+        ``pt`` and ``ut`` (:class:`~lpvpc.io.trial.Trial`, with channels 'emg' and
+        'command') and ``truth`` (the subject's curves and the clean torque components).
+
+    Raises
+    ------
+    ValueError
+        An unknown trajectory, perturbation, effect or EMG unit, a rate that does not
+        divide 1000 Hz, or fewer than 100 output samples.
+
+    Examples
+    --------
+    >>> sim = simulate_pair("multilevel", seed=0, duration=10.0, fs_out=100.0)
+    >>> sim.pt.fs, len(sim.pt.torque), sorted(sim.pt.channels)
+    (100.0, 1000, ['command', 'emg'])
     """
     if emg_unit not in EMG_UNITS:
         raise ValueError(f"unknown EMG unit {emg_unit!r}; use one of {sorted(EMG_UNITS)}")
@@ -287,10 +335,34 @@ def write_dataset(out_dir, *, seed: int = 0, fs_out: float = 1000.0, snr_db: flo
     (header ``time,position,torque[,emg],command``; s, rad, N m, rad), truth.json
     (parameters, curves, per-pair truth) and truth_ident.npz / truth_novel.npz (time,
     positions, clean PT/UT torques, the four components and the perturbation intrinsic
-    and reflex torques, all at the output rate). ``perturbation``, ``perturbation_amplitude``,
-    ``emg_unit`` (the 'emg' column's unit) and ``stiffness_family`` as in
-    :func:`simulate_pair`; ``extra_truth``: entries added to truth.json (e.g. the
-    population subject's description). Returns {stem: Path}.
+    and reflex torques, all at the output rate).
+
+    Parameters
+    ----------
+    out_dir : str or pathlib.Path
+        The folder to write (created).
+    seed, fs_out, snr_db, effects, duration, params, perturbation, stiffness_family, emg_unit, perturbation_amplitude
+        As in :func:`simulate_pair` (``emg_unit``: the 'emg' column's unit).
+    extra_truth : dict, optional
+        Entries added to truth.json (e.g. the population subject's description).
+
+    Returns
+    -------
+    dict
+        {file stem: pathlib.Path} of every file written.
+
+    Raises
+    ------
+    ValueError
+        As :func:`simulate_pair`.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     files = write_dataset(folder, duration=10.0, fs_out=100.0)
+    ...     sorted(files)[:4], files["ident_PT"].read_text().splitlines()[0]
+    (['ident_PT', 'ident_UT', 'novel_PT', 'novel_UT'], 'time,position,torque,emg,command')
     """
     params = params or SubjectParams()
     if stiffness_family is not None:

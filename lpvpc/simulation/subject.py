@@ -72,6 +72,87 @@ class SubjectParams:
     (exponential from ``reflex_gain_pf`` at theta_pf to ``reflex_gain_df`` at theta_df)
     and threshold ``th(theta)`` (linear from ``reflex_threshold_pf`` to
     ``reflex_threshold_df``, floored at ``reflex_threshold_min``).
+
+    Parameters
+    ----------
+    inertia : float, default 0.015
+        kg m^2, foot + pedal moment of inertia.
+    viscosity : float, default 0.7
+        N m s/rad, intrinsic viscosity B.
+    k_base : float, default 25.0
+        N m/rad, constant part of K(theta).
+    k_df : float, default 125.0
+        N m/rad, dorsiflexion exponential's value at theta_df.
+    k_df_rate : float, default 7.0
+        1/rad, its growth rate toward dorsiflexion.
+    k_pf : float, default 15.0
+        N m/rad, plantarflexion exponential's value at theta_pf.
+    k_pf_rate : float, default 12.0
+        1/rad, its growth rate toward plantarflexion.
+    theta_df : float, default 0.2
+        rad, reference angle of the dorsiflexion end.
+    theta_pf : float, default -0.4
+        rad, reference angle of the plantarflexion end.
+    elastic_rest : float, default -0.2
+        rad, angle where the elastic torque is zero (passive rest).
+    stiffness_family : str, default "standard"
+        Shape of K(theta): one of STIFFNESS_FAMILIES.
+    k_knots : tuple of float, optional
+        rad, knots of the "piecewise" K (the kink at -0.15); default (-0.4, -0.15, 0.2).
+    k_values : tuple of float, optional
+        N m/rad, the "piecewise" K at its knots; default (45.0, 25.0, 150.0).
+    k_poly : tuple of float, optional
+        N m/rad/rad^i, the "polynomial" K's coefficients of theta^i; default (55.0, 275.0,
+        875.0, 625.0).
+    reflex_delay : float, default 0.040
+        s, stretch-reflex loop delay.
+    reflex_gain_pf : float, default 2.0
+        N m s/rad, rectifier slope at theta_pf.
+    reflex_gain_df : float, default 8.0
+        N m s/rad, rectifier slope at theta_df.
+    reflex_threshold_pf : float, default 0.7
+        rad/s, velocity threshold at theta_pf.
+    reflex_threshold_df : float, default 0.25
+        rad/s, velocity threshold at theta_df.
+    reflex_threshold_min : float, default 0.05
+        rad/s, floor when extrapolating far into DF.
+    reflex_wn : float, default 16.0
+        rad/s, natural frequency of the reflex low-pass (activation dynamics).
+    reflex_zeta : float, default 0.65
+        1, damping of the reflex low-pass (unit DC gain).
+    servo_wn : float, optional
+        rad/s (25 Hz): closed-loop natural frequency; default 2 pi x 25 Hz.
+    servo_zeta : float, default 0.7
+        1, closed-loop damping.
+    emg_tonic : float, default 0.08
+        1, tonic (background) activation present in both trials.
+    emg_reflex_torque : float, default 15.0
+        N m of reflex drive per unit of reflex-evoked activation.
+    emg_volts : float, default 300e-6
+        V of envelope at full activation (1.0).
+    emg_noise : float, default 0.015
+        1, RMS of the envelope's measurement noise (activation units).
+    emg_cutoff : float, default 30.0
+        Hz, envelope low-pass (rectify, then 2nd-order Butterworth).
+    emg_band : tuple of float, optional
+        Hz, band of the raw surface EMG (the noise carrier the drive modulates); default (20.0,
+        450.0).
+    emg_form : str, default "modulated_noise"
+        How the envelope is made: one of lpvpc.simulation.emg.EMG_FORMS.
+    emg_offset : float, default 0.0
+        1, constant offset of the "envelope" form (amplifier / rectifier offset).
+    activation_cutoff : float, default 0.05
+        Hz, how fast a(t) varies (2nd-order low-pass of the noise behind it).
+    activation_shared : bool, default False
+        True: the same a(t) in PT and UT (a real pair is recorded at two times).
+    activation_stiffness_gain : float, default 1.0
+        Background_activation: perturbation K, B scaled by 1 + this * a.
+    activation_reflex_gain : float, default 1.0
+        Background_activation: reflex gain scaled by 1 + this * a.
+    noise_cutoff : float, default 20.0
+        Hz, cut-off of the 2nd-order Butterworth that colours the noise.
+    noise_order : int, default 2
+        Order of that filter.
     """
 
     # intrinsic mechanics

@@ -239,7 +239,7 @@ def prbs(duration: float, fs: float, rng: np.random.Generator, *, amplitude: flo
     return _held_levels(duration, fs, rng, hold, lambda k: amplitude * first * (-1.0) ** k)
 
 
-#: Perturbation designs of :func:`simulate_pair` (``perturbation=``): name -> generator.
+#: Perturbation designs of :func:`~lpvpc.simulation.simulate.simulate_pair` (``perturbation=``): name -> generator.
 PERTURBATIONS = {"pralds": pralds, "lab_pulses": lab_pulses, "prbs": prbs}
 
 

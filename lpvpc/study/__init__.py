@@ -25,12 +25,24 @@ DEFAULT_HELDOUT = 0.3
 
 @dataclass
 class StudyResult:
-    """What :func:`run_study` did: ``rows`` (the manifest), ``results`` (one dict per record,
-    :func:`lpvpc.study.run.analyse_record`'s, with ``cached``), ``grid`` (common grid indices),
-    ``computed`` (records whose job ran in this run, failed or not), ``cached``
-    (taken from the cache) and ``failed`` (record counts; a record whose files cannot be read
-    fails before any job and is neither computed nor cached), ``comparisons`` and ``paths``
-    (records, groups, report, summary)."""
+    """What :func:`run_study` did.
+
+    Parameters
+    ----------
+    rows : list of lpvpc.study.manifest.ManifestRow
+        The manifest.
+    results : list of dict
+        One per record (:func:`lpvpc.study.run.analyse_record`'s, with ``cached``).
+    grid : list
+        The common position grid's indices.
+    computed, cached, failed : int
+        Records whose job ran in this run (failed or not), records taken from the cache,
+        and records that failed (a record whose files cannot be read fails before any job
+        and is neither computed nor cached).
+    comparisons : list, optional
+        The group comparisons.
+    paths : dict, optional
+        The files written (records, groups, report, summary)."""
 
     rows: list
     results: list
@@ -83,24 +95,24 @@ def run_study(manifest, out, *, jobs: int = 1, scheduler=None, heldout: float = 
 
     Parameters
     ----------
-    manifest : path
+    manifest : str or pathlib.Path
         The study's CSV manifest (:mod:`lpvpc.study.manifest`; docs/guide/study.md).
-    out : path
+    out : str or pathlib.Path
         The study folder (created): ``records.csv``, ``groups.csv``, ``report.html``,
         ``summary.json``, ``models/RECORD.json`` and ``cache/`` (kept between runs: a rerun
         redoes only the records whose files or settings changed, and those not finished).
     jobs : int
         Records identified at once in a local process pool (1: in this process).
-    scheduler : str, dask.distributed.Client or cluster, optional
+    scheduler : str or dask.distributed.Client, optional
         Run the records on this Dask scheduler instead (``jobs`` is then ignored).
     heldout : float
         The later fraction of each record held out for the VAF (a row's ``heldout`` overrides it).
     identify_settings : dict, optional
-        Estimator settings for every record (:func:`lpvpc.identify`).
+        Estimator settings for every record (:func:`lpvpc.identify <lpvpc.identification.identify.identify>`).
     level : float
         Confidence level of every interval.
-    compare : (reference, other), optional
-        The groups to compare (difference other - reference); default: every group against
+    compare : tuple of str, optional
+        ``(reference, other)``: the groups to compare (difference other - reference); default: every group against
         the manifest's first.
     report : bool
         Write ``report.html``.

@@ -59,10 +59,27 @@ class ManifestError(DataError):
 
 @dataclass(frozen=True)
 class ManifestRow:
-    """One record of a study (SI conventions as :func:`lpvpc.load_identification_data` takes
-    them): files as absolute paths (None where not given), ``heldout`` a fraction and
-    ``diagnose`` a bool, each None for the study's default, ``line`` the row's line number in
-    the manifest."""
+    """One record of a study (SI conventions as :func:`lpvpc.load_identification_data <lpvpc.io.identification_data.load_identification_data>` takes
+    them).
+
+    Parameters
+    ----------
+    record, subject, group : str
+        The record's name (unique), its subject and its group.
+    pt, ut, data : str or None
+        The files as absolute paths (None where not given): ``pt`` and ``ut``, or ``data``.
+    torque_sign : float or None
+        The files' torque sign (None: the loader's default).
+    position_unit : str or None
+        The files' position unit (None: the loader's default).
+    stationary : bool, default False
+        ``pt`` alone, recorded around one position.
+    heldout : float or None
+        The held-out fraction (None: the study's default).
+    diagnose : bool or None
+        Diagnose the record's model on its held-out part (None: the study's default).
+    line : int, default 0
+        The row's line number in the manifest."""
 
     record: str
     subject: str
@@ -88,8 +105,17 @@ class ManifestRow:
 
 
 def read_manifest(path) -> list:
-    """Read and check a study manifest (module docstring); returns a list of
-    :class:`ManifestRow` in file order.
+    """Read and check a study manifest (module docstring).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The manifest (CSV).
+
+    Returns
+    -------
+    list of ManifestRow
+        The records, in file order.
 
     Raises
     ------

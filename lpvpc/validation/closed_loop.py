@@ -37,7 +37,7 @@ def evaluate_closed_loop(cl, fmu_dir, *, duration: float = 20.0, seed: int = 0, 
                          fmi_version: int = 2, params=None) -> tuple[dict, dict]:
     """(metrics, traces) of the closed-loop model ``cl`` (:class:`lpvpc.export.closed_loop.ClosedLoopModel`)
     in the compliant loop against the virtual subject (``params``: its
-    :class:`lpvpc.simulation.simulate.SubjectParams`, default the package's subject). The FMUs are exported
+    :class:`~lpvpc.simulation.subject.SubjectParams`, default the package's subject). The FMUs are exported
     into ``fmu_dir``. ``traces`` holds the first gain's runs for the figure."""
     from lpvpc.simulation import compliant_loop as LOOP
     from lpvpc.export.closed_loop import export_closed_loop_fmu

@@ -16,7 +16,7 @@ back to their time (``latency`` of :func:`run_cosimulation`). Commands come from
 record without one is driven by its measured positions passed through the inverse of the
 servo loop (a feedforward command under which the servo reproduces the measured
 position; see :func:`feedforward_command`), then refined by iterative learning
-(:func:`validation.harness.refined_drive`: each pass adds :func:`actuator_inverse` of the
+(``lpvpc.validation.harness.refined_drive``: each pass adds :func:`actuator_inverse` of the
 remaining position error and co-simulates again).
 
 Decisions (each a :class:`CosimSettings` field; the defaults are what the report uses)
@@ -56,8 +56,8 @@ Load torque (``load``)
 Algebraic loop (``coupling``)
     With central differences the model torque at t(k) depends on p(k+1), which depends on
     the load over [t(k), t(k+1)], which is that torque: an implicit coupling. ``"delay"``
-    (default) breaks it with a one-step delay: the PT actuator sees the model torque of
-    t(k-1) over [t(k), t(k+1)] (zero-order hold, 10 ms late). ``"iterate"`` removes the
+    breaks it with a one-step delay: the PT actuator sees the model torque of t(k-1) over
+    [t(k), t(k+1)] (zero-order hold, 10 ms late). ``"iterate"`` (default) removes the
     delay: the PT actuator's FMU state is saved at t(k), the step is repeated with the new
     torque until it changes by less than ``iterate_tol`` (fixed-point iteration with
     fmi2GetFMUstate/SetFMUstate, first guess extrapolated from the last two steps, secant
@@ -144,7 +144,26 @@ COMMAND_RATES = ("actuator", "hold")
 
 @dataclass
 class CosimSettings:
-    """How the master couples the FMUs (see the module docstring for each choice)."""
+    """How the master couples the FMUs (the module docstring explains each choice).
+
+    Parameters
+    ----------
+    coupling : {"iterate", "delay"}, default "iterate"
+        The algebraic loop between the model's torque and the PT actuator: solved by
+        fixed-point iteration within each step, or broken by a one-step delay.
+    derivatives : {"central", "actuator"}, default "central"
+        The velocity and acceleration fed to the model: central differences of the
+        perturbation position at the model rate, or the actuators' own outputs.
+    load : {"measured_ut+model", "model", "none"}, default "measured_ut+model"
+        The torque loading the actuators.
+    command_rate : {"actuator", "hold"}, default "actuator"
+        The command at every actuator step (band-limited interpolation of a slower record),
+        or held over each model step.
+    iterate_tol : float, default 1e-6
+        With ``coupling="iterate"``: the torque change (N m) at which the iteration stops.
+    max_iterations : int, default 20
+        Its iteration limit per step.
+    """
 
     coupling: str = "iterate"
     derivatives: str = "central"
@@ -321,7 +340,7 @@ def calibrate_servo(command_pert, position_pert, step: float, fs_record: float, 
     """Fit the servo loop's bandwidth (Hz) and damping to a record: the perturbation
     command (PT - UT, at the actuator rate 1/``step``) against the measured perturbation
     position (PT - UT, at ``fs_record``), by least squares on the simulated position
-    (:func:`servo_response`, brought to the record's rate). Returns the fitted values,
+    (``servo_response``, brought to the record's rate). Returns the fitted values,
     the VAF of the fit (percent) and the number of evaluations."""
     from scipy.optimize import least_squares
 
@@ -353,7 +372,7 @@ def connections(settings: CosimSettings, signals=(), variant: str = "causal", la
     """The signal connections of the experiment, by variable name, as readable lines
     (``signals``: names of an extended model's extra inputs, fed from the record;
     ``variant``/``latency``: of the model FMU, :func:`model_fmu_variant`; ``points``: of a
-    causal FMU's central differences, :func:`model_fmu_derivative_points`)."""
+    causal FMU's central differences, ``model_fmu_derivative_points``)."""
     load_ut = {"measured_ut+model": "record.UT torque (measured, at the actuator rate)",
                "model": "0", "none": "0"}[settings.load]
     load_pt = {"measured_ut+model": "record.UT torque + model.torque",
@@ -434,6 +453,36 @@ def run_cosimulation(model_fmu: FMUInfo, actuator_fmu: FMUInfo, drive: ActuatorD
     derivatives: ``coupling`` and ``derivatives`` do not apply); the run continues
     ``latency`` steps past the record with the last command and load held (the record-edge
     convention of :mod:`lpvpc.models.equations`) and the torques are shifted back to their time.
+
+    Parameters
+    ----------
+    model_fmu, actuator_fmu : lpvpc.validation.fmu.FMUInfo
+        The model FMU and the actuator FMU (:func:`lpvpc.validation.fmu.inspect_fmu`).
+    drive : ActuatorDrive
+        The actuators' commands for the run.
+    settings : CosimSettings, optional
+        How the master couples the FMUs; default ``CosimSettings()``.
+    actuator_parameters : dict, optional
+        Actuator parameter values (name -> value), set in both actuator instances in
+        addition to ``initial_position``.
+    signals : dict, optional
+        An extended model's extra inputs (FMU input name -> array at the model rate, at
+        least ``drive.n_model`` samples).
+    latency : int, default 0
+        The output delay in model steps of an exact-variant model FMU.
+
+    Returns
+    -------
+    CosimResult
+        Everything the master recorded.
+
+    Raises
+    ------
+    lpvpc.errors.FMUError
+        An FMU error status, a non-finite output, a latency the model FMU does not declare,
+        or an FMU that cannot iterate (no state saving) with ``coupling="iterate"``.
+    lpvpc.errors.DataError
+        A drive or signal shorter than the run.
     """
     settings = (settings or CosimSettings()).check()
     params = dict(actuator_parameters or {})

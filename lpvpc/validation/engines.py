@@ -1,9 +1,9 @@
-"""Run the portable SSP (:func:`validation.ssp.write_portable_ssp`) in co-simulation engines
+"""Run the portable SSP (:func:`lpvpc.validation.ssp.write_portable_ssp`) in co-simulation engines
 other teams maintain: libcosim (``libcosimpy``) and ECOS (``ecospy``), loaded as they are.
 
 Each runner loads the archive, steps it at its base step (the ``osp:FixedStepAlgorithm``
 annotation; components step at their ``osp:StepSizeHint``, with the parameter set
-:data:`validation.ssp.PARAMETER_SET` applied) and reads ``model.torque`` at every model
+``lpvpc.validation.ssp.PARAMETER_SET`` applied) and reads ``model.torque`` at every model
 sample time t_k = k T, returning those samples (N m). The exact model FMU's torque at t_k is
 that of sample k - L: drop the first L samples to align it with the record.
 """

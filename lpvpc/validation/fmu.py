@@ -1,5 +1,5 @@
 """One FMU co-simulation instance for the master: checked loading, named variables, the
-FMU's own log captured, a fast stepping path, and every failure as an :class:`FMUError`.
+FMU's own log captured, a fast stepping path, and every failure as an :class:`~lpvpc.errors.FMUError`.
 
 Units: whatever the FMU declares (the lpvpc FMUs are SI: rad, rad/s, rad/s2, N.m, s).
 
@@ -130,7 +130,7 @@ class FMUInstance:
     """A co-simulation instance of a checked FMU (:func:`inspect_fmu`), FMI 2.0 or 3.0.
 
     ``instance.log`` holds ``(status, category, message)`` of every message the FMU
-    logged. Use as a context manager or call :meth:`close`.
+    logged. Use as a context manager or call ``close()``.
     """
 
     def __init__(self, info: FMUInfo, name: str, *, logging_on: bool = False):

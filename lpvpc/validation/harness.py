@@ -8,13 +8,13 @@ FMUs) so that bad input fails in well under a second with one :class:`lpvpc.erro
 (exit status 2 on the command line), then runs:
 
 1. the offline routes (numpy two-sided and causal, CasADi causal and exact) and the model
-   FMU replaying the measured positions (:mod:`validation.routes`);
-2. the co-simulation of the lab experiment (:mod:`validation.cosim`): calibrated actuator
+   FMU replaying the measured positions (:mod:`lpvpc.validation.routes`);
+2. the co-simulation of the lab experiment (:mod:`lpvpc.validation.cosim`): calibrated actuator
    runs driven by the record's commands, the model FMU closing the loop; once more
    without load to measure what the load changes;
-3. the comparison (:mod:`validation.compare`) and the report (:mod:`validation.report`):
+3. the comparison (:mod:`lpvpc.validation.compare`) and the report (:mod:`lpvpc.validation.report`):
    ``report.html``, ``metrics.json``, the figures as PNG and the co-simulation set-up as an
-   SSP archive (``cosimulation.ssp``, :mod:`validation.ssp`) in the report folder.
+   SSP archive (``cosimulation.ssp``, :mod:`lpvpc.validation.ssp`) in the report folder.
 """
 
 from __future__ import annotations
@@ -51,10 +51,10 @@ __all__ = ["validate", "ValidationResult", "load_record", "Record", "DEFAULT_ROU
 #: Largest max|a - b| / max|b| allowed between the numpy causal prediction and the CasADi
 #: and FMU routes (they evaluate the same equations; measured ~1e-15).
 DEFAULT_ROUTE_TOLERANCE = 1e-9
-#: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`validation.ssp`).
+#: The co-simulation set-up as an SSP 1.0 archive, in the report folder (:mod:`lpvpc.validation.ssp`).
 SSP_FILE = "cosimulation.ssp"
 #: The same set-up for engines that only connect outputs to inputs (libcosim, ECOS): every
-#: signal the master computes is done by a record-player FMU (:func:`validation.ssp.write_portable_ssp`).
+#: signal the master computes is done by a record-player FMU (:func:`lpvpc.validation.ssp.write_portable_ssp`).
 PORTABLE_SSP_FILE = "cosimulation_portable.ssp"
 #: Calibration of the servo is reported as poor below this VAF (percent) of the position fit.
 CALIBRATION_WARN_VAF = 99.0
@@ -92,6 +92,25 @@ class Record:
 
 @dataclass
 class ValidationResult:
+    """What :func:`validate` measured and wrote.
+
+    Parameters
+    ----------
+    metrics : dict
+        Every VAF (%), RMSE (N m), route agreement and check, as in ``metrics.json``;
+        ``metrics["pass"]`` is False when a threshold failed.
+    report_dir : pathlib.Path
+        The report folder.
+    files : dict, optional
+        The files written, by role (report, metrics, FMUs, figures).
+
+    Examples
+    --------
+    >>> result = ValidationResult({"pass": True, "vaf": 96.5, "vaf_fmu": 96.5}, Path("report"))
+    >>> result.passed, result
+    (True, ValidationResult(pass; vaf 96.50 %, vaf_fmu 96.50 %; report 'report'))
+    """
+
     metrics: dict
     report_dir: Path
     files: dict = field(default_factory=dict)
@@ -237,7 +256,7 @@ def refined_drive(drive: ActuatorDrive, targets, run, parameters: dict):
     Each pass takes the UT and PT position errors where the model sees them (the actuators
     sampled at the model rate, against ``targets``: the measured UT and PT positions at the model
     rate, as identification reads them), brings them to the actuator rate by the commands'
-    band-limited interpolation, adds their :func:`~validation.cosim.actuator_inverse` and runs
+    band-limited interpolation, adds their :func:`~lpvpc.validation.cosim.actuator_inverse` and runs
     again (``run(drive) -> CosimResult``; ``parameters``: the actuator's). Returns (drive, its
     co-simulation, {"passes", "tracking_rms_mrad" per pass}).
 
@@ -381,34 +400,105 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              position_unit=None,
              torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
              whole_joint=None, variable=None, channels=None, data=None, stationary: bool = False) -> ValidationResult:
-    """Validate ``model`` (LPVPCModel or path) on the held-out trials ``pt`` and ``ut``
-    (paths or :class:`lpvpc.io.Trial`) and write the report into ``report_dir``.
+    """Validate ``model`` on held-out trials: every prediction route (numpy, CasADi, the FMU
+    replayed, the FMU co-simulated with the actuator FMU) against the record, with a report.
 
-    ``fmu``: an existing model FMU to validate, either variant (default: export the
-    ``fmu_variant`` FMU, FMI ``fmi_version``, into ``report_dir/fmus``). The default
-    "exact" FMU runs the identified two-sided model with its declared latency of L
-    samples, which the replay and the co-simulation remove (its torque loads the actuator
-    L steps late: the load effect is measured and reported); "causal" validates the
-    latency-free form meant for closed loop, which loses ~0.5 VAF points (``vaf_causal``
-    states that loss in every report). ``actuator_fmu``: default the project's
-    actuator FMU built into the same folder; ``actuator_parameters``: fixed actuator
-    parameter values (servo parameters given here are not calibrated); ``min_vaf``
-    (percent): threshold for ``vaf``, ``vaf_fmu`` and ``vaf_cosim``; ``route_tolerance``:
-    for the CasADi and FMU routes against numpy; ``band_limit_command`` (default on):
-    low-pass the record's commands (zero-phase) to the model's band before they drive the
-    actuators (:func:`validation.cosim.band_limit`): the measured record is the
-    anti-aliased view of the experiment, and a model sampled at fs sees nothing above
-    fs/2; off, the actuators' faster motion reaches the model sampled, not anti-aliased.
-    ``whole_joint``: a :class:`lpvpc.export.whole_joint.WholeJointModel` (or its JSON path) built on
-    this model, validated on the PT trial's total torque as well (:mod:`validation.whole_joint`;
-    a report section and ``metrics["whole_joint"]``). ``variable`` and ``channels``: the .mat
-    variable and the column or channel names of the record's files (:func:`load_record`).
-    ``data`` instead of ``pt`` and ``ut`` (None): one PT - UT file with a scheduling column
-    (the lab pilot's format); its UT torque is unknown, so the co-simulation loads the PT
-    actuator with the model's torque only (``CosimSettings.load`` "model"), and a whole-joint
-    model, which needs the PT trial's total torque, is refused. ``stationary``: ``pt`` alone,
-    recorded around one fixed position (:func:`load_record`). Returns a :class:`ValidationResult`
-    whose ``passed`` is False when a threshold fails.
+    The report folder is built beside ``report_dir`` and swapped in when the run has
+    finished: a failed or interrupted run leaves the previous folder as it was, and a folder
+    never mixes two runs (its previous content is replaced).
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel or str or pathlib.Path
+        The model, or its JSON file.
+    pt, ut : str, pathlib.Path or lpvpc.io.trial.Trial
+        The held-out perturbed and unperturbed trials, read with the model's conventions
+        unless given (:meth:`LPVPCModel.load_record <lpvpc.models.model.LPVPCModel.load_record>`).
+    report_dir : str or pathlib.Path
+        The folder the report, metrics and FMUs are written to.
+    fmu : str or pathlib.Path, optional
+        An existing model FMU to validate, either variant; default: export the
+        ``fmu_variant`` FMU, FMI ``fmi_version``, into ``report_dir/fmus``.
+    fmi_version : {2, 3}, default 2
+        FMI version of the FMUs built.
+    actuator_fmu : str or pathlib.Path, optional
+        Default the project's actuator FMU, built into the same folder.
+    actuator_parameters : dict, optional
+        Fixed actuator parameter values (servo parameters given here are not calibrated).
+    calibrate : bool, default True
+        Fit the actuator's servo bandwidth and damping to the record's perturbation command
+        and position (when the record has a command channel and they are not given).
+    settings : lpvpc.validation.cosim.CosimSettings, optional
+        How the master couples the FMUs; default ``CosimSettings()``.
+    min_vaf : float, optional
+        Threshold (percent) for ``vaf``, ``vaf_fmu`` and ``vaf_cosim``; None: no threshold.
+    route_tolerance : float, default 1e-9
+        Relative tolerance of the CasADi and FMU routes against numpy.
+    measure_load_effect : bool, default True
+        Co-simulate once more without the model's torque loading the actuator, to measure
+        the load effect.
+    band_limit_command : bool, default True
+        Low-pass the record's commands (zero-phase) to the model's band before they drive
+        the actuators (:func:`lpvpc.validation.cosim.band_limit`): the measured record is the
+        anti-aliased view of the experiment, and a model sampled at fs sees nothing above
+        fs/2.
+    fmu_variant : {"exact", "causal", "sampled"}, default "exact"
+        "exact" runs the identified two-sided model with its declared latency of L samples,
+        which the replay and the co-simulation remove (its torque loads the actuator L
+        steps late: the load effect is measured and reported); "causal" validates the
+        latency-free form meant for closed loop (``vaf_causal`` states its loss in every
+        report).
+    position_unit, torque_sign, time_unit : optional
+        The record's conventions, as :func:`lpvpc.io.load_identification_data
+        <lpvpc.io.identification_data.load_identification_data>` takes them; default the model's.
+    command_line : str, optional
+        The command that ran the validation, written into the report.
+    write_report : bool, default True
+        Write ``report.html`` (the metrics are written either way).
+    whole_joint : lpvpc.export.whole_joint.WholeJointModel or str, optional
+        A whole-joint model (or its JSON path) built on this model, validated on the PT
+        trial's total torque as well (:mod:`lpvpc.validation.whole_joint`; a report section
+        and ``metrics["whole_joint"]``).
+    variable, channels : optional
+        The .mat variable and the column or channel names of the record's files.
+    data : str or pathlib.Path, optional
+        Instead of ``pt`` and ``ut``: one PT - UT file with a scheduling column (the lab
+        pilot's format); its UT torque is unknown, so the co-simulation loads the PT
+        actuator with the model's torque only (``CosimSettings.load`` "model").
+    stationary : bool, default False
+        ``pt`` alone, recorded around one fixed position.
+
+    Returns
+    -------
+    ValidationResult
+        ``metrics`` (every VAF, RMSE and check), ``report_dir`` and ``files``; ``passed`` is
+        False when a threshold fails.
+
+    Raises
+    ------
+    lpvpc.errors.DataError
+        An unusable record, or a combination of arguments that does not go together (a
+        whole-joint model with a PT - UT file or a stationary trial).
+    lpvpc.errors.FMUError
+        A given FMU that does not fit the model or the actuator, or that fails.
+    lpvpc.errors.ExportError
+        An FMU that cannot be built (no C compiler).
+
+    Examples
+    --------
+    A model of the virtual subject validated on its novel (held-out) trajectory:
+
+    >>> import tempfile
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.io import load_identification_data
+    >>> from lpvpc.simulation.simulate import write_dataset
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     files = write_dataset(folder, duration=30.0, fs_out=100.0)
+    ...     model = identify(load_identification_data(pt=files["ident_PT"], ut=files["ident_UT"]))
+    ...     result = validate(model, files["novel_PT"], files["novel_UT"], f"{folder}/report",
+    ...                       write_report=False)
+    >>> result.passed, bool(result.metrics["vaf_fmu"] > 90.0), bool(result.metrics["vaf_cosim"] > 90.0)
+    (True, True, True)
     """
     t_all = time.perf_counter()
     timing = {}
@@ -743,10 +833,5 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     return result
 
 
-validate.__doc__ = _validate.__doc__.rstrip() + """
-
-    The report folder is built beside ``report_dir`` and swapped in when the run has
-    finished: a failed or interrupted run leaves the previous folder as it was, and a
-    folder never mixes two runs (its previous content is replaced).
-    """
+validate.__doc__ = _validate.__doc__
 validate.__signature__ = inspect.signature(_validate)

@@ -4,7 +4,7 @@
 - ``numpy_causal``: the same with the causal IRF the default FMU runs;
 - ``casadi`` / ``casadi_exact``: the exported CasADi step run over the record with
   :func:`lpvpc.export.exporter.trajectory_function` (causal; exact two-sided, output shifted back
-  by its latency of L samples so that it lines up with ``numpy``, see :func:`_held_tail`);
+  by its latency of L samples so that it lines up with ``numpy``, see ``_held_tail``);
 - ``fmu``: the model FMU replaying the measured perturbation position, scheduling (and,
   for the causal variant, their central-difference velocity and acceleration), no
   actuator; an exact-variant FMU's outputs are shifted back by its latency.
@@ -34,7 +34,7 @@ __all__ = ["offline_routes", "casadi_routes", "fmu_replay", "model_fmu_inputs"]
 
 def model_fmu_inputs(model, variant: str = "causal") -> tuple:
     """Inputs of the model FMU in the order the routes set them: the variant's base inputs
-    (:func:`validation.cosim.model_variant_inputs`), then the extra signals of an
+    (:func:`~lpvpc.validation.cosim.model_variant_inputs`), then the extra signals of an
     extended model (none for the base model)."""
     return tuple(model_variant_inputs(variant)) + tuple(ex._effect_signals(model))
 
@@ -76,7 +76,7 @@ def casadi_routes(model, position, scheduling, signals=None) -> dict:
 def fmu_replay(model_fmu: FMUInfo, model, position, scheduling, signals=None) -> dict:
     """Replay a record through the model FMU (either variant) at its sample period; every
     output checked finite. An exact FMU's outputs are shifted back by its latency
-    (:func:`_held_tail`), so that every route covers every sample.
+    (``_held_tail``), so that every route covers every sample.
     Returns {"torque", "torque_intrinsic", "torque_reflex", "seconds"}."""
     variant = model_fmu_variant(model_fmu)
     lat = ex.latency_samples(model, variant)

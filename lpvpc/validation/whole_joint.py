@@ -56,7 +56,7 @@ def fmu_replay(fmu_path, angle, latency: int, fs: float) -> tuple[np.ndarray, fl
 
 
 def evaluate_whole_joint(wj, record, fmu_dir, fmi_version: int = 2) -> tuple[dict, dict]:
-    """(metrics, traces) of the whole-joint model ``wj`` on a :class:`validation.harness.Record`.
+    """(metrics, traces) of the whole-joint model ``wj`` on a :class:`~lpvpc.validation.harness.Record`.
 
     The FMU (FMI ``fmi_version``) is exported into ``fmu_dir``. ``traces`` holds the arrays
     the report draws: time, measured and predicted total torque, quasi-static part."""
