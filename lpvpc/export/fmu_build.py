@@ -712,42 +712,67 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
               generation_tool: str = "lpvpc", reuse_existing: bool = False,
               timings: dict | None = None, interface: str = "cs", ticks_per_sample: int = 0,
               constants: Sequence[FmuVariable] = ()) -> Path:
-    """Build a co-simulation FMU (FMI 2.0 or 3.0) around a fixed-step discrete-time C system.
+    """Build an FMU (FMI 2.0 or 3.0) around a fixed-step discrete-time C system.
 
     Parameters
     ----------
-    fmu_path : path of the ``.fmu`` to write (parent folders are created; written atomically).
-    model_identifier : C identifier; name of the shared library and of the model.
-    system_sources : C files (and headers) implementing ``system.h``; ``.c`` files are compiled,
-        everything is copied to ``sources/``.
-    nx : number of states of the system.
-    step_size : internal fixed step in s; communication steps must be integer multiples of it.
-        Also the ``DefaultExperiment`` step size.
-    outputs, inputs, parameters : the variables, in value-reference order (see module doc).
-    fmi_version : 2 or 3.
-    include_dirs : folders whose top-level ``*.h`` files the system sources include (copied to
-        the flat ``sources/`` folder; file names must be unique).
-    extra_cflags : more compiler flags (appended after the defaults). ``-DNAME[=VALUE]`` flags
-        are also written to FMI 3's ``buildDescription.xml``; FMI 2 has no place for them, so
-        a rebuild from ``sources/`` needs them in a header instead.
-    latency : output delay of the model in s (``None``: not stated). Written into the
-        description and a vendor annotation.
-    reuse_existing : if ``fmu_path`` exists and carries the GUID these arguments produce
-        (same sources, settings and builder), return it without rebuilding.
-    interface : ``"cs"`` co-simulation (default) or ``"me"`` Model Exchange: the same system as a
-        sampled-data model with a time event every ``step_size`` s (wrapper ``fmi2_me.c`` /
-        ``fmi3_me.c`` over ``me_core.h``; outputs discrete, no continuous states).
-    ticks_per_sample : 0 (direct mode: outputs g(x, u, p) of the current inputs) or N >= 1
-        (sampled mode: the system is sampled every ``step_size`` s, communication steps are
-        multiples of the base tick ``step_size / N``, the DefaultExperiment step; outputs are
-        those of the last processed sample; see ``lpvpc/export/c/wrapper/cs_core.h``).
-    constants : constant outputs (``causality="output"``, ``start`` = the value), e.g. a
-        declared latency in s; value references after the parameters.
-    timings : if a dict is given, it receives ``generate``, ``compile``, ``package`` and
-        ``total`` times in s, ``reused`` (bool) and ``compiler_output`` (gcc's warnings).
+    fmu_path : str or pathlib.Path
+        The ``.fmu`` to write (parent folders are created; written atomically).
+    model_identifier : str
+        C identifier; the name of the shared library and of the model.
+    system_sources : list of pathlib.Path
+        C files (and headers) implementing ``system.h``; ``.c`` files are compiled, everything
+        is copied to ``sources/``.
+    nx : int
+        Number of states of the system.
+    step_size : float
+        Internal fixed step in s; communication steps must be integer multiples of it. Also
+        the ``DefaultExperiment`` step size.
+    outputs, inputs, parameters : list of FmuVariable
+        The variables, in value-reference order (module docstring).
+    fmi_version : int, default 2
+        2 or 3.
+    description, version, author, generation_tool : str
+        Written into the model description.
+    include_dirs : list of pathlib.Path, optional
+        Folders whose top-level ``*.h`` files the system sources include (copied to the flat
+        ``sources/`` folder; file names must be unique).
+    extra_cflags : list of str, optional
+        More compiler flags (after the defaults). ``-DNAME[=VALUE]`` flags are also written to
+        FMI 3's ``buildDescription.xml``; FMI 2 has no place for them, so a rebuild from
+        ``sources/`` needs them in a header instead.
+    latency : float or None, default None
+        Output delay of the model in s (None: not stated); written into the description and
+        a vendor annotation.
+    reuse_existing : bool, default False
+        If ``fmu_path`` exists and carries the GUID these arguments produce (same sources,
+        settings and builder), return it without rebuilding.
+    timings : dict or None, default None
+        If given, receives ``generate``, ``compile``, ``package`` and ``total`` times in s,
+        ``reused`` (bool) and ``compiler_output`` (gcc's warnings).
+    interface : {"cs", "me"}, default "cs"
+        Co-simulation, or Model Exchange: the same system as a sampled-data model with a
+        time event every ``step_size`` s (wrapper ``fmi2_me.c`` / ``fmi3_me.c`` over
+        ``me_core.h``; outputs discrete, no continuous states).
+    ticks_per_sample : int, default 0
+        0: direct mode (outputs g(x, u, p) of the current inputs); N >= 1: sampled mode (the
+        system is sampled every ``step_size`` s, communication steps are multiples of the base
+        tick ``step_size / N``, the DefaultExperiment step; outputs are those of the last
+        processed sample; ``lpvpc/export/c/wrapper/cs_core.h``).
+    constants : list of FmuVariable, optional
+        Constant outputs (``causality="output"``, ``start`` = the value), e.g. a declared
+        latency in s; value references after the parameters.
 
-    Returns the path of the FMU. Raises :class:`~lpvpc.errors.ExportError` on bad arguments,
-    missing compiler or headers, or a compiler error (with the compiler's message).
+    Returns
+    -------
+    pathlib.Path
+        The path of the FMU.
+
+    Raises
+    ------
+    lpvpc.errors.ExportError
+        Bad arguments, a missing compiler or header, or a compiler error (with the
+        compiler's message).
     """
     t0 = time.perf_counter()
     fmu_path = Path(fmu_path)

@@ -97,7 +97,7 @@ def write_cohort(out, n_subjects: int = 24, *, first_seed: int = 0, null: bool =
     ``null`` cohort). Subjects take seeds ``first_seed``, ``first_seed + 1``, ... and
     alternate between :data:`GROUPS` (``design="between"``), or each subject has a record in
     both (``design="within"``: records ``SUBJECT-GROUP``, the second session's noise seeded
-    apart by :data:`SESSION_SEED_OFFSET`). Returns {"manifest": path, "truth": path}.
+    apart by ``SESSION_SEED_OFFSET``). Returns {"manifest": path, "truth": path}.
     """
     from ..io.outputs import write_text
     from ..io.trial import write_trial_csv

@@ -11,7 +11,7 @@ Columns (header row, any order; names are case-sensitive):
 - ``stationary``: true/false (default false): ``pt`` alone, a stationary trial;
 - ``heldout``: the later fraction of the record held out, in (0, 1) (default: the study's);
 - ``diagnose``: true/false (default: the study's): also diagnose the model on the held-out
-  part (:func:`lpvpc.diagnose`: which effect is missing, if any).
+  part (:func:`lpvpc.diagnosis.diagnose.diagnose`: which effect is missing, if any).
 
 Paths are relative to the manifest's folder. Empty optional cells take the default. Any
 other column is refused (a misspelt column would otherwise be silently ignored). Every

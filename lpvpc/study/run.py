@@ -181,7 +181,7 @@ def _analyse(spec: dict) -> dict:
 
 
 def diagnosis_summary(d) -> dict:
-    """What a study keeps of a :class:`lpvpc.diagnosis.Diagnosis` (JSON-serialisable):
+    """What a study keeps of a :class:`lpvpc.diagnosis.diagnose.Diagnosis` (JSON-serialisable):
     ``missing`` (the first significant candidate's effect, or None), its ``pathway``,
     ``signals``, ``vaf_gain`` (held-out pp) and ``p_value``, the names of all ``significant``
     candidates, and ``answer`` (the diagnosis' one paragraph). A record the diagnosis refuses

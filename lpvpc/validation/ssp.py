@@ -4,12 +4,12 @@ so that other tools can load the components, connections and parameters the harn
 Units: time s, angles rad, torque N m (the FMUs' own units are copied into the SSD).
 
 The archive (:func:`write_ssp`) is a zip with ``SystemStructure.ssd`` at its root and the
-FMUs under ``resources/``: one component per FMU instance of :func:`validation.cosim.run_cosimulation`
+FMUs under ``resources/``: one component per FMU instance of :func:`lpvpc.validation.cosim.run_cosimulation`
 (``actuator_ut`` and ``actuator_pt`` share ``resources/actuator.fmu``; ``model`` is
 ``resources/model.fmu``), each with a connector for every input, output and parameter of
 its model description (name, kind and type as declared there).
 
-The connections are those of :func:`validation.cosim.connections` for the given settings:
+The connections are those of :func:`lpvpc.validation.cosim.connections` for the given settings:
 
 - a source that is one output of another instance (e.g. ``model.scheduling`` from
   ``actuator_ut.position``) becomes an SSP connection between the two components;
@@ -30,7 +30,7 @@ settings are in the annotation.
 
 The portable set-up (:func:`write_portable_ssp`, written by ``validate`` as
 ``cosimulation_portable.ssp``) is the same experiment for engines that only connect outputs to
-inputs (libcosim, ECOS, run by :mod:`validation.engines`): a record-player FMU
+inputs (libcosim, ECOS, run by :mod:`lpvpc.validation.engines`): a record-player FMU
 (:func:`build_record_fmu`) plays the commands and the measured UT torque and computes the PT - UT
 position and the PT load; every connection joins two elements; the actuators' parameters are
 bound on their components (parameter set ``initialValues``); step sizes are in the OSP
@@ -67,9 +67,9 @@ ANNOTATION_TYPE = "org.lpvpc.cosimulation"
 SSP_VERSION = "1.0"
 
 #: FMU resource of each instance the master creates (component name -> resource stem);
-#: the names are those :func:`validation.cosim.connections` uses.
+#: the names are those :func:`lpvpc.validation.cosim.connections` uses.
 _RESOURCES = {"actuator_ut": "actuator", "actuator_pt": "actuator", "model": "model"}
-#: The outputs the master reads from each role (:mod:`validation.cosim`).
+#: The outputs the master reads from each role (:mod:`lpvpc.validation.cosim`).
 _OUTPUTS = {"actuator": ACTUATOR_OUTPUTS, "model": MODEL_OUTPUTS}
 _DIRECT = re.compile(r"^(\w+)\.(\w+)(?: \((?P<note>[^()]*)\))?$")
 # FMI 2 / FMI 3 variable types -> SSP 1.0 connector types
@@ -90,7 +90,7 @@ def _fmt(x: float) -> str:
 
 def ssp_connections(settings: CosimSettings | None = None, signals=(), wiring=None) -> list[dict]:
     """The experiment's wiring in SSP terms: ``wiring``, the master's (input, source) pairs
-    (``CosimResult.connections`` of a run), default :func:`validation.cosim.connections`
+    (``CosimResult.connections`` of a run), default :func:`lpvpc.validation.cosim.connections`
     of ``settings`` and ``signals``. One dict
     per input of an instance with ``end`` (component, connector), ``kind`` ("component":
     from another instance's output, ``start`` its (component, connector); "system": from
@@ -137,7 +137,7 @@ def ssp_connections(settings: CosimSettings | None = None, signals=(), wiring=No
 
 
 def instance_parameters(actuator_parameters: dict, command_ut0: float, command_pt0: float) -> dict:
-    """Parameters of each actuator instance as :func:`validation.cosim.run_cosimulation`
+    """Parameters of each actuator instance as :func:`lpvpc.validation.cosim.run_cosimulation`
     sets them: the shared ``actuator_parameters`` plus ``initial_position`` at the first
     command of the instance's run."""
     return {"actuator_ut": {**actuator_parameters, "initial_position": float(command_ut0)},
@@ -316,8 +316,8 @@ def write_ssp(path, model_fmu, actuator_fmu, *, stop_time: float, communication_
               start_time: float = 0.0, name: str = "lpvpc_cosimulation", wiring=None) -> Path:
     """Write the co-simulation set-up as an SSP 1.0 archive at ``path`` and return it.
 
-    ``model_fmu``, ``actuator_fmu``: FMU paths or :class:`validation.fmu.FMUInfo` (a path is
-    checked with :func:`validation.fmu.inspect_fmu`: a missing or corrupt FMU raises
+    ``model_fmu``, ``actuator_fmu``: FMU paths or :class:`lpvpc.validation.fmu.FMUInfo` (a path is
+    checked with :func:`lpvpc.validation.fmu.inspect_fmu`: a missing or corrupt FMU raises
     :class:`lpvpc.errors.FMUError`). ``parameters``: instance -> {parameter: value}, as
     :func:`instance_parameters` gives them; ``signals``: an extended model's extra input
     names (fed from the record); ``wiring``: the run's own connections
@@ -446,10 +446,10 @@ def write_portable_ssp(path, model_fmu, actuator_fmu, record_fmu, *, stop_time: 
     connections between elements only (:data:`PORTABLE_CONNECTIONS`); each component's
     parameters (``parameters[component]``: the actuators' calibrated servo and
     ``initial_position``) bound on the component as an inline parameter set named
-    :data:`PARAMETER_SET`; each component's step size (its FMU's DefaultExperiment step) in an
+    ``PARAMETER_SET``; each component's step size (its FMU's DefaultExperiment step) in an
     ``osp:StepSizeHint`` annotation and the base step (the smallest) in the DefaultExperiment's
     ``osp:FixedStepAlgorithm`` annotation, where libcosim and ECOS read them; start and stop
-    time in ``DefaultExperiment``. Paths or :class:`validation.fmu.FMUInfo`; ``stop_time`` s.
+    time in ``DefaultExperiment``. Paths or :class:`lpvpc.validation.fmu.FMUInfo`; ``stop_time`` s.
     """
     fmus = {}
     for role, f in (("model", model_fmu), ("actuator", actuator_fmu), ("record", record_fmu)):
@@ -514,7 +514,7 @@ def portable_ssp_from_run(path, model_fmu, actuator_fmu, drive, parameters: dict
     with inputs other than ``position`` and ``scheduling``, e.g. an extended model's record
     signals; a load setting other than the default ``measured_ut+model``).
 
-    ``drive``: the run's :class:`validation.cosim.ActuatorDrive`; ``parameters``:
+    ``drive``: the run's :class:`lpvpc.validation.cosim.ActuatorDrive`; ``parameters``:
     :func:`instance_parameters`; ``latency``: the exact model FMU's latency in model steps (the
     record continues that long with everything held, as in the harness)."""
     from .cosim import hold_tail
