@@ -34,10 +34,11 @@ def format_table(diag, n=None) -> str:
     return "\n".join(lines)
 
 
-def candidates_html(diag, n=None) -> str:
+def candidates_html(diag, n=None, syntax="python") -> str:
     """The ranked candidates as an HTML table (significant ones first, in conditional order).
     A candidate's note (why it is not available, or what its refit found) takes a full-width
-    row under it: as a ninth column it was squeezed to a word per line."""
+    row under it: as a ninth column it was squeezed to a word per line. ``syntax``: "cli" to
+    name options as the command line spells them."""
     rows, notes = [], []
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
@@ -48,7 +49,8 @@ def candidates_html(diag, n=None) -> str:
                     if c.significant else "–")
             rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
                          '<span class="pass">YES</span>' if c.significant else "no"])
-        notes.append(_breakable(c.reason) if c.reason else "")
+        reason = command_line_syntax(c.reason) if (c.reason and syntax == "cli") else c.reason
+        notes.append(_breakable(reason) if reason else "")
     return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
                                           "p", "significant"], rows, left=(1, 2, 3, 5), notes=notes) + "</div>"
 
@@ -170,9 +172,7 @@ def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2, syntax=
     parts.append(f"<p><b>Next:</b> {_next_step(diag, syntax)}</p></section>")
     quiet = [n for n, flag in diag.notes(weighed=True) if not flag]
     n_sig = len(diag.significant)
-    cand = candidates_html(diag)
-    if syntax == "cli":
-        cand = command_line_syntax(cand)
+    cand = candidates_html(diag, syntax=syntax)
     parts += [f"<details><summary>Candidates, ranked ({n_sig} significant)</summary>",
               f"<p class=\"small\">Design: {_e(diag.base_description())}. Gain: how much held-out VAF a candidate "
               f"adds (percentage points). A candidate is significant when its gain is too large to be chance (below "

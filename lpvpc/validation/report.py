@@ -354,10 +354,16 @@ def _physiology_sentence(model) -> str:
             f"{rho[1]:+.2f} rad (+ = dorsiflexion); {reflex}.")
 
 
-def _physiology_table(model, level=0.95) -> tuple:
+def _physiology_table(model, level=0.95) -> str:
     """Elastic stiffness, viscosity, reflex gain and threshold at the command line's
-    positions, with their ``level`` confidence intervals when the model carries them:
-    (table HTML, note HTML)."""
+    positions, with their ``level`` confidence intervals when the model carries them, and
+    the note on them (HTML)."""
+    return "".join(_physiology_parts(model, level))
+
+
+def _physiology_parts(model, level=0.95) -> tuple:
+    """(table HTML, note HTML) of :func:`_physiology_table`: the table opens the report, the
+    note is folded."""
     rho = _table_positions(model)
     K, B = model.elastic_stiffness(rho), model.viscosity(rho)
     G, th = model.reflex_gain_threshold(rho)
@@ -736,7 +742,7 @@ def _html(m: dict, figs: dict, model) -> str:
     if "whole_joint" in m and WHOLE_JOINT_FIGURE in figs:
         prediction.append(_whole_joint_section(m["whole_joint"], figs[WHOLE_JOINT_FIGURE]))
 
-    table_html, table_note = _physiology_table(model)
+    table_html, table_note = _physiology_parts(model)
     checks = '<span class="pass">pass</span>' if overall else '<span class="fail">FAIL</span>'
     parts.append('<section class="answer" id="answer"><h2>Answer</h2>')
     parts.append(f"<p class=\"lead\">On the held-out record the model explains <b>{m['vaf']:.2f} %</b> of the "
