@@ -251,9 +251,11 @@ def plot_stiffness_and_reflex(model, axes=None, *, level=0.95, marks=None):
     ``axes``: two axes (default: a new figure). A stationary trial's model (one position)
     is drawn as points with error bars. Returns the figure.
 
+    >>> from lpvpc.io import pair_trials
     >>> from lpvpc.simulation.simulate import simulate_pair
-    >>> from lpvpc.identification.identify import LPVPCEstimator
-    >>> model = LPVPCEstimator(structure="fixed").fit(simulate_pair("multilevel", seed=0, duration=60.0)).model_
+    >>> from lpvpc.identification.identify import identify
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut), structure="fixed")
     >>> fig = plot_stiffness_and_reflex(model)
     >>> [a.get_ylabel() for a in fig.axes]
     ['elastic stiffness K (N m/rad)', 'reflex gain (N m s/rad)']
