@@ -467,7 +467,7 @@ def _two_line_bin(label) -> str:
         return "\n".join(parts)
     import textwrap
 
-    return "\n".join(textwrap.wrap(text, 12))
+    return "\n".join(textwrap.wrap(text, 10, break_long_words=False))
 
 
 def plot_residual_diagnosis(diag, data, fig=None, ax=None):
