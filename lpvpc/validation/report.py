@@ -526,15 +526,16 @@ def _html(m: dict, figs: dict, model) -> str:
           f"<code>{_e(files['pt']['path'])}</code> / <code>{_e(files['ut']['path'])}</code>")
     parts.append(f"<p class=\"small\">model <code>{_e(prov['model_hash'][:12])}</code> on {on}, {m['n_samples']} "
                  f"samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
+    context = []  # how the records were read: opens the prediction details
     if "data" in files:  # the two trials the co-simulation drives, rebuilt: say so before any figure
-        parts.append("<p class=\"small\">The record is one PT - UT file: the actuators are driven with its "
+        context.append("<p class=\"small\">The record is one PT - UT file: the actuators are driven with its "
                      "scheduling position (UT) and the scheduling plus the perturbation position (PT). Its UT torque "
                      "is not in the file, so the co-simulation loads the PT actuator with the model's torque "
                      "only.</p>")
 
     skew = float(model.conventions.get("channel_skew_s", 0.0) or 0.0)
     if skew:  # the records were lined up as at identification (lpvpc.identification.channel_skew): say so before any figure
-        parts.append(f"<p class=\"small\">Channel skew: the rig's torque channel lags its position channel by "
+        context.append(f"<p class=\"small\">Channel skew: the rig's torque channel lags its position channel by "
                      f"{skew * 1e3:.2f} ms (found or given at identification, recorded in the model); these records' "
                      f"position was delayed by it at the file's rate before every comparison below. The FMU applies "
                      f"no delay: in a loop it answers the true angle at once.</p>")
@@ -763,6 +764,7 @@ def _html(m: dict, figs: dict, model) -> str:
     parts.append("</details>")
     parts.append("<details><summary>Prediction in detail: measured and predicted torque (Fig. 3), the scheduling "
                  "range, where the model fails</summary>")
+    parts += context
     parts += prediction
     parts.append("</details>")
     parts.append(f"<details><summary>Software checks ({'pass' if overall else 'FAIL'}): routes, FMU and "
