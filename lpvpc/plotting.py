@@ -202,14 +202,14 @@ def plot_torque_fit(time, measured, prediction, ax=None, *, fig=None, window=Non
 
 def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, positions=7, level=0.95):
     """Intrinsic gain |H(f, rho)| (N m/rad) over frequency 0..fs/2 (Hz) and position (rad)
-    with the elastic stiffness K(rho) = gain at 0 Hz (Fig. 4). Returns the figure.
+    (Fig. 4; the elastic stiffness K(rho) is its value at 0 Hz). Returns the figure.
 
     ``kind``:
 
-    - "image" (default): colour map of the gain over position (x) and frequency (y); the
-      elastic stiffness K(rho) with its ``level`` confidence band (when the model carries
-      intervals) on a second y-axis (right, N m/rad), and under it the density of the
-      scheduling variable seen at identification;
+    - "image" (default): colour map of the gain over position (x) and frequency (y), and
+      under it the density of the scheduling variable seen at identification (K(rho) with
+      its band has its own figure, :func:`plot_stiffness_and_reflex`: one y-axis per
+      quantity);
     - "curves": gain vs frequency for ``positions`` positions (the curves start at K(rho));
     - "surface": the paper's 3-D surface; ``ax`` must be a 3-D axes or None.
 
@@ -257,22 +257,83 @@ def plot_intrinsic_gain(model, ax=None, *, kind="image", n_freq=101, n_rho=61, p
     ax.figure.colorbar(mesh, ax=ax, location="top", label="|H| (N m/rad, log colour scale)", fraction=0.05, pad=0.02)
     ax.set_xlabel("position rho (rad, + = dorsiflexion)")
     ax.set_ylabel("frequency (Hz)")
-    twin = ax.twinx()
-    K = model.elastic_stiffness(rho)
-    if model.has_intervals:
-        lo, hi = model.elastic_stiffness_interval(rho, level)
-        twin.fill_between(rho, lo, hi, color="w", alpha=0.55, lw=0)
-        twin.fill_between(rho, lo, hi, color="C3", alpha=0.35, lw=0, label=f"{level:.0%} confidence band")
-    twin.plot(rho, K, color="w", lw=2.5)
-    twin.plot(rho, K, color="C3", lw=1.5, label="K(rho): gain at 0 Hz")
-    twin.set_ylabel("elastic stiffness K (N m/rad)", color="C3")
-    twin.tick_params(axis="y", colors="C3")
-    twin.set_ylim(0, 1.25 * float(np.max(hi if model.has_intervals else K)))
-    twin.legend(loc="upper left", fontsize="small", framealpha=0.85)
     dens = _density(model)
     if dens is not None:
         _density_strip(ax, dens[0], dens[2].sum(axis=1), "position rho (rad, + = dorsiflexion)")
     return ax.figure
+
+
+def plot_stiffness_and_reflex(model, axes=None, *, level=0.95, marks=None):
+    """The answer of a report in one figure: elastic stiffness K(rho) (N m/rad, left) and
+    reflex gain (N m s/rad, right) over the identified range (rad), each on its own y-axis
+    with its ``level`` confidence band when the model carries intervals. Positions where the
+    data do not determine the reflex gain are left out of its curve and marked on the axis.
+    ``marks``: positions (rad) to dot on both curves (the positions of the report's table).
+    ``axes``: two axes (default: a new figure). A stationary trial's model (one position)
+    is drawn as points with error bars. Returns the figure.
+
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> from lpvpc.identification.identify import identify
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> model = identify(pair_trials(sim.pt, sim.ut), structure="fixed")
+    >>> fig = plot_stiffness_and_reflex(model)
+    >>> [a.get_ylabel() for a in fig.axes]
+    ['elastic stiffness K (N m/rad)', 'reflex gain (N m s/rad)']
+    """
+    from .models.uncertainty import NOT_DETERMINED
+
+    if axes is None:
+        from matplotlib.figure import Figure
+
+        axes = Figure(figsize=(9, 3.0)).subplots(1, 2)
+    ax_k, ax_g = axes
+    lo, hi = model.scheduling_range
+    one = bool(model.one_position)
+    rho = np.array([lo]) if one else np.linspace(lo, hi, 121)
+    K = model.elastic_stiffness(rho)
+    G = model.reflex_gain_threshold(rho)[0]
+    has = model.has_intervals
+    ci_k = model.elastic_stiffness_interval(rho, level) if has else None
+    ci_g = model.reflex_gain_interval(rho, level) if has else None
+    g_ok = np.asarray(ci_g.determined if has else np.ones(len(rho), bool), dtype=bool)
+    band = f"{level:.0%} confidence band"
+    if one:
+        yerr_k = None if not has else [[K[0] - ci_k[0][0]], [ci_k[1][0] - K[0]]]
+        ax_k.errorbar(rho, K, yerr=yerr_k, fmt="o", color="C0", capsize=4)
+        if g_ok[0]:
+            yerr_g = None if not has else [[G[0] - ci_g[0][0]], [ci_g[1][0] - G[0]]]
+            ax_g.errorbar(rho, G, yerr=yerr_g, fmt="o", color="C1", capsize=4)
+        for ax in axes:
+            ax.set_xlim(lo - 0.05, lo + 0.05)
+    else:
+        if has:
+            ax_k.fill_between(rho, ci_k[0], ci_k[1], color="C0", alpha=0.25, lw=0, label=band)
+            ax_g.fill_between(rho, np.where(g_ok, ci_g[0], np.nan), np.where(g_ok, ci_g[1], np.nan), color="C1",
+                              alpha=0.25, lw=0, label=band)
+        ax_k.plot(rho, K, color="C0", lw=2, label="K (stiffness at 0 Hz)")
+        ax_g.plot(rho, np.where(g_ok, G, np.nan), color="C1", lw=2, label="reflex gain")
+        if not g_ok.all():
+            ax_g.plot(np.where(~g_ok, rho, np.nan), np.zeros(len(rho)), color="0.5", lw=4, alpha=0.5,
+                      label=NOT_DETERMINED)
+        if marks is not None and len(marks):
+            m = np.asarray(marks, dtype=float)
+            ax_k.plot(m, model.elastic_stiffness(m), "o", color="C0", ms=4)
+            ok = model.reflex_gain_interval(m, level).determined if has else np.ones(len(m), bool)
+            gm = model.reflex_gain_threshold(m)[0]
+            ax_g.plot(m[ok], gm[ok], "o", color="C1", ms=4)
+        for ax in axes:
+            ax.set_xlim(lo, hi)
+            ax.legend(fontsize="small", loc="upper left", frameon=False)
+    ax_k.set_ylabel("elastic stiffness K (N m/rad)")
+    ax_g.set_ylabel("reflex gain (N m s/rad)")
+    ax_k.set_ylim(bottom=0)
+    ax_g.axhline(0.0, color="0.7", lw=0.6)
+    for ax in axes:
+        ax.set_xlabel("position (rad, + = dorsiflexion)")
+        ax.grid(alpha=0.3)
+    ax_k.figure.tight_layout()
+    return ax_k.figure
 
 
 # --------------------------------------------------------------------------- Fig. 5
@@ -419,54 +480,65 @@ def plot_stiffness_vs_truth(model, truth_theta, truth_K, ax=None, *, level=0.95)
 # --------------------------------------------------------------------------- diagnosis
 
 
+def _two_line_bin(label) -> str:
+    """A bin label "lo..hi" on two lines (legible without rotation at a report's width)."""
+    text = str(label)
+    parts = text.split("..")
+    if len(parts) == 2 and " " not in text:
+        return "\n".join(parts)
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, 10, break_long_words=False))
+
+
 def plot_residual_diagnosis(diag, data, fig=None, ax=None):
     """Where a model fails (:class:`lpvpc.diagnosis.diagnose.Diagnosis` on ``data``): residual over
     time, residual RMS by position and by perturbation velocity, unexplained share per
-    frequency band, and cross-correlation of the residual with the perturbation velocity
-    and the delayed velocity (negative lags: residual leads). ``ax``: a 2 x 3 array of
-    axes to draw into (default: new ones in ``fig``). Returns the figure."""
+    frequency band, cross-correlation of the residual with the inputs (each divided by its
+    own 99 % band, so that one pair of lines at +-1 is every curve's band; negative lags:
+    residual leads), and the candidates' gains. Laid out 3 rows x 2 columns at a width a
+    report shows at its natural size (tick labels upright, at the default font size).
+    ``ax``: a 3 x 2 array of axes to draw into (default: new ones in ``fig``). Returns the
+    figure."""
     from matplotlib.figure import Figure
 
     if ax is not None:
-        axes = np.asarray(ax).reshape(2, 3)
+        axes = np.asarray(ax).reshape(3, 2)
         fig = axes[0, 0].figure
     else:
-        fig = fig or Figure(figsize=(13, 7))
-        axes = fig.subplots(2, 3)
+        fig = fig or Figure(figsize=(9.6, 10.5))
+        axes = fig.subplots(3, 2)
     t = np.asarray(data.time) - np.asarray(data.time)[0]
     y, r = np.asarray(data.torque), np.asarray(diag.residual)
     ax = axes[0, 0]
     ax.plot(t, y, color="0.75", lw=0.6, label="measured")
     ax.plot(t, r, color="C3", lw=0.6, label="residual")
     ax.set(xlabel="time (s)", ylabel="torque (N m)", title=f"VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.3g} N m")
-    ax.legend(loc="upper right", fontsize=8)
-    for ax, key in ((axes[0, 1], "position"), (axes[0, 2], "velocity")):
+    ax.legend(loc="upper right", fontsize="small")
+    for ax, key in ((axes[0, 1], "position"), (axes[1, 0], "velocity")):
         bins = diag.where[key]["bins"]
         ax.bar(range(len(bins)), [b["residual_rms"] for b in bins], color="C3")
-        ax.set_xticks(range(len(bins)))
-        ax.set_xticklabels([b["bin"] for b in bins], rotation=35, ha="right", fontsize=7)
-        ax.set(ylabel="residual RMS (N m)", title=f"by {diag.where[key]['by']}")
-    ax = axes[1, 0]
+        ax.set_xticks(range(len(bins)), [_two_line_bin(b["bin"]) for b in bins], fontsize="small")
+        ax.set(xlabel=diag.where[key]["by"], ylabel="residual RMS (N m)")
+    ax = axes[1, 1]
     fb = diag.where["frequency"]
     ax.bar(range(len(fb)), [100 * b["unexplained_fraction"] for b in fb], color="C0")
-    ax.set_xticks(range(len(fb)))
-    ax.set_xticklabels([f"{b['band_hz'][0]:g}-{b['band_hz'][1]:g}" for b in fb], fontsize=7)
+    ax.set_xticks(range(len(fb)), [f"{b['band_hz'][0]:g}-\n{b['band_hz'][1]:g}" for b in fb], fontsize="small")
     ax.set(xlabel="band (Hz)", ylabel="unexplained power (%)", title="by frequency band")
-    ax = axes[1, 1]
+    ax = axes[2, 0]
     for name, c in diag.where["cross_correlation"].items():
-        if name in ("velocity", "delayed_velocity", "position"):
+        if name in ("velocity", "delayed_velocity", "position") and c.get("band_99"):
             lags = np.linspace(c["lags_s"][0], c["lags_s"][1], len(c["ccf"]))
-            ax.plot(lags, c["ccf"], label=name)
-            ax.axhspan(-c["band_99"], c["band_99"], color="0.9")
+            ax.plot(lags, np.asarray(c["ccf"], dtype=float) / c["band_99"], label=name.replace("_", " "))
+    ax.axhspan(-1.0, 1.0, color="0.9", label="99 % band")
     ax.axvline(0, color="k", lw=0.5)
-    ax.set(xlabel="lag (s)", ylabel="correlation", title="residual vs input")
-    ax.legend(fontsize=7)
-    ax = axes[1, 2]
+    ax.set(xlabel="lag (s)", ylabel="correlation / its 99 % band", title="residual vs input")
+    ax.legend(fontsize="small")
+    ax = axes[2, 1]
     cands = [c for c in diag.candidates if c.available][:8]
     ax.barh(range(len(cands))[::-1], [c.vaf_gain for c in cands],
             color=["C2" if c.significant else "0.6" for c in cands])
-    ax.set_yticks(range(len(cands))[::-1])
-    ax.set_yticklabels([c.effect for c in cands], fontsize=7)
+    ax.set_yticks(range(len(cands))[::-1], [c.effect.replace("_", " ") for c in cands], fontsize="small")
     ax.axvline(diag.settings.get("min_gain", 0.0), color="k", ls=":", lw=0.8)
     ax.set(xlabel="held-out VAF gain (pp)", title="candidates (green: significant)")
     fig.tight_layout()
@@ -492,7 +564,7 @@ def plot_ladder(steps, ax=None):
     ax2.set_ylabel("held-out RMSE (N m)", color="C3")
     ax.set_xticks(x)
     ax.set_xticklabels([s["label"] for s in steps], rotation=20, ha="right", fontsize=8)
-    ax.set_title("improve: the error falls as effects are added")
+    ax.set_title("held-out fit at each step")
     return ax.figure
 
 

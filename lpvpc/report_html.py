@@ -14,7 +14,7 @@ import math
 from pathlib import Path
 
 __all__ = ["CSS", "escape", "num", "table", "figure_with_file", "inline_figure", "breakable", "page", "new_figure",
-           "save_figure"]
+           "save_figure", "GLOSSARY", "glossary", "command_line_syntax"]
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;margin:2em auto;max-width:980px;
@@ -26,7 +26,80 @@ td.l,th.l{text-align:left} td:not(.l){white-space:nowrap} h3{font-size:1.08em;ma
 .flag{background:#fff3f3;border-left:4px solid #d33;padding:.5em 1em} figure{margin:1em 0}
 figure img{max-width:100%;height:auto;border:1px solid #eee} figcaption{font-size:.9em;color:#555}
 code{background:#f6f6f6;padding:0 .2em} details{margin:1em 0} summary{cursor:pointer;font-weight:bold} .small{font-size:.85em;color:#555}
+.note{background:#f5f7fa;border-left:4px solid #9ab;padding:.5em 1em} section.answer{margin-bottom:1em}
+section.answer h2{margin-top:.6em} p.lead{font-size:1.08em} details>summary{font-size:1.1em;padding:.3em 0;
+border-bottom:1px solid #ddd} dl.gloss dt{font-weight:bold;margin-top:.5em} dl.gloss dd{margin-left:1.5em}
 """
+
+#: Terms a report uses, in plain words (the reports link here instead of explaining
+#: statistics in their main text). Term -> explanation.
+GLOSSARY = {
+    "VAF (variance accounted for)": "How much of the measured torque's variation the model reproduces, in percent: "
+                                    "100 % is a perfect prediction, 0 % no better than the mean.",
+    "RMSE": "Root-mean-square error: the typical size of the prediction error, in N m.",
+    "held-out record": "Data the model was not fitted to (another trial, or a later stretch of the same session): "
+                       "the honest judge of a model.",
+    "95 % interval": "The range the value lies in with 95 % confidence, given these data. The stiffness and viscosity "
+                     "intervals come from the least-squares fit with a covariance that respects correlated "
+                     "residuals (HAC, heteroscedasticity and autocorrelation consistent); the reflex gain and threshold "
+                     "intervals from refitting the reflex curve to many simulated copies of the data (parametric "
+                     "bootstrap). Both are widened by a bound on the method's known bias.",
+    "not determined by these data": "The interval spans most of the values the quantity could plausibly take: the "
+                                    "data cannot tell it (for a reflex gain: cannot tell it from no reflex).",
+    "identified range": "The positions (scheduling variable) the identification record covered; the model is "
+                        "trusted inside it.",
+    "FMU": "Functional Mock-up Unit: the model compiled for simulation tools (FMI standard).",
+    "co-simulation": "The model FMU run in a loop with a simulated actuator that moves the ankle, as in a rig.",
+    "causal form": "The model rewritten to use only past and present inputs, as a real-time loop needs.",
+    "cross-validation": "Fitting on part of the data and scoring on the rest, in turn, so that every score is on "
+                        "data the fit did not see.",
+    "gain (pp)": "How many percentage points of held-out VAF a candidate adds.",
+    "significant": "The gain is too large to be chance: its p-value (the probability of such a gain with no real "
+                   "effect) is below the threshold, corrected for the number of candidates tried (Bonferroni), and "
+                   "the gain is at least the minimum the report states.",
+    "99 % band": "The range a correlation stays in by chance 99 % of the time when the residual does not depend on "
+                 "that input.",
+    "R²": "The share of one signal's variation another explains (0 to 1).",
+}
+
+
+def glossary(terms=None) -> str:
+    """The glossary as a folded section with ``id="glossary"`` (``terms``: the keys of
+    :data:`GLOSSARY` to include, default all), so that a report's main text can use plain
+    words and link here for the precise ones.
+
+    >>> glossary(["RMSE"]).startswith('<details id="glossary">')
+    True
+    """
+    keys = list(GLOSSARY) if terms is None else [k for k in GLOSSARY if k in terms]
+    items = "".join(f"<dt>{escape(k)}</dt><dd>{escape(GLOSSARY[k])}</dd>" for k in keys)
+    return f'<details id="glossary"><summary>Glossary</summary><dl class="gloss">{items}</dl></details>'
+
+
+#: Library wording (Python keywords) -> the command-line options that do the same, for
+#: the reports the command line writes.
+_CLI_WORDS = (
+    (r"\bstructure='fixed'", "--structure fixed"),
+    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\beffects=\(?'?(\w+)'?\)?", r"--effect \1"),
+    (r"\beffects=", "--effect"),
+    (r"\bstationary=True\b", "--stationary"),
+)
+
+
+def command_line_syntax(text) -> str:
+    """``text`` with the library's Python keywords as the command line's options (for a
+    report the command line writes).
+
+    >>> command_line_syntax("identify with structure='fixed' or the setting given")
+    'identify with --structure fixed or the setting given'
+    """
+    import re
+
+    out = str(text)
+    for pattern, repl in _CLI_WORDS:
+        out = re.sub(pattern, repl, out)
+    return out
 
 
 def escape(x) -> str:

@@ -371,10 +371,14 @@ def test_plotting_functions_draw(run_dir, model_file):
         assert plotting.plot_intrinsic_gain(model, ax) is ax.figure
         mesh = ax.collections[0].get_array()
         assert np.all(np.isfinite(mesh)) and np.min(mesh) > 0
-        # K band on the twin axis, the scheduling density in a strip under the image
-        twin = [a for a in ax.figure.axes if a is not ax and a.get_shared_x_axes().joined(a, ax) and a.lines]
-        assert twin and len(twin[0].collections) == 2  # band (white underlay + colour)
+        # no second y-axis over the map (K has its own figure); the scheduling density in a strip under it
+        twin = [a for a in ax.figure.axes if a is not ax and a.get_shared_x_axes().joined(a, ax)]
+        assert not twin
         assert ax.child_axes and ax.child_axes[0].patches  # histogram bars
+        # K(rho) and the reflex gain, each on its own axis with its confidence band
+        fig = plotting.plot_stiffness_and_reflex(model)
+        assert [a.get_ylabel() for a in fig.axes] == ["elastic stiffness K (N m/rad)", "reflex gain (N m s/rad)"]
+        assert all(a.lines and a.collections for a in fig.axes)
 
         _, ax = plt.subplots()
         fig = plotting.plot_reflex_nonlinearity(model, ax, truth=params)

@@ -124,10 +124,12 @@ def test_summary_and_report_show_the_extended_model_with_intervals(models):
     lines = physiology_lines(model) + relaxation_lines(model)
     assert any(SHORT_RANGE_LABEL in x for x in lines) and any(RELAXED_LABEL in x for x in lines)
     html = _physiology_table(model)
-    K = model.elastic_stiffness_interval(np.round(central_rho(model, 5), 2))
+    from lpvpc.models.summary import summary_positions
+
+    K = model.elastic_stiffness_interval(summary_positions(model))  # the positions `lpvpc identify` prints
     assert f"({K[0][0]:.1f}–{K[1][0]:.1f})" in html  # the K cell carries its interval
     assert "no intervals" not in html and "No confidence intervals" not in html
-    rho = np.round(central_rho(model, 5), 2)
+    rho = summary_positions(model)
     (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho), relaxed_stiffness_interval(model, rho)
     for i in range(len(rho)):  # the relaxed stiffness's interval where it is plausible (0 < relaxed <= short)
         assert (f"({lo[i]:.1f}–{hi[i]:.1f})" in html) == bool(0 < relaxed[i] <= short[i])
@@ -226,7 +228,9 @@ def test_relaxing_subject_report_shows_the_relaxed_stiffness_interval():
     assert _covered((lo, hi), 0.6 * TRUTH.incremental_stiffness(rho, sim.truth["perturbation_amplitude"])) >= 8 / 9
     html = _physiology_table(model)
     assert "Stress relaxation was asked for" in html  # forced, not chosen by the cross-validation
-    rho5 = np.round(central_rho(model, 5), 2)
+    from lpvpc.models.summary import summary_positions
+
+    rho5 = summary_positions(model)  # the report's positions: the ones `lpvpc identify` prints
     (short, relaxed), (_, lo, hi) = relaxation_stiffnesses(model, rho5), relaxed_stiffness_interval(model, rho5)
     plausible = (0 < relaxed) & (relaxed <= short)  # elsewhere "not determined" (lpvpc.models.effects)
     assert plausible.sum() >= 3

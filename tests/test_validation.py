@@ -178,7 +178,7 @@ def test_out_of_range_is_flagged_and_its_error_shown_separately(full, subject, m
         assert sched["in_range"][name]["n"] == int((~outside).sum())
         assert sched["out_of_range"][name]["rmse"] > 0
     page = (full["report"] / "report.html").read_text()
-    assert "Outside the identified range" in page
+    assert "outside the identified range" in page.lower()
     assert "range:" in full["out"]
     rows = full["metrics"]["failure_analysis"]["by_position"]
     assert rows[0]["hi"] <= lo + 1e-12 and rows[-1]["lo"] >= hi - 1e-12  # separate out-of-range bins
@@ -214,10 +214,11 @@ def test_report_is_self_contained(full):
     assert "<link" not in page
     for title in ("Fig. 3", "Fig. 4", "Fig. 5", "Where the model fails", "Provenance", "Scheduling range"):
         assert title in page
-    # the order a scientist reads: physiology, prediction, software checks, provenance
-    order = [page.index(h) for h in ("<h2>Physiology", "<h2>Prediction", "<h2>Software checks", "<h2>Provenance")]
+    # the order a scientist reads: the answer, then folded physiology, prediction, software checks, provenance
+    order = [page.index(h) for h in ('<section class="answer"', "<summary>Physiology", "<summary>Prediction",
+                                     "<summary>Software checks", "<summary>Provenance")]
     assert order == sorted(order)
-    physiology = page[order[0]:order[1]]
+    physiology = page[order[0]:page.index("</section>")]
     assert "elastic stiffness K (N m/rad)" in physiology and "reflex threshold (rad/s)" in physiology
     # 5 positions x 4 quantities with intervals, or "not determined" (a threshold seen on 100 Hz velocity)
     assert physiology.count("–") + physiology.count("not determined by these data") >= 20

@@ -156,6 +156,7 @@ class Diagnosis:
     coverage: dict = field(default_factory=dict)
     leaks: dict = field(default_factory=dict)
     base_residual: np.ndarray | None = None  # held-out (cross-validated) residual of the surrogate base
+    model: object = field(default=None, repr=False, compare=False)  # the model diagnosed (not saved)
 
     def __repr__(self):
         top = self.top
@@ -244,28 +245,31 @@ class Diagnosis:
                     f"{self.surrogate_vaf:.2f} %")
         return f"model held fixed (see the note), on the samples scored: {self.surrogate_vaf:.2f} %"
 
-    def notes(self) -> list:
-        """What the reader must know about this diagnosis's design and data (sentences)."""
+    def notes(self, *, weighed: bool = False) -> list:
+        """What the reader must know about this diagnosis's design and data (sentences).
+        ``weighed``: (sentence, changes_conclusion) pairs instead, True for a note that changes
+        what the reader may conclude (a report shows only those as a warning)."""
         out = []
         if self.design == "fixed":
-            out.append(f"Model held fixed: {self.design_reason} Each candidate was fitted to the model's residual "
-                       f"alone (cross-validated); gains are relative to the model as it is.")
+            out.append((f"Model held fixed: {self.design_reason} Each candidate was fitted to the model's residual "
+                        f"alone (cross-validated); gains are relative to the model as it is.", False))
         if self.coverage.get("outside_fraction", 0) > 0:
             c = self.coverage
-            out.append(f"{100 * c['outside_fraction']:.1f} % of the samples ({c['outside_samples']}) have a scheduling "
-                       f"value outside the identified range [{c['identified_range'][0]:+.3f}, "
-                       f"{c['identified_range'][1]:+.3f}] rad; they were left out of every fit and score.")
+            out.append((f"{100 * c['outside_fraction']:.1f} % of the samples ({c['outside_samples']}) have a scheduling "
+                        f"value outside the identified range [{c['identified_range'][0]:+.3f}, "
+                        f"{c['identified_range'][1]:+.3f}] rad; they were left out of every fit and score.", False))
         if self.design == "refit" and self.surrogate_vaf - self.vaf > TRANSFER_GAP:
-            out.append(f"The model explains {self.vaf:.1f} % of these data, its structure refitted on them "
-                       f"{self.surrogate_vaf:.1f} % (cross-validated): the candidates are judged on the structure; "
-                       f"the model's own parameters do not carry over to this record (identification record too "
-                       f"short, or different from it: a trajectory that moves differently, e.g. faster, or another "
-                       f"state of the subject). A missing effect that stays nearly constant within this record is "
-                       f"invisible to the candidates and shows only in this gap.")
+            out.append((f"The model explains {self.vaf:.1f} % of these data, its structure refitted on them "
+                        f"{self.surrogate_vaf:.1f} % (cross-validated): the candidates are judged on the structure; "
+                        f"the model's own parameters do not carry over to this record (identification record too "
+                        f"short, or different from it: a trajectory that moves differently, e.g. faster, or another "
+                        f"state of the subject). A missing effect that stays nearly constant within this record is "
+                        f"invisible to the candidates and shows only in this gap.", True))
         leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
         if leaky:
-            out.append(f"Explained by the model's reflex drive, not used to name an effect: {', '.join(leaky)}.")
-        return out
+            out.append((f"Not used to name an effect: {', '.join(leaky)}; these signals follow the model's own reflex "
+                        f"drive so closely that they carry nothing the model lacks.", False))
+        return out if weighed else [text for text, _ in out]
 
     def to_dict(self) -> dict:
         return {
@@ -468,4 +472,4 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
                   "test": ("paired one-sided test on held-out squared residuals, 2-s batch means: t or Wilcoxon "
                            "signed rank, the smaller p doubled; Bonferroni over candidates")},
         timings=timings, residual=resid, prediction=pred.total, design=sur.design, design_reason=reason,
-        coverage=cov, leaks=leaks, base_residual=r0)
+        coverage=cov, leaks=leaks, base_residual=r0, model=model)

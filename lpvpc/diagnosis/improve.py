@@ -112,11 +112,12 @@ def physiology(model, rho) -> dict:
     return {"K": model.elastic_stiffness(rho), "reflex_gain": model.reflex_gain_threshold(rho)[0]}
 
 
-def _ladder_positions(ladder: Ladder, n: int = 5) -> np.ndarray:
-    """``n`` positions (rad) over the central 80 % of the base model's identified range, to
-    the millimetre-radian the command line prints; a stationary trial's one position once."""
-    lo, hi = ladder.rungs[0].model.scheduling_range
-    return np.unique(np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 3))
+def _ladder_positions(ladder: Ladder) -> np.ndarray:
+    """The positions (rad) the ladder reports: the ones ``lpvpc identify`` prints for the
+    base model (:func:`lpvpc.models.summary.summary_positions`; one for a stationary trial)."""
+    from ..models.summary import summary_positions
+
+    return summary_positions(ladder.rungs[0].model)
 
 
 def _evaluate(model, data):
@@ -237,9 +238,12 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
     return ladder
 
 
-def write_report(ladder: Ladder, heldout, folder) -> Path:
-    """Markdown report: the ladder (table and plot of held-out VAF and RMSE per step), the
-    residual before and after each step, and each kept model's diagnosis."""
+def write_report(ladder: Ladder, heldout, folder, *, syntax: str = "cli") -> Path:
+    """The improve report (``report.html``, self-contained) and ``improve.md``: the ladder
+    (one row per step: what it added, held-out VAF and RMSE before and after, K and reflex
+    gain before and after), then folded the residual before and after each step; each kept
+    model's diagnosis is its own report in ``stepN/``. ``syntax``: how the reports name
+    options, "cli" (the default, as the command line spells them) or "python"."""
     import matplotlib.pyplot as plt
 
     from .. import plotting
@@ -277,7 +281,7 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
             lines += [f"Effect: {CATALOG[r.change['effect']].explanation}", ""]
         if prev is not None:
             lines += [_change_text(phys[prev.index], phys[r.index], rho, prev.index, r.index), ""]
-            fig, axes = plt.subplots(1, 2, figsize=(11, 3.5))
+            fig, axes = plt.subplots(1, 2, figsize=(9.6, 3.2))
             plotting.plot_residual_change(heldout.time, heldout.torque, prev.residual, r.residual,
                                           labels=(f"step {prev.index}", f"step {r.index}"), fs=heldout.fs, axes=axes)
             fig.tight_layout()
@@ -287,14 +291,15 @@ def write_report(ladder: Ladder, heldout, folder) -> Path:
             lines += [f"Residual before (step {prev.index}) and after (step {r.index}):", "", f"![residual]({name})", ""]
         if r.diagnosis is not None:
             sub = folder / f"step{r.index}"
-            write_diagnosis(r.diagnosis, heldout, sub, title=f"Diagnosis after step {r.index} ({r.label})")
+            write_diagnosis(r.diagnosis, heldout, sub, title=f"Diagnosis after step {r.index} ({r.label})",
+                            syntax=syntax)
             lines += [f"Diagnosis: {r.diagnosis.answer()} ([details](step{r.index}/diagnosis.md))", "",
                       "```", format_table(r.diagnosis, 5), "```", ""]
         if r.kept:
             prev = r
     (folder / "improve.md").write_text("\n".join(lines))
     path = folder / "report.html"
-    path.write_text(_html(ladder, heldout, folder))
+    path.write_text(_html(ladder, heldout, folder, syntax))
     return path
 
 
@@ -306,47 +311,96 @@ def _change_text(before: dict, after: dict, rho, i: int, j: int) -> str:
             f"N m s/rad.")
 
 
-def _html(ladder: Ladder, heldout, folder: Path) -> str:
-    """Self-contained HTML: the ladder (table and plot), and per step the change, the
-    residual before and after it, and the diagnosis that chose the next step."""
-    from .diagnose import diagnosis_html
+def _draw_before_after(ladder: Ladder, path: Path) -> Path:
+    """K and reflex gain over position of the base and the final model (each quantity on
+    its own axis; the final model with its confidence bands)."""
+    from ..report_html import new_figure, save_figure
+    from .. import plotting
+
+    first, last = ladder.rungs[0], ladder.final
+    fig = new_figure(9, 2.9)
+    axes = fig.subplots(1, 2)
+    plotting.plot_stiffness_and_reflex(last.model, axes, marks=_ladder_positions(ladder))
+    if last is not first and not first.model.one_position:
+        lo, hi = first.model.scheduling_range
+        rho = np.linspace(lo, hi, 121)
+        axes[0].plot(rho, first.model.elastic_stiffness(rho), color="0.3", ls="--", lw=1.2, label="base model")
+        g_ok = first.model.reflex_determined(rho)[0]
+        axes[1].plot(rho, np.where(g_ok, first.model.reflex_gain_threshold(rho)[0], np.nan), color="0.3", ls="--",
+                     lw=1.2, label="base model")
+        for ax in axes:
+            ax.legend(fontsize="small", loc="upper left", frameon=False)
+    save_figure(fig, path)
+    return path
+
+
+def _html(ladder: Ladder, heldout, folder: Path, syntax: str = "cli") -> str:
+    """Self-contained HTML, the ladder first: one row per step (what it added, held-out VAF
+    and RMSE before and after, K and reflex gain at the command line's positions before and
+    after), the final model's physiology with its intervals, what to do next; each step's
+    residual and the diagnosis that chose the next step folded below (the full diagnosis of
+    each step is its own report, ``stepN/report.html``)."""
+    from ..models.summary import physiology_table_html
+    from ..models.uncertainty import NOT_DETERMINED
+    from ..report_html import breakable as _breakable
     from ..report_html import escape as _e
+    from ..report_html import glossary as _glossary
     from ..report_html import inline_figure as _html_img
     from ..report_html import page as _html_page
     from ..report_html import table as _table
 
     first, last = ladder.rungs[0], ladder.final
-    rows = []
-    for r in ladder.rungs:
-        top = r.diagnosis.top if r.diagnosis is not None else None
-        nxt = "–" if not r.kept else ("none" if top is None else f"{top.effect}{_variant_text(top.variant)} "
-                                                                f"(+{top.vaf_gain:.2f} pp, {top.pathway})")
-        rows.append([str(r.index), _e(r.label) + ("" if r.kept else " <b>(not kept)</b>"), f"{r.heldout_vaf:.2f}",
-                     f"{r.heldout_rmse:.4f}", f"{r.fit_vaf:.2f}", _e(nxt)])
-    parts = ["<h1>Improve: the model ladder</h1>",
-             f"<p>Each model is identified on the identification record and judged on the held-out record "
-             f"<code>{_e(getattr(heldout, 'source', ''))}</code>; held-out VAF {first.heldout_vaf:.2f} % &rarr; "
-             f"{last.heldout_vaf:.2f} % (RMSE {first.heldout_rmse:.4f} &rarr; {last.heldout_rmse:.4f} N m). "
-             f"Stopped: {_e(ladder.stopped)}.</p>",
-             '<div class="wide">' + _table(["step", "model", "held-out VAF (%)", "RMSE (N m)", "identification VAF (%)",
-                                            "next (top significant candidate)"], rows, left=(1, 5)) + "</div>",
-             _html_img(folder / "ladder.png", "Held-out VAF and RMSE of each model on the ladder")]
     rho = _ladder_positions(ladder)
     phys = {r.index: physiology(r.model, rho) for r in ladder.rungs}
-    parts.append("<p>What each step changes in the physiology the models report: elastic stiffness K and reflex gain "
-                 + ("at the trial's one operating position (rad; + = dorsiflexion).</p>" if len(rho) == 1 else
-                    f"at {len(rho)} positions (rad; + = dorsiflexion) over the central 80 % of the base model's "
-                    "range.</p>"))
-    for key, what, fmt in (("K", "Elastic stiffness K (N m/rad) by position", "{:.1f}"),
-                           ("reflex_gain", "Reflex gain (N m s/rad) by position", "{:.2f}")):
-        parts.append(f"<h3>{what}</h3>")
-        parts.append('<div class="wide">' + _table(
-            ["step", "model"] + [f"{x:+.3f} rad" for x in rho],
-            [[str(r.index), _e(r.label)] + [fmt.format(v) for v in phys[r.index][key]] for r in ladder.rungs],
-            left=(1,)) + "</div>")
+    g_ok = {r.index: r.model.reflex_determined(rho)[0] for r in ladder.rungs}
+
+    def values(r, key, fmt):
+        ok = g_ok[r.index] if key == "reflex_gain" else np.ones(len(rho), bool)
+        return " / ".join(fmt.format(v) if good else "n.d." for v, good in zip(phys[r.index][key], ok))
+
+    rows, prev = [], None
+    for r in ladder.rungs:
+        added = ("base model" + (f" (with {', '.join(r.effects)})" if r.effects else "")) if r.index == 0 else \
+            (f"added {r.change['effect']}" if r.change.get("effect") else f"changed {r.label}")
+        added = _breakable(added) + ("" if r.kept else " <b>(not kept: no held-out gain)</b>")
+        vaf = f"{r.heldout_vaf:.2f}" if prev is None else f"{prev.heldout_vaf:.2f} &rarr; {r.heldout_vaf:.2f}"
+        rmse = f"{r.heldout_rmse:.4f}" if prev is None else f"{prev.heldout_rmse:.4f} &rarr; {r.heldout_rmse:.4f}"
+        rows.append([str(r.index), added, vaf, rmse, values(r, "K", "{:.1f}"), values(r, "reflex_gain", "{:.2f}")])
+        if r.kept:
+            prev = r
+    where = (f"at {rho[0]:+.3f} rad" if len(rho) == 1 else
+             "at " + ", ".join(f"{x:+.3f}" for x in rho) + " rad")
+    final_effects = ", ".join(last.effects) or "no effects"
+    parts = ["<h1>Improve: the model ladder</h1>",
+             f"<p class=\"small\">Each model is identified on the identification record and judged on the held-out "
+             f"record <code>{_e(getattr(heldout, 'source', ''))}</code>.</p>",
+             '<section class="answer" id="answer"><h2>Answer</h2>',
+             f"<p class=\"lead\">Held-out VAF <b>{first.heldout_vaf:.2f} % &rarr; {last.heldout_vaf:.2f} %</b> (RMSE "
+             f"{first.heldout_rmse:.4f} &rarr; {last.heldout_rmse:.4f} N m) in {len(ladder.kept) - 1} kept "
+             f"step{'s' if len(ladder.kept) != 2 else ''}; final model: <b>{_e(final_effects)}</b>. Stopped: "
+             f"{_e(ladder.stopped)}.</p>",
+             f"<p>One row per step; K and the reflex gain {where} (the positions <code>lpvpc identify</code> prints; "
+             f"n.d.: {NOT_DETERMINED}):</p>",
+             '<div class="wide">' + _table(["step", "what it added", "held-out VAF (%)", "held-out RMSE (N m)",
+                                            "K (N m/rad)", "reflex gain (N m s/rad)"], rows, left=(1, 4, 5)) + "</div>",
+             _html_img(_draw_before_after(ladder, folder / "before_after.png"),
+                       "K and reflex gain of the final model (bands: 95 % confidence) and of the base model (dashed)")]
+    val = ("<code>lpvpc validate FINAL.json --pt PT3 --ut UT3</code>" if syntax == "cli" else
+           "<code>lpvpc.validate(final_model, third_record)</code>")
+    parts.append(f"<p><b>Next:</b> the held-out record chose the steps, so its VAF flatters the final model a little: "
+                 f"validate the final model (the file given with <code>-o</code>) on a third record, {val}.</p>"
+                 if syntax == "cli" else
+                 f"<p><b>Next:</b> the held-out record chose the steps, so its VAF flatters the final model a little: "
+                 f"validate it on a third record, {val}.</p>")
+    parts.append(f"<details><summary>The final model's physiology with its 95 % intervals</summary>"
+                 f"{physiology_table_html(last.model)}</details>")
+    parts.append("</section>")
+    parts.append("<details><summary>Each step: what it changed, its residual before and after, what the diagnosis "
+                 "found next</summary>")
+    parts.append(_html_img(folder / "ladder.png", "Held-out VAF and RMSE of each model on the ladder"))
     prev = None
     for r in ladder.rungs:
-        parts.append(f"<h2>Step {r.index}: {_e(r.label)}{'' if r.kept else ' (not kept)'}</h2>")
+        parts.append(f"<h3>Step {r.index}: {_e(r.label)}{'' if r.kept else ' (not kept)'}</h3>")
         parts.append(f"<p>held-out VAF {r.heldout_vaf:.2f} %, RMSE {r.heldout_rmse:.4f} N m; identification VAF "
                      f"{r.fit_vaf:.2f} %; fit {r.fit_time:.1f} s"
                      + (f", diagnosis {r.diagnosis_time:.1f} s" if r.diagnosis is not None else "") + ".</p>")
@@ -360,8 +414,8 @@ def _html(ladder: Ladder, heldout, folder: Path) -> str:
         if png.is_file():
             parts.append(_html_img(png, f"Held-out residual before and after step {r.index}"))
         if r.diagnosis is not None:
-            sub = folder / f"step{r.index}"
-            parts.append(diagnosis_html(r.diagnosis, sub / "residual.png", sub / "residual_change.png"
-                                        if (sub / "residual_change.png").is_file() else None,
-                                        next((c for c in r.diagnosis.candidates if c.available), None), level=3))
+            parts.append(f"<p>Diagnosis of this model on the held-out record: {_e(r.diagnosis.answer())} "
+                         f"(<a href=\"step{r.index}/report.html\">its report</a>)</p>")
+    parts.append("</details>")
+    parts.append(_glossary())
     return _html_page("lpvpc improve report", "\n".join(parts))

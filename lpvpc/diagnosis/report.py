@@ -13,7 +13,9 @@ from pathlib import Path
 from .candidates import _variant_text
 from .signals import FORMS
 from ..report_html import breakable as _breakable
+from ..report_html import command_line_syntax
 from ..report_html import escape as _e
+from ..report_html import glossary as _glossary
 from ..report_html import inline_figure as _html_img
 from ..report_html import page as _html_page
 from ..report_html import table as _table
@@ -32,10 +34,11 @@ def format_table(diag, n=None) -> str:
     return "\n".join(lines)
 
 
-def candidates_html(diag, n=None) -> str:
+def candidates_html(diag, n=None, syntax="python") -> str:
     """The ranked candidates as an HTML table (significant ones first, in conditional order).
     A candidate's note (why it is not available, or what its refit found) takes a full-width
-    row under it: as a ninth column it was squeezed to a word per line."""
+    row under it: as a ninth column it was squeezed to a word per line. ``syntax``: "cli" to
+    name options as the command line spells them."""
     rows, notes = [], []
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
@@ -46,16 +49,20 @@ def candidates_html(diag, n=None) -> str:
                     if c.significant else "–")
             rows.append([str(i), name, _e(c.kind), _e(c.pathway), f"{c.vaf_gain:+.3f}", _e(cond), f"{c.p_value:.1e}",
                          '<span class="pass">YES</span>' if c.significant else "no"])
-        notes.append(_breakable(c.reason) if c.reason else "")
+        reason = command_line_syntax(c.reason) if (c.reason and syntax == "cli") else c.reason
+        notes.append(_breakable(reason) if reason else "")
     return '<div class="wide">' + _table(["rank", "candidate", "kind", "pathway", "gain (pp)", "conditional gain (pp)",
                                           "p", "significant"], rows, left=(1, 2, 3, 5), notes=notes) + "</div>"
 
 
-def write_report(diag, data, folder, *, title="Diagnosis") -> Path:
-    """Report folder: ``report.html`` (self-contained: the answer, the ranked candidates,
-    residual before/after the top candidate, where the model fails, signal dependence),
-    ``diagnosis.md`` (the same in markdown), ``diagnosis.json`` and the figures. Returns
-    the path of report.html."""
+def write_report(diag, data, folder, *, title="Diagnosis", syntax="cli") -> Path:
+    """Report folder: ``report.html`` (self-contained: the answer first, then folded the
+    ranked candidates, residual before/after the top candidate, where the model fails,
+    signal dependence, a glossary), ``diagnosis.md`` (the same in markdown),
+    ``diagnosis.json`` and the figures. Returns the path of report.html.
+
+    ``syntax``: how the report names options: "cli" (the default: ``--structure fixed``, as
+    the command line that writes most reports spells them) or "python" (keywords)."""
     from .. import plotting
 
     folder = Path(folder)
@@ -63,7 +70,7 @@ def write_report(diag, data, folder, *, title="Diagnosis") -> Path:
     diag.save(folder / "diagnosis.json")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(13, 7))
+    fig = plt.figure(figsize=(9.6, 10.5))
     plotting.plot_residual_diagnosis(diag, data, fig=fig)
     figs = folder / "residual.png"
     fig.savefig(figs, dpi=100)
@@ -71,14 +78,14 @@ def write_report(diag, data, folder, *, title="Diagnosis") -> Path:
     change = None
     first = next((c for c in diag.candidates if c.available and c.residual is not None), None)
     if first is not None and diag.base_residual is not None:
-        fig, axes = plt.subplots(1, 2, figsize=(12, 3.6))
+        fig, axes = plt.subplots(1, 2, figsize=(9.6, 3.2))
         plotting.plot_residual_change(data.time, data.torque, diag.base_residual, first.residual,
                                       labels=("model (cross-validated)", f"+ {first.effect}"), fs=data.fs, axes=axes)
         fig.tight_layout()
         change = folder / "residual_change.png"
         fig.savefig(change, dpi=100)
         plt.close(fig)
-    _write_html(diag, folder / "report.html", title, figs, change, first)
+    _write_html(diag, folder / "report.html", title, figs, change, first, syntax)
     w = diag.where
     lines = [f"# {title}", "", f"Model `{diag.model_hash[:12]}` on `{diag.data_source}` ({diag.n_samples} samples at "
              f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; {diag.base_description()}.", "",
@@ -112,40 +119,87 @@ def write_report(diag, data, folder, *, title="Diagnosis") -> Path:
     return folder / "report.html"
 
 
-def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2) -> str:
-    """The body of a diagnosis (used by the diagnose report and by each step of the improve
-    report)."""
+def _next_step(diag, syntax="cli") -> str:
+    """What to do next after this diagnosis (HTML)."""
+    top = diag.top
+    gap = any(flag for _, flag in diag.notes(weighed=True))
+    if top is not None:
+        if top.kind == "effect":
+            how = (f"<code>lpvpc identify ... --effect {_e(top.effect)}</code>" if syntax == "cli" else
+                   f"<code>LPVPCEstimator(effects=[{top.effect!r}])</code>")
+            return (f"add <code>{_e(top.effect)}</code> to the model ({how}), or let "
+                    f"{'<code>lpvpc improve</code>' if syntax == 'cli' else '<code>lpvpc.improve</code>'} add the "
+                    f"significant effects one at a time and show what each changes.")
+        setting = ", ".join(f"{k}={v:g}" for k, v in top.variant.items())
+        return f"identify again with {_e(command_line_syntax(setting) if syntax == 'cli' else setting)}."
+    if gap:
+        return ("identify on a record more like this one (the model's parameters do not carry over to it; see the "
+                "warning above).")
+    return ("nothing to add: no effect of the catalog explains a meaningful part of what the model misses on these "
+            "data. Validate it (FMU and co-simulation checks) with "
+            + ("<code>lpvpc validate</code>." if syntax == "cli" else "<code>lpvpc.validate</code>."))
+
+
+def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2, syntax="cli") -> str:
+    """The body of a diagnosis: the answer first (fit on these data, what is missing, the
+    model's stiffness and reflex with their intervals when ``diag.model`` is known, what to
+    do next), the details folded below. ``syntax``: "cli" (options as the command line
+    spells them) or "python" (keywords)."""
     h = f"h{level}"
     c = diag.coverage
-    parts = [f"<p>Model <code>{_e(diag.model_hash[:12])}</code> on <code>{_e(diag.data_source)}</code>: "
-             f"{diag.n_samples} samples at {diag.fs:g} Hz ({c.get('duration_s', 0):.1f} s, "
-             f"{100 * c.get('covered_fraction_of_range', 1):.0f} % of the identified range); VAF {diag.vaf:.2f} %, "
-             f"RMSE {diag.rmse:.4g} N m; design <b>{_e(diag.design)}</b>: "
-             f"{_e(diag.base_description())}.</p>",
-             f"<{h}>Answer</{h}>", f"<p class=\"what\">{_e(diag.answer())}</p>"]
-    for note in diag.notes():
-        parts.append(f'<p class="flag">{_e(note)}</p>')
-    parts += [f"<{h}>Candidates, ranked</{h}>",
-              "<p class=\"small\">Gain: held-out VAF gain over the base (pp). Significant candidates are ranked by "
-              "what each adds given the ones above it (conditional gain); a candidate is significant when its p-value "
-              f"is below {diag.settings['alpha']} / number of candidates and its gain at least "
-              f"{diag.settings['min_gain']} pp.</p>", candidates_html(diag)]
-    if change is not None:
+    outside = c.get("outside_fraction", 0) or 0
+    parts = [f"<p class=\"small\">Model <code>{_e(diag.model_hash[:12])}</code> on <code>{_e(diag.data_source)}</code>: "
+             f"{diag.n_samples} samples at {diag.fs:g} Hz ({c.get('duration_s', 0):.1f} s); its positions reach "
+             f"{100 * c.get('covered_fraction_of_range', 1):.0f} % of the identified range"
+             + (f", and {100 * outside:.1f} % of its samples lie beyond that range (left out of every score)"
+                if outside > 0 else "") + ".</p>",
+             f'<section class="answer" id="answer"><{h}>Answer</{h}>',
+             f"<p class=\"lead\">On these data the model explains <b>{diag.vaf:.2f} %</b> of the torque (VAF; RMSE "
+             f"{diag.rmse:.3g} N m). {_e(diag.answer())}</p>"]
+    for note, flag in diag.notes(weighed=True):
+        if flag:
+            parts.append(f'<p class="flag">{_e(note)}</p>')
+    model = getattr(diag, "model", None)
+    if model is not None:
+        from ..models.summary import physiology_table_html
+
+        parts.append("<p>The model's physiology at the positions <code>lpvpc identify</code> prints, 95 % intervals "
+                     "in brackets (<a href=\"#glossary\">glossary</a>):</p>")
+        parts.append(physiology_table_html(model))
+    if change is not None and diag.top is not None:
         parts.append(_html_img(change, f"Held-out residual of the model (cross-validated base) and with "
                                        f"{first.effect} added: before and after, over time and as spectra"))
+    parts.append(f"<p><b>Next:</b> {_next_step(diag, syntax)}</p></section>")
+    quiet = [n for n, flag in diag.notes(weighed=True) if not flag]
+    n_sig = len(diag.significant)
+    cand = candidates_html(diag, syntax=syntax)
+    parts += [f"<details><summary>Candidates, ranked ({n_sig} significant)</summary>",
+              f"<p class=\"small\">Design: {_e(diag.base_description())}. Gain: how much held-out VAF a candidate "
+              f"adds (percentage points). A candidate is significant when its gain is too large to be chance (below "
+              f"{diag.settings['alpha']} / number of candidates) and at least {diag.settings['min_gain']} points; "
+              f"significant candidates are ranked by what each adds given the ones above it (conditional gain). See "
+              f"the <a href=\"#glossary\">glossary</a>.</p>", cand]
+    parts += [f'<p class="note">{_e(n)}</p>' for n in quiet]
+    if change is not None and diag.top is None:
+        parts.append(_html_img(change, f"Held-out residual of the model (cross-validated base) and with "
+                                       f"{first.effect} added: before and after, over time and as spectra"))
+    parts.append("</details>")
+    if figs is not None:
+        parts += ["<details><summary>Where the model fails: residual over time, by position, velocity and frequency, "
+                  "against the inputs</summary>",
+                  _html_img(figs, "Residual over time, by position and velocity, by frequency band, its "
+                                  "correlation with the inputs (each divided by its own 99 % band: inside +-1 is "
+                                  "chance), and the candidates' gains"), "</details>"]
     if diag.dependence:
         rows = [[_e(d["signal"]), _e(FORMS[d["form"]]), _e(d["pathway"]), f"{d['vaf_gain']:+.3f}", f"{d['p_value']:.1e}",
                  "–" if "leak" not in d else f"{d['leak']:.2f}"] for d in diag.dependence[:8]]
-        parts += [f"<{h}>Which signal the residual depends on (top 8)</{h}>",
+        parts += ["<details><summary>Which signal the residual depends on (top 8)</summary>",
                   '<div class="wide">' + _table(["signal", "form", "pathway", "gain (pp)", "p",
-                                                 "R² by reflex drive"], rows, left=(0, 1, 2)) + "</div>"]
-    if figs is not None:
-        parts += [f"<{h}>Where the model fails</{h}>",
-                  _html_img(figs, "Residual over time, by position and velocity, by frequency band, its "
-                                  "cross-correlation with the input, and the candidates' gains")]
+                                                 "R² by reflex drive"], rows, left=(0, 1, 2)) + "</div>",
+                  "</details>"]
     return "\n".join(parts)
 
 
-def _write_html(diag, path, title, figs, change, first):
-    body = f"<h1>{html.escape(title)}</h1>" + diagnosis_html(diag, figs, change, first)
+def _write_html(diag, path, title, figs, change, first, syntax="cli"):
+    body = f"<h1>{html.escape(title)}</h1>" + diagnosis_html(diag, figs, change, first, syntax=syntax) + _glossary()
     Path(path).write_text(_html_page(title, body))

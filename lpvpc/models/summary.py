@@ -82,8 +82,12 @@ def skew_lines(model) -> list:
 
 
 def summary_positions(model) -> np.ndarray:
-    """The positions (rad) a summary reports: five across the identified range (one for a
-    stationary trial's model)."""
+    """The positions (rad) a summary reports: five across the identified range, its ends
+    included (one for a stationary trial's model).
+
+    The one choice of positions for every place that reports the physiology (the command
+    line's summary, the validation, diagnosis and improve reports), so that a number printed
+    by one can be found in the others."""
     lo, hi = model.scheduling_range
     return np.linspace(lo, hi, 5) if hi - lo > 1e-6 else np.array([lo])
 
@@ -195,8 +199,7 @@ def relaxation_lines(model) -> list:
 def physiology_lines(model) -> list:
     """Lines of the identified physiology: K(theta) at five positions, viscosity, reflex gain
     and threshold at the ends of the range, basis orders (what a user checks first)."""
-    lo, hi = model.scheduling_range
-    rho = np.linspace(lo, hi, 5) if hi - lo > 1e-6 else np.array([lo])
+    rho = summary_positions(model)
     K, B = model.elastic_stiffness(rho), model.viscosity(rho)
     gain, thr = model.reflex_gain_threshold(rho[[0, -1]])
     at = lambda v, r: ", ".join(f"{x:.1f} at {p:+.3f}" for x, p in zip(v, r))  # noqa: E731
@@ -225,3 +228,37 @@ def physiology_lines(model) -> list:
         f"orders:      IRF lags {model.lags[0]}..{model.lags[-1]}, basis orders in position {s.get('intrinsic_order')} "
         f"(intrinsic), {s.get('reflex_order')} (reflex), velocity {s.get('velocity_order')}",
     ]
+
+
+def physiology_table_html(model, level=0.95) -> str:
+    """An HTML table of the elastic stiffness K, viscosity, reflex gain and threshold at the
+    positions the command line prints (:func:`summary_positions`), with their ``level``
+    intervals in brackets when the model carries them and "not determined by these data"
+    where an interval spans most of the plausible range: the answer's table in the
+    validation, diagnosis and improve reports."""
+    from ..report_html import table
+
+    rho = summary_positions(model)
+    K, B = model.elastic_stiffness(rho), model.viscosity(rho)
+    G, th = model.reflex_gain_threshold(rho)
+    has = model.has_intervals
+    ci = {}
+    if has:
+        ci = {"K": model.elastic_stiffness_interval(rho, level), "B": model.viscosity_interval(rho, level),
+              "G": model.reflex_gain_interval(rho, level), "th": model.reflex_threshold_interval(rho, level)}
+    g_ok, th_ok = model.reflex_determined(rho, level)
+    ok = {"G": g_ok, "th": th_ok}
+
+    def cell(key, est, i, fmt):
+        if (has and not ci[key].determined[i]) or (key in ok and not ok[key][i]):
+            return f"<em>{NOT_DETERMINED}</em>"
+        if not has:
+            return fmt.format(est[i])
+        return (f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(ci[key][0][i])}–"
+                f"{fmt.format(ci[key][1][i])})</span>")
+
+    rows = [[f"{r:+.3f} ({np.degrees(r):+.0f}°)", cell("K", K, i, "{:.1f}"), cell("B", B, i, "{:.2f}"),
+             cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
+    head = ["position (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)", "reflex gain (N m s/rad)",
+            "reflex threshold (rad/s)"]
+    return table(head, rows)

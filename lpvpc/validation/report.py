@@ -21,6 +21,7 @@ import numpy as np
 from lpvpc.io.outputs import write_text
 from lpvpc.report_html import CSS as _CSS
 from lpvpc.report_html import escape as _e
+from lpvpc.report_html import glossary as _glossary
 from lpvpc.report_html import figure_with_file as _img
 from lpvpc.report_html import new_figure as _fig
 from lpvpc.report_html import num as _num
@@ -32,8 +33,10 @@ __all__ = ["write_report", "write_metrics", "FIGURES"]
 
 #: file name -> (section, caption); the order of the report.
 FIGURES = {
-    "fig4_intrinsic_gain.png": "Identified intrinsic gain over frequency and position, with K(rho), its confidence "
-                               "band and the positions seen at identification (Fig. 4)",
+    "answer.png": "Elastic stiffness K and reflex gain over position, with their confidence bands (dots: the "
+                  "positions of the table)",
+    "fig4_intrinsic_gain.png": "Identified intrinsic gain over frequency and position, and the positions seen at "
+                               "identification (Fig. 4; its value at 0 Hz is K, drawn with its band in the answer)",
     "fig5a_reflex_nonlinearity.png": "Identified reflex static nonlinearity at several positions with confidence "
                                      "bands, drawn where identification saw data (Fig. 5A)",
     "fig5b_reflex_irf.png": "Impulse response of the identified reflex dynamics (Fig. 5B)",
@@ -179,6 +182,11 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     _legend_above(ax3)
     _save(fig, out("routes.png"))
 
+    # the answer: K and the reflex gain over position, each on its own axis
+    fig = _fig(9, 2.9)
+    plotting.plot_stiffness_and_reflex(model, fig.subplots(1, 2), marks=_table_positions(model))
+    _save(fig, out("answer.png"))
+
     # Figs. 4 and 5
     fig = _fig(7, 5)
     plotting.plot_intrinsic_gain(model, fig.gca())
@@ -321,13 +329,12 @@ window.addEventListener('load', function () {
 """
 
 
-def _table_positions(model, n=5):
-    """``n`` positions (rad) over the central 80 % of the identified range, rounded to 0.01;
-    the one operating position of a stationary trial's model."""
-    lo, hi = model.scheduling_range
-    if model.one_position:
-        return np.array([lo])
-    return np.round(np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), n), 2)
+def _table_positions(model):
+    """The positions (rad) of the physiology table: the ones ``lpvpc identify`` prints
+    (:func:`lpvpc.models.summary.summary_positions`), so that the two can be compared."""
+    from lpvpc.models.summary import summary_positions
+
+    return summary_positions(model)
 
 
 def _physiology_sentence(model) -> str:
@@ -348,8 +355,15 @@ def _physiology_sentence(model) -> str:
 
 
 def _physiology_table(model, level=0.95) -> str:
-    """Elastic stiffness, viscosity, reflex gain and threshold at a few positions, with
-    their ``level`` confidence intervals when the model carries them."""
+    """Elastic stiffness, viscosity, reflex gain and threshold at the command line's
+    positions, with their ``level`` confidence intervals when the model carries them, and
+    the note on them (HTML)."""
+    return "".join(_physiology_parts(model, level))
+
+
+def _physiology_parts(model, level=0.95) -> tuple:
+    """(table HTML, note HTML) of :func:`_physiology_table`: the table opens the report, the
+    note is folded."""
     rho = _table_positions(model)
     K, B = model.elastic_stiffness(rho), model.viscosity(rho)
     G, th = model.reflex_gain_threshold(rho)
@@ -366,9 +380,9 @@ def _physiology_table(model, level=0.95) -> str:
         lo, hi = ci[key][0][i], ci[key][1][i]
         return f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(lo)}–{fmt.format(hi)})</span>"
 
-    rows = [[f"{r:+.2f} ({np.degrees(r):+.0f}°)", cell("K", K, i, "{:.1f}"), cell("B", B, i, "{:.2f}"),
+    rows = [[f"{r:+.3f} ({np.degrees(r):+.0f}°)", cell("K", K, i, "{:.1f}"), cell("B", B, i, "{:.2f}"),
              cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
-    head = ["position rho (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)",
+    head = ["position (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)",
             "reflex gain (N m s/rad)", "reflex threshold (rad/s)"]
     relaxed = _relaxed_stiffness(model, rho)
     if relaxed is not None:  # stress relaxation chosen: both stiffnesses, each labelled
@@ -388,16 +402,14 @@ def _physiology_table(model, level=0.95) -> str:
             row.insert(2, f"{k:.1f}{ci_k}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
     if has:
         v_lo, v_hi = model.vaf_interval()
-        note = (f"In brackets: {level:.0%} confidence intervals from the HAC covariance of the final least squares "
-                f"(correlated residuals respected; <code>lpvpc.models.uncertainty</code>). Identification VAF "
-                f"{model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). The intervals of K and "
-                f"viscosity include a bound on the estimator's structural bias; K is the stiffness over the "
-                f"perturbation's amplitude (slightly above the tangent of a curved elastic torque). "
-                f"{_reflex_bias_note(model)} Coverage of the 95 % intervals measured on the virtual subject at the "
-                f"default settings from 1 kHz files (three stiffness families, two of them curves the basis cannot "
-                f"hold; 40 seeds each, 9 positions): K 91-99 %, viscosity 93-100 %, reflex gain 92-96 %, reflex "
-                f"threshold 94-99 % (see the user guide's page on confidence intervals). In a model with stress relaxation the "
-                f"K interval is the short-range stiffness's.")
+        note = (f"In brackets: {level:.0%} confidence intervals (<a href=\"#glossary\">glossary</a>); "
+                f"a value whose interval spans most of its plausible range reads \"{NOT_DETERMINED}\". "
+                f"Identification VAF {model.fit.get('vaf', float('nan')):.2f} % ({v_lo:.2f}–{v_hi:.2f} %). "
+                f"The intervals allow for the method's known bias; K is the stiffness over the perturbation's "
+                f"amplitude (slightly above the slope of a curved torque-angle relation). {_reflex_bias_note(model)} "
+                f"On the virtual subject the 95 % intervals held the truth 91-100 % of the time (the user guide's "
+                f"page on confidence intervals). In a model with stress relaxation the K interval is the "
+                f"short-range stiffness's.")
     else:
         note = _no_intervals_note(model)
     if relaxed is not None:
@@ -405,14 +417,14 @@ def _physiology_table(model, level=0.95) -> str:
                                          or {}).get("chosen", ())
         from lpvpc.models.effects import model_relaxation_times
 
-        how = "was chosen by the structure's cross-validation" if chosen else "was asked for (effects=)"
+        how = "was chosen by the structure's cross-validation" if chosen else "was asked for (--effect)"
         times = " and ".join(f"{t:g}" for t in model_relaxation_times(model))
         note += (f" Stress relaxation {how} (the position averaged over {times} s): right after a displacement the "
                  "joint resists with the short-range stiffness; held for seconds, part of that torque relaxes and the "
                  "relaxed stiffness remains. The short-range stiffness trades with that time, which a record hardly "
                  "determines" + ("; its interval counts the neighbouring times." if chosen else
                                  ": with an effect asked for, the interval does not count that."))
-    return _table(head, rows) + f"<p class=\"small\">{note}</p>"
+    return _table(head, rows), f"<p class=\"small\">{note}</p>"
 
 
 def _relaxed_stiffness(model, rho):
@@ -430,9 +442,9 @@ def _no_intervals_note(model) -> str:
     if model.effects:
         return ("No confidence intervals in this model file: it has "
                 f"{', '.join(fe.name for fe in model.effects)} and was identified by an lpvpc that computed intervals "
-                "for models without effects only, or its covariance could not be computed (identification warned "
+                "for models without effects only, or its intervals could not be computed (identification warned "
                 "why). Re-identifying gives them. The estimates are shown.")
-    return ("No confidence intervals in this model file: their covariance could not be computed from the "
+    return ("No confidence intervals in this model file: they could not be computed from the "
             "identification data (identification warned why), or the file predates intervals in lpvpc (re-identifying "
             "gives them then). The estimates are shown.")
 
@@ -449,15 +461,49 @@ def _reflex_bias_note(model) -> str:
     """Where the reflex nonlinearity was seen: from 100 Hz files its threshold is biased."""
     fs_v = model.nonlinearity_fs
     if model.reflex_threshold_biased:
-        return (f"Reflex gain and threshold were seen on {fs_v:g} Hz velocity: they carry the bias of a rectifier of "
-                f"~20 ms velocity pulses smoothed at that rate. The gain's interval includes a bound for the smoothed "
-                f"knee; the threshold is not observable at that rate and is reported as not determined by these data "
-                f"(from 1 kHz files, <code>high_rate_reflex=True</code> identifies it on the 1 kHz velocity; "
+        return (f"The reflex was seen on {fs_v:g} Hz velocity, too slow for its threshold: the threshold is "
+                f"reported as not determined by these data and the gain's interval allows for the smoothing "
+                f"(from 1 kHz files, <code>--high-rate-reflex</code> identifies it on the 1 kHz velocity; "
                 f"see the user guide's page on reflex intervals).")
-    return (f"The reflex nonlinearity was identified on the {fs_v:g} Hz delayed velocity (its output decimated to the "
-            f"model rate); its gain and threshold intervals come from a parametric bootstrap of the rectifier fit "
-            f"with bounds for structural bias, and a quantity whose interval spans most of its plausible range is "
-            f"reported as not determined by these data.")
+    return (f"The reflex curve was identified on the {fs_v:g} Hz delayed velocity; its gain and threshold intervals "
+            f"come from refitting it to many simulated copies of the data.")
+
+
+#: Out-of-range RMSE above this multiple of the in-range RMSE is flagged (red): the model's
+#: continuation beyond its range is then worse than its fit, which changes where it may be used.
+OUT_OF_RANGE_WORSE = 1.25
+
+
+def _out_of_range_worse(outside: dict, inside: dict) -> bool:
+    """Whether the prediction outside the identified range is clearly worse than inside.
+
+    >>> _out_of_range_worse({"rmse": 0.262}, {"rmse": 0.259}), _out_of_range_worse({"rmse": 0.5}, {"rmse": 0.26})
+    (False, True)
+    """
+    o, i = outside.get("rmse"), inside.get("rmse")
+    if o is None or i is None or not (math.isfinite(o) and math.isfinite(i)) or i <= 0:
+        return False
+    return o > OUT_OF_RANGE_WORSE * i
+
+
+def _next_step(m: dict, model) -> str:
+    """What to do next, from the validation's own findings (HTML)."""
+    prov = m["provenance"]
+    s = m["scheduling"]
+    if not m["pass"]:
+        return ("a software check failed (see <i>Software checks</i> below): the FMU or the co-simulation does not "
+                "reproduce the model; do not use the FMU until it passes.")
+    if s["flagged"] and not model.one_position and _out_of_range_worse(s["out_of_range"]["numpy"],
+                                                                       s["in_range"]["numpy"]):
+        return (f"identify on a record that covers [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad "
+                "before using the model at the positions outside its range.")
+    files = prov["data_files"]
+    data = (f"{files['data']['path']}" if "data" in files else
+            f"--pt {files['pt']['path']} --ut {files['ut']['path']}" if "ut" in files else f"--pt {files['pt']['path']}")
+    cmd = (f"<code>lpvpc diagnose {_e(prov['model_file'])} {_e(data)} --report diagnosis</code>"
+           if prov.get("command_line") else "<code>lpvpc.diagnose(model, heldout)</code>")
+    return (f"the model is ready to use (its FMU: <code>{_e(prov['model_fmu']['path'])}</code>). To see what it "
+            f"misses and which physical effect would explain the rest: {cmd}.")
 
 
 def _worst_bin(rows, key="rmse_numpy"):
@@ -480,15 +526,16 @@ def _html(m: dict, figs: dict, model) -> str:
           f"<code>{_e(files['pt']['path'])}</code> / <code>{_e(files['ut']['path'])}</code>")
     parts.append(f"<p class=\"small\">model <code>{_e(prov['model_hash'][:12])}</code> on {on}, {m['n_samples']} "
                  f"samples at {m['fs']:g} Hz ({m['duration_s']:.1f} s); {_e(prov['date'])}</p>")
+    context = []  # how the records were read: opens the prediction details
     if "data" in files:  # the two trials the co-simulation drives, rebuilt: say so before any figure
-        parts.append("<p class=\"small\">The record is one PT - UT file: the actuators are driven with its "
+        context.append("<p class=\"small\">The record is one PT - UT file: the actuators are driven with its "
                      "scheduling position (UT) and the scheduling plus the perturbation position (PT). Its UT torque "
                      "is not in the file, so the co-simulation loads the PT actuator with the model's torque "
                      "only.</p>")
 
     skew = float(model.conventions.get("channel_skew_s", 0.0) or 0.0)
     if skew:  # the records were lined up as at identification (lpvpc.identification.channel_skew): say so before any figure
-        parts.append(f"<p class=\"small\">Channel skew: the rig's torque channel lags its position channel by "
+        context.append(f"<p class=\"small\">Channel skew: the rig's torque channel lags its position channel by "
                      f"{skew * 1e3:.2f} ms (found or given at identification, recorded in the model); these records' "
                      f"position was delayed by it at the file's rate before every comparison below. The FMU applies "
                      f"no delay: in a loop it answers the true angle at once.</p>")
@@ -497,12 +544,6 @@ def _html(m: dict, figs: dict, model) -> str:
     # fails, then the software checks; provenance last.
     top, physiology, prediction, software = [], [], [], []
     overall = m["pass"]
-    parts.append("<h2>Summary</h2>")
-    parts.append(f"<p class=\"what\">{_e(_physiology_sentence(model))} The model explains {m['vaf']:.2f} % of the "
-                 f"held-out torque variance offline, {m['vaf_fmu']:.2f} % as an FMU replaying the measured positions "
-                 f"and {m['vaf_cosim']:.2f} % when co-simulated with the actuator; software checks: "
-                 f"{'pass' if overall else 'FAIL'}.</p>")
-    software.append("<h2>Software checks</h2>")
     software.append(f"<p class=\"what\">The same model through every route a user can take: offline numpy, the "
                     f"CasADi function, the FMU replaying the measured positions and the FMU co-simulated with the "
                     f"actuator; overall result: {'pass' if overall else 'FAIL'}.</p>")
@@ -526,12 +567,20 @@ def _html(m: dict, figs: dict, model) -> str:
                    f"VAF {_num(o['vaf'])} %.</p>")
     elif s["flagged"]:
         o, i = s["out_of_range"]["numpy"], s["in_range"]["numpy"]
-        top.append(f"<p class=\"flag\"><b>Outside the identified range:</b> {100 * s['out_of_range_fraction']:.2f} % "
-                     f"of the held-out samples ({o['n']}) have a scheduling variable outside the identified range "
-                     f"[{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad (held-out range "
-                     f"[{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad); the model is "
-                     f"{model.beyond_range} there. Offline RMSE there {_num(o['rmse'], '{:.3f}')} N m against "
-                     f"{_num(i['rmse'], '{:.3f}')} N m inside (VAF {_num(o['vaf'])} % vs {_num(i['vaf'])} %).</p>")
+        worse = _out_of_range_worse(o, i)
+        text = (f"{100 * s['out_of_range_fraction']:.2f} % of the held-out samples ({o['n']}) lie outside the "
+                f"identified range [{s['identified_range'][0]:+.3f}, {s['identified_range'][1]:+.3f}] rad (held-out "
+                f"range [{s['heldout_range'][0]:+.3f}, {s['heldout_range'][1]:+.3f}] rad), where the model is "
+                f"{model.beyond_range}. Offline RMSE there {_num(o['rmse'], '{:.3f}')} N m against "
+                f"{_num(i['rmse'], '{:.3f}')} N m inside (VAF {_num(o['vaf'])} % vs {_num(i['vaf'])} %)")
+        if worse:  # the one case that changes what the reader may do with the model
+            top.append(f"<p class=\"flag\"><b>Outside the identified range the model predicts worse:</b> {text}. "
+                       f"Do not use it there without identifying on a record that covers those positions.</p>")
+        else:
+            top.append(f"<p class=\"small\">{100 * s['out_of_range_fraction']:.2f} % of the held-out samples lie "
+                       f"outside the identified range; the model predicts them as well as the rest (RMSE "
+                       f"{_num(o['rmse'], '{:.3f}')} N m there, {_num(i['rmse'], '{:.3f}')} N m inside; details under "
+                       f"<i>Prediction</i>).</p>")
 
     # Fig. 3
     prediction.append("<h3>Measured and predicted torque (Fig. 3)</h3>")
@@ -694,22 +743,37 @@ def _html(m: dict, figs: dict, model) -> str:
     if "whole_joint" in m and WHOLE_JOINT_FIGURE in figs:
         prediction.append(_whole_joint_section(m["whole_joint"], figs[WHOLE_JOINT_FIGURE]))
 
+    table_html, table_note = _physiology_parts(model)
+    checks = '<span class="pass">pass</span>' if overall else '<span class="fail">FAIL</span>'
+    parts.append('<section class="answer" id="answer"><h2>Answer</h2>')
+    parts.append(f"<p class=\"lead\">On the held-out record the model explains <b>{m['vaf']:.2f} %</b> of the "
+                 f"torque (VAF; RMSE {m['rmse']:.3f} N m); {m['vaf_fmu']:.2f} % as an FMU and {m['vaf_cosim']:.2f} % "
+                 f"co-simulated with the actuator. Software checks: {checks}. The physiology at the positions "
+                 f"<code>lpvpc identify</code> prints, 95 % intervals in brackets "
+                 f"(<a href=\"#glossary\">glossary</a>):</p>")
+    parts.append(table_html)
+    parts.append(_img(figs["answer.png"], _caption("answer.png", model)))
     parts += top
-    parts.append("<h2>Physiology: what the model says about the ankle</h2>")
-    parts.append(_physiology_table(model))
+    parts.append(f"<p><b>Next:</b> {_next_step(m, model)}</p>")
+    parts.append("</section>")
+    parts.append("<details><summary>Physiology in detail: the intervals, the intrinsic gain map (Fig. 4) and the "
+                 "reflex (Fig. 5)</summary>")
+    parts.append(f"<p class=\"what\">{_e(_physiology_sentence(model))}</p>")
+    parts.append(table_note)
     parts += physiology
-    parts.append("<h2>Prediction: how well the model predicts held-out data</h2>")
+    parts.append("</details>")
+    parts.append("<details><summary>Prediction in detail: measured and predicted torque (Fig. 3), the scheduling "
+                 "range, where the model fails</summary>")
+    parts += context
     parts += prediction
-    # condensed: the route and check tables stay visible, the details fold away
-    n_open = 4  # heading, sentence, route table, check table
-    parts += software[:n_open]
-    parts.append("<details><summary>Routes, FMU and co-simulation in detail</summary>")
-    parts += software[n_open:]
+    parts.append("</details>")
+    parts.append(f"<details><summary>Software checks ({'pass' if overall else 'FAIL'}): routes, FMU and "
+                 f"co-simulation</summary>")
+    parts += software
     parts.append("</details>")
 
     # provenance
-    parts.append("<h2>Provenance</h2>")
-    parts.append("<p class=\"what\">What was validated, with what, and when.</p>")
+    parts.append("<details><summary>Provenance: what was validated, with what, and when</summary>")
     v = prov["versions"]
     rows = [["date (UTC)", _e(prov["date"])],
             ["model file", _e(prov["model_file"])],
@@ -735,6 +799,8 @@ def _html(m: dict, figs: dict, model) -> str:
             ["platform", _e(prov["platform"])],
             ["command line", f"<code>{_e(prov['command_line'] or '(library call)')}</code>"]]
     parts.append(_table(["", ""], rows, left=(0, 1)))
+    parts.append("</details>")
+    parts.append(_glossary())
     parts.append('<p id="render-check" class="small" data-ok="" data-total="">figure check pending '
                  '(needs JavaScript)</p>')
     parts.append(f"<script>{_SCRIPT}</script></body></html>")
