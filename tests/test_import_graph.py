@@ -21,7 +21,8 @@ LAYERS = (
     ("lpvpc.models",),
     ("lpvpc.identification", "lpvpc.simulation"),
     ("lpvpc.export", "lpvpc.plotting"),
-    ("lpvpc.diagnosis", "lpvpc.validation", "lpvpc.study"),
+    ("lpvpc.diagnosis", "lpvpc.validation"),
+    ("lpvpc.study",),  # a study runs identification, validation and diagnosis per record
     ("lpvpc.cli", "lpvpc.demo"),
 )
 BASE = ("lpvpc._lazy", "lpvpc.errors", "lpvpc.linalg", "lpvpc.progress", "lpvpc.report_html")
