@@ -70,6 +70,24 @@ class Rung:
 
 @dataclass
 class Ladder:
+    """The steps :func:`improve` took, from the base model to the last one kept.
+
+    Parameters
+    ----------
+    rungs : list of Rung
+        Every step in order (step 0 the base model); a step that did not raise the held-out
+        VAF is kept in the list with ``kept`` False.
+    stopped : str
+        Why the loop ended (no significant candidate left, no held-out gain, the step limit).
+
+    Attributes
+    ----------
+    kept : list of Rung
+        The steps kept.
+    final : Rung
+        The last step kept: the improved model (``final.model``) and its held-out VAF.
+    """
+
     rungs: list = field(default_factory=list)
     stopped: str = ""
 
@@ -127,9 +145,52 @@ def _evaluate(model, data):
 
 
 def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=None, progress=None) -> Ladder:
-    """Run the loop. ``ident``, ``heldout``: :class:`lpvpc.io.PerturbationData`;
-    ``settings``: estimator settings of the base model (may include ``effects``);
-    ``progress``: optional callable receiving each :class:`Rung` as it is made."""
+    """Fit, diagnose on held-out data, add the top significant effect, refit, until none is left.
+
+    Each step changes one thing from the step below it (an effect of the catalog or a setting
+    the diagnosis found significant) and is kept only when the held-out VAF rises; the loop
+    stops when the diagnosis names nothing significant, a step does not help, or after
+    ``max_steps``.
+
+    Parameters
+    ----------
+    ident : lpvpc.io.PerturbationData
+        The identification record.
+    heldout : lpvpc.io.PerturbationData
+        The held-out record each step is diagnosed and scored on (at least 20 s: the
+        diagnosis's cross-validation folds).
+    settings : dict, optional
+        Estimator settings of the base model (:class:`lpvpc.LPVPCEstimator`; may include
+        ``effects``). Default: identify's defaults.
+    max_steps : int, default MAX_STEPS
+        The most effects or settings added.
+    diagnose_kw : dict, optional
+        Keywords for each step's :func:`lpvpc.diagnosis.diagnose.diagnose`.
+    progress : callable, optional
+        Receives each :class:`Rung` as it is made.
+
+    Returns
+    -------
+    Ladder
+        Every step, the kept ones, and ``final``: the improved model.
+
+    Raises
+    ------
+    lpvpc.errors.InsufficientExcitationError
+        A held-out record too short or mostly outside the identified range for a diagnosis.
+
+    Examples
+    --------
+    >>> from lpvpc import pair_trials
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> data = pair_trials(sim.pt, sim.ut)
+    >>> from lpvpc import hold_out
+    >>> ident, held = hold_out(data, 0.4)
+    >>> ladder = improve(ident, held, max_steps=1)
+    >>> ladder.rungs[0].label, ladder.final.heldout_vaf >= ladder.rungs[0].heldout_vaf
+    ('base model', True)
+    """
     settings = dict(settings or {})
     effects = tuple(settings.pop("effects", ()) or ())
     diagnose_kw = dict(diagnose_kw or {})
@@ -143,10 +204,8 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         if poles_from is not None:
             # The reflex poles' refinement from MOESP's start and from where the model below ended
             # (as identify's own refit of a selected structure starts): the better identification
-            # fit is kept (same parameters). Either alone failed a step: PRBS habituation seed 2
-            # from MOESP's, the base refitted at 94.16 % held out (it holds out 96.21 %) and the
-            # step at 96.12 % was not kept (from the base's poles: fit 97.33, held out 97.36 %);
-            # seed 0 from the base's, the step fitted 96.83 % and held out 95.99 % (MOESP's: 97.15, 96.91 %)
+            # fit is kept (same parameters); either start alone failed a step
+            # (docs/design_notes.md, "Improve: the reflex poles' two starts").
             est = LPVPCEstimator(**st, effects=eff)
             below = est._fit_from(ident, WarmStart(poles={int(poles_from.A.shape[0]): np.asarray(poles_from.A,
                                                                                                  dtype=float)})).model_

@@ -965,9 +965,9 @@ def pick_reflex_path(scored: list) -> dict:
         return K < 2 or np.mean(diff) <= np.std(diff, ddof=1) / np.sqrt(K)
 
     # The model rate is the simpler path only while it has fewer parameters than every high-rate
-    # candidate; with as many, what is left between them is the bias by construction: decimation
-    # smooths the 20 ms velocity pulses before the model-rate rectifier (its gain slope 1.13x the
-    # truth's, median over seeds 0-9; the 1 kHz path's 0.99x), so the high rate goes first.
+    # candidate; with as many, what is left between them is the bias by construction (decimation
+    # smooths the velocity pulses before the model-rate rectifier: docs/design_notes.md,
+    # "Reflex nonlinearity at the file's own rate"), so the high rate goes first.
     model_params = min(s.n_params for st, s in scored if not st["high_rate_reflex"])
     high_params = min((s.n_params for st, s in scored if st["high_rate_reflex"]), default=np.inf)
     high_first = model_params >= high_params
