@@ -160,10 +160,10 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         The held-out record each step is diagnosed and scored on (at least 20 s: the
         diagnosis's cross-validation folds).
     settings : dict, optional
-        Estimator settings of the base model (:class:`lpvpc.LPVPCEstimator`; may include
+        Estimator settings of the base model (:class:`~lpvpc.identification.identify.LPVPCEstimator`; may include
         ``effects``). Default: identify's defaults.
-    max_steps : int, default MAX_STEPS
-        The most effects or settings added.
+    max_steps : int, optional
+        The most effects or settings added (default ``MAX_STEPS``).
     diagnose_kw : dict, optional
         Keywords for each step's :func:`lpvpc.diagnosis.diagnose.diagnose`.
     progress : callable, optional
