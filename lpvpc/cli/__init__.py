@@ -55,10 +55,10 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
-from .errors import LpvpcError, LpvpcWarning
-from .io.outputs import CommandIO, atomic_path, staged_folder, write_text
-from .progress import report as progress
+from .. import __version__
+from ..errors import LpvpcError, LpvpcWarning
+from ..io.outputs import CommandIO, atomic_path, staged_folder, write_text
+from ..progress import report as progress
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -138,8 +138,8 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     loader); several files (identify) are joined as trials of one identification; the
     channel skew (s; "auto": chosen by a scan before loading; None: not given, for identify
     to line up itself) undone at the files' rate (lpvpc.identification.channel_skew)."""
-    from .identification.channel_skew import load_aligned
-    from .io import load_identification_data
+    from ..identification.channel_skew import load_aligned
+    from ..io import load_identification_data
 
     data, pts, uts = _listed(args.data), _listed(args.pt), _listed(args.ut)
     stationary = getattr(args, "stationary", False)
@@ -170,7 +170,7 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
     def one(items):  # a single file as itself, several as a list (trials of one identification)
         return items[0] if len(items) == 1 else items
 
-    from .errors import DataError
+    from ..errors import DataError
 
     load = load_aligned if channel_skew == "auto" else load_identification_data
     try:
@@ -226,7 +226,7 @@ def check_report_folder(folder, markers, force) -> None:
 
 
 def _estimator_defaults() -> dict:
-    from .identification.identify import LPVPCEstimator
+    from ..identification.identify import LPVPCEstimator
 
     return {k: p.default for k, p in inspect.signature(LPVPCEstimator.__init__).parameters.items()
             if k != "self"}
@@ -237,7 +237,7 @@ def _estimator_defaults() -> dict:
 
 def _simulate_population(args) -> int:
     """simulate --population-seed N: the population's subject N (lpvpc.simulation.population)."""
-    from .simulation.population import POPULATION_EFFECTS, draw_subject, write_subject
+    from ..simulation.population import POPULATION_EFFECTS, draw_subject, write_subject
 
     fixed = [opt for opt, v in (("--seed", args.seed), ("--snr", args.snr), ("--perturbation", args.perturbation),
                                 ("--stiffness-family", args.stiffness_family)) if v is not None]
@@ -265,7 +265,7 @@ def _simulate_population(args) -> int:
 
 def _simulate_cohort(args) -> int:
     """simulate --cohort N: a virtual cohort in two groups with its manifest (lpvpc.study.cohort)."""
-    from .study.cohort import write_cohort
+    from ..study.cohort import write_cohort
 
     fixed = [opt for opt, v in (("--seed", args.seed), ("--snr", args.snr), ("--perturbation", args.perturbation),
                                 ("--stiffness-family", args.stiffness_family), ("--form", args.form))
@@ -287,7 +287,7 @@ def _simulate_cohort(args) -> int:
 
 
 def cmd_study(args) -> int:
-    from .study import run_study
+    from ..study import run_study
 
     if args.jobs < 1:
         raise _UsageError(f"-j must be at least 1, got {args.jobs}")
@@ -300,7 +300,7 @@ def cmd_study(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from .simulation.simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
+    from ..simulation.simulate import EFFECTS, FS_SIM, PERTURBATIONS, write_dataset
 
     q = FS_SIM / args.fs
     if args.fs <= 0 or abs(q - round(q)) > 1e-9:
@@ -324,7 +324,7 @@ def cmd_simulate(args) -> int:
         raise _UsageError(f"unknown effect {', '.join(map(repr, unknown))} (known: {', '.join(sorted(EFFECTS))})")
     if args.perturbation not in PERTURBATIONS:
         raise _UsageError(f"unknown perturbation {args.perturbation!r} (known: {', '.join(sorted(PERTURBATIONS))})")
-    from .simulation.subject import STIFFNESS_FAMILIES
+    from ..simulation.subject import STIFFNESS_FAMILIES
 
     if args.stiffness_family not in STIFFNESS_FAMILIES:
         raise _UsageError(f"unknown stiffness family {args.stiffness_family!r} (known: {', '.join(STIFFNESS_FAMILIES)})")
@@ -341,7 +341,7 @@ def cmd_simulate(args) -> int:
 
 
 def _check_effect_names(names) -> tuple:
-    from .models.effects import CATALOG, SETTINGS
+    from ..models.effects import CATALOG, SETTINGS
 
     names = tuple(names or ())
     unknown = [e for e in names if e not in CATALOG]
@@ -356,7 +356,7 @@ def _check_effect_names(names) -> tuple:
 
 def _check_allowed_effects(names) -> tuple:
     """--allow-effect names ("none": no effect is offered to the selection)."""
-    from .identification.selection import cv_effect_problem
+    from ..identification.selection import cv_effect_problem
 
     if list(names) == ["none"]:
         return ()
@@ -382,11 +382,11 @@ def cmd_identify(args) -> int:
     elif "state_order" in settings:
         settings["state_order"] = int(settings["state_order"])
     if settings.get("structure", "cv") == "cv":  # (the default) what the user wrote is not selected
-        from .identification.selection import REFLEX_PATH_SETTINGS, SEARCH
+        from ..identification.selection import REFLEX_PATH_SETTINGS, SEARCH
 
         settings["structure_fixed"] = tuple(k for k in settings if k in SEARCH or k == "irf_lags"
                                             or k in REFLEX_PATH_SETTINGS)
-    from .identification.identify import LPVPCEstimator
+    from ..identification.identify import LPVPCEstimator
 
     try:  # a bad setting in one line, before any file is read
         LPVPCEstimator(**settings).check_settings()
@@ -428,7 +428,7 @@ def cmd_identify(args) -> int:
 
 def _identified(data, settings):
     """The fitted estimator (identify's fit, with its progress line when it takes long)."""
-    from .identification.identify import LPVPCEstimator, with_base_model_activation
+    from ..identification.identify import LPVPCEstimator, with_base_model_activation
 
     data = with_base_model_activation(data, settings)  # activation as predict estimates it (one extra fit)
     est = LPVPCEstimator(**settings)
@@ -466,8 +466,8 @@ class _progress_after:
 def cmd_predict(args) -> int:
     import numpy as np
 
-    from .io import check_model_rate
-    from .models.model import LPVPCModel, vaf
+    from ..io import check_model_rate
+    from ..models.model import LPVPCModel, vaf
 
     model = LPVPCModel.load(args.model)
     conv = model.conventions or {}
@@ -478,7 +478,7 @@ def cmd_predict(args) -> int:
     check_model_rate(data.fs, model.fs, source=data.source)
     signals = {}
     if model.effects:  # an extended model takes its extra channels from the data
-        from .models.effects import signals_from_data
+        from ..models.effects import signals_from_data
 
         signals = signals_from_data(data, model)  # activation with the model's reflex drive, as improve fits it
     pred = model.predict(data, causal=args.causal, signals=signals)  # a 1 kHz reflex model: its 1 kHz path
@@ -515,15 +515,15 @@ def cmd_predict(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .models.model import LPVPCModel
+    from ..models.model import LPVPCModel
 
     if not (args.casadi or args.fmu):
         raise _UsageError("nothing to export: give --casadi FILE and/or --fmu FILE")
     model = LPVPCModel.load(args.model)
     try:
-        from .export import exporter as export
+        from ..export import exporter as export
     except ModuleNotFoundError as exc:
-        if exc.name != f"{__package__}.export":
+        if exc.name != "lpvpc.export":
             raise
         raise LpvpcError("export is not available in this installation (module lpvpc.export.exporter missing)") from None
     variant = "exact" if args.exact else (args.variant or export.DEFAULT_VARIANT)
@@ -533,7 +533,7 @@ def cmd_export(args) -> int:
         print(f"CasADi step function ({variant}): {path or args.casadi}  [{time.perf_counter() - t0:.2f} s]")
         import casadi
 
-        from .models.effects import SIGNALS
+        from ..models.effects import SIGNALS
 
         units = {"position": "rad", "scheduling": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
                  "state": "the previous step's next_state", **{k: u for k, (u, _) in SIGNALS.items()}}
@@ -575,8 +575,8 @@ def _fmu_interface(path, model) -> list:
 
 
 def cmd_whole_joint(args) -> int:
-    from .export import whole_joint as W
-    from .models.model import LPVPCModel
+    from ..export import whole_joint as W
+    from ..models.model import LPVPCModel
 
     if args.pt and not args.closed_loop:
         raise _UsageError("--pt is used by --closed-loop only (the whole-joint curve is fitted to the UT trial)")
@@ -607,7 +607,7 @@ def cmd_whole_joint(args) -> int:
 def _trial_with_conventions(path, args, conv):
     """One trial read with the command line's units and torque sign, else the model's own
     (whole-joint's UT trial and --closed-loop's PT trial alike)."""
-    from .io import load_trial
+    from ..io import load_trial
 
     return load_trial(path, position_unit=args.position_unit or conv.get("position_unit", "rad"),
                       time_unit=args.time_unit or conv.get("time_unit", "s"),
@@ -618,7 +618,7 @@ def _trial_with_conventions(path, args, conv):
 
 def _closed_loop(args, wj, ut, conv) -> int:
     """lpvpc whole-joint --closed-loop: the causal closed-loop form (lpvpc.export.closed_loop)."""
-    from .export import closed_loop as CL
+    from ..export import closed_loop as CL
 
     if args.pt:
         pt = _trial_with_conventions(args.pt, args, conv)
@@ -660,8 +660,8 @@ def _channel_skew(text):
 
 def _position_delay(args, wj, conv) -> float:
     """--position-delay-ms: a number (ms), or 'auto' (estimated from the PT/UT files)."""
-    from .export import closed_loop as CL
-    from .io import load_identification_data
+    from ..export import closed_loop as CL
+    from ..io import load_identification_data
 
     text = args.position_delay_ms
     if text is None:
@@ -780,8 +780,8 @@ def _load_for_model(args, model):
 
 
 def cmd_diagnose(args) -> int:
-    from .diagnosis.diagnose import diagnose, format_table, write_report
-    from .models.model import LPVPCModel
+    from ..diagnosis.diagnose import diagnose, format_table, write_report
+    from ..models.model import LPVPCModel
 
     if args.report:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
@@ -818,7 +818,7 @@ def cmd_diagnose(args) -> int:
 
 
 def cmd_improve(args) -> int:
-    from .diagnosis.improve import improve, write_report
+    from ..diagnosis.improve import improve, write_report
 
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
@@ -958,7 +958,7 @@ def _add_time_unit_arg(p, default):
 
 def _channel_options(args) -> dict | None:
     """--channel ROLE=NAME options as {role: name} (None when none are given)."""
-    from .io.matfiles import parse_channel_options
+    from ..io.matfiles import parse_channel_options
 
     try:
         return parse_channel_options(getattr(args, "channel", None)) or None
@@ -1302,7 +1302,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _effect_names():
-    from .models.effects import CATALOG
+    from ..models.effects import CATALOG
 
     return list(CATALOG)
 
@@ -1318,8 +1318,8 @@ class _SimulateHelp(argparse.HelpFormatter):
 
 def _simulated_effects() -> str:
     """The simulator's effects: those of the catalog (identify --effect), then the others."""
-    from .models.effects import CATALOG
-    from .simulation.simulate import EFFECTS
+    from ..models.effects import CATALOG
+    from ..simulation.simulate import EFFECTS
 
     outside = [e for e in EFFECTS if e not in CATALOG]
     return (", ".join(e for e in CATALOG if e in EFFECTS)
@@ -1379,7 +1379,7 @@ def _show_notes() -> None:
     """--verbose: the library's notes (logging, INFO) as lines ``lpvpc: note: ...`` on stderr."""
     import logging
 
-    logger = logging.getLogger(__package__)
+    logger = logging.getLogger("lpvpc")
     if any(getattr(h, "lpvpc_notes", False) for h in logger.handlers):
         return
     handler = logging.StreamHandler(sys.stderr)
@@ -1402,7 +1402,7 @@ class _ProgressLines:
             def format(self, record):
                 return f"{PROG}: [{time.perf_counter() - start:5.1f} s] {record.getMessage()}"
 
-        self.logger = logging.getLogger(f"{__package__}.progress")
+        self.logger = logging.getLogger("lpvpc.progress")
         self.level = self.logger.level
         self.handler = logging.StreamHandler(sys.stderr)
         self.handler.setFormatter(Elapsed())
