@@ -1,9 +1,11 @@
 """The command line is a package with one short module per command: each defines
 ``add_parser(sub)`` (its options) and ``run(args) -> int`` (check them, call the library,
-print), and ``build_parser`` registers every one of them; the shared plumbing lives apart."""
+print), and ``build_parser`` registers every one of them; the shared plumbing lives apart.
+Also the cohort options ``simulate --cohort N --within`` and ``study --diagnose``."""
 
 import importlib
 import inspect
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import lpvpc.cli
-from lpvpc.cli import COMMAND_IO, COMMANDS, build_parser
+from lpvpc.cli import COMMAND_IO, COMMANDS, build_parser, main
 
 NAMES = ("simulate", "study", "identify", "predict", "export", "whole_joint", "validate", "diagnose", "improve")
 #: lines a command module may have (its options' help texts included)
@@ -49,3 +51,31 @@ def test_python_dash_m_runs_the_package():
     proc = subprocess.run([sys.executable, "-m", "lpvpc.cli", "--version"], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0 and proc.stdout.startswith("lpvpc "), proc.stderr
+
+
+def test_simulate_within_writes_every_subject_in_both_groups(tmp_path, capsys):
+    from lpvpc.study.manifest import read_manifest
+
+    assert main(["-q", "simulate", "--out", str(tmp_path / "c"), "--cohort", "2", "--within", "--duration", "20",
+                 "--fs", "100"]) == 0
+    assert "each recorded in both groups" in capsys.readouterr().out
+    rows = read_manifest(tmp_path / "c" / "manifest.csv")
+    assert [(r.subject, r.group) for r in rows] == [("S01", "control"), ("S01", "patient"), ("S02", "control"),
+                                                    ("S02", "patient")]
+    assert json.loads((tmp_path / "c" / "truth.json").read_text())["design"] == "within"
+    assert main(["-q", "simulate", "--out", str(tmp_path / "d"), "--within"]) == 2
+    assert "--within needs --cohort N" in capsys.readouterr().err
+
+
+def test_study_diagnose_diagnoses_each_record_on_its_held_out_part(tmp_path, capsys):
+    import csv
+
+    from lpvpc.study.cohort import write_cohort
+
+    paths = write_cohort(tmp_path / "cohort", 2, duration=70.0, fs=100.0)  # held out: 21 s, enough to diagnose
+    assert build_parser().parse_args(["study", "m.csv", "-o", "x"]).diagnose is False
+    assert main(["-q", "study", str(paths["manifest"]), "-o", str(tmp_path / "study"), "--diagnose"]) == 0
+    with open(tmp_path / "study" / "records.csv", newline="") as f:
+        missing = {row["record"]: row["missing_effect"] for row in csv.DictReader(f)}
+    assert set(missing) == {"S01", "S02"}
+    assert all(v not in ("", "not diagnosed") for v in missing.values()), missing

@@ -4,12 +4,14 @@
 
     lpvpc simulate --out DIR [--seed N] [--snr DB] [--fs 1000|100] [--effect NAME ...] [--duration S]
     lpvpc simulate --out DIR --population-seed N [--effect NAME [--form FORM]] [--fs 1000|100] [--duration S]
-    lpvpc simulate --out DIR --cohort N [--null] [--population-seed FIRST] [--fs HZ] [--duration S]
+    lpvpc simulate --out DIR --cohort N [--null] [--within] [--population-seed FIRST] [--fs HZ] [--duration S]
     lpvpc study MANIFEST.csv -o DIR [-j N | --scheduler ADDRESS] [--heldout FRACTION] [--compare REF OTHER]
+                [--diagnose]
     lpvpc identify (--pt PT.csv --ut UT.csv [--pt PT2 --ut UT2 ...] | DATA.csv [DATA2 ...]
                     | --pt PT.mat --stationary) -o model.json [estimator settings]
                    [--effect NAME ...] [--position-unit rad|deg] [--torque-sign 1|-1] [--fs HZ]
                    [--variable NAME] [--channel ROLE=NAME ...] [--channel-skew-ms MS|auto]
+                   [--hold-out FRACTION|START:STOP]
     lpvpc predict model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json metrics.json]
                   [--out predicted.csv] [--causal] [--position-unit rad|deg] [--torque-sign 1|-1]
     lpvpc export model.json [--casadi F.casadi] [--fmu F.fmu] [--fmi 2|3] [--exact] [--fmi-type cs|me]
@@ -19,11 +21,12 @@
     lpvpc validate model.json --pt PT.csv --ut UT.csv --report DIR [--min-vaf X] [--fmu F.fmu]
                    [--fmi 2|3] [--actuator-fmu F.fmu] [--actuator-param NAME=VALUE ...] [--no-calibrate]
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
-                   [--route-tolerance TOL] [--whole-joint whole.json]
+                   [--route-tolerance TOL] [--whole-joint whole.json] [--hold-out [FRACTION|START:STOP]]
     lpvpc diagnose model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json diagnosis.json] [--report DIR]
+                   [--hold-out [FRACTION|START:STOP]]
     lpvpc improve (--pt PT.csv --ut UT.csv | DATA.csv) (--heldout-pt PT2.csv --heldout-ut UT2.csv |
-                  --heldout DATA2.csv) --report DIR [--stationary] [--json ladder.json] [--max-steps N]
-                  [--effect NAME ...]
+                  --heldout DATA2.csv | --hold-out FRACTION|START:STOP) --report DIR [--stationary]
+                  [--json ladder.json] [--max-steps N] [--effect NAME ...]
 
 ``study`` exits with status 1 when a record failed (the others are finished); ``validate`` with 1
 when a threshold fails (``--min-vaf``, route agreement).
@@ -40,6 +43,10 @@ are written to a temporary file and renamed, report folders built beside and swa
 previous report; a model (identify, whole-joint, improve ``-o``) replaces only a model file
 of ours unless ``--force``. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ctrl-C 130).
 ``lpvpc -v COMMAND ...`` prints the library's notes (e.g. CSV columns that were ignored).
+``--hold-out`` (identify, validate, diagnose, improve) keeps a later stretch of one record out
+of identification and uses it as the held-out record (:func:`lpvpc.io.hold_out`); identify
+records it in the model file (``fit["hold_out"]``), and a bare ``--hold-out`` in validate and
+diagnose takes that stretch.
 
 Layout: each command is a module of this package (:mod:`lpvpc.cli.identify`, ...) with
 ``add_parser(sub)``, which registers its options, and ``run(args) -> int``, which checks them,

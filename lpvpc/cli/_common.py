@@ -305,3 +305,95 @@ def _add_data_args(p, what, several: bool = False, time_unit=None):
                         "without UT; the operating point is its mean position (and torque)")
     _add_time_unit_arg(p, default=time_unit)
     _add_file_choice_args(p)
+
+
+# --------------------------------------------------------------------------- held-out part of one record
+
+
+def _add_hold_out_arg(p):
+    """--hold-out: the one definition identify, validate, diagnose and improve share."""
+    p.add_argument("--hold-out", dest="hold_out", nargs="?", const=MODEL_HOLD_OUT, default=None,
+                   metavar="FRACTION|START:STOP",
+                   help="keep a later stretch of the one record given out of identification and use it as the "
+                        "held-out record: a fraction (0.3: the last 30 %%) or START:STOP in s from the record's start "
+                        "(STOP empty: to its end). identify fits the part before it, prints the held-out VAF and "
+                        "records the stretch in the model file; validate, diagnose and improve take the held-out "
+                        "record from it (validate and diagnose: --hold-out without a value takes the stretch the "
+                        "model recorded)")
+
+
+#: --hold-out given without a value: the stretch the model recorded at identification
+MODEL_HOLD_OUT = "as-recorded"
+
+
+def _hold_out_value(text):
+    """--hold-out's text as lpvpc.hold_out takes it: a fraction in (0, 1), or (start, stop) in
+    s with stop None for the record's end."""
+    given = f"--hold-out {text}"
+    if Path(text).exists():  # "--hold-out DATA": the record taken as the option's value
+        raise _UsageError(f"{given}: give the fraction or START:STOP after --hold-out, and the record {text} before it")
+    if ":" in text:
+        a, _, b = text.partition(":")
+        try:
+            start, stop = float(a), (float(b) if b.strip() else None)
+        except ValueError:
+            raise _UsageError(f"{given}: START and STOP must be seconds from the record's start, e.g. 84:120 "
+                              f"(or 84: to its end)") from None
+        if not math.isfinite(start) or (stop is not None and not math.isfinite(stop)):
+            raise _UsageError(f"{given}: START and STOP must be finite seconds")
+        if start <= 0:
+            raise _UsageError(f"{given}: START must lie after the record's start (> 0 s): identification keeps "
+                              f"what lies before it")
+        if stop is not None and stop <= start:
+            raise _UsageError(f"{given}: STOP must come after START")
+        return start, stop
+    try:
+        fraction = float(text)
+    except ValueError:
+        raise _UsageError(f"{given}: give a fraction (e.g. 0.3: the last 30 % held out) or START:STOP in s") from None
+    if not 0.0 < fraction < 1.0:
+        raise _UsageError(f"{given}: a fraction must lie between 0 and 1 (e.g. 0.3: the last 30 % held out)")
+    return fraction
+
+
+def _hold_out_text(value) -> str:
+    """A hold-out value as --hold-out takes it (the inverse of _hold_out_value)."""
+    if isinstance(value, (tuple, list)):
+        start, stop = value
+        return f"{start:g}:" + ("" if stop is None else f"{stop:g}")
+    return f"{value:g}"
+
+
+def _record_files(args) -> list:
+    """The files of the record given (DATA or --pt/--ut), as absolute paths: what a model's
+    recorded hold-out is matched against."""
+    items = [*_listed(getattr(args, "data", None)), *_listed(getattr(args, "pt", None)),
+             *_listed(getattr(args, "ut", None))]
+    return [str(Path(x).resolve()) for x in items]
+
+
+def _only_one_record(args, command) -> None:
+    if len(_listed(args.data)) > 1 or len(_listed(args.pt)) > 1:
+        raise _UsageError(f"{command} --hold-out splits one record: give one DATA file or one --pt/--ut pair")
+
+
+def _held_out_for_model(args, model):
+    """validate's and diagnose's --hold-out value: a bare --hold-out takes the stretch the model
+    recorded; a different value on the record the model was identified from is refused (it
+    would predict data the model was fitted to, or not the stretch the model held out)."""
+    recorded = (model.fit or {}).get("hold_out")
+    if args.hold_out == MODEL_HOLD_OUT:
+        if not recorded:
+            raise _UsageError("--hold-out without a value takes the stretch the model held out at identification, "
+                              "and this model records none: give --hold-out FRACTION or START:STOP")
+        value = recorded["value"]
+        return tuple(value) if isinstance(value, list) else value
+    value = _hold_out_value(args.hold_out)
+    if recorded and recorded.get("files") == _record_files(args):
+        mine = tuple(recorded["value"]) if isinstance(recorded["value"], list) else recorded["value"]
+        if mine != value:
+            a, b = recorded["held_out_s"]
+            raise _UsageError(f"--hold-out {args.hold_out}: the model was identified on this record with --hold-out "
+                              f"{_hold_out_text(mine)} (held out {a:.1f}..{b:.1f} s); give --hold-out alone (or "
+                              f"--hold-out {_hold_out_text(mine)}) to use that stretch")
+    return value

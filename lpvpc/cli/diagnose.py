@@ -6,7 +6,9 @@ from pathlib import Path
 
 from ..io.outputs import atomic_path, staged_folder
 from ..progress import report as progress
-from ._common import _add_convention_args, _add_data_args, _add_quiet_arg, _load_for_model, check_report_folder
+from ._common import (
+    _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg, _held_out_for_model, _hold_out_text,
+    _load_for_model, check_report_folder)
 
 
 def run(args) -> int:
@@ -19,11 +21,20 @@ def run(args) -> int:
     if args.report:
         check_report_folder(args.report, ("diagnosis.md", "diagnosis.json"), args.force)
     model = LPVPCModel.load(args.model)
+    held_out = None if args.hold_out is None else _held_out_for_model(args, model)
     data = _load_for_model(args, model)
+    if held_out is not None:  # the held-out record: a later stretch of the one record given
+        from ..io import hold_out
+
+        data = hold_out(data, held_out)[1]
     progress(f"diagnose: fitting and scoring every candidate of the catalog by cross-validation on {data.n} "
              f"samples (about 10-30 s)")
     diag = diagnose(model, data)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
+    if held_out is not None:
+        part = data.meta["part"]
+        print(f"held out:  {part['start_s']:.1f}..{part['stop_s']:.1f} s of the {part['record_s']:.1f} s record "
+              f"(--hold-out {_hold_out_text(held_out)})")
     print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
     print(format_table(diag))
     print(f"answer:    {diag.answer()}")
@@ -70,6 +81,7 @@ def add_parser(sub):
                                                    "diagnosis.md and the figures")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report")
+    _add_hold_out_arg(p)
     _add_convention_args(p, from_model=True)
     _add_quiet_arg(p)
     p.set_defaults(func=run)

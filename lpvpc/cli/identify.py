@@ -8,8 +8,9 @@ import warnings
 
 from ..progress import report as progress
 from ._common import (
-    _UsageError, _add_convention_args, _add_data_args, _add_quiet_arg, _channel_skew, _check_effect_names,
-    _effect_names, _load_data, _positive_float, _rate, _state_order, cli_syntax)
+    MODEL_HOLD_OUT, _UsageError, _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg, _channel_skew,
+    _check_effect_names, _effect_names, _hold_out_text, _hold_out_value, _load_data, _only_one_record,
+    _positive_float, _rate, _record_files, _state_order, cli_syntax)
 
 
 def _estimator_defaults() -> dict:
@@ -59,16 +60,29 @@ def run(args) -> int:
         LPVPCEstimator(**settings).check_settings()
     except ValueError as exc:
         raise _UsageError(str(exc)) from None
+    held_out = None
+    if args.hold_out is not None:
+        if args.hold_out == MODEL_HOLD_OUT:
+            raise _UsageError("identify --hold-out needs FRACTION or START:STOP (without a value it takes a saved "
+                              "model's stretch, in validate and diagnose)")
+        held_out = _hold_out_value(args.hold_out)
+        _only_one_record(args, "identify")
     target_fs = None if args.fs == 0 else args.fs
     skew = _channel_skew(args.channel_skew_ms)
     load = dict(target_fs=target_fs, position_unit=args.position_unit, torque_sign=args.torque_sign)
     # "auto" (the default): the loader is not given a skew, and the fit lines up a late torque
     # channel itself (lpvpc.identification.identify, as Python's identify does)
     data = _load_data(args, **load, channel_skew=None if skew == "auto" else skew)
+    if held_out is not None:  # identified on the earlier part (lpvpc.hold_out, as in Python)
+        from ..io import hold_out
+
+        data, held = hold_out(data, held_out)
     t0 = time.perf_counter()
     est = _identified(data, settings)
     elapsed = time.perf_counter() - t0
     model = est.model_
+    if held_out is not None:
+        model.fit["hold_out"] = _hold_out_entry(model, held, held_out, _record_files(args))
     model.save(args.output)
 
     fit = model.fit
@@ -85,12 +99,35 @@ def run(args) -> int:
               f"(the trial's mean position; its mean torque removed)")
     for line in model.summary().lines:
         print(cli_syntax(line))
+    if held_out is not None:
+        h = model.fit["hold_out"]
+        print(f"held out:    {h['held_out_s'][0]:.1f}..{h['held_out_s'][1]:.1f} s of the {h['record_s']:.1f} s record "
+              f"(--hold-out {_hold_out_text(held_out)}): VAF {h['vaf']:.2f} % (identified on 0.0.."
+              f"{h['identification_s'][1]:.1f} s)")
     if model.effects:
         print(f"effects:     {', '.join(fe.name for fe in model.effects)} (extra inputs: "
               f"{', '.join(model.signals) or 'none'})")
     print(f"time:        {elapsed:.2f} s")
     print(f"model:       {args.output} (hash {model.model_hash[:12]})")
     return 0
+
+
+def _hold_out_entry(model, held, value, files) -> dict:
+    """``model.fit["hold_out"]``: the --hold-out value, the two parts (s from the record's
+    start), the record's files (validate and diagnose match them) and the held-out VAF (%),
+    the held-out part predicted as ``lpvpc predict`` predicts a record."""
+    from ..models.model import vaf
+
+    held = model.conform(held)  # lined up as the model's conventions say, as predict does
+    signals = {}
+    if model.effects:  # an extended model's extra channels from the record, as predict takes them
+        from ..models.effects import signals_from_data
+
+        signals = signals_from_data(held, model)
+    part = held.meta["part"]
+    return {"value": list(value) if isinstance(value, tuple) else value,
+            "identification_s": [0.0, part["start_s"]], "held_out_s": [part["start_s"], part["stop_s"]],
+            "record_s": part["record_s"], "files": files, "vaf": vaf(held.torque, model.predict(held, signals=signals).total)}
 
 
 def _identified(data, settings):
@@ -188,6 +225,7 @@ def add_parser(sub):
     p.add_argument("--tol", type=_positive_float, help=f"separable least-squares tolerance (default {d['tol']:g})")
     p.add_argument("--max-iter", type=int, metavar="N",
                    help=f"separable least-squares iterations (default {d['max_iter']})")
+    _add_hold_out_arg(p)
     _add_convention_args(p, from_model=False)
     p.add_argument("--fs", type=_rate, default=100.0, metavar="HZ",
                    help="rate to identify at: data are decimated to it (default 100; 0 keeps the file's rate)")

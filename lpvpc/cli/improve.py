@@ -9,8 +9,9 @@ from pathlib import Path
 from ..io.outputs import staged_folder, write_text
 from ..progress import report as progress
 from ._common import (
-    _UsageError, _add_convention_args, _add_data_args, _add_quiet_arg, _channel_skew, _check_effect_names,
-    _effect_names, _load_data, _rate, check_report_folder)
+    MODEL_HOLD_OUT, _UsageError, _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg,
+    _channel_skew, _check_effect_names, _effect_names, _hold_out_text, _hold_out_value, _load_data, _rate,
+    _record_files, check_report_folder)
 
 
 def run(args) -> int:
@@ -25,20 +26,39 @@ def run(args) -> int:
     # the held-out record as the identification record is given: a PT - UT file, a PT/UT pair or a stationary trial
     if args.heldout and (args.heldout_pt or args.heldout_ut):
         raise _UsageError("give either --heldout DATA2 or --heldout-pt and --heldout-ut, not both")
-    if not args.heldout:
+    held_out = None
+    if args.hold_out is not None:  # or a later stretch of the one record given
+        if args.hold_out == MODEL_HOLD_OUT:
+            raise _UsageError("improve --hold-out needs FRACTION or START:STOP (without a value it takes a saved "
+                              "model's stretch, in validate and diagnose)")
+        if args.heldout or args.heldout_pt or args.heldout_ut:
+            raise _UsageError("give either --hold-out (a later stretch of the record held out) or a held-out record "
+                              "(--heldout, --heldout-pt/--heldout-ut), not both")
+        held_out = _hold_out_value(args.hold_out)
+        if len(_record_files(args)) > (1 if args.data or args.stationary else 2):
+            raise _UsageError("improve --hold-out splits one record: give one DATA file or one --pt/--ut pair")
+    elif not args.heldout:
         if args.stationary and (args.heldout_ut or not args.heldout_pt):
             raise _UsageError("--stationary: give the held-out stationary trial with --heldout-pt PT2 (or --heldout "
                               "DATA2), without --heldout-ut")
         if not args.stationary and not (args.heldout_pt and args.heldout_ut):
             raise _UsageError("missing the held-out record: give --heldout-pt PT2 --heldout-ut UT2 (or a PT - UT "
                               "file with a scheduling column as --heldout DATA2)")
-    held_args = argparse.Namespace(**{**vars(args), "data": args.heldout, "pt": args.heldout_pt,
-                                      "ut": args.heldout_ut})
     units = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit="s")
     # a late torque channel lined up in both records as identify does (the rig's: found on the identification record)
     ident = _load_data(args, target_fs=target_fs, channel_skew=_channel_skew(args.channel_skew_ms), **units)
     skew = ident.meta.get("channel_skew_s", 0.0)
-    held = _load_data(held_args, target_fs=ident.fs, channel_skew=skew, **units)
+    if held_out is not None:  # (with --hold-out the skew is found on the whole record, then split)
+        from ..io import hold_out
+
+        ident, held = hold_out(ident, held_out)
+        a, b = held.meta["part"]["start_s"], held.meta["part"]["stop_s"]
+        print(f"held out:  {a:.1f}..{b:.1f} s of the {held.meta['part']['record_s']:.1f} s record (--hold-out "
+              f"{_hold_out_text(held_out)}); identified on 0.0..{a:.1f} s", flush=True)
+    else:
+        held_args = argparse.Namespace(**{**vars(args), "data": args.heldout, "pt": args.heldout_pt,
+                                          "ut": args.heldout_ut})
+        held = _load_data(held_args, target_fs=ident.fs, channel_skew=skew, **units)
     if skew:
         print(f"skew:      torque channel {skew * 1e3:+.2f} ms behind position, lined up in both records", flush=True)
 
@@ -70,6 +90,12 @@ def run(args) -> int:
         model.conventions.setdefault("torque_sign", args.torque_sign)
         if args.time_unit != "s":
             model.conventions.setdefault("time_unit", args.time_unit)
+        if held_out is not None:  # as identify records it: validate and diagnose --hold-out use the same stretch
+            part = held.meta["part"]
+            model.fit["hold_out"] = {"value": list(held_out) if isinstance(held_out, tuple) else held_out,
+                                     "identification_s": [0.0, part["start_s"]],
+                                     "held_out_s": [part["start_s"], part["stop_s"]], "record_s": part["record_s"],
+                                     "files": _record_files(args), "vaf": last.heldout_vaf}
         model.save(args.output)
         print(f"model:     {args.output} (hash {model.model_hash[:12]})")
     if args.json:
@@ -100,6 +126,7 @@ def add_parser(sub):
                                                         "(or, with --stationary, the held-out stationary trial)")
     p.add_argument("--heldout-pt", metavar="PT2", help="held-out perturbed trial")
     p.add_argument("--heldout-ut", metavar="UT2", help="held-out unperturbed trial")
+    _add_hold_out_arg(p)
     p.add_argument("--report", required=True, metavar="DIR", help="report folder (created)")
     p.add_argument("--force", action="store_true",
                    help="replace the report folder even if it holds files that are not a previous report, and "

@@ -49,10 +49,13 @@ def _simulate_cohort(args) -> int:
     first = args.population_seed or 0
     if first < 0:
         raise _UsageError(f"--population-seed must be >= 0, got {first}")
-    paths = write_cohort(args.out, args.cohort, first_seed=first, null=args.null, duration=args.duration, fs=args.fs)
+    design = "within" if args.within else "between"
+    paths = write_cohort(args.out, args.cohort, first_seed=first, null=args.null, duration=args.duration, fs=args.fs,
+                         design=design)
     what = "null cohort (no difference)" if args.null else "cohort (patient: K x1.5 toward dorsiflexion, reflex gain x2)"
-    print(f"virtual {what}: {args.cohort} subjects, population seeds {first}..{first + args.cohort - 1}, "
-          f"{args.duration:g} s at {args.fs:g} Hz")
+    print(f"virtual {what}: {args.cohort} subjects"
+          + (", each recorded in both groups" if args.within else "")
+          + f", population seeds {first}..{first + args.cohort - 1}, {args.duration:g} s at {args.fs:g} Hz")
     for path in paths.values():
         print(path)
     return 0
@@ -70,8 +73,8 @@ def run(args) -> int:
         raise _UsageError(f"--duration {args.duration:g} s is too short (need at least 100 samples)")
     if args.cohort is not None:
         return _simulate_cohort(args)
-    if args.null:
-        raise _UsageError("--null needs --cohort N")
+    if args.null or args.within:
+        raise _UsageError(f"{'--null' if args.null else '--within'} needs --cohort N")
     if args.population_seed is not None:
         return _simulate_population(args)
     if args.form is not None:
@@ -164,6 +167,9 @@ def add_parser(sub):
                         "dorsiflexion, reflex gain x2) with manifest.csv and truth.json for lpvpc study; "
                         "--population-seed gives the first subject's seed (default 0)")
     p.add_argument("--null", action="store_true", help="with --cohort: no difference between the groups")
+    p.add_argument("--within", action="store_true",
+                   help="with --cohort: every subject recorded in both groups (records SUBJECT-GROUP, a paired "
+                        "comparison in lpvpc study; default: each subject in one group)")
     _add_quiet_arg(p)  # accepted by every command (a newcomer types it anywhere)
     p.set_defaults(func=run)
     return p

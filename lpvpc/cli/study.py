@@ -15,7 +15,7 @@ def run(args) -> int:
     if not 0.0 < args.heldout < 1.0:
         raise _UsageError(f"--heldout {args.heldout:g}: give a fraction between 0 and 1 (e.g. 0.3)")
     result = run_study(args.manifest, args.out, jobs=args.jobs, scheduler=args.scheduler, heldout=args.heldout,
-                       compare=tuple(args.compare) if args.compare else None)
+                       compare=tuple(args.compare) if args.compare else None, diagnose=args.diagnose)
     print("\n".join(result.summary_lines()))
     return result.exit_status
 
@@ -43,6 +43,9 @@ def add_parser(sub):
                    help="later fraction of each record held out (default 0.3; a manifest row's heldout overrides)")
     p.add_argument("--compare", nargs=2, metavar=("REF", "OTHER"),
                    help="the two groups to compare (OTHER - REF; default: each group against the first)")
+    p.add_argument("--diagnose", action="store_true",
+                   help="also diagnose each record's model on its held-out part (records.csv's missing_effect names "
+                        "the first significant effect; a manifest row's diagnose overrides)")
     _add_quiet_arg(p)
     p.set_defaults(func=run)
     return p

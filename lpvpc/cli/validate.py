@@ -8,8 +8,8 @@ from pathlib import Path
 
 from ..errors import LpvpcError
 from ._common import (
-    PROG, _UsageError, _add_convention_args, _add_file_choice_args, _add_quiet_arg, _add_time_unit_arg,
-    _channel_options, _positive_float, check_report_folder)
+    PROG, _UsageError, _add_convention_args, _add_file_choice_args, _add_hold_out_arg, _add_quiet_arg,
+    _add_time_unit_arg, _channel_options, _held_out_for_model, _hold_out_text, _positive_float, check_report_folder)
 
 
 def _actuator_param(text):
@@ -48,6 +48,11 @@ def run(args) -> int:
                           "missing DATA or --pt and --ut: give the held-out perturbed and unperturbed trials as "
                           "--pt PT --ut UT (or a PT - UT file with a scheduling column as DATA)")
     check_report_folder(args.report, ("metrics.json", "report.html"), args.force)
+    held_out = None
+    if args.hold_out is not None:  # the held-out record: a later stretch of the one record given
+        from ..models.model import LPVPCModel
+
+        held_out = _held_out_for_model(args, LPVPCModel.load(args.model))
     channels = _channel_options(args)
     settings = CosimSettings(coupling=args.coupling)
     result = validate(args.model, args.pt, args.ut, args.report, fmu=args.fmu, fmi_version=args.fmi,
@@ -58,8 +63,12 @@ def run(args) -> int:
                       torque_sign=args.torque_sign, time_unit=args.time_unit,
                       command_line=" ".join([PROG, *sys.argv[1:]]),
                       whole_joint=args.whole_joint, variable=args.variable, channels=channels, data=args.data,
-                      stationary=args.stationary)
+                      stationary=args.stationary, hold_out=held_out)
     m = result.metrics
+    part = m["provenance"].get("record_part")
+    if part:
+        print(f"held out:    {part['start_s']:.1f}..{part['stop_s']:.1f} s of the {part['record_s']:.1f} s record "
+              f"(--hold-out {_hold_out_text(held_out)})")
     ag = m["route_agreement"]
     sched = m["scheduling"]
     cos = m["cosim"]
@@ -151,6 +160,7 @@ def add_parser(sub):
                    help="largest max|a-b|/max|b| of the CasADi and FMU routes vs numpy (default 1e-9)")
     p.add_argument("--whole-joint", metavar="WHOLE.json",
                    help="also validate this whole-joint model (lpvpc whole-joint) on the PT trial's total torque")
+    _add_hold_out_arg(p)
     _add_convention_args(p, from_model=True)
     _add_time_unit_arg(p, default=None)
     _add_file_choice_args(p)
