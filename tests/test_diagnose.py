@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from lpvpc.simulation import simulate
-from lpvpc.cli import build_parser, cmd_diagnose, cmd_improve, main
+from lpvpc.cli import build_parser, main
+from lpvpc.cli.diagnose import run as cmd_diagnose
+from lpvpc.cli.improve import run as cmd_improve
 from lpvpc.io import Trial, pair_trials
 from lpvpc.diagnosis.diagnose import BlockCV, diagnose, paired_test, robust_paired_test, write_report
 from lpvpc.diagnosis.candidates import passes

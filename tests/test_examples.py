@@ -33,7 +33,7 @@ REGISTRY = {
     "lpvpc.export.actuator.build_actuator_fmu": "test_actuator.py::test_build_is_cached",
     "lpvpc.export.actuator.actuator_source_dir": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
     "lpvpc.cli.main": "test_cli.py::test_export",
-    "lpvpc.cli.cmd_validate": "test_validation.py::test_min_vaf_failing_exits_1",
+    "lpvpc.cli.validate.run": "test_validation.py::test_min_vaf_failing_exits_1",
     "lpvpc.io.trial.Trial": "test_data.py::test_degree_conversion",
     "lpvpc.models.effects.model_reflex_delay_steps": "test_effects.py::test_reflex_delay_entry_reruns_the_models_reflex_at_neighbouring_delays",
     "lpvpc.io.trial.write_trial_csv": "test_data.py::test_csv_round_trip",
@@ -84,8 +84,8 @@ REGISTRY = {
     "lpvpc.diagnosis.improve.write_report": "test_diagnose.py::test_improve_report",
     "lpvpc.diagnosis.improve.Ladder": "test_diagnose.py::test_improve_report",
     "lpvpc.diagnosis.improve.Rung": "test_diagnose.py::test_improve_report",
-    "lpvpc.cli.cmd_diagnose": "test_diagnose.py::test_cli_diagnose_and_improve",
-    "lpvpc.cli.cmd_improve": "test_diagnose.py::test_cli_diagnose_and_improve",
+    "lpvpc.cli.diagnose.run": "test_diagnose.py::test_cli_diagnose_and_improve",
+    "lpvpc.cli.improve.run": "test_diagnose.py::test_cli_diagnose_and_improve",
     "lpvpc.io.matfiles.read_mat": "test_matfiles.py::test_real_lab_file_reads",
     "lpvpc.plotting.plot_torque_fit": "test_cli.py::test_plotting_functions_draw",
     "lpvpc.plotting.plot_intrinsic_gain": "test_cli.py::test_plotting_functions_draw",
@@ -155,7 +155,7 @@ REGISTRY = {
 }
 
 #: public names without an example yet (may only shrink)
-PENDING = {"lpvpc.cli.cmd_study"}
+PENDING = {"lpvpc.cli.study.run"}
 
 #: example tests in this file: public name -> "test_examples.py::test_function"
 EXAMPLES = {}
@@ -436,8 +436,8 @@ def test_example_validation_metrics_file(tmp_path):
     assert json.loads(path.read_text()) == {"pass": True, "vaf": 97.5, "vaf_fmu": None}
 
 
-@example_of("lpvpc.cli.build_parser", "lpvpc.cli.cmd_simulate", "lpvpc.cli.cmd_identify", "lpvpc.cli.cmd_predict",
-            "lpvpc.cli.cmd_export", "lpvpc.cli.cmd_whole_joint", "lpvpc.cli.check_report_folder")
+@example_of("lpvpc.cli.build_parser", "lpvpc.cli.simulate.run", "lpvpc.cli.identify.run", "lpvpc.cli.predict.run",
+            "lpvpc.cli.export.run", "lpvpc.cli.whole_joint.run")
 def test_example_command_handlers(tmp_path, capsys):
     """The command line's handlers as ``lpvpc`` calls them (parse, then the command's
     function): a 30-s virtual subject simulated, identified, predicted, exported and turned
@@ -452,20 +452,20 @@ def test_example_command_handlers(tmp_path, capsys):
         return capsys.readouterr().out
 
     data, model = tmp_path / "data", tmp_path / "model.json"
-    run(cli.cmd_simulate, "simulate", "--out", data, "--seed", 0, "--duration", 30)
-    run(cli.cmd_identify, "identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "-o", model)
-    out = run(cli.cmd_predict, "predict", model, "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv",
+    run(cli.simulate.run, "simulate", "--out", data, "--seed", 0, "--duration", 30)
+    run(cli.identify.run, "identify", "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv", "-o", model)
+    out = run(cli.predict.run, "predict", model, "--pt", data / "ident_PT.csv", "--ut", data / "ident_UT.csv",
               "--json", tmp_path / "m.json")
     vaf = json.loads((tmp_path / "m.json").read_text())["vaf"]
     assert f"{vaf:.2f}" in out and vaf == pytest.approx(LPVPCModel.load(model).fit["vaf"], abs=0.01)
-    run(cli.cmd_export, "export", model, "--casadi", tmp_path / "model.casadi")
+    run(cli.export.run, "export", model, "--casadi", tmp_path / "model.casadi")
     assert (tmp_path / "model.casadi").is_file()
-    run(cli.cmd_whole_joint, "whole-joint", model, "--ut", data / "ident_UT.csv", "-o", tmp_path / "whole.json")
+    run(cli.whole_joint.run, "whole-joint", model, "--ut", data / "ident_UT.csv", "-o", tmp_path / "whole.json")
     assert json.loads((tmp_path / "whole.json").read_text())["model"]["fs"] == 100.0
 
-    cli.check_report_folder(tmp_path / "new_report", ["report.html"], force=False)  # absent: fine
+    cli._common.check_report_folder(tmp_path / "new_report", ["report.html"], force=False)  # absent: fine
     with pytest.raises(Exception, match="holds files but no previous report"):
-        cli.check_report_folder(data, ["report.html"], force=False)
+        cli._common.check_report_folder(data, ["report.html"], force=False)
 
 
 @example_of("lpvpc.models.effects.Effect", "lpvpc.models.effects.FittedEffect", "lpvpc.models.effects.Context", "lpvpc.models.effects.Setting",
@@ -632,7 +632,6 @@ def test_example_an_extended_fit_by_hand():
     assert v_drift > v_base + 0.08 and abs(v_drift - v_identify) < 0.08, (v_base, v_drift, v_identify)
 
 
-@example_of("lpvpc.cli.Terminated")
 def test_example_sigterm_takes_the_ctrl_c_path(subject, tmp_path, capsys):
     """SIGTERM while ``lpvpc identify`` runs: main turns it into Terminated, a KeyboardInterrupt,
     so the command stops as after Ctrl-C: exit status 128 + 15, one line on stderr, no model

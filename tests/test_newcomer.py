@@ -202,9 +202,9 @@ def test_validate_prints_its_first_progress_line_within_5_s(files, capsys):
 
 
 def test_quiet_silences_the_progress_lines(files, capsys, monkeypatch):
-    import lpvpc.cli
+    import lpvpc.cli.identify
 
-    monkeypatch.setattr(lpvpc.cli, "IDENTIFY_QUIET_S", 0.0)  # identify's line at once, as in a slow fit
+    monkeypatch.setattr(lpvpc.cli.identify, "IDENTIFY_QUIET_S", 0.0)  # identify's line at once, as in a slow fit
     model = files["dir"] / "quiet.json"
     status, _, err = _cli(["identify", "--pt", files["pt"], "--ut", files["ut"], "-o", model], capsys)
     assert status == 0 and "] identify: fitting 3000 samples at 100 Hz" in err, err

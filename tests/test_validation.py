@@ -21,7 +21,8 @@ import pytest
 import report_browser
 from report_browser import assert_layout_ok, check_page
 
-from lpvpc.cli import build_parser, cmd_validate, main
+from lpvpc.cli import build_parser, main
+from lpvpc.cli.validate import run as cmd_validate
 from lpvpc.io import Trial, decimate_trial, write_trial_csv
 from lpvpc.errors import DataError, FMUError
 from lpvpc.models.model import LPVPCModel, vaf

@@ -129,14 +129,17 @@ class ValidationResult:
 
 
 def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=None, time_unit=None, variable=None,
-                channels=None, data=None, stationary: bool = False) -> Record:
+                channels=None, data=None, stationary: bool = False, hold_out=None) -> Record:
     """Load the held-out PT and UT trials (with the model's file conventions unless given;
     ``variable`` and ``channels`` for .mat variables and other column names, as in
     :func:`lpvpc.io.load_trial`) and pair them at the model's rate. ``data`` instead of
     ``pt`` and ``ut``: one PT - UT file with a scheduling column, its two trials rebuilt
     (:func:`lpvpc.io.perturbation_file_trials`: the UT torque unknown, zero). ``stationary``:
     ``pt`` recorded around one fixed position without a UT trial, which stands for the PT
-    trial's mean position and torque (:func:`lpvpc.io.stationary_ut`). A rate that
+    trial's mean position and torque (:func:`lpvpc.io.stationary_ut`).
+    ``hold_out`` (a fraction or ``(start, stop)`` in s, as :func:`lpvpc.io.hold_out` takes it):
+    only that later stretch of the record is the held-out record, split at the model's rate
+    as ``hold_out`` splits it, the trials cut to the same span at their own rate. A rate that
     is not a multiple of the model's (1024 Hz) is first resampled to the largest multiple
     below it (lpvpc.io.to_multiple_rate), as identification does. DataError for unequal
     lengths, a rate below the model's, and any bad sample."""
@@ -175,7 +178,21 @@ def load_record(model: LPVPCModel, pt, ut, *, position_unit=None, torque_sign=No
     measured = pair_trials(pt_t, ut_t, target_fs=model.fs, channel_skew=conv.get("channel_skew_s", 0.0))
     check_model_rate(measured.fs, model.fs, what="record", source=measured.source)
     measured.meta.update(position_unit=position_unit, torque_sign=torque_sign)
+    if hold_out is not None:
+        from lpvpc.io import hold_out as split_record
+
+        measured = split_record(measured, hold_out)[1]
+        part = measured.meta["part"]
+        pt_t, ut_t = (_trial_part(t, part["start_s"], part["stop_s"]) for t in (pt_t, ut_t))
     return Record(pt_t, ut_t, measured, files, fs_file=None if pt_t.fs == fs_file else float(fs_file))
+
+
+def _trial_part(trial: Trial, start_s: float, stop_s: float) -> Trial:
+    """The samples of ``trial`` from ``start_s`` to ``stop_s`` after its first sample (s)."""
+    n = len(trial.time)
+    a, b = int(round(start_s * trial.fs)), min(n, int(round(stop_s * trial.fs)))
+    channels = {k: (np.asarray(v)[a:b] if np.ndim(v) == 1 and len(v) == n else v) for k, v in trial.channels.items()}
+    return Trial(trial.time[a:b], trial.position[a:b], trial.torque[a:b], channels, trial.name)
 
 
 def check_model_fmu(info: FMUInfo, model: LPVPCModel) -> None:
@@ -399,7 +416,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
              measure_load_effect: bool = True, band_limit_command: bool = True, fmu_variant: str = "exact",
              position_unit=None,
              torque_sign=None, time_unit=None, command_line=None, write_report: bool = True,
-             whole_joint=None, variable=None, channels=None, data=None, stationary: bool = False) -> ValidationResult:
+             whole_joint=None, variable=None, channels=None, data=None, stationary: bool = False,
+             hold_out=None) -> ValidationResult:
     """Validate ``model`` on held-out trials: every prediction route (numpy, CasADi, the FMU
     replayed, the FMU co-simulated with the actuator FMU) against the record, with a report.
 
@@ -467,6 +485,9 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         actuator with the model's torque only (``CosimSettings.load`` "model").
     stationary : bool, default False
         ``pt`` alone, recorded around one fixed position.
+    hold_out : float or (float, float), optional
+        Validate on that later stretch of the record only (a fraction, or start and stop in
+        s: :func:`lpvpc.io.hold_out`; :func:`load_record`).
 
     Returns
     -------
@@ -519,7 +540,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         raise DataError("a whole-joint model follows the UT trial's slow movement, which a stationary trial does not "
                         "have: validate it on a PT and UT pair", source=str(pt))
     record = load_record(model, pt, ut, position_unit=position_unit, torque_sign=torque_sign, time_unit=time_unit,
-                         variable=variable, channels=channels, data=data, stationary=stationary)
+                         variable=variable, channels=channels, data=data, stationary=stationary, hold_out=hold_out)
     if not record.ut_torque_known and settings.load == "measured_ut+model":  # no UT torque to load the actuators with
         settings = replace(settings, load="model")
     meas = record.measured
@@ -762,6 +783,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
             "record_fs": float(record.fs),
             "record_fs_file": record.fs_file,
             "record_samples": int(len(record.pt.time)),
+            "record_part": meas.meta.get("part"),  # the held-out stretch of the record (hold_out), or None
             "position_unit": meas.meta.get("position_unit"),
             "torque_sign": meas.meta.get("torque_sign"),
             "model_fmu": {"path": _report_path(model_fmu.path, report_dir), "sha256": model_fmu.sha256, "fmi_version": model_fmu.fmi_version,
