@@ -76,28 +76,51 @@ def glossary(terms=None) -> str:
     return f'<details id="glossary"><summary>Glossary</summary><dl class="gloss">{items}</dl></details>'
 
 
-#: Library wording (Python keywords) -> the command-line options that do the same, for
-#: the reports the command line writes.
-_CLI_WORDS = (
+
+#: The library names its fixes in Python (keywords); the command line and the reports it
+#: writes show them as the options that do the same. Pattern -> replacement, in order.
+CLI_SYNTAX = (
     (r"\bstructure='fixed'", "--structure fixed"),
-    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
     (r"\beffects=\(?'?(\w+)'?\)?", r"--effect \1"),
     (r"\beffects=", "--effect"),
+    (r"channels=\{'(\w+)': COLUMN\}( \(--channel \w+=COLUMN\))?", r"--channel \1=COLUMN"),
+    (r"\bchannel_skew=0 given\b", "--channel-skew-ms 0"),
+    (r"\btarget_fs=None\b", "--fs 0"),
+    (r"\btarget_fs=", "--fs "),
     (r"\bstationary=True\b", "--stationary"),
+    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
+    (r"\bhigh_rate_reflex=False\b", "--model-rate-reflex"),
+    (r"\bpt=PT\b", "--pt PT"),
+    (r"\but=UT\b", "--ut UT"),
+    (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
+    # a keyword, not a field of a file ("conventions.torque_sign")
+    (r"(?<![.\w])(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
+     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter|relaxation_times|relaxation_order)"
+     r"\b(='?([\w.+-]+)'?)?",
+     lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
+    # a message that gave both syntaxes: once
+    (r"\((--[^,()]+), \1\)", r"(\1)"),
+    (r"(--[\w-]+ [^\s()]+) \(\1\)", r"\1"),  # "--torque-sign -1 (torque_sign=-1)": once
 )
 
 
 def command_line_syntax(text) -> str:
-    """``text`` with the library's Python keywords as the command line's options (for a
-    report the command line writes).
+    """``text`` (a library message) with its Python keywords as command-line options: what
+    the command line prints and the reports it writes show.
 
     >>> command_line_syntax("identify with structure='fixed' or the setting given")
     'identify with --structure fixed or the setting given'
+    >>> command_line_syntax("pass position_unit='deg' if it is in degrees; or target_fs=None")
+    'pass --position-unit deg if it is in degrees; or --fs 0'
+    >>> command_line_syntax("read it as stationary (stationary=True, --stationary); conventions.torque_sign must be 1")
+    'read it as stationary (--stationary); conventions.torque_sign must be 1'
+    >>> command_line_syntax("identify again with --torque-sign -1 (torque_sign=-1)")
+    'identify again with --torque-sign -1'
     """
     import re
 
     out = str(text)
-    for pattern, repl in _CLI_WORDS:
+    for pattern, repl in CLI_SYNTAX:
         out = re.sub(pattern, repl, out)
     return out
 

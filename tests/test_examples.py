@@ -79,7 +79,6 @@ REGISTRY = {
     "lpvpc.export.fmu_build.fmi_headers_dir": "test_fmu_build.py::test_fmi_headers_dir",
     "lpvpc.export.fmu_build.fmu_guid": "test_fmu_build.py::test_guid_is_a_hash_of_sources_and_settings",
     "lpvpc.linalg.project_out_and_solve": "test_identify.py::test_projection_equals_literal_pseudo_inverse_formula",
-    "lpvpc.diagnosis.improve.improve": "test_diagnose.py::test_improve_report",
     "lpvpc.diagnosis.improve.physiology": "test_newcomer.py::test_improve_report_shows_the_physiology_of_each_step_and_no_repository_paths",
     "lpvpc.diagnosis.improve.write_report": "test_diagnose.py::test_improve_report",
     "lpvpc.diagnosis.improve.Ladder": "test_diagnose.py::test_improve_report",

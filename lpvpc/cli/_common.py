@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..errors import LpvpcError
+from ..report_html import command_line_syntax
 
 PROG = "lpvpc"
 # Exit status for unreadable/unwritable paths: bad input, like the package's input errors.
@@ -25,46 +26,9 @@ def _one_line(text) -> str:
     return " ".join(str(text).split())
 
 
-#: The library names its fixes in Python (keywords); on the command line they read as the
-#: options that do the same. Pattern -> replacement, applied in order.
-CLI_SYNTAX = (
-    (r"channels=\{'(\w+)': COLUMN\}( \(--channel \w+=COLUMN\))?", r"--channel \1=COLUMN"),
-    (r"\bchannel_skew=0 given\b", "--channel-skew-ms 0"),
-    (r"\btarget_fs=None\b", "--fs 0"),
-    (r"\btarget_fs=", "--fs "),
-    (r"\bstationary=True\b", "--stationary"),
-    (r"\bhigh_rate_reflex=True\b", "--high-rate-reflex"),
-    (r"\bhigh_rate_reflex=False\b", "--model-rate-reflex"),
-    (r"\bpt=PT\b", "--pt PT"),
-    (r"\but=UT\b", "--ut UT"),
-    (r"\bthe pt and ut arguments\b", "the --pt and --ut files"),
-    # a keyword, not a field of a file ("conventions.torque_sign")
-    (r"(?<![.\w])(position_unit|time_unit|torque_sign|velocity_order|intrinsic_order|reflex_order|state_order|"
-     r"max_state_order|irf_lags|irf_length|reflex_delay|causal_lags|max_iter|relaxation_times|relaxation_order)"
-     r"\b(='?([\w.+-]+)'?)?",
-     lambda m: "--" + m.group(1).replace("_", "-") + (f" {m.group(3)}" if m.group(3) else "")),
-    # a message that gave both syntaxes: once
-    (r"\((--[^,()]+), \1\)", r"(\1)"),
-    (r"(--[\w-]+ [^\s()]+) \(\1\)", r"\1"),  # "--torque-sign -1 (torque_sign=-1)": once
-)
-
-
-def cli_syntax(message) -> str:
-    """A library message with its Python keywords as command-line options.
-
-    >>> cli_syntax("pass position_unit='deg' if it is in degrees; or target_fs=None")
-    'pass --position-unit deg if it is in degrees; or --fs 0'
-    >>> cli_syntax("read it as stationary (stationary=True, --stationary); conventions.torque_sign must be 1")
-    'read it as stationary (--stationary); conventions.torque_sign must be 1'
-    >>> cli_syntax("identify again with --torque-sign -1 (torque_sign=-1)")
-    'identify again with --torque-sign -1'
-    """
-    import re
-
-    text = str(message)
-    for pattern, replacement in CLI_SYNTAX:
-        text = re.sub(pattern, replacement, text)
-    return text
+#: a library message with its Python keywords as command-line options (one rule table, shared
+#: with the reports the command line writes)
+cli_syntax = command_line_syntax
 
 
 def _err(message) -> None:

@@ -28,7 +28,7 @@ def run(args) -> int:
 
         data = hold_out(data, held_out)[1]
     progress(f"diagnose: fitting and scoring every candidate of the catalog by cross-validation on {data.n} "
-             f"samples (about 10-30 s)")
+             f"samples")
     diag = diagnose(model, data)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
     if held_out is not None:
