@@ -303,3 +303,119 @@ def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, model, subject, tmp_
                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
         assert run.returncode == 0 and "finished" in run.stdout, (key, run.stdout[-2000:], run.stderr[-2000:])
         assert "error" not in run.stdout.lower(), (key, run.stdout[-2000:])
+
+
+ME_KINDS = [("sampled", 2), ("exact", 2), ("causal", 2)]
+
+
+@pytest.fixture(scope="module")
+def me_fmus(model, tmp_path_factory):
+    """{(kind, fmi): (path, extracted folder)} of Model Exchange model FMUs."""
+    folder = tmp_path_factory.mktemp("foreign_me")
+    out = {}
+    for kind, fmi in ME_KINDS + [("sampled", 3)]:
+        path = ex.export_fmu(model, folder / f"me_{kind}_fmi{fmi}.fmu", fmi_version=fmi, variant=kind, fmi_type="me")
+        out[(kind, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_me_{kind}_{fmi}")))
+    return out
+
+
+@pytest.mark.parametrize("kind,fmi", ME_KINDS)
+def test_omsimulator_model_exchange_replay(oms, model, closed_loop, subject, me_fmus, kind, fmi, tmp_path,
+                                           monkeypatch):
+    """OMSimulator's FMI 2 Model Exchange run (its strongly coupled system, CVode), with the call
+    the guide gives for it: a maximum step of at most half a sample, the inputs of sample k set,
+    ``stepUntil(t_k + T/2)``, the torque read. Every sample after the declared latency equals
+    the offline prediction."""
+    monkeypatch.chdir(tmp_path)
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, kind)
+    path, _ = me_fmus[(kind, fmi)]
+    T = 1.0 / model.fs
+    n = len(expected)
+    fmu = oms.FMU(str(path), instanceName=f"m{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(n * T + 1.0)
+    fmu.setStepSize(T / 10)
+    fmu.initialize()
+    y = np.empty(n)
+    for k in range(n):
+        for name, v in inputs.items():
+            fmu.setValue(name, float(v[k]))
+        fmu.stepUntil((k + 0.5) * T)
+        y[k] = fmu.getValue("torque")
+    fmu.terminate()
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_fmpy_model_exchange_simulation_of_the_default_fmu(model, closed_loop, subject, me_fmus, fmi):
+    """fmpy's Model Exchange simulation (``simulate_fmu``, CVode) of the default (sampled)
+    variant over 20 s: after each time event the torque equals the offline prediction after
+    the declared latency."""
+    import fmpy
+
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, "sampled")
+    path, _ = me_fmus[("sampled", fmi)]
+    T = 1.0 / model.fs
+    n = len(expected)
+    t = np.arange(n) * T
+    names = list(inputs)
+    sig = np.array(list(zip(t, *[inputs[q] for q in names])), dtype=[("time", float)] + [(q, float) for q in names])
+    res = fmpy.simulate_fmu(str(path), fmi_type="ModelExchange", input=sig, stop_time=t[-1], output_interval=T,
+                            output=["torque"])
+    last = np.r_[res["time"][1:] != res["time"][:-1], True]  # the row after each event
+    y = res["torque"][last]
+    assert len(y) == n
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+def _me_loop(inst, inputs, T, first_set):
+    """A Model Exchange event loop over the samples of ``inputs`` that sets no input in
+    initialization: inputs are first set at the time ``first_set`` (s) after
+    ``exitInitializationMode`` and then at each sample time before its event. Returns the
+    torque after each event."""
+    update = inst.fmu.newDiscreteStates if inst.fmi == 2 else inst.fmu.updateDiscreteStates
+    names = list(inputs)
+    ins, out = inst.refs(names), inst.refs(["torque"])
+    n = len(inputs[names[0]])
+    y = np.empty(n)
+    k_first = int(np.ceil(first_set / T - 1e-9))
+    update()
+    for k in range(n):
+        if k > 0:
+            inst.fmu.enterContinuousTimeMode()
+            if (k - 1) * T < first_set < k * T:  # the first inputs, between two samples
+                inst.fmu.setTime(first_set)
+                inst.set(ins, [float(inputs[q][k]) for q in names])
+            inst.fmu.setTime(k * T)
+            if k >= k_first:
+                inst.set(ins, [float(inputs[q][k]) for q in names])
+            inst.fmu.enterEventMode()
+            update()
+        elif first_set == 0.0:  # at the start time, after exitInitializationMode (Event Mode)
+            inst.set(ins, [float(inputs[q][0]) for q in names])
+        y[k] = inst.get(out)[0]
+    return y
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_inputs_first_set_after_initialization_give_a_defined_start(model, closed_loop, subject, me_fmus, fmi):
+    """No input set in initialization: inputs set at the start time after
+    ``exitInitializationMode`` give the same run as inputs set in initialization (sample 0
+    takes them, no start-up jump); inputs first set between two samples start the model at
+    the next sample, at rest until then: the torque from there on is the offline prediction
+    of the record from that sample."""
+    from fmu_helpers import FMUInstance
+
+    kind = "sampled"
+    path, unzipdir = me_fmus[(kind, fmi)]
+    inputs, _, lat, _ = _case(model, closed_loop, subject, kind, seconds=3.0)
+    T = 1.0 / model.fs
+    y0 = _me_loop(FMUInstance(path, unzipdir, "a", "me").initialize(), inputs, T, 0.0)
+    expected = reference(model, inputs["position"], inputs["scheduling"], kind)["torque"]
+    assert _agreement(y0, expected, lat) < ABS_TOL
+    assert np.all(y0[:lat] == y0[0])  # within the latency: the torque at rest, no jump
+    start = 25  # first inputs at 24.5 samples: sample 0 of the model is sample 25 of the record
+    y1 = _me_loop(FMUInstance(path, unzipdir, "b", "me").initialize(), inputs, T, (start - 0.5) * T)
+    later = reference(model, inputs["position"][start:], inputs["scheduling"][start:], kind)["torque"]
+    assert np.all(y1[:start + lat] == y0[0])
+    assert _agreement(y1[start:], later, lat) < ABS_TOL
