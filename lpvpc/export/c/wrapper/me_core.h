@@ -17,7 +17,7 @@
  *     held input; the time event t_{k+1} is announced as nextEventTime;
  *   - outputs are discrete (they change at the time events only); inputs may be set at any time
  *     after initialization and take effect at the next sample; getting an input returns the value
- *     last set; inputs set at the time of the last sample (within the time tolerance, in Event
+ *     last set; inputs set at the time of the last sample (to 1e-14 relative, in Event
  *     Mode after the update or in Continuous-Time Mode before time advances) are that sample's
  *     inputs: u(t_k) is the last value given at t_k, so a master that updates its inputs after
  *     the event iteration (OMSimulator) or stops exactly on a sample gets the same samples as one
@@ -73,6 +73,9 @@ static double me_sample_time(const MeInstance *m, int64_t k)
 {
     return m->me.t_start + (double)k * (double)SYS_STEP;
 }
+
+/* relative: inputs set this close to the last sample time are set at that instant (a few ulp, far below TIME_TOL) */
+#define ME_INSTANT_TOL 1e-14
 
 static double me_tolerance(double t) { return TIME_TOL * (fabs(t) > 1.0 ? fabs(t) : 1.0); }
 
@@ -255,7 +258,9 @@ static CsStatus me_set_real(MeInstance *m, const char *fn, const CsValueReferenc
     memcpy(c->s.u, sampled, sizeof sampled);
     if (st != CS_OK || !me_sets_an_input(vr, n_vr)) return st;
     t_last = me_sample_time(m, m->me.k);
-    if (fabs(c->s.time - t_last) <= me_tolerance(t_last)) {
+    /* the same instant up to the rounding of the time itself: a master's later time (a sliver step after the
+     * event) carries an input that has moved on, which belongs to the next sample */
+    if (fabs(c->s.time - t_last) <= ME_INSTANT_TOL * (fabs(t_last) > 1.0 ? fabs(t_last) : 1.0)) {
         /* still at the instant t_k (masters that set inputs after the event iteration): u(t_k) is the last value
          * given at t_k, so resample; a model not started yet starts here */
         memcpy(c->s.u, m->me.u_live, sizeof sampled);
