@@ -419,3 +419,58 @@ def test_inputs_first_set_after_initialization_give_a_defined_start(model, close
     later = reference(model, inputs["position"][start:], inputs["scheduling"][start:], kind)["torque"]
     assert np.all(y1[:start + lat] == y0[0])
     assert _agreement(y1[start:], later, lat) < ABS_TOL
+
+
+def _oms_table_run(oms, fmu_path, inputs, T, folder, max_step=None):
+    """OMSimulator's own loop over a strongly coupled system (its Model Exchange solver, CVode)
+    of the FMU with its inputs from a CSV table, built with its C API (its Python SSP API puts
+    a table and a Model Exchange FMU in different simulation units and cannot connect them).
+    The torque is read half a sample after each sample time."""
+    from OMSimulator.capi import Capi, Status
+
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    csv = folder / "inputs.csv"
+    with open(csv, "w") as f:  # two rows past the end: the solver looks a little ahead
+        f.write("time," + ",".join(names) + "\n")
+        for k in range(n + 2):
+            f.write(f"{k * T!r}," + ",".join(repr(float(inputs[q][min(k, n - 1)])) for q in names) + "\n")
+    name = f"t{uuid.uuid4().hex[:10]}"
+
+    def ok(status, what):
+        assert status == Status.ok, f"OMSimulator {what}: {status}"
+
+    ok(Capi.setTempDirectory(str(folder)), "setTempDirectory")
+    ok(Capi.newModel(name), "newModel")
+    ok(Capi.addSystem(f"{name}.root", 2), "addSystem (strongly coupled)")
+    ok(Capi.addSubModel(f"{name}.root.m", str(fmu_path)), "addSubModel FMU")
+    ok(Capi.addSubModel(f"{name}.root.tab", str(csv)), "addSubModel table")
+    for q in names:
+        ok(Capi.addConnection(f"{name}.root.tab.{q}", f"{name}.root.m.{q}"), "addConnection")
+    ok(Capi.instantiate(name), "instantiate")
+    ok(Capi.setStopTime(name, n * T), "setStopTime")
+    if max_step:
+        ok(Capi.setVariableStepSize(f"{name}.root", 1e-6, 1e-12, max_step), "setVariableStepSize")
+    ok(Capi.initialize(name), "initialize")
+    y = np.empty(n)
+    for k in range(n):
+        ok(Capi.stepUntil(name, (k + 0.5) * T), f"stepUntil at sample {k}")
+        y[k], status = Capi.getReal(f"{name}.root.m.torque")
+        ok(status, "getReal")
+    ok(Capi.terminate(name), "terminate")
+    ok(Capi.delete(name), "delete")
+    return y
+
+
+@pytest.mark.parametrize("kind", ["sampled", "exact"])
+@pytest.mark.parametrize("max_step", [None, 1e-3])
+def test_omsimulator_model_exchange_with_inputs_from_a_table(oms, model, closed_loop, subject, me_fmus, kind,
+                                                            max_step, tmp_path, monkeypatch):
+    """OMSimulator's own loop feeds the inputs from a CSV table and updates them after each
+    event iteration (and again after a sliver step past the event): the FMI 2 Model Exchange
+    FMU takes the inputs given at the instant of the sample, so every sample after the declared
+    latency equals the offline prediction (at OMSimulator's default step and at 1 ms)."""
+    monkeypatch.chdir(tmp_path)
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, kind)
+    y = _oms_table_run(oms, me_fmus[(kind, 2)][0], inputs, 1.0 / model.fs, tmp_path, max_step)
+    assert _agreement(y, expected, lat) < ABS_TOL
