@@ -11,7 +11,10 @@ Two masters:
   repository; a fresh clone has neither and these tests skip, saying so).
 
 Each run must end without error and agree with the offline prediction to 1e-9 N m after the
-FMU's declared latency. The long (120 s) runs are in benchmarks/bench_foreign_masters.py.
+FMU's declared latency. The Model Exchange FMUs run in OMSimulator's strongly coupled system
+(its FMU API, and its own loop with the inputs from a CSV table) and in fmpy's
+``simulate_fmu``; a Model Exchange event loop in fmpy checks the start when no input is set
+in initialization. The long (120 s) runs are in benchmarks/bench_foreign_masters.py.
 """
 
 import os
