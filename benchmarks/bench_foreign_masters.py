@@ -12,6 +12,15 @@ declared latency) and the largest error, for
   (it ends with a step that is a sliver off whole ticks): "ok" or its error;
 - fmpy at 1 ms and 10 ms master steps, t += h, the last step clipped to the stop time.
 
+For each Model Exchange model FMU (FMI 2; OMSimulator does not load FMI 3 Model Exchange):
+
+- ``ME stepUntil(t_k+1)``: OMSimulator's FMU API at its default step (the FMU's
+  DefaultExperiment step, one sample), inputs of sample k set, ``stepUntil(t_k+1)``, read;
+- ``ME h=T/10, stepUntil(t_k+T/2)``: the call the guide gives for the FMU API;
+- ``ME table, default step`` / ``ME table, 1 ms``: OMSimulator's own loop (strongly coupled
+  system) with the inputs from a CSV table, read at t_k + T/2;
+- ``ME fmpy simulate_fmu``: fmpy's Model Exchange simulation (CVode).
+
 Run: ``PYTHONPATH=../shared/tools/omsimulator/lib/x86_64-linux-gnu python
 benchmarks/bench_foreign_masters.py`` (needs ``pip install lxml``). Results:
 benchmarks/results/foreign_masters.txt.
@@ -147,7 +156,65 @@ def main():
                     w, e = _count(y, ref, lat)
                     lines.append(f"{name:<16}{label:<34}{w:>8}{e:>14.3g}  ok")
             print(*lines[-5:], sep="\n", flush=True)
+    for kind in ("sampled", "causal", "exact"):
+        path = ex.export_fmu(model, work / f"me_{kind}2.fmu", fmi_version=2, variant=kind, fmi_type="me")
+        inputs = {k: v.ravel() for k, v in ex.replay_inputs(model, pos, sch, kind).items()}
+        ref = reference(model, pos, sch, kind)["torque"]
+        lat = ex.latency_samples(model, kind)
+        name = f"{kind} ME FMI 2"
+        runs = [("ME stepUntil(t_k+1)", lambda: _oms_me_api(OMS, path, inputs, T, None, 0.0)),
+                ("ME h=T/10, stepUntil(t_k+T/2)", lambda: _oms_me_api(OMS, path, inputs, T, T / 10, 0.5)),
+                ("ME table, default step", lambda: _oms_me_table(OMS, path, inputs, T, work, None)),
+                ("ME table, 1 ms", lambda: _oms_me_table(OMS, path, inputs, T, work, 1e-3)),
+                ("ME fmpy simulate_fmu", lambda: _fmpy_me(path, inputs, T))]
+        for label, run in runs:
+            t0 = time.perf_counter()
+            try:
+                w, e = _count(run(), ref, lat)
+                lines.append(f"{name:<17}{label:<33}{w:>8}{e:>14.3g}  ok ({time.perf_counter() - t0:.0f} s)")
+            except (RuntimeError, AssertionError) as exc:
+                lines.append(f"{name:<17}{label:<33}{'-':>8}{'-':>14}  error ({exc})")
+        print(*lines[-len(runs):], sep="\n", flush=True)
     write_results(os.environ.get("BENCH_OUT") and Path(os.environ["BENCH_OUT"]) or "foreign_masters.txt", lines)
+
+
+def _oms_me_api(OMS, path, inputs, T, max_step, half):
+    """OMSimulator's FMU API on a Model Exchange FMU: inputs of sample k set, then
+    ``stepUntil(t_k+1 - half T)``, torque read; ``max_step`` None keeps its default."""
+    n = len(next(iter(inputs.values())))
+    fmu = OMS.FMU(str(path), instanceName=f"e{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(n * T + 1.0)
+    if max_step:
+        fmu.setStepSize(max_step)
+    fmu.initialize()
+    y = np.empty(n)
+    for k in range(n):
+        for name, v in inputs.items():
+            fmu.setValue(name, float(v[k]))
+        fmu.stepUntil((k + 1 - half) * T)
+        y[k] = fmu.getValue("torque")
+    fmu.terminate()
+    return y
+
+
+def _oms_me_table(OMS, path, inputs, T, folder, max_step):
+    """OMSimulator's own loop with the inputs from a CSV table (the test's helper)."""
+    from test_foreign_masters import _oms_table_run
+
+    return _oms_table_run(OMS, path, inputs, T, folder, max_step)
+
+
+def _fmpy_me(path, inputs, T):
+    import fmpy
+
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    t = np.arange(n) * T
+    sig = np.array(list(zip(t, *[inputs[q] for q in names])), dtype=[("time", float)] + [(q, float) for q in names])
+    res = fmpy.simulate_fmu(str(path), fmi_type="ModelExchange", input=sig, stop_time=t[-1], output_interval=T,
+                            output=["torque"])
+    return res["torque"][np.r_[res["time"][1:] != res["time"][:-1], True]]
 
 
 def _load(pair, folder, stem):

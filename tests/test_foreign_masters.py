@@ -11,7 +11,10 @@ Two masters:
   repository; a fresh clone has neither and these tests skip, saying so).
 
 Each run must end without error and agree with the offline prediction to 1e-9 N m after the
-FMU's declared latency. The long (120 s) runs are in benchmarks/bench_foreign_masters.py.
+FMU's declared latency. The Model Exchange FMUs run in OMSimulator's strongly coupled system
+(its FMU API, and its own loop with the inputs from a CSV table) and in fmpy's
+``simulate_fmu``; a Model Exchange event loop in fmpy checks the start when no input is set
+in initialization. The long (120 s) runs are in benchmarks/bench_foreign_masters.py.
 """
 
 import os
@@ -303,3 +306,174 @@ def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, model, subject, tmp_
                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
         assert run.returncode == 0 and "finished" in run.stdout, (key, run.stdout[-2000:], run.stderr[-2000:])
         assert "error" not in run.stdout.lower(), (key, run.stdout[-2000:])
+
+
+ME_KINDS = [("sampled", 2), ("exact", 2), ("causal", 2)]
+
+
+@pytest.fixture(scope="module")
+def me_fmus(model, tmp_path_factory):
+    """{(kind, fmi): (path, extracted folder)} of Model Exchange model FMUs."""
+    folder = tmp_path_factory.mktemp("foreign_me")
+    out = {}
+    for kind, fmi in ME_KINDS + [("sampled", 3)]:
+        path = ex.export_fmu(model, folder / f"me_{kind}_fmi{fmi}.fmu", fmi_version=fmi, variant=kind, fmi_type="me")
+        out[(kind, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_me_{kind}_{fmi}")))
+    return out
+
+
+@pytest.mark.parametrize("kind,fmi", ME_KINDS)
+def test_omsimulator_model_exchange_replay(oms, model, closed_loop, subject, me_fmus, kind, fmi, tmp_path,
+                                           monkeypatch):
+    """OMSimulator's FMI 2 Model Exchange run (its strongly coupled system, CVode), with the call
+    the guide gives for it: a maximum step of at most half a sample, the inputs of sample k set,
+    ``stepUntil(t_k + T/2)``, the torque read. Every sample after the declared latency equals
+    the offline prediction."""
+    monkeypatch.chdir(tmp_path)
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, kind)
+    path, _ = me_fmus[(kind, fmi)]
+    T = 1.0 / model.fs
+    n = len(expected)
+    fmu = oms.FMU(str(path), instanceName=f"m{uuid.uuid4().hex[:10]}")
+    fmu.instantiate()
+    fmu.setStopTime(n * T + 1.0)
+    fmu.setStepSize(T / 10)
+    fmu.initialize()
+    y = np.empty(n)
+    for k in range(n):
+        for name, v in inputs.items():
+            fmu.setValue(name, float(v[k]))
+        fmu.stepUntil((k + 0.5) * T)
+        y[k] = fmu.getValue("torque")
+    fmu.terminate()
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_fmpy_model_exchange_simulation_of_the_default_fmu(model, closed_loop, subject, me_fmus, fmi):
+    """fmpy's Model Exchange simulation (``simulate_fmu``, CVode) of the default (sampled)
+    variant over 20 s: after each time event the torque equals the offline prediction after
+    the declared latency."""
+    import fmpy
+
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, "sampled")
+    path, _ = me_fmus[("sampled", fmi)]
+    T = 1.0 / model.fs
+    n = len(expected)
+    t = np.arange(n) * T
+    names = list(inputs)
+    sig = np.array(list(zip(t, *[inputs[q] for q in names])), dtype=[("time", float)] + [(q, float) for q in names])
+    res = fmpy.simulate_fmu(str(path), fmi_type="ModelExchange", input=sig, stop_time=t[-1], output_interval=T,
+                            output=["torque"])
+    last = np.r_[res["time"][1:] != res["time"][:-1], True]  # the row after each event
+    y = res["torque"][last]
+    assert len(y) == n
+    assert _agreement(y, expected, lat) < ABS_TOL
+
+
+def _me_loop(inst, inputs, T, first_set):
+    """A Model Exchange event loop over the samples of ``inputs`` that sets no input in
+    initialization: inputs are first set at the time ``first_set`` (s) after
+    ``exitInitializationMode`` and then at each sample time before its event. Returns the
+    torque after each event."""
+    update = inst.fmu.newDiscreteStates if inst.fmi == 2 else inst.fmu.updateDiscreteStates
+    names = list(inputs)
+    ins, out = inst.refs(names), inst.refs(["torque"])
+    n = len(inputs[names[0]])
+    y = np.empty(n)
+    k_first = int(np.ceil(first_set / T - 1e-9))
+    update()
+    for k in range(n):
+        if k > 0:
+            inst.fmu.enterContinuousTimeMode()
+            if (k - 1) * T < first_set < k * T:  # the first inputs, between two samples
+                inst.fmu.setTime(first_set)
+                inst.set(ins, [float(inputs[q][k]) for q in names])
+            inst.fmu.setTime(k * T)
+            if k >= k_first:
+                inst.set(ins, [float(inputs[q][k]) for q in names])
+            inst.fmu.enterEventMode()
+            update()
+        elif first_set == 0.0:  # at the start time, after exitInitializationMode (Event Mode)
+            inst.set(ins, [float(inputs[q][0]) for q in names])
+        y[k] = inst.get(out)[0]
+    return y
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_inputs_first_set_after_initialization_give_a_defined_start(model, closed_loop, subject, me_fmus, fmi):
+    """No input set in initialization: inputs set at the start time after
+    ``exitInitializationMode`` give the same run as inputs set in initialization (sample 0
+    takes them, no start-up jump); inputs first set between two samples start the model at
+    the next sample, at rest until then: the torque from there on is the offline prediction
+    of the record from that sample."""
+    from fmu_helpers import FMUInstance
+
+    kind = "sampled"
+    path, unzipdir = me_fmus[(kind, fmi)]
+    inputs, _, lat, _ = _case(model, closed_loop, subject, kind, seconds=3.0)
+    T = 1.0 / model.fs
+    y0 = _me_loop(FMUInstance(path, unzipdir, "a", "me").initialize(), inputs, T, 0.0)
+    expected = reference(model, inputs["position"], inputs["scheduling"], kind)["torque"]
+    assert _agreement(y0, expected, lat) < ABS_TOL
+    assert np.all(y0[:lat] == y0[0])  # within the latency: the torque at rest, no jump
+    start = 25  # first inputs at 24.5 samples: sample 0 of the model is sample 25 of the record
+    y1 = _me_loop(FMUInstance(path, unzipdir, "b", "me").initialize(), inputs, T, (start - 0.5) * T)
+    later = reference(model, inputs["position"][start:], inputs["scheduling"][start:], kind)["torque"]
+    assert np.all(y1[:start + lat] == y0[0])
+    assert _agreement(y1[start:], later, lat) < ABS_TOL
+
+
+def _oms_table_run(oms, fmu_path, inputs, T, folder, max_step=None):
+    """OMSimulator's own loop over a strongly coupled system (its Model Exchange solver, CVode)
+    of the FMU with its inputs from a CSV table, built with its C API (its Python SSP API puts
+    a table and a Model Exchange FMU in different simulation units and cannot connect them).
+    The torque is read half a sample after each sample time."""
+    from OMSimulator.capi import Capi, Status
+
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    csv = folder / "inputs.csv"
+    with open(csv, "w") as f:  # two rows past the end: the solver looks a little ahead
+        f.write("time," + ",".join(names) + "\n")
+        for k in range(n + 2):
+            f.write(f"{k * T!r}," + ",".join(repr(float(inputs[q][min(k, n - 1)])) for q in names) + "\n")
+    name = f"t{uuid.uuid4().hex[:10]}"
+
+    def ok(status, what):
+        assert status == Status.ok, f"OMSimulator {what}: {status}"
+
+    ok(Capi.setTempDirectory(str(folder)), "setTempDirectory")
+    ok(Capi.newModel(name), "newModel")
+    ok(Capi.addSystem(f"{name}.root", 2), "addSystem (strongly coupled)")
+    ok(Capi.addSubModel(f"{name}.root.m", str(fmu_path)), "addSubModel FMU")
+    ok(Capi.addSubModel(f"{name}.root.tab", str(csv)), "addSubModel table")
+    for q in names:
+        ok(Capi.addConnection(f"{name}.root.tab.{q}", f"{name}.root.m.{q}"), "addConnection")
+    ok(Capi.instantiate(name), "instantiate")
+    ok(Capi.setStopTime(name, n * T), "setStopTime")
+    if max_step:
+        ok(Capi.setVariableStepSize(f"{name}.root", 1e-6, 1e-12, max_step), "setVariableStepSize")
+    ok(Capi.initialize(name), "initialize")
+    y = np.empty(n)
+    for k in range(n):
+        ok(Capi.stepUntil(name, (k + 0.5) * T), f"stepUntil at sample {k}")
+        y[k], status = Capi.getReal(f"{name}.root.m.torque")
+        ok(status, "getReal")
+    ok(Capi.terminate(name), "terminate")
+    ok(Capi.delete(name), "delete")
+    return y
+
+
+@pytest.mark.parametrize("kind", ["sampled", "exact"])
+@pytest.mark.parametrize("max_step", [None, 1e-3])
+def test_omsimulator_model_exchange_with_inputs_from_a_table(oms, model, closed_loop, subject, me_fmus, kind,
+                                                            max_step, tmp_path, monkeypatch):
+    """OMSimulator's own loop feeds the inputs from a CSV table and updates them after each
+    event iteration (and again after a sliver step past the event): the FMI 2 Model Exchange
+    FMU takes the inputs given at the instant of the sample, so every sample after the declared
+    latency equals the offline prediction (at OMSimulator's default step and at 1 ms)."""
+    monkeypatch.chdir(tmp_path)
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, kind)
+    y = _oms_table_run(oms, me_fmus[(kind, 2)][0], inputs, 1.0 / model.fs, tmp_path, max_step)
+    assert _agreement(y, expected, lat) < ABS_TOL

@@ -188,18 +188,20 @@ def test_a_sample_stepped_over_is_applied_with_the_held_input(model, fmus):
     changing the input."""
     path, unzipdir = fmus[("causal", 2)]
     h = 1.0 / model.fs
-    a = MeSim(path, unzipdir, "a").initialize()
     u = {k: v.ravel() for k, v in ex.replay_inputs(model, np.full(4, 0.03), np.zeros(4)).items()}
+    at_rest = {k: 0.0 for k in u}  # sample 0's inputs, set in initialization
+    a = MeSim(path, unzipdir, "a").initialize(at_rest)
     refs = a.refs(list(u))
     a.update()
     a.fmu.enterContinuousTimeMode()
+    a.fmu.setTime(0.5 * h)  # after sample 0: the input waits for the next sample
     a.set(refs, [u[k][1] for k in u])
     a.fmu.setTime(2 * h)  # sample 1 at h was not handled
     a.fmu.enterEventMode()
     a.update()
     late = a.get(a.refs(["torque"]))[0]
     a.free()
-    b = MeSim(path, unzipdir, "b").initialize()
+    b = MeSim(path, unzipdir, "b").initialize(at_rest)
     b.update()
     b.fmu.enterContinuousTimeMode()
     for k in (1, 2):  # sample 1 with the input of sample 0, then the new input at sample 2

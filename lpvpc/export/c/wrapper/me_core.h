@@ -17,7 +17,14 @@
  *     held input; the time event t_{k+1} is announced as nextEventTime;
  *   - outputs are discrete (they change at the time events only); inputs may be set at any time
  *     after initialization and take effect at the next sample; getting an input returns the value
- *     last set;
+ *     last set; inputs set at the time of the last sample (to 1e-14 relative, in Event
+ *     Mode after the update or in Continuous-Time Mode before time advances) are that sample's
+ *     inputs: u(t_k) is the last value given at t_k, so a master that updates its inputs after
+ *     the event iteration (OMSimulator) or stops exactly on a sample gets the same samples as one
+ *     that sets them before;
+ *   - a defined start: if no input was set before ExitInitializationMode, the model rests at x0
+ *     until inputs are set; sample 0 is taken at the time they are first set if that is a sample
+ *     time, else at the first time event after it (the grid stays t_start + k T);
  *   - SetTime may go past the next time event (integrators probe ahead; nothing depends on time
  *     between events; the samples are applied when Event Mode is entered), never back before the
  *     last sample;
@@ -44,8 +51,11 @@ typedef struct {
     double t_start;             /* time of sample 0 */
     int64_t k;                  /* index of the last sample taken */
     int32_t submode;            /* ME_EVENT or ME_CONTINUOUS while the core is in MODE_STEP */
-    int32_t pad;
+    int32_t start;              /* ME_START_*: whether sample 0 has been taken */
 } MeData;
+
+/* no input set yet (the model rests at x0); inputs set, sample 0 at the next event; running */
+enum { ME_START_NONE = 0, ME_START_PENDING = 1, ME_START_DONE = 2 };
 
 typedef struct {
     Instance core; /* first: an MeInstance is also an Instance */
@@ -63,6 +73,9 @@ static double me_sample_time(const MeInstance *m, int64_t k)
 {
     return m->me.t_start + (double)k * (double)SYS_STEP;
 }
+
+/* relative: inputs set this close to the last sample time are set at that instant (a few ulp, far below TIME_TOL) */
+#define ME_INSTANT_TOL 1e-14
 
 static double me_tolerance(double t) { return TIME_TOL * (fabs(t) > 1.0 ? fabs(t) : 1.0); }
 
@@ -112,6 +125,8 @@ static CsStatus me_exit_initialization(MeInstance *m, const char *fn)
     m->me.t_start = c->s.time;
     m->me.k = 0;
     m->me.submode = ME_EVENT; /* FMI: initialization is left into Event Mode */
+    /* inputs set in initialization: sample 0 is at t_start; none set: wait for them (no start-up jump) */
+    m->me.start = m->me.start == ME_START_PENDING ? ME_START_DONE : ME_START_NONE;
     return CS_OK;
 }
 
@@ -165,6 +180,10 @@ static CsStatus me_update_discrete_states(MeInstance *m, const char *fn, double 
     int rc, bad;
     if (!me_check_submode(m, ME_EVENT, fn)) return CS_ERROR;
     while (c->s.time >= me_sample_time(m, m->me.k + 1) - me_tolerance(me_sample_time(m, m->me.k + 1))) {
+        if (m->me.start != ME_START_DONE) { /* not started: the model rests at x0, the grid goes on */
+            m->me.k++;
+            continue;
+        }
         rc = sys_update(c->s.x, c->s.u, c->s.p, x_next);
         if (rc != 0) {
             log_error(c, "%s: sys_update failed (code %d) at the sample t = %.17g s.", fn, rc,
@@ -181,6 +200,7 @@ static CsStatus me_update_discrete_states(MeInstance *m, const char *fn, double 
     }
     if (m->me.k != k0) {
         memcpy(c->s.u, m->me.u_live, sizeof c->s.u); /* sample the inputs at t_k */
+        if (m->me.start == ME_START_PENDING) m->me.start = ME_START_DONE; /* sample 0 */
         c->y_valid = 0;
         if (!ensure_outputs(c, fn)) goto fail;
     }
@@ -209,19 +229,51 @@ static CsStatus me_no_continuous(MeInstance *m, const char *fn, int mask, size_t
     return CS_ERROR;
 }
 
-/* Inputs set after initialization wait for the next sample; the core state keeps the sampled ones. */
+static int me_sets_an_input(const CsValueReference vr[], size_t n_vr)
+{
+    size_t i;
+    for (i = 0; vr && i < n_vr; i++)
+        if (vr[i] >= VR_IN0 && vr[i] < VR_PAR0) return 1;
+    return 0;
+}
+
+/* Inputs set after initialization wait for the next sample (the core state keeps the sampled ones),
+ * unless they are set at the time of the last sample: then they are that sample's inputs. */
 static CsStatus me_set_real(MeInstance *m, const char *fn, const CsValueReference vr[], size_t n_vr,
                             const double values[], size_t n_values)
 {
     Instance *c = &m->core;
     double sampled[DIM(SYS_NU)];
+    double t_last;
     CsStatus st;
-    if (c->s.mode != MODE_STEP) return cs_set_real(c, fn, vr, n_vr, values, n_values);
+    if (c->s.mode != MODE_STEP) {
+        st = cs_set_real(c, fn, vr, n_vr, values, n_values);
+        if (st == CS_OK && c->s.mode == MODE_INIT && me_sets_an_input(vr, n_vr)) m->me.start = ME_START_PENDING;
+        return st;
+    }
     memcpy(sampled, c->s.u, sizeof sampled);
     memcpy(c->s.u, m->me.u_live, sizeof sampled);
     st = cs_set_real(c, fn, vr, n_vr, values, n_values);
     memcpy(m->me.u_live, c->s.u, sizeof sampled);
     memcpy(c->s.u, sampled, sizeof sampled);
+    if (st != CS_OK || !me_sets_an_input(vr, n_vr)) return st;
+    t_last = me_sample_time(m, m->me.k);
+    /* the same instant up to the rounding of the time itself: a master's later time (a sliver step after the
+     * event) carries an input that has moved on, which belongs to the next sample */
+    if (fabs(c->s.time - t_last) <= ME_INSTANT_TOL * (fabs(t_last) > 1.0 ? fabs(t_last) : 1.0)) {
+        /* still at the instant t_k (masters that set inputs after the event iteration): u(t_k) is the last value
+         * given at t_k, so resample; a model not started yet starts here */
+        memcpy(c->s.u, m->me.u_live, sizeof sampled);
+        c->y_valid = 0;
+        if (!ensure_outputs(c, fn)) {
+            memcpy(c->s.u, sampled, sizeof sampled);
+            c->s.mode = MODE_ERROR;
+            return CS_ERROR;
+        }
+        m->me.start = ME_START_DONE;
+    } else if (m->me.start == ME_START_NONE) {
+        m->me.start = ME_START_PENDING; /* sample 0 at the next time event */
+    }
     return st;
 }
 
@@ -243,7 +295,7 @@ static int me_valid_data(const Instance *c, const MeFmuState *st, const char *fn
     int bad;
     const MeData *d = &st->me;
     if (!valid_state(c, &st->core, fn)) return 0;
-    if (!isfinite(d->t_start) || d->k < 0 || d->pad != 0 ||
+    if (!isfinite(d->t_start) || d->k < 0 || d->start < ME_START_NONE || d->start > ME_START_DONE ||
         (st->core.s.mode & (MODE_STEP | MODE_TERMINATED | MODE_ERROR) && d->submode != ME_EVENT &&
          d->submode != ME_CONTINUOUS)) {
         log_error(c, "%s: the FMU state's Model Exchange data are invalid.", fn);
