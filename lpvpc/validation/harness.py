@@ -485,7 +485,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         actuator with the model's torque only (``CosimSettings.load`` "model").
     stationary : bool, default False
         ``pt`` alone, recorded around one fixed position.
-    hold_out : float or (float, float), optional
+    hold_out : float or tuple of float, optional
         Validate on that later stretch of the record only (a fraction, or start and stop in
         s: :func:`lpvpc.io.hold_out`; :func:`load_record`).
 
