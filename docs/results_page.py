@@ -65,7 +65,7 @@ TABLES = {
     "population.txt": ("A population of virtual subjects: identification and K bands over draws",
                        "python benchmarks/bench_population.py 30 --first-seed 100"),
     "population_diagnosis.txt": ("A population of virtual subjects: diagnosis and the improve ladder over draws",
-                                 "python benchmarks/bench_population_diagnosis.py --draws 4 --clean 10"),
+                                 "python benchmarks/bench_population_diagnosis.py --draws 8 --clean 20"),
     "population_diagnosis_profile.txt": ("A population diagnosis draw, profiled",
                                          "python benchmarks/bench_population_diagnosis.py --profile reflex_habituation"),
     "real_stationary_physiology.txt": ("The lab's stationary trials through the documented command",
