@@ -173,8 +173,6 @@ def main():
     write_results("forward_selection.txt", lines, echo=True)
 
 
-
-
 def subjects(seeds=range(5)):
     """The virtual subject over bench_selection.py's seeds (2-minute multilevel records, the novel
     trajectory of seed + 1000 predicted): the choice rules before ("level") and after ("both"),
@@ -182,6 +180,8 @@ def subjects(seeds=range(5)):
     from lpvpc.io import pair_trials
     from lpvpc.identification.identify import LPVPCEstimator
     from lpvpc.simulation.simulate import SubjectParams, simulate_pair
+
+    from bench_selection import fit_and_score
 
     truth = SubjectParams()
     lines = ["# Virtual subject, choice rule before ('level') and after ('both') "
@@ -194,24 +194,11 @@ def subjects(seeds=range(5)):
         d, nv = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
         for rule in agg:
             S.CHOICE_RULE = rule
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                t = time.perf_counter()
-                model = LPVPCEstimator().fit(d).model_
-                el = time.perf_counter() - t
-                pred = model.predict(nv.position, nv.scheduling).total
-            lo, hi = model.scheduling_range
-            rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
-            k_err = 100 * np.abs(model.elastic_stiffness(rho) / truth.K(rho) - 1)
-            v = vaf(nv.torque, pred)
-            agg[rule].append((v, k_err.max(), k_err.mean(), el))
+            model, (v, k_max, k_mean, el), what = fit_and_score(LPVPCEstimator, d, nv, truth)
+            agg[rule].append((v, k_max, k_mean, el))
             sel = model.fit.get("structure_selection", {})
-            c = sel.get("chosen")
-            what = "" if c is None else (f"orders {c['intrinsic_order']}/{c['reflex_order']}/{c['velocity_order']}, "
-                                         f"L {1e3 * c['irf_length']:g} ms, {c['scheduling_extrapolation']}")
             cv = f"{sel.get('chosen_cv_vaf', float('nan')):.2f} / {sel.get('chosen_forward_vaf', float('nan')):.2f}"
-            lines.append(f"| {seed} | {rule} | {v:.2f} | {k_err.max():.1f} | {k_err.mean():.1f} | {cv} | {el:.2f} | "
-                         f"{what} |")
+            lines.append(f"| {seed} | {rule} | {v:.2f} | {k_max:.1f} | {k_mean:.1f} | {cv} | {el:.2f} | {what} |")
             print(lines[-1], flush=True)
     S.CHOICE_RULE = "both"
     lines.append("")

@@ -196,6 +196,25 @@ def development_split(d) -> list:
     return lines + ["", f"The new default chose on the first 70 %: {chosen}"]
 
 
+def fit_and_score(make_estimator, d, nv, truth):
+    """Fit ``make_estimator()`` on ``d``, predict the novel record ``nv``: (model, (novel VAF %,
+    worst and mean K error % over the central 80 % of the range against ``truth.K``, fit time
+    s), the chosen structure as text)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t = time.perf_counter()
+        model = make_estimator().fit(d).model_
+        el = time.perf_counter() - t
+        pred = model.predict(nv.position, nv.scheduling).total
+    lo, hi = model.scheduling_range
+    rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
+    k_err = 100 * np.abs(model.elastic_stiffness(rho) / truth.K(rho) - 1)
+    c = model.fit.get("structure_selection", {}).get("chosen")
+    what = "" if c is None else (f"orders {c['intrinsic_order']}/{c['reflex_order']}/{c['velocity_order']}, "
+                                 f"L {1e3 * c['irf_length']:g} ms, {c['scheduling_extrapolation']}")
+    return model, (vaf(nv.torque, pred), float(k_err.max()), float(k_err.mean()), el), what
+
+
 def subject_section(seeds=range(5)) -> list:
     from lpvpc.simulation.simulate import SubjectParams, simulate_pair
 
@@ -208,21 +227,10 @@ def subject_section(seeds=range(5)) -> list:
         ident, novel = simulate_pair("multilevel", seed=seed), simulate_pair("novel", seed=seed + 1000)
         d, nv = pair_trials(ident.pt, ident.ut), pair_trials(novel.pt, novel.ut)
         for structure in agg:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                t = time.perf_counter()
-                model = LPVPCEstimator(**({"structure": "fixed"} if "fixed" in structure else {})).fit(d).model_
-                el = time.perf_counter() - t
-                pred = model.predict(nv.position, nv.scheduling).total
-            lo, hi = model.scheduling_range
-            rho = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 25)
-            k_err = 100 * np.abs(model.elastic_stiffness(rho) / truth.K(rho) - 1)
-            v = vaf(nv.torque, pred)
-            agg[structure].append((v, k_err.max(), k_err.mean(), el))
-            c = model.fit.get("structure_selection", {}).get("chosen")
-            what = "" if c is None else (f"orders {c['intrinsic_order']}/{c['reflex_order']}/{c['velocity_order']}, "
-                                         f"L {1e3 * c['irf_length']:g} ms, {c['scheduling_extrapolation']}")
-            lines.append(f"| {seed} | {structure} | {v:.2f} | {k_err.max():.1f} | {k_err.mean():.1f} | {el:.2f} | {what} |")
+            model, (v, k_max, k_mean, el), what = fit_and_score(
+                lambda: LPVPCEstimator(**({"structure": "fixed"} if "fixed" in structure else {})), d, nv, truth)
+            agg[structure].append((v, k_max, k_mean, el))
+            lines.append(f"| {seed} | {structure} | {v:.2f} | {k_max:.1f} | {k_mean:.1f} | {el:.2f} | {what} |")
     lines.append("")
     for s, rows in agg.items():
         a = np.array(rows)

@@ -26,13 +26,21 @@ def _one_line(text) -> str:
     return " ".join(str(text).split())
 
 
-#: a library message with its Python keywords as command-line options (one rule table, shared
-#: with the reports the command line writes)
-cli_syntax = command_line_syntax
+def write_report_folder(folder, what: str, write):
+    """Write a report into ``folder`` as a whole (``write(stage)`` builds it in a staged folder
+    that replaces ``folder`` when done) and print where its page is; ``what`` names the
+    command on the progress line."""
+    from ..io.outputs import staged_folder
+    from ..progress import report as progress
+
+    progress(f"{what}: writing the report")
+    with staged_folder(folder) as stage:
+        page = write(stage)
+    print(f"report:    {Path(folder) / Path(page).relative_to(stage)}")
 
 
 def _err(message) -> None:
-    print(f"{PROG}: error: {_one_line(cli_syntax(message))}", file=sys.stderr)
+    print(f"{PROG}: error: {_one_line(command_line_syntax(message))}", file=sys.stderr)
 
 
 def _os_message(exc: OSError) -> str:

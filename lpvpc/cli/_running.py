@@ -8,13 +8,14 @@ import sys
 import time
 
 from ..errors import LpvpcWarning
-from ._common import PROG, _one_line, cli_syntax
+from ..report_html import command_line_syntax
+from ._common import PROG, _one_line
 
 
 def _show_warning(original):
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, LpvpcWarning):
-            print(f"{PROG}: warning: {_one_line(cli_syntax(message))}", file=sys.stderr)
+            print(f"{PROG}: warning: {_one_line(command_line_syntax(message))}", file=sys.stderr)
         else:
             original(message, category, filename, lineno, file, line)
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
-from ..io.outputs import atomic_path, staged_folder
+from ..io.outputs import atomic_path
 from ..progress import report as progress
 from ._common import (
     _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg, _held_out_for_model, _hold_out_text,
-    _load_for_model, check_report_folder)
+    _load_for_model, check_report_folder, write_report_folder)
 
 
 def run(args) -> int:
@@ -54,10 +53,7 @@ def run(args) -> int:
             diag.save(tmp)
         print(f"diagnosis: {args.json}")
     if args.report:
-        progress("diagnose: writing the report")
-        with staged_folder(args.report) as stage:
-            page = write_report(diag, data, stage)
-        print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
+        write_report_folder(args.report, "diagnose", lambda stage: write_report(diag, data, stage))
     return 0
 
 

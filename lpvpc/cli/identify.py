@@ -7,10 +7,11 @@ import time
 import warnings
 
 from ..progress import report as progress
+from ..report_html import command_line_syntax
 from ._common import (
     MODEL_HOLD_OUT, _UsageError, _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg, _channel_skew,
     _check_effect_names, _effect_names, _hold_out_text, _hold_out_value, _load_data, _only_one_record,
-    _positive_float, _rate, _record_files, _state_order, cli_syntax)
+    _positive_float, _rate, _record_files, _state_order)
 
 
 def _estimator_defaults() -> dict:
@@ -85,7 +86,6 @@ def run(args) -> int:
         model.fit["hold_out"] = _hold_out_entry(model, held, held_out, _record_files(args))
     model.save(args.output)
 
-    fit = model.fit
     lo, hi = model.scheduling_range
     q = data.meta.get("decimation", 1)
     via = f" via {data.meta['resampled_to']:g} Hz" if "resampled_to" in data.meta else ""
@@ -98,7 +98,7 @@ def run(args) -> int:
         print(f"stationary:  no UT trial; operating point {', '.join(f'{x:+.4f}' for x in ops)} rad "
               f"(the trial's mean position; its mean torque removed)")
     for line in model.summary().lines:
-        print(cli_syntax(line))
+        print(command_line_syntax(line))
     if held_out is not None:
         h = model.fit["hold_out"]
         print(f"held out:    {h['held_out_s'][0]:.1f}..{h['held_out_s'][1]:.1f} s of the {h['record_s']:.1f} s record "

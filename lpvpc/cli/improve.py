@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
-from ..io.outputs import staged_folder, write_text
-from ..progress import report as progress
+from ..io.outputs import write_text
 from ._common import (
     MODEL_HOLD_OUT, _UsageError, _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg,
     _channel_skew, _check_effect_names, _effect_names, _hold_out_text, _hold_out_value, _load_data, _rate,
-    _record_files, check_report_folder)
+    _record_files, check_report_folder, write_report_folder)
 
 
 def run(args) -> int:
@@ -101,10 +99,7 @@ def run(args) -> int:
     if args.json:
         write_text(args.json, json.dumps(ladder.to_dict(), indent=1) + "\n")
         print(f"ladder:    {args.json}")
-    progress("improve: writing the report")
-    with staged_folder(args.report) as stage:
-        page = write_report(ladder, held, stage)
-    print(f"report:    {Path(args.report) / Path(page).relative_to(stage)}")
+    write_report_folder(args.report, "improve", lambda stage: write_report(ladder, held, stage))
     return 0
 
 

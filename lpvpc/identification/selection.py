@@ -753,15 +753,15 @@ class StructureSearch:
         self.y = np.asarray(y, dtype=float)
         self.labels, self.kind = level_folds(rho, fs)
         self.n_folds = int(self.labels.max()) + 1
-        # forward-in-time folds (none on a record too short for them, nor for a single-fold search)
+        # forward-in-time folds (none on a record too short for them, nor for a single-fold
+        # search, nor for joined trials: their order in time is not known and the model must
+        # not depend on the order they were given in, so there is no "later" to score)
         gap = max(max(1, int(round(x * fs))) for x in self.search["irf_length"])
         n_fwd = FORWARD_FOLDS if forward_folds_n is None else forward_folds_n
+        if segments is not None and len(segments) > 1:
+            n_fwd = 0
         self.forward = forward_folds(len(self.y), n_fwd, None, gap) if n_fwd else []
         self.forward = self.forward if len(self.forward) >= 2 else []
-        if segments is not None and len(segments) > 1:
-            # joined trials: their order in time is not known (the model must not depend on the
-            # order they were given in), so there is no "later" to score: levels only
-            self.forward = []
         self.lags = sorted({max(1, int(round(x * fs))) for x in self.search["irf_length"]})
         self.delays = sorted({max(1, int(round(x * fs))) for x in self.search["reflex_delay"]})
         top = (max(self.lags), max(self.search["intrinsic_order"]), max(self.search["reflex_order"]),
