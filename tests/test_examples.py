@@ -747,7 +747,8 @@ def test_example_a_cosimulation_by_hand_and_its_portable_ssp(model, held_out_cut
 @example_of("lpvpc.validation.ssp.build_record_fmu", "lpvpc.validation.ssp.write_portable_ssp")
 def test_example_the_record_player_fmu_and_a_portable_ssp(held_out_cut, tmp_path):
     """The record player plays one recorded sample per step and computes the harness's
-    signals from its inputs; with the model and actuator FMUs it makes a portable SSP whose
+    signals from the inputs it took at the start of the last step (no output depends on the
+    current inputs); with the model and actuator FMUs it makes a portable SSP whose
     connections all join two elements."""
     import xml.etree.ElementTree as ET
     import zipfile
@@ -763,6 +764,7 @@ def test_example_the_record_player_fmu_and_a_portable_ssp(held_out_cut, tmp_path
     with FMUInstance(record, "record") as inst:
         inst.initialize(0.0)
         inputs, outputs = inst.port(RECORD_INPUTS, "input"), inst.port(RECORD_OUTPUTS, "output")
+        prev = None
         for k in range(4):  # the last sample is held after the end
             j = min(k, 2)
             u = dict(pt_position=0.1 * k, ut_position=0.02, model_torque=5.0 + k, pt_velocity=2.0, ut_velocity=-1.0,
@@ -770,9 +772,13 @@ def test_example_the_record_player_fmu_and_a_portable_ssp(held_out_cut, tmp_path
             inputs.set([u[n] for n in RECORD_INPUTS])
             y = dict(zip(RECORD_OUTPUTS, outputs.get()))
             assert (y["command_ut"], y["command_pt"], y["load_ut"]) == (command_ut[j], command_pt[j], torque_ut[j])
-            assert y["load_pt"] == pytest.approx(torque_ut[j] + u["model_torque"])
-            assert y["perturbation"] == pytest.approx(0.1 * k - 0.02 + h * 3.0 + h**2 / 2 * 40.0)  # one step ahead
+            if prev is None:  # before the first step: the actuators at rest at their first commands
+                assert (y["load_pt"], y["perturbation"]) == (torque_ut[0], command_pt[0] - command_ut[0])
+            else:  # from the inputs of the last step, one step ahead
+                assert y["load_pt"] == pytest.approx(torque_ut[j] + prev["model_torque"])
+                assert y["perturbation"] == pytest.approx(0.1 * (k - 1) - 0.02 + h * 3.0 + h**2 / 2 * 40.0)
             inst.do_step(k * h, h)
+            prev = u
 
     ssp = write_portable_ssp(tmp_path / "lab.ssp", held_out_cut["model_fmu"], held_out_cut["actuator_fmu"], record,
                              stop_time=3 * h, parameters={"actuator_pt": {"servo_bandwidth": 30.0}})  # Hz

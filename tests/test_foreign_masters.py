@@ -142,17 +142,12 @@ def _agreement(y, expected, lat):
 def test_fmpy_with_added_times_agrees_to_the_end(model, closed_loop, subject, fmus, kind, fmi, master_step):
     """Times built by adding steps over 20 s and a clipped last step: no error, and the
     torque equals the offline prediction. A master step of 1 ms is a whole tick of the
-    sampled and closed-loop FMUs; the causal and exact FMUs (tick = the 10 ms sample) refuse
-    it, saying why."""
-    from fmpy.fmi1 import FMICallException
-
+    sampled and closed-loop FMUs and a tenth of the causal and exact FMUs' tick (the 10 ms
+    sample): those take the inputs at the step that starts on their grid and hold the outputs
+    until the next."""
     inputs, expected, lat, sampled = _case(model, closed_loop, subject, kind)
     path, unzipdir = fmus[(kind, fmi)]
     T = 1.0 / model.fs
-    if master_step < T and kind in ("causal", "exact"):
-        with pytest.raises(FMICallException):
-            _fmpy_added_times(path, unzipdir, inputs, T, master_step, sampled)
-        return
     y, errors = _fmpy_added_times(path, unzipdir, inputs, T, master_step, sampled)
     assert not errors
     assert _agreement(y, expected, lat) < ABS_TOL
@@ -162,7 +157,8 @@ def test_fmpy_with_added_times_agrees_to_the_end(model, closed_loop, subject, fm
 def test_short_last_step_and_drifted_times_keep_the_grid(model, subject, fmus, fmi):
     """A last step of fewer ticks than the master step, a sliver step of no tick, and a
     communication point that drifted (within tolerance) keep the samples on the absolute
-    grid; half a tick is still refused."""
+    grid; two half ticks equal one tick, the outputs held between them; a step that does not
+    start where the FMU is is refused."""
     from fmpy.fmi1 import FMICallException
 
     path, unzipdir = fmus[("sampled", fmi)]
@@ -182,11 +178,46 @@ def test_short_last_step_and_drifted_times_keep_the_grid(model, subject, fmus, f
     inst.fmu.doStep(1.0 + 2e-12, 0.003)  # a short step of 3 ticks from a drifted point
     on_grid.fmu.doStep(1.0, 0.003)
     assert inst.get(out) == on_grid.get(out)
+    for i in (inst, on_grid):
+        i.set(inst.refs(["position"]), [0.5])
+    held = inst.get(out)
+    inst.fmu.doStep(1.003, 0.0005)  # half a tick: ends between ticks, the outputs held
+    assert inst.get(out) == held
+    inst.fmu.doStep(1.0035, 0.0005)
+    on_grid.fmu.doStep(1.003, 0.001)
+    assert inst.get(out) == on_grid.get(out)
     with pytest.raises(FMICallException):
-        inst.fmu.doStep(1.003, 0.0005)
-    assert any("not an integer multiple" in m for s, m in inst.log if s >= 2)
+        inst.fmu.doStep(1.0045, 0.001)
+    assert any("does not match the FMU time" in m for s, m in inst.log if s >= 2)
     for i in (inst, on_grid):
         i.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_steps_shorter_than_the_tick_hold_the_outputs(model, closed_loop, subject, fmus, fmi):
+    """The exact FMU (direct feedthrough, tick = the 10 ms sample) stepped at 1 ms: the step
+    that starts on the grid takes the inputs set at its start; inputs set between grid points
+    do not reach the outputs, which stay those of the last grid point until the next one; the
+    torque at every grid point equals the run at whole ticks."""
+    inputs, expected, lat, _ = _case(model, closed_loop, subject, "exact", seconds=2.0)
+    path, unzipdir = fmus[("exact", fmi)]
+    T, n = 1.0 / model.fs, len(expected)
+    inst = FMUInstance(path, unzipdir, "fine", "cs").initialize()
+    refs, out = inst.refs(list(inputs)), inst.refs(["torque"])
+    y, t, held = np.empty(n), 0.0, True
+    for k in range(n):
+        inst.set(refs, [float(inputs[q][k]) for q in inputs])
+        y[k] = inst.get(out)[0]
+        for j in range(10):
+            inst.fmu.doStep(t, 1e-3)
+            t += 1e-3
+            if j < 9:
+                inst.set(refs, [float(inputs[q][k]) + 0.1 for q in inputs])  # between grid points
+                held &= inst.get(out)[0] == y[k]
+    assert not [m for s, m in inst.log if s >= 2]
+    inst.fmu.freeInstance()
+    assert held
+    assert _agreement(y, expected, lat) < ABS_TOL
 
 
 @pytest.mark.parametrize("fmi", [2, 3])

@@ -277,11 +277,14 @@ def _full_description(description: str, latency: float | None, step_size: float,
     text = description.strip()
     if ticks_per_sample:
         tick = float(step_size) / ticks_per_sample
-        extra = (f"Sampled every {_fmt(step_size)} s; communication steps must be integer multiples of the base "
-                 f"tick {_fmt(tick)} s, at most {_fmt(MAX_STEPS * tick)} s ({MAX_STEPS} ticks).")
+        extra = (f"Sampled every {_fmt(step_size)} s; communication steps are whole numbers of the base "
+                 f"tick {_fmt(tick)} s, at most {_fmt(MAX_STEPS * tick)} s ({MAX_STEPS} ticks), or end between "
+                 "ticks (the outputs are held until the next).")
     else:
-        extra = (f"Fixed internal step {_fmt(step_size)} s; communication steps must be integer multiples of it, "
-                 f"at most {_fmt(MAX_STEPS * float(step_size))} s ({MAX_STEPS} internal steps).")
+        extra = (f"Fixed internal step {_fmt(step_size)} s; communication steps are whole numbers of it, "
+                 f"at most {_fmt(MAX_STEPS * float(step_size))} s ({MAX_STEPS} internal steps), or end between "
+                 "internal steps (the step that starts on the grid takes the inputs; the outputs are held until "
+                 "the next grid point).")
     if latency is not None:
         if latency == 0:
             extra += " Output latency: 0 s (no added delay)."
@@ -484,9 +487,10 @@ def _interface_description(xml: bytes, interface: str) -> bytes:
     root.insert(index, me)
     step = root.find("DefaultExperiment").get("stepSize")
     text = root.get("description", "")
-    text = re.sub(r"Fixed internal step \S+ s; communication steps must be integer multiples of it\.",
+    text = re.sub(r"Fixed internal step \S+ s; communication steps are whole numbers of it, .*?grid point\)\.",
                   f"Model Exchange, sampled: one time event every {step} s (at start time + k {step} s); "
-                  "inputs are sampled at the events, outputs change only there.", text)
+                  "the inputs set at t_k, before or after its event, are sample k's; outputs change only there.",
+                  text)
     root.set("description", text)
     for v in root.find("ModelVariables"):
         if v.get("causality") == "output":
@@ -726,8 +730,8 @@ def build_fmu(fmu_path, *, model_identifier: str, system_sources: list[Path], nx
     nx : int
         Number of states of the system.
     step_size : float
-        Internal fixed step in s; communication steps must be integer multiples of it. Also
-        the ``DefaultExperiment`` step size.
+        Internal fixed step in s; communication steps are whole numbers of it, or end between
+        internal steps (outputs held until the next). Also the ``DefaultExperiment`` step size.
     outputs, inputs, parameters : list of FmuVariable
         The variables, in value-reference order (module docstring).
     fmi_version : int, default 2

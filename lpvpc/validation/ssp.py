@@ -371,11 +371,14 @@ def record_source_dir() -> Path:
 def build_record_fmu(path, command_ut, command_pt, torque_ut, step: float) -> Path:
     """The record-player FMU (FMI 2.0 co-simulation, step ``step`` s) of the portable SSP:
     plays the commands (rad) and the measured UT torque (N m), one sample per step, and
-    computes the harness's signals from its inputs: ``perturbation``, the PT - UT position one
-    step ahead (second-order Taylor from the actuators' velocities and accelerations: an
-    engine reads it after the step that took its inputs, so the model gets the difference at
-    its own sample time, as in the harness) (rad) and ``load_pt = torque_ut + model_torque`` (N m). The record is
-    compiled into the FMU (``record_table.h`` in its sources)."""
+    computes the harness's signals from the inputs it took at the start of the last step:
+    ``perturbation``, the PT - UT position one step ahead (second-order Taylor from the
+    actuators' velocities and accelerations, so the model gets the difference at its own
+    sample time, as in the harness) (rad) and ``load_pt = torque_ut + model_torque`` (N m).
+    No output depends on the current inputs, so an engine that passes values in dependency
+    order within a communication point (OMSimulator) and one that passes them after every
+    step (libcosim, ECOS) give it the same values. The record is compiled into the FMU
+    (``record_table.h`` in its sources)."""
     import tempfile
 
     from lpvpc.export.fmu_build import FmuVariable, build_fmu
@@ -389,13 +392,12 @@ def build_record_fmu(path, command_ut, command_pt, torque_ut, step: float) -> Pa
     outputs = [FmuVariable("command_ut", "output", "rad", "UT actuator command of the record", dependencies=[]),
                FmuVariable("command_pt", "output", "rad", "PT actuator command of the record", dependencies=[]),
                FmuVariable("load_ut", "output", "N.m", "measured UT torque of the record", dependencies=[]),
-               FmuVariable("load_pt", "output", "N.m", "measured UT torque + model_torque",
-                           dependencies=["model_torque"]),
+               FmuVariable("load_pt", "output", "N.m", "measured UT torque + model_torque taken at the start "
+                           "of the last step", dependencies=[]),
                FmuVariable("perturbation", "output", "rad",
                            "PT - UT position one step ahead: d + h dv + h^2/2 da (d, dv, da: PT - UT position, "
-                           "velocity, acceleration; h the step)",
-                           dependencies=["pt_position", "ut_position", "pt_velocity", "ut_velocity",
-                                         "pt_acceleration", "ut_acceleration"])]
+                           "velocity, acceleration taken at the start of the last step; h the step)",
+                           dependencies=[])]
     inputs = [FmuVariable("pt_position", "input", "rad", "PT actuator position", 0.0),
               FmuVariable("ut_position", "input", "rad", "UT actuator position", 0.0),
               FmuVariable("model_torque", "input", "N.m", "model torque", 0.0),
@@ -413,7 +415,7 @@ def build_record_fmu(path, command_ut, command_pt, torque_ut, step: float) -> Pa
                 f.write(",\n".join(float(v).hex() for v in a))
                 f.write("};\n")
         return build_fmu(path, model_identifier="lpvpc_record", system_sources=[
-            record_source_dir() / "record_system.c", table], nx=1, step_size=float(step), outputs=outputs,
+            record_source_dir() / "record_system.c", table], nx=3, step_size=float(step), outputs=outputs,
             inputs=inputs, parameters=[], fmi_version=2,
             description="Record player of the lpvpc validation set-up: commands and measured UT torque of the "
                         "record, and the harness's signals (PT - UT position, UT torque + model torque)")

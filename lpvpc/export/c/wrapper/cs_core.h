@@ -323,12 +323,21 @@ static int ensure_state(Instance *c, const char *fn)
     return 1;
 }
 
+/* 1 if the time lies between grid points (a step shorter than a tick has ended there): tick is then
+ * the index of the next grid point, already processed with the inputs of the one before it. */
+static double grid_tolerance(double i);
+static int off_grid(const Instance *c)
+{
+    return !CS_MODEL_EXCHANGE && c->s.mode == MODE_STEP &&
+           c->s.time < c->s.t_start + (double)c->s.tick * CS_TICK - grid_tolerance((double)c->s.tick);
+}
+
 static int ensure_outputs(Instance *c, const char *fn)
 {
     int rc, bad;
     if (c->y_valid) return 1;
     if (!ensure_state(c, fn)) return 0;
-    if (SAMPLED) { /* the last processed sample's outputs (checked finite when computed) */
+    if (SAMPLED || off_grid(c)) { /* held: the last processed sample's (or grid point's) outputs, checked finite */
         memcpy(c->y, c->s.y_held, sizeof c->y);
         c->y_valid = 1;
         return 1;
@@ -647,7 +656,8 @@ static int valid_state(const Instance *c, const FmuState *st, const char *fn)
         return 0;
     }
     if (s->tick < 0 || !isfinite(s->t_start) ||
-        (!CS_MODEL_EXCHANGE && fabs(s->time - (s->t_start + (double)s->tick * CS_TICK)) > GRID_TOL_MAX * CS_TICK)) {
+        (!CS_MODEL_EXCHANGE && (s->time > s->t_start + ((double)s->tick + GRID_TOL_MAX) * CS_TICK ||
+                                s->time < s->t_start + ((double)s->tick - 1.0) * CS_TICK))) {
         log_error(c, "%s: the FMU state's tick %lld does not match its time %.17g (start %.17g).", fn,
                   (long long)s->tick, s->time, s->t_start);
         return 0;
@@ -780,7 +790,7 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
     double x_next[DIM(SYS_NX)], y_new[DIM(SYS_NY)], i0, i1;
     CoreState saved;
     long long n, k;
-    int rc, bad;
+    int rc, bad, on_grid;
     if (!check_mode(c, MODE_STEP, fn)) return CS_ERROR;
 
     if (!isfinite(t) || !isfinite(h)) {
@@ -791,7 +801,9 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
         log_error(c, "%s: communicationStepSize = %g must be > 0.", fn, h);
         return CS_ERROR;
     }
-    if (!grid_index(c, t, &i0) || i0 != (double)c->s.tick) {
+    /* contiguous: t is the FMU's time (on the grid or, after a step shorter than a tick, between grid points) */
+    if (fabs(t - c->s.time) > grid_tolerance((double)c->s.tick) &&
+        !(grid_index(c, t, &i0) && i0 == (double)c->s.tick && !off_grid(c))) {
         log_error(c, "%s: currentCommunicationPoint = %.17g does not match the FMU time %.17g (tick %lld of "
                      "%.17g s from %.17g s; tolerance %.3g s; steps must be contiguous; use " CS_SET_STATE_FN
                      " to go back).",
@@ -804,20 +816,19 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
                   fn, h, (double)SYS_MAX_STEPS * CS_TICK, SYS_MAX_STEPS, CS_TICK);
         return CS_ERROR;
     }
-    if (!grid_index(c, t + h, &i1)) {
-        log_error(c, "%s: communicationStepSize = %.17g s is not an integer multiple of the %s %.17g s "
-                     "(ratio %.12g; the step must end within %.3g s of the tick grid %.17g + i * %.17g s).",
-                  fn, h, SAMPLED ? "base tick" : "internal step", CS_TICK, h / CS_TICK, grid_tolerance(i1),
-                  c->s.t_start, CS_TICK);
-        return CS_ERROR;
-    }
-    n = (long long)(i1 - i0);
+    /* the step processes the grid points from the next one (tick) up to before its end: a step that ends
+     * within the tolerance of a grid point ends on it; one that ends between grid points (a fraction of a
+     * tick, for masters that step every component at one finer step) holds the outputs until the next */
+    on_grid = grid_index(c, t + h, &i1);
+    if (!on_grid) i1 = floor((t + h - c->s.t_start) / CS_TICK) + 1.0;
+    i0 = (double)c->s.tick;
+    n = i1 > i0 ? (long long)(i1 - i0) : 0;
 
     saved = c->s;
     for (k = 0; k < n; k++) {
         if (SAMPLED && (c->s.tick + k) % (SAMPLED ? SYS_TICKS_PER_SAMPLE : 1) != 0)
             continue; /* between sample times: nothing to compute */
-        if (SAMPLED) {
+        if (SAMPLED || (k == n - 1 && !on_grid)) {
             rc = sys_output(c->s.x, c->s.u, c->s.p, y_new);
             if (rc != 0) {
                 log_error(c, "%s: sys_output failed (code %d) at the sample time t = %.17g; the instance stays at "
@@ -846,7 +857,8 @@ static CsStatus cs_do_step(Instance *c, const char *fn, double t, double h)
             goto fail;
         }
         memcpy(c->s.x, x_next, sizeof(double) * (size_t)SYS_NX);
-        if (SAMPLED) memcpy(c->s.y_held, y_new, sizeof(double) * (size_t)SYS_NY);
+        if (SAMPLED || (k == n - 1 && !on_grid))
+            memcpy(c->s.y_held, y_new, sizeof(double) * (size_t)SYS_NY);
     }
     c->s.tick += n;
     c->s.time = t + h;
