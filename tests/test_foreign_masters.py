@@ -309,7 +309,8 @@ _RUN_SSP = """
 import sys
 from OMSimulator import SSP
 im = SSP(sys.argv[1]).instantiate()
-im.setFixedStepSize(float(sys.argv[2]))
+if sys.argv[2] != "default":
+    im.setFixedStepSize(float(sys.argv[2]))
 im.setResultFile(sys.argv[3])
 im.initialize()
 im.simulate()
@@ -318,25 +319,96 @@ print("finished")
 """
 
 
-def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, model, subject, tmp_path):
-    """Both archives ``lpvpc validate`` writes run as written in OMSimulator at 10 ms (one
-    master step for all components, the model FMU's tick) to the stop time, last step
-    included. Each run is its own process: OMSimulator keeps model names per process."""
-    import subprocess
-
+@pytest.fixture(scope="module")
+def validate_ssps(model, subject, tmp_path_factory):
+    """``lpvpc validate`` on the first 10 s of the novel record: its result (the harness's
+    co-simulation) and the measured torque the VAF is taken against."""
     from lpvpc.io import Trial
     from lpvpc.validation import validate
+    from lpvpc.validation.harness import load_record
 
     pair, n = subject["novel_pair"], 10_000
     pt, ut = (Trial(t.time[:n], t.position[:n], t.torque[:n], {k: v[:n] for k, v in t.channels.items()},
                     name=t.name) for t in (pair.pt, pair.ut))
-    files = validate(model, pt, ut, tmp_path / "report", measure_load_effect=False).files
+    result = validate(model, pt, ut, tmp_path_factory.mktemp("validate") / "report", measure_load_effect=False)
+    return {"result": result, "measured": load_record(model, pt, ut).measured}
+
+
+def _ssp_stop_time(ssp) -> float:
+    """The stop time (s) an SSP archive's DefaultExperiment states."""
+    import xml.etree.ElementTree as ET
+    import zipfile
+
+    from lpvpc.validation.ssp import SSD_NAMESPACES
+
+    with zipfile.ZipFile(ssp) as zf:
+        root = ET.fromstring(zf.read("SystemStructure.ssd"))
+    return float(root.find("ssd:DefaultExperiment", SSD_NAMESPACES).get("stopTime"))
+
+
+def _run_ssp_in_omsimulator(ssp, step, folder):
+    """Run ``ssp`` in its own OMSimulator process (it keeps model names per process) at
+    ``step`` (s, or "default"); returns the result table {column: values} (CSV result file)."""
+    import csv
+    import subprocess
+
     env = {**os.environ, "PYTHONPATH": str(omsimulator_root() / "lib" / "x86_64-linux-gnu")}
-    for key in ("ssp", "portable_ssp"):
-        run = subprocess.run([sys.executable, "-c", _RUN_SSP, str(files[key]), "0.01", str(tmp_path / f"{key}.mat")],
-                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-        assert run.returncode == 0 and "finished" in run.stdout, (key, run.stdout[-2000:], run.stderr[-2000:])
-        assert "error" not in run.stdout.lower(), (key, run.stdout[-2000:])
+    result = folder / f"{Path(ssp).stem}_{step}.csv"
+    run = subprocess.run([sys.executable, "-c", _RUN_SSP, str(ssp), str(step), str(result)], cwd=folder, env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0 and "finished" in run.stdout, (ssp, step, run.stdout[-2000:], run.stderr[-2000:])
+    assert "error" not in (run.stdout + run.stderr).lower(), (ssp, step, run.stdout[-2000:], run.stderr[-2000:])
+    with open(result) as f:
+        rows = list(csv.reader(f))
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+@pytest.mark.parametrize("key", ["ssp", "portable_ssp"])
+@pytest.mark.parametrize("step", ["default", 1e-3, 1e-2])
+def test_omsimulator_runs_the_validate_ssps_to_the_end(oms, validate_ssps, key, step, tmp_path):
+    """Both archives ``lpvpc validate`` writes run as written in OMSimulator, which steps every
+    component at its one master step: at its default (1 ms: the model FMU, tick 10 ms, takes
+    steps that end between its grid points) and at 10 ms, to the stop time, last step
+    included. The portable set-up at 1 ms is the harness's experiment: its model torque is
+    within 0.1 VAF point of the harness's co-simulation (OMSimulator passes values in
+    dependency order at each communication point, as the harness does; the record player has
+    no direct feedthrough, so libcosim and ECOS, which pass them after each step, see the same
+    record). At 10 ms the actuators and the record player get one command per 10 ms: a
+    different experiment, which only has to run to the end. ``cosimulation.ssp`` leaves the
+    signals the harness computes to the tool (system inputs), so only its run is checked."""
+    from lpvpc.models.model import vaf
+
+    res = validate_ssps["result"]
+    table = _run_ssp_in_omsimulator(res.files[key], step, tmp_path)
+    t = table["time"]
+    assert t[-1] == pytest.approx(_ssp_stop_time(res.files[key]))
+    assert np.isfinite(np.column_stack(list(table.values()))).all()
+    if key == "portable_ssp" and step in ("default", 1e-3):
+        meas = validate_ssps["measured"]
+        L = res.metrics["cosim"]["model_fmu_latency_samples"]
+        col = next(k for k in table if k.endswith("model.torque"))
+        T = 1.0 / res.metrics["fs"]
+        # the last row at each model sample time (OMSimulator writes before and after each step)
+        rows = np.searchsorted(t, (np.arange(meas.n + L) * T) + 1e-9, side="right") - 1
+        got = vaf(meas.torque, table[col][rows][L:L + meas.n])
+        print(f"OMSimulator {step}: VAF {got:.3f} % (harness {res.metrics['vaf_cosim']:.3f} %)")
+        assert abs(got - res.metrics["vaf_cosim"]) < 0.1
+
+
+@pytest.mark.parametrize("key", ["ssp", "portable_ssp"])
+@pytest.mark.parametrize("step", [1e-3, 1e-2])
+def test_fmpy_runs_the_validate_ssps_to_the_end(validate_ssps, key, step):
+    """fmpy's ``simulate_ssp`` (a Jacobi master, one step for all components) runs both
+    archives at 1 ms and 10 ms to the stop time without error (it applies no component
+    parameter sets, so it is not the harness's experiment)."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    path = validate_ssps["result"].files[key]
+    stop = _ssp_stop_time(path)
+    res = simulate_ssp(str(path), stop_time=stop, step_size=step)
+    # row k: the values after the step from its time (fmpy adds up its time: one more step may come)
+    assert res["time"][-1] + step == pytest.approx(stop) or res["time"][-1] == pytest.approx(stop)
+    assert np.isfinite(res["model.torque"]).all()
 
 
 ME_KINDS = [("sampled", 2), ("exact", 2), ("causal", 2)]
