@@ -10,7 +10,8 @@ declared latency) and the largest error, for
 - ``stepUntil(t_k+1 - tick/2)``: the call the guide gives for OMSimulator;
 - ``simulate``: OMSimulator's loop to 120 s at the FMU's DefaultExperiment step, inputs held
   (it ends with a step that is a sliver off whole ticks): "ok" or its error;
-- fmpy at 1 ms and 10 ms master steps, t += h, the last step clipped to the stop time.
+- fmpy at 1 ms and 10 ms master steps, t += h, the last step clipped to the stop time
+  (1 ms is a tenth of the causal and exact FMUs' tick: those steps end between grid points).
 
 For each Model Exchange model FMU (FMI 2; OMSimulator does not load FMI 3 Model Exchange):
 
@@ -20,6 +21,11 @@ For each Model Exchange model FMU (FMI 2; OMSimulator does not load FMI 3 Model 
 - ``ME table, default step`` / ``ME table, 1 ms``: OMSimulator's own loop (strongly coupled
   system) with the inputs from a CSV table, read at t_k + T/2;
 - ``ME fmpy simulate_fmu``: fmpy's Model Exchange simulation (CVode).
+
+For the two SSPs ``lpvpc validate`` writes (120 s of the novel record): OMSimulator at its
+default step, 1 ms and 10 ms ("ok" or its error; for the portable set-up the model torque's
+VAF against the measured torque, beside the harness's co-simulation), and fmpy's
+``simulate_ssp`` at 1 ms and 10 ms.
 
 Run: ``PYTHONPATH=../shared/tools/omsimulator/lib/x86_64-linux-gnu python
 benchmarks/bench_foreign_masters.py`` (needs ``pip install lxml``). Results:
@@ -175,6 +181,9 @@ def main():
             except (RuntimeError, AssertionError) as exc:
                 lines.append(f"{name:<17}{label:<33}{'-':>8}{'-':>14}  error ({exc})")
         print(*lines[-len(runs):], sep="\n", flush=True)
+    lines += ["", "# The SSPs lpvpc validate writes, 120 s of the novel record", ""]
+    lines += _ssp_rows(OMS, model, work)
+    print(*lines[-10:], sep="\n", flush=True)
     write_results(os.environ.get("BENCH_OUT") and Path(os.environ["BENCH_OUT"]) or "foreign_masters.txt", lines)
 
 
@@ -215,6 +224,81 @@ def _fmpy_me(path, inputs, T):
     res = fmpy.simulate_fmu(str(path), fmi_type="ModelExchange", input=sig, stop_time=t[-1], output_interval=T,
                             output=["torque"])
     return res["torque"][np.r_[res["time"][1:] != res["time"][:-1], True]]
+
+
+_RUN_SSP = """
+import sys
+from OMSimulator import SSP
+im = SSP(sys.argv[1]).instantiate()
+if sys.argv[2] != "default":
+    im.setFixedStepSize(float(sys.argv[2]))
+im.setResultFile(sys.argv[3])
+im.initialize()
+im.simulate()
+im.terminate()
+print("finished")
+"""
+
+
+def _ssp_rows(OMS, model, work):
+    """validate on 120 s of the novel record; each SSP in OMSimulator (its own process: it keeps
+    model names per process) and in fmpy's simulate_ssp."""
+    import csv
+    import subprocess
+
+    from fmpy.ssp.simulation import simulate_ssp
+
+    from lpvpc.io import Trial
+    from lpvpc.models.model import vaf
+    from lpvpc.validation import validate
+    from lpvpc.validation.harness import load_record
+
+    pair = simulate_pair("novel", seed=1)
+    n = min(int(SECONDS * 1000), len(pair.pt.time))
+    pt, ut = (Trial(t.time[:n], t.position[:n], t.torque[:n], {k: v[:n] for k, v in t.channels.items()},
+                    name=t.name) for t in (pair.pt, pair.ut))
+    res = validate(model, pt, ut, work / "report", measure_load_effect=False)
+    meas = load_record(model, pt, ut).measured
+    L, T = res.metrics["cosim"]["model_fmu_latency_samples"], 1.0 / model.fs
+    rows = [f"record {n / 1000:g} s; harness co-simulation VAF {res.metrics['vaf_cosim']:.3f} %", "",
+            f"{'SSP':<28}{'engine, step':<26}{'end':<8}{'VAF %':>8}{'run s':>8}"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if "omsimulator" in p)}
+    for key in ("ssp", "portable_ssp"):
+        ssp = res.files[key]
+        for step in ("default", 1e-3, 1e-2):
+            out = work / f"{key}_{step}.csv"
+            t0 = time.perf_counter()
+            run = subprocess.run([sys.executable, "-c", _RUN_SSP, str(ssp), str(step), str(out)], cwd=work, env=env,
+                                 capture_output=True, text=True)
+            dt = time.perf_counter() - t0
+            ok = run.returncode == 0 and "error" not in (run.stdout + run.stderr).lower()
+            got = ""
+            if ok and key == "portable_ssp":
+                with open(out) as f:
+                    table = list(csv.reader(f))
+                col = next(i for i, h in enumerate(table[0]) if h.endswith("model.torque"))
+                t = np.array([float(r[0]) for r in table[1:]])
+                y = np.array([float(r[col]) for r in table[1:]])
+                idx = np.searchsorted(t, np.arange(meas.n + L) * T + 1e-9, side="right") - 1
+                got = f"{vaf(meas.torque, y[idx][L:L + meas.n]):.3f}"
+            label = f"OMSimulator {step if step == 'default' else f'{step * 1e3:g} ms'}"
+            rows.append(f"{ssp.name:<28}{label:<26}{'ok' if ok else 'error':<8}{got:>8}{dt:>8.1f}")
+        for step in (1e-3, 1e-2):
+            t0 = time.perf_counter()
+            try:
+                simulate_ssp(str(ssp), stop_time=float(n) / 1000 if key == "ssp" else _stop(ssp), step_size=step)
+                end = "ok"
+            except Exception as exc:  # noqa: BLE001 - the row reports the failure
+                end = f"error ({exc})"
+            rows.append(f"{ssp.name:<28}{f'fmpy simulate_ssp {step * 1e3:g} ms':<26}{end:<8}{'':>8}"
+                        f"{time.perf_counter() - t0:>8.1f}")
+    return rows
+
+
+def _stop(ssp):
+    from lpvpc.validation.engines import ssp_steps
+
+    return ssp_steps(ssp)[2]
 
 
 def _load(pair, folder, stem):
