@@ -24,16 +24,21 @@
  *   - time is kept on the absolute tick grid t_start + i * tick (tick = CS_TICK): the FMU
  *     holds the index i of the tick it is at, never a running sum of step sizes, so masters
  *     that build their times by adding steps cannot make its samples drift;
- *   - DoStep(t_k, h): h > 0; t_k and t_k + h are each rounded to the nearest tick index and
- *     accepted when they lie within grid_tolerance (1e-6 tick per tick elapsed since the
- *     start, at least 1e-6 and at most 1e-2 tick) of that grid point: this covers the error
- *     of times built by adding steps over long runs and a last step that is a sliver shorter
- *     or longer than whole ticks. t_k must round to the FMU's current tick (steps are
- *     contiguous); the step covers n = i(t_k + h) - i(t_k) ticks, n <= SYS_MAX_STEPS (the
- *     declared maximum communication step, so one call's work is bounded). n = 0 (a step of
- *     a sliver of a tick, which masters that clip their last step to a stop time produce)
- *     only moves the time. Applies n updates with the input held (sampled mode: the ticks
- *     whose index is a multiple of N process a sample), then time = t_k + h. Every state and output is checked finite;
+ *   - DoStep(t_k, h): h > 0, h <= SYS_MAX_STEPS ticks (the declared maximum communication
+ *     step, so one call's work is bounded); t_k must be the FMU's time within grid_tolerance
+ *     (1e-6 tick per tick elapsed since the start, at least 1e-6 and at most 1e-2 tick), or
+ *     round to its current tick (steps are contiguous). An end t_k + h within grid_tolerance of
+ *     a grid point is on it: this covers the error of times built by adding steps over long
+ *     runs and a last step that is a sliver shorter or longer than whole ticks. The step
+ *     processes the grid points from the next unprocessed one up to before its end, each with
+ *     the input held (sampled mode: the ticks whose index is a multiple of N process a sample),
+ *     then time = t_k + h. A step may end between grid points (a master that steps every
+ *     component at one step finer than this FMU's tick): the grid point it started on is
+ *     processed with the inputs set at its start, and the outputs are held at that grid
+ *     point's values (direct mode: g(x, u) before the update) until the time reaches the next
+ *     grid point; inputs set in between are used there unless set again. A step that covers
+ *     no grid point (a sliver, which masters that clip their last step produce) only moves
+ *     the time. Every state and output is checked finite;
  *     a non-finite value or a failing system function rolls the instance back to
  *     t_k, logs why and returns an error (the instance is then in the error state:
  *     get values / FMU state, set FMU state, reset or free).
