@@ -582,7 +582,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     # -- offline routes -----------------------------------------------------------------
     t0 = time.perf_counter()
     progress(f"validate: predicting {meas.n} samples offline, through CasADi and the model FMU")
-    off = offline_routes(model, meas.position, meas.scheduling, signals)
+    off = offline_routes(model, meas.position, meas.scheduling, signals, data=meas)
+    file_rate = off["identified"] is not off["numpy"]  # the reflex on the file's own velocity
     cas = casadi_routes(model, meas.position, meas.scheduling, signals)
     timing["offline_and_casadi"] = time.perf_counter() - t0
     rep = fmu_replay(model_fmu, model, meas.position, meas.scheduling, signals)
@@ -627,12 +628,14 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
 
     # -- comparison ---------------------------------------------------------------------
     y = meas.torque
-    preds = {"numpy": off["numpy"].total, "fmu": rep["torque"], "cosim": cos.torque}
+    preds = {"numpy": off["identified"].total, "fmu": rep["torque"], "cosim": cos.torque}
     fmu_form = {"exact": f"exact two-sided, latency of {latency} samples removed",
                 "sampled": f"sampled, positions in, latency of {latency} sample removed"}.get(variant,
                                                                                               "causal, no latency")
     routes = {
-        "numpy": ("offline numpy prediction, two-sided intrinsic IRF (the identified model)", off["numpy"].total),
+        "numpy": ("offline numpy prediction, two-sided intrinsic IRF (the identified model"
+                  + (f", its reflex on the record's {model.high_rate.fs:g} Hz velocity)" if file_rate else ")"),
+                  off["identified"].total),
         "numpy_causal": ("offline numpy prediction, causal intrinsic IRF (what the causal FMU runs)",
                          off["numpy_causal"].total),
         "casadi": ("CasADi step function (causal) over the record, trajectory_function", cas["torque"]["casadi"]),
@@ -643,6 +646,9 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         "cosim": (f"co-simulation: actuator FMUs driven by the record's commands, model FMU ({fmu_form}) in the loop",
                   cos.torque),
     }
+    if file_rate:
+        routes["numpy_model_rate"] = (f"offline numpy prediction with the reflex on the {model.fs:g} Hz velocity "
+                                      "(what CasADi and the FMU compute)", off["numpy"].total)
     if unloaded is not None:
         routes["cosim_unloaded"] = ("the same co-simulation without load torque on the actuators", unloaded.torque)
     route_table = {}
@@ -668,7 +674,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
     agreement["numpy_causal_vs_numpy"] = {
         "vaf_difference": route_table["numpy"]["vaf"] - route_table["numpy_causal"]["vaf"],
         "max_relative_difference": cmp.relative_difference(off["numpy_causal"].total, off["numpy"].total),
-        "note": "the causal form the FMU runs against the identified two-sided model"}
+        "note": "the causal form the FMU runs (on the model-rate velocity) against the identified two-sided model"}
 
     sched = cmp.scheduling_summary(meas.scheduling, model.scheduling_range, y, preds)
     sched["flagged"] = bool(sched["out_of_range_fraction"] > 0)
@@ -711,7 +717,7 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         "by_perturbation_velocity": cmp.binned_errors(pert_vel, y, preds, cmp.symmetric_edges(pert_vel)),
         "over_time": cmp.errors_over_time(t_rec, y, preds, window=5.0),
         "by_frequency": cmp.band_errors(y, preds, meas.fs),
-        "worst_segments": cmp.worst_segments(t_rec, y, off["numpy"].total, length=2.0, n=3),
+        "worst_segments": cmp.worst_segments(t_rec, y, off["identified"].total, length=2.0, n=3),
     }
 
     # -- thresholds ---------------------------------------------------------------------
@@ -842,7 +848,8 @@ def _validate(model, pt, ut, report_dir, *, fmu=None, fmi_version: int = 2, actu
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
             result.files = _write(result, model=model, record=record, predictions={
-                "numpy": off["numpy"], "numpy_causal": off["numpy_causal"], "fmu": rep, "cosim": cos,
+                "numpy": off["identified"], "numpy_model_rate": off["numpy"], "numpy_causal": off["numpy_causal"],
+                "fmu": rep, "cosim": cos,
                 "unloaded": unloaded, "actuator_replay": rec, "whole_joint": wj_traces})
         timing["report"] = time.perf_counter() - t0
         result.files["ssp"] = ssp_path

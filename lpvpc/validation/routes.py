@@ -39,13 +39,22 @@ def model_fmu_inputs(model, variant: str = "causal") -> tuple:
     return tuple(model_variant_inputs(variant)) + tuple(ex._effect_signals(model))
 
 
-def offline_routes(model, position, scheduling, signals=None) -> dict:
-    """numpy predictions (torques in N m) of a record (``position``, ``scheduling`` in rad):
-    {"numpy": Prediction (two-sided IRF), "numpy_causal": Prediction (causal IRF)}."""
+def offline_routes(model, position, scheduling, signals=None, data=None) -> dict:
+    """numpy predictions (torques in N m) of a record (``position``, ``scheduling`` in rad).
+
+    Returns {"numpy": Prediction (two-sided IRF), "numpy_causal": Prediction (causal IRF),
+    "identified": Prediction}. The first two are computed from the model-rate arrays, as the
+    FMU and CasADi compute them. "identified" is the record's torque as ``model.predict(data)``
+    gives it from every other door: for a model whose reflex runs on the file's own rate
+    (``model.high_rate``) and a ``data`` record that carries that rate's signals, the reflex
+    on the file's velocity; otherwise the same Prediction as "numpy"."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
-        return {"numpy": model.predict(position, scheduling, signals=signals),
-                "numpy_causal": model.predict(position, scheduling, causal=True, signals=signals)}
+        out = {"numpy": model.predict(position, scheduling, signals=signals),
+               "numpy_causal": model.predict(position, scheduling, causal=True, signals=signals)}
+        high = data is not None and model.high_rate is not None and getattr(data, "high_rate", None) is not None
+        out["identified"] = model.predict(data, warn=False, signals=signals) if high else out["numpy"]
+    return out
 
 
 def _held_tail(position, scheduling, signals, latency):
