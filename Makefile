@@ -16,9 +16,13 @@ demo: $(STAMP)
 	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m lpvpc.demo demo_out
 
 # One BLAS thread, as the CLI and demo use: identification's many small least-squares
-# problems run faster single-threaded (benchmarks/results/identify.txt).
+# problems run faster single-threaded (benchmarks/results/identify.txt). One worker per core
+# (pytest-xdist), each test file on one worker so that its module fixtures are built once;
+# PYTEST_WORKERS=0 runs the suite in this process.
+PYTEST_WORKERS ?= auto
 test: $(STAMP) chromium libtbb
-	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) -m pytest -q
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} \
+	  $(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
 
 # The documentation, built with warnings as errors (docs/conf.py; the results page is
 # generated from benchmarks/results/ at build time). Output: docs/_build/html/index.html.

@@ -816,17 +816,18 @@ def test_example_a_validation_report_drawn_from_the_runs_parts(model, held_out_c
     m, meas = result.metrics, record.measured
     assert not (tmp_path / "report" / "report.html").exists()
 
-    off = routes.offline_routes(model, meas.position, meas.scheduling)
+    off = routes.offline_routes(model, meas.position, meas.scheduling, data=meas)
     replay = routes.fmu_replay(mf, model, meas.position, meas.scheduling)
     drive, params, _ = actuator_drive(record, af, check_actuator_fmu(af, model, {}), meas.n, {}, calibrate=True,
                                       band_limit_to=model.fs)
     cos = run_cosimulation(mf, af, drive, actuator_parameters=params, latency=latency_samples(model, "exact"))
     ok = np.isfinite(cos.torque)
     assert vaf(meas.torque[ok], cos.torque[ok]) == pytest.approx(m["vaf_cosim"], abs=1e-9)  # the run measured
-    assert vaf(meas.torque, off["numpy"].total) == pytest.approx(m["vaf"], abs=1e-9)
+    assert vaf(meas.torque, off["identified"].total) == pytest.approx(m["vaf"], abs=1e-9)
 
     files = write_report(result, model=model, record=record, predictions={
-        "numpy": off["numpy"], "numpy_causal": off["numpy_causal"], "fmu": replay, "cosim": cos})
+        "numpy": off["identified"], "numpy_model_rate": off["numpy"], "numpy_causal": off["numpy_causal"],
+        "fmu": replay, "cosim": cos})
     assert files["report"] == tmp_path / "report" / "report.html"
     assert set(files["figures"]) == set(FIGURES) and result.metrics["files"]["report"] == "report.html"
     for png in files["figures"].values():

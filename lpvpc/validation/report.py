@@ -174,7 +174,9 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
     ax2.set_ylabel("perturbation (mrad)")
     _legend_above(ax2)
     ax3.plot(t[sel], series["cosim"][sel] - series["fmu"][sel], color="C3", lw=1.0, label="co-simulation - FMU replay")
-    ref = "numpy_model_rate" if cos.variant == "exact" else "numpy_causal"  # what the FMU's variant computes
+    # what the FMU's variant computes: the model-rate prediction, the headline's unless the reflex
+    # sees the file's own rate (lpvpc.validation.routes.offline_routes)
+    ref = ("numpy_model_rate" if "numpy_model_rate" in pred else "numpy") if cos.variant == "exact" else "numpy_causal"
     ax3.plot(t[sel], series["fmu"][sel] - pred[ref].total[sel], color="C2", lw=1.0,
              label=f"FMU replay - {'numpy' if ref == 'numpy_model_rate' else ref.replace('_', ' ')}")
     ax3.set_ylabel("difference (N m)")
@@ -852,7 +854,10 @@ def _whole_joint_section(w: dict, fig: Path) -> str:
 
 def write_report(result, *, model, record, predictions) -> dict:
     """Draw the figures into ``report_dir/figures`` and write ``report_dir/report.html``;
-    returns {"report": path, "figures": {name: path}}."""
+    returns {"report": path, "figures": {name: path}}. ``predictions``: "numpy" (the
+    headline prediction), "numpy_causal", "fmu", "cosim", and optionally "numpy_model_rate"
+    (the model-rate prediction when it differs from the headline), "unloaded",
+    "actuator_replay" and "whole_joint"."""
     folder = Path(result.report_dir) / "figures"
     folder.mkdir(parents=True, exist_ok=True)
     figs = _draw_figures(folder, result.metrics, model, record, predictions)
