@@ -31,7 +31,7 @@ from lpvpc.export import exporter as ex
 ABS_TOL = 1e-9  # N m
 RUN_S = 20.0  # s per run (the benchmark runs 120 s)
 KINDS = [("sampled", 2), ("sampled", 3), ("causal", 2), ("causal", 3), ("exact", 2), ("exact", 3),
-         ("closed_loop", 2), ("closed_loop", 3)]
+         ("closed_loop", 2), ("closed_loop", 3), ("whole_joint", 2), ("whole_joint", 3)]
 OUTPUTS = ("torque", "torque_intrinsic", "torque_reflex")
 
 
@@ -72,6 +72,7 @@ def fmus(model, closed_loop, tmp_path_factory):
     """{(kind, fmi): (path, extracted folder)} for every model kind and the actuator."""
     from lpvpc.export.actuator import build_actuator_fmu
     from lpvpc.export.closed_loop import export_closed_loop_fmu
+    from lpvpc.export.whole_joint import export_whole_joint_fmu
 
     folder = tmp_path_factory.mktemp("foreign")
     out = {}
@@ -79,6 +80,8 @@ def fmus(model, closed_loop, tmp_path_factory):
         path = folder / f"{kind}_fmi{fmi}.fmu"
         if kind == "closed_loop":
             export_closed_loop_fmu(closed_loop, path, fmi)
+        elif kind == "whole_joint":
+            export_whole_joint_fmu(closed_loop.whole, path, fmi)
         elif kind == "actuator":
             build_actuator_fmu(path, fmi)
         else:
@@ -103,6 +106,11 @@ def _case(model, closed_loop, subject, kind, seconds=RUN_S):
                                                   angle=np.repeat(pos, N)[None, :],
                                                   angular_velocity=np.repeat(vel, N)[None, :])
         return {"angle": pos, "angular_velocity": vel}, np.asarray(out["torque"]).ravel()[::N], 0, False
+    if kind == "whole_joint":  # the joint angle in; its reference is the CasADi tick over the record
+        from lpvpc.export.whole_joint import latency_samples, replay
+
+        angle = sch + pos
+        return {"angle": angle}, replay(closed_loop.whole, angle)["torque"], latency_samples(closed_loop.whole), False
     inputs = {k: v.ravel() for k, v in ex.replay_inputs(model, pos, sch, kind).items()}
     return inputs, reference(model, pos, sch, kind)["torque"], ex.latency_samples(model, kind), kind == "sampled"
 
@@ -411,16 +419,22 @@ def test_fmpy_runs_the_validate_ssps_to_the_end(validate_ssps, key, step):
     assert np.isfinite(res["model.torque"]).all()
 
 
-ME_KINDS = [("sampled", 2), ("exact", 2), ("causal", 2)]
+ME_KINDS = [("sampled", 2), ("exact", 2), ("causal", 2), ("whole_joint", 2)]
 
 
 @pytest.fixture(scope="module")
-def me_fmus(model, tmp_path_factory):
+def me_fmus(model, closed_loop, tmp_path_factory):
     """{(kind, fmi): (path, extracted folder)} of Model Exchange model FMUs."""
+    from lpvpc.export.whole_joint import export_whole_joint_fmu
+
     folder = tmp_path_factory.mktemp("foreign_me")
     out = {}
     for kind, fmi in ME_KINDS + [("sampled", 3)]:
-        path = ex.export_fmu(model, folder / f"me_{kind}_fmi{fmi}.fmu", fmi_version=fmi, variant=kind, fmi_type="me")
+        path = folder / f"me_{kind}_fmi{fmi}.fmu"
+        if kind == "whole_joint":
+            export_whole_joint_fmu(closed_loop.whole, path, fmi, fmi_type="me")
+        else:
+            ex.export_fmu(model, path, fmi_version=fmi, variant=kind, fmi_type="me")
         out[(kind, fmi)] = (path, Path(extract(path, unzipdir=folder / f"x_me_{kind}_{fmi}")))
     return out
 
