@@ -160,11 +160,33 @@ def main(argv=None):
                      f"{N_POS * len(rows)} positions")
     lines += ["", f"total run time {total:.0f} s ({total / len(rows):.1f} s per draw, simulation included)"]
     target = RESULTS / ("population_record.txt" if args.record else "population.txt")
-    if args.n != 9 or args.first_seed is not None:  # another run: its own section below the default run's
-        head = f"## Run: {cmd}"
-        old = target.read_text().split("\n\n" + head + "\n")[0].rstrip("\n").split("\n") if target.exists() else []
-        lines = old + ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
-    write_results(target, lines, echo=True)
+    write_results(target, _merged(target, cmd, lines, default=args.n == 9 and args.first_seed is None), echo=True)
+
+
+def _merged(target, cmd, lines, default):
+    """The results file with this run in place: the default run's table first, then one section
+    per other command (``## Run: ...``), each replacing only its own earlier section."""
+    top, sections, current = [], {}, None
+    for x in (target.read_text().rstrip("\n").split("\n") if target.exists() else []):
+        if x.startswith("## Run: "):
+            current = x[len("## Run: "):]
+            sections[current] = []
+        elif current is None:
+            top.append(x)
+        else:
+            sections[current].append(x)
+    if default:
+        top = list(lines)
+    else:
+        sections[cmd] = [""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
+    while top and not top[-1]:
+        top.pop()
+    out = list(top)
+    for c, body in sections.items():
+        while body and not body[-1]:
+            body = body[:-1]
+        out += ["", f"## Run: {c}"] + body
+    return out
 
 
 if __name__ == "__main__":

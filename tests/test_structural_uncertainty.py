@@ -80,7 +80,11 @@ def test_on_a_kinked_stiffness_the_structural_interval_covers_where_the_noise_in
 
 def test_where_the_basis_holds_the_structural_term_adds_little():
     d, model, K_true, rho = _fit("standard", 2)
-    before = _without_structural_term(model).elastic_stiffness_interval(rho)
+    # the near-equivalent structures' part (the reflex-dynamics leak, another part of the
+    # structural term, is judged in tests/test_reflex_leak.py)
+    without = copy.deepcopy(model)
+    without.uncertainty["structural"]["shifts"], without.uncertainty["structural"]["structures"] = [], []
+    before = without.elastic_stiffness_interval(rho)
     after = model.elastic_stiffness_interval(rho)
     ratio = (after.upper - after.lower) / (before.upper - before.lower)
     assert np.median(ratio) < 1.5

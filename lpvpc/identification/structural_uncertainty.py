@@ -30,9 +30,9 @@ holds richer structures that follow the curve more closely. So:
   shifts' largest absolute value) and :func:`lpvpc.models.uncertainty.intrinsic_interval` adds it
   to the neighbouring-specification bound as the bias bound of its bias-aware critical
   value (Armstrong and Kolesar). The two see different parts of the bias; the larger of
-  the two alone under-covered the kinked K on 100 Hz files (88-89 %); their sum covers K
-  at 92.8-97.8 % on every family, file rate and seed range
-  (``benchmarks/results/coverage_families.txt``).
+  the two alone under-covered the kinked K on 100 Hz files; their sum (with the reflex
+  dynamics' term below) covers K within the target on every family, file rate and seed
+  range (``benchmarks/results/coverage_families.txt``).
 
 The reflex gain has a term of its own (``reflex``; :func:`lpvpc.models.uncertainty.reflex_interval`
 adds it to the gain's bias bound), stored only when the model's structure was chosen by
@@ -50,6 +50,17 @@ On the explicit 1 kHz path (``high_rate_reflex=True`` given: the selection never
 reflex velocity paths) the model-rate path is one more structure the data were not asked to
 exclude: ``path`` stores the model's IRF minus the model structure's refit with the
 model-rate reflex columns (the search's), counted for :data:`~lpvpc.models.modelfile.PATH_QUANTITIES` (viscosity).
+
+The reflex's linear dynamics are one more part of the structure the data may not pin down,
+and a misfit there moves K: under the lab's ramp-and-hold pulses the reflex torque lasts into
+the hold, where it is collinear with the displacement, so whatever the identified reflex
+dynamics miss of it is taken for stiffness (docs/design_notes.md, "Structural uncertainty").
+``leak`` stores the IRF refitted with the reflex dynamics free (a
+finite impulse response of :data:`LEAK_FIR_S` on each reflex input column) minus the refit
+with the model's dynamics held, both in one least squares with the model's intrinsic columns;
+:func:`lpvpc.models.uncertainty.reflex_leak_shift` evaluates it for :data:`LEAK_QUANTITIES`,
+and the intrinsic intervals add it to the other two bias bounds (separate parts of the
+structure: the biases add).
 
 An extended model (an allowed effect chosen by the selection, e.g. stress relaxation) counts
 more structures:
@@ -80,6 +91,9 @@ Stored in ``model.uncertainty["structural"]`` (the model file round-trips it)::
     n_scored      structures the search scored
     path          (explicit high-rate path only) {"quantities": PATH_QUANTITIES, "shift":
                   len(lags) x n_basis: the model's IRF minus the refit with model-rate reflex columns}
+    leak          {"quantities": LEAK_QUANTITIES, "fir_s": LEAK_FIR_S, "shift": len(lags) x
+                  n_basis: the IRF refitted with the reflex dynamics free minus the refit with
+                  them held (:func:`reflex_leak_shift`)}; absent where it cannot be computed
     reflex        (selected structures only) {"rho_basis": the search's reflex scheduling
                   basis, "reference": the model structure's refit, "structures": [{"settings",
                   ...}]}, each refit as {"velocity_basis": Basis.to_dict, "coefficients":
@@ -92,10 +106,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.modelfile import MAX_STRUCTURES, PATH_QUANTITIES
+from ..models.modelfile import LEAK_QUANTITIES, MAX_STRUCTURES, PATH_QUANTITIES
 
 __all__ = ["add_structural_uncertainty", "structural_term", "structure_search", "near_equivalent",
-           "INTRINSIC_SETTINGS", "REFLEX_SETTINGS", "PATH_QUANTITIES"]
+           "reflex_leak_shift", "INTRINSIC_SETTINGS", "REFLEX_SETTINGS", "PATH_QUANTITIES", "LEAK_QUANTITIES",
+           "LEAK_FIR_S"]
 
 METHOD = ("spread of the IRF's quantities over the structures within one standard error of the best "
           "cross-validated one (leave-one-level-out) that differ from the model's in the intrinsic pathway only, "
@@ -106,6 +121,10 @@ METHOD = ("spread of the IRF's quantities over the structures within one standar
 #: the IRF; above it the structure without it would make K's interval span short-range and
 #: relaxed stiffness alike (docs/design_notes.md, "Structural uncertainty").
 ESTABLISHED_EFFECT_GAIN = 0.10
+#: Length (s) of the free reflex impulse response of :func:`reflex_leak_shift`: the reflex
+#: dynamics of the population's subjects (natural frequency 12-50 rad/s, damping 0.4-1) have
+#: decayed within it.
+LEAK_FIR_S = 0.3
 #: The search's settings of the intrinsic pathway: the near-equivalent structures that count
 #: differ from the model's in these only (the reflex order, velocity order, delay and
 #: extrapolation held at the model's).
@@ -307,6 +326,9 @@ def structural_term(model, data, search=None, selection=None, effects=None) -> d
            "shifts": [h.tolist() for h in shifts],
            "structures": structures,
            "n_scored": len(selection.scored)}
+    leak = reflex_leak_shift(model, data)
+    if leak is not None and (padded := _padded(model, leak, D)) is not None:
+        out["leak"] = {"quantities": list(LEAK_QUANTITIES), "fir_s": LEAK_FIR_S, "shift": padded.tolist()}
     if _reflex_selected(model):
         out["reflex"] = _reflex_term(model, search, selection, start)
     elif getattr(model, "high_rate", None) is not None:  # the velocity path given, not chosen by CV
@@ -349,16 +371,93 @@ def effect_variant_shifts(search, chosen: dict, candidates: dict) -> list:
             for sc in sorted(out, key=lambda sc: -sc.cv_vaf)][:MAX_STRUCTURES]
 
 
-def _model_irf(model, D):
-    """The model's IRF weights in the search's lags and basis (2 L_max + 1, n_i max + 1),
-    zero-padded (polynomial bases on the same range nest); None when they do not fit."""
+def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
+    """How far the model's IRF moves when the reflex's linear dynamics are left free.
+
+    Both refits are one least squares on ``data`` (the record the model was identified from,
+    at its rate) with the model's intrinsic columns (its lags and scheduling basis) and its
+    reflex input columns (its nonlinearity's basis at its delay): once with those columns
+    through the model's reflex dynamics, once through a free finite impulse response of
+    ``fir_s`` s each. The IRF's difference is what the held dynamics may have put into the
+    intrinsic pathway (module docstring).
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        An identified model.
+    data : lpvpc.io.PerturbationData
+        The record it was identified from; joined trials are refitted trial by trial in one
+        least squares.
+    fir_s : float, default LEAK_FIR_S
+        Length of the free reflex impulse response (s).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        len(model.lags) x n_basis IRF weights (N m/rad per sample); None for a model without
+        a reflex pathway or a record too short for the free refit.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> d = pair_trials(sim.pt, sim.ut)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(d, structure="fixed")
+    >>> shift = reflex_leak_shift(model, d)
+    >>> shift.shape == model.H.shape, bool(np.all(np.isfinite(shift)))
+    (True, True)
+    """
+    import scipy.signal
+
+    from ..diagnosis.cv import _kron_rows
+    from ..models import equations as eq
+    from ..models.reflex import reflex_input_regressor
+
+    if model.A is None or np.size(model.A) == 0:
+        return None
+    n_fir = int(round(fir_s * model.fs))
+    num, den = scipy.signal.ss2tf(model.A, model.B[:, None], model.C[None, :], np.array([[model.D]]))
+    bounds = list(getattr(data, "segments", ()) or ()) or [(0, len(data.position))]
+    Xi, Xp, Xf, y = [], [], [], []
+    for a, b in bounds:
+        p, rho = np.asarray(data.position[a:b], float), np.asarray(data.scheduling[a:b], float)
+        dvel = eq.delayed_velocity(p, model.fs, model.delay)
+        U = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
+        Xi.append(_kron_rows(eq.lagged(p, model.lags), model.intrinsic_basis.evaluate(rho)))
+        Xp.append(scipy.signal.lfilter(num[0], den, U, axis=0))
+        Xf.append(np.hstack([eq.lagged(U[:, j], list(range(n_fir + 1))) for j in range(U.shape[1])]))
+        y.append(np.asarray(data.torque[a:b], float))
+    Xi, y = np.vstack(Xi), np.concatenate(y)
+    n_i = Xi.shape[1]
+    H = []
+    for Xr in (np.vstack(Xp), np.vstack(Xf)):
+        X = np.hstack([Xi, Xr, np.ones((len(y), 1))])
+        if X.shape[0] < 2 * X.shape[1]:
+            return None
+        H.append(np.linalg.lstsq(X, y, rcond=None)[0][:n_i].reshape(model.H.shape))
+    return H[1] - H[0]
+
+
+def _padded(model, H, D):
+    """IRF weights ``H`` on the model's lags and basis, zero-padded to the search's (2 L_max +
+    1, n_i max + 1) (polynomial bases on the same range nest); None when they do not fit."""
     b, G = model.intrinsic_basis, D.G_i
     L = (len(model.lags) - 1) // 2
     if (b.family, b.lo, b.hi) != (G.family, G.lo, G.hi) or b.order > G.order or L > D.L_max:
         return None
-    H = np.zeros((2 * D.L_max + 1, D.ni_max + 1))
-    H[D.L_max - L : D.L_max + L + 1, : b.order + 1] = model.H
-    return H
+    out = np.zeros((2 * D.L_max + 1, D.ni_max + 1))
+    out[D.L_max - L : D.L_max + L + 1, : b.order + 1] = H
+    return out
+
+
+def _model_irf(model, D):
+    """The model's IRF weights in the search's lags and basis (:func:`_padded`)."""
+    return _padded(model, model.H, D)
 
 
 def _plain(settings) -> dict:

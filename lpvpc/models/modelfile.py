@@ -37,6 +37,9 @@ MAX_STRUCTURES = 24
 #: Quantities whose intervals count the velocity path's shift (``path``): on the 1 kHz path
 #: given explicitly, the model-rate reflex is a structure the selection never compared.
 PATH_QUANTITIES = ("viscosity",)
+#: Quantities whose intervals count the reflex-dynamics leak (``leak``: the IRF's shift when the
+#: reflex dynamics are left free; lpvpc.identification.structural_uncertainty.reflex_leak_shift).
+LEAK_QUANTITIES = ("stiffness",)
 
 FORMAT = "lpvpc-model"
 FORMAT_VERSION = 1
@@ -508,17 +511,21 @@ def _check_structural(x, where, problems, budget):
         problems.append(f"{where}.structures must list the {len(shifts)} structures of the shifts")
     if "path" in st:
         _check_path_shift(st["path"], f"{where}.path", problems, budget, (len(lags), n_b))
+    if "leak" in st:
+        _check_path_shift(st["leak"], f"{where}.leak", problems, budget, (len(lags), n_b), LEAK_QUANTITIES)
     if "reflex" in st:
         _check_reflex_structures(st["reflex"], f"{where}.reflex", problems, budget)
 
 
-def _check_path_shift(x, where, problems, budget, shape):
-    """``structural.path``: the IRF shift of the other reflex velocity path, on the term's lags and basis."""
+def _check_path_shift(x, where, problems, budget, shape, allowed=PATH_QUANTITIES):
+    """``structural.path`` (the IRF shift of the other reflex velocity path) or ``structural.leak``
+    (the IRF shift with the reflex dynamics free), on the term's lags and basis; ``allowed``: the
+    quantities it may name."""
 
     p = _dict(x, where, problems, required=True)
     q = p.get("quantities")
-    if not isinstance(q, list) or not set(q) <= set(PATH_QUANTITIES) or not all(isinstance(k, str) for k in q):
-        problems.append(f"{where}.quantities must be a list drawn from {', '.join(PATH_QUANTITIES)}")
+    if not isinstance(q, list) or not all(isinstance(k, str) for k in q) or not set(q) <= set(allowed):
+        problems.append(f"{where}.quantities must be a list drawn from {', '.join(allowed)}")
     _shape(_array(p.get("shift"), f"{where}.shift", problems, 2, budget), shape, f"{where}.shift", problems)
 
 

@@ -406,18 +406,18 @@ def intrinsic_interval(model, quantity: str, rho, level: float = 0.95):
     # richer basis's shift of this fit; the structures: what the CV cannot decide), so they
     # add. The larger of the two alone under-covered the piecewise K on 100 Hz files (88 %,
     # 1 of 20 seeds fully covered; benchmarks/results/coverage_families.txt)
-    half = bias_aware_critical_value((bias["specification"] + bias["structures"])
+    half = bias_aware_critical_value((bias["specification"] + bias["structures"] + bias["reflex_leak"])
                                      / np.maximum(se, 1e-300), level) * se
     return est, est - half, est + half
 
 
 def intrinsic_interval_parts(model, quantity: str, rho):
-    """(estimate, standard error, {"specification": ..., "structures": ...}) of an intrinsic
-    quantity at ``rho``: the HAC standard error of the noise, and the two structural bias
-    bounds that :func:`intrinsic_interval` adds: :func:`structural_bias_bound`
-    (the IRF one lag shorter, the basis one order higher) and
-    :func:`structural_shift` (the structures cross-validation
-    cannot tell apart; zeros unless stored). All in the quantity's units.
+    """(estimate, standard error, {"specification": ..., "structures": ..., "reflex_leak": ...})
+    of an intrinsic quantity at ``rho``: the HAC standard error of the noise, and the three
+    structural bias bounds that :func:`intrinsic_interval` adds: :func:`structural_bias_bound`
+    (the IRF one lag shorter, the basis one order higher), :func:`structural_shift` (the
+    structures cross-validation cannot tell apart) and :func:`reflex_leak_shift` (the reflex
+    dynamics left free); the last two zeros unless stored. All in the quantity's units.
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -435,7 +435,8 @@ def intrinsic_interval_parts(model, quantity: str, rho):
     est = g @ model.H.ravel()
     se = np.sqrt(np.einsum("ij,jk,ik->i", g, cov[:n_base, :n_base], g))
     return est, se, {"specification": structural_bias_bound(model, quantity, rho, est),
-                     "structures": structural_shift(model, quantity, rho)}
+                     "structures": structural_shift(model, quantity, rho),
+                     "reflex_leak": reflex_leak_shift(model, quantity, rho)}
 
 
 def relaxed_stiffness_interval(model, rho, level: float = 0.95):
@@ -473,8 +474,8 @@ def relaxed_stiffness_interval(model, rho, level: float = 0.95):
     se = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", g, cov, g), 0.0, None))
     K, bias = intrinsic_interval_parts(model, "stiffness", rho)[::2]
     est = relaxation_stiffnesses(model, rho)[1]
-    half = bias_aware_critical_value((bias["specification"] + bias["structures"]) / np.maximum(se, 1e-300),
-                                     level) * se
+    half = bias_aware_critical_value((bias["specification"] + bias["structures"] + bias["reflex_leak"])
+                                     / np.maximum(se, 1e-300), level) * se
     return est, est - half, est + half
 
 
@@ -563,6 +564,37 @@ def structural_shift(model, quantity: str, rho) -> np.ndarray:
     w = lag_moment_weights(model, quantity, st["lags"])
     dH = np.asarray(shifts, dtype=float)  # (n_s, n_lags, n_basis)
     return np.max(np.abs(np.einsum("l,slj,rj->sr", w, dH, G)), axis=0)
+
+
+def reflex_leak_shift(model, quantity: str, rho) -> np.ndarray:
+    """Absolute shift of an intrinsic quantity (its units) at ``rho`` when the reflex dynamics
+    are left free (the ``leak`` entry that
+    :func:`lpvpc.identification.structural_uncertainty.structural_term` stores, counted for the
+    quantities it names); zeros when the model stores none.
+
+    >>> import warnings
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=60.0, fs_out=100.0)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(pair_trials(sim.pt, sim.ut))  # its selection ran: the term is stored
+    >>> rho = np.array([-0.2, 0.0])  # rad
+    >>> bool(np.all(reflex_leak_shift(model, "stiffness", rho) >= 0)), reflex_leak_shift(model, "inertia", rho).tolist()
+    (True, [0.0, 0.0])
+    """
+    from .basis import Basis
+
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    st = (getattr(model, "uncertainty", None) or {}).get("structural") or {}
+    leak = st.get("leak")
+    if not leak or quantity not in leak["quantities"]:
+        return np.zeros(len(rho))
+    basis = Basis.from_dict(st["basis"])
+    G = basis.evaluate(np.clip(rho, basis.lo, basis.hi))
+    w = lag_moment_weights(model, quantity, st["lags"])
+    return np.abs(np.einsum("l,lj,rj->r", w, np.asarray(leak["shift"], dtype=float), G))
 
 
 def bias_aware_critical_value(t, level: float = 0.95):
