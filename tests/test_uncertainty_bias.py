@@ -15,6 +15,7 @@ from lpvpc.simulation.simulate import SubjectParams
 from lpvpc.models.uncertainty import (
     bias_aware_critical_value,
     intrinsic_interval,
+    reflex_leak_shift,
     structural_bias_bound,
     structural_shift,
     z_value,
@@ -64,7 +65,8 @@ def test_stiffness_interval_is_bias_aware_with_the_sum_of_both_specification_shi
     assert np.all(only_trunc > 0) and np.all(bound > only_trunc)
     # with the structures cross-validation cannot tell apart (identify's selection ran), added
     structures = structural_shift(model, "stiffness", rho)
-    assert hi - est == pytest.approx(bias_aware_critical_value((bound + structures) / se) * se, rel=1e-9)
+    leak = reflex_leak_shift(model, "stiffness", rho)  # and the reflex dynamics left free
+    assert hi - est == pytest.approx(bias_aware_critical_value((bound + structures + leak) / se) * se, rel=1e-9)
     assert np.all(hi - lo > hi0 - lo0)
 
 

@@ -20,10 +20,6 @@ FOLDS = 10
 BLOCK_S = 2.0  # s: blocks of the variance estimate of the paired test
 
 
-def _kron_rows(a, b):
-    return (a[:, :, None] * b[:, None, :]).reshape(len(a), -1)
-
-
 class BlockCV:
     """Blocked K-fold cross-validation of least-squares fits built from named column blocks.
 

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.stats
 
 from ..models import equations as eq
-from .cv import BLOCK_S, _g, _kron_rows, _r, paired_test
+from .cv import BLOCK_S, _g, _r, paired_test
 from .surrogate import Surrogate
 
 # s: knot spacing of the trial-time gain probes: a pathway's gain that changes on time scales of
@@ -144,7 +144,7 @@ def signal_dependence(sur: Surrogate, r0=None, *, block_s=BLOCK_S, top=None, lea
             T = _rank_cheb(x, 3)
             if T is None:
                 continue
-            probes = {"static": T, "intrinsic": _kron_rows(P, T[:, :2]), "reflex": _kron_rows(R, T[:, :2])}
+            probes = {"static": T, "intrinsic": eq.kron_rows(P, T[:, :2]), "reflex": eq.kron_rows(R, T[:, :2])}
             pcv, pr0 = cv, r0
             folds = "contiguous" if isinstance(cv.parts[0], slice) else "interleaved"
         for form, X in probes.items():

@@ -15,7 +15,7 @@ import scipy.signal
 
 from ..models import equations as eq
 from ..models.basis import Basis
-from .cv import BLOCK_S, FIXED_RIDGE, FOLDS, BlockCV, _kron_rows
+from .cv import BLOCK_S, FIXED_RIDGE, FOLDS, BlockCV
 from ..models.effects import EffectDesign, reflex_latency, signals_from_data
 from ..models.reflex import reflex_input_regressor
 
@@ -71,7 +71,7 @@ class Surrogate:
         return [repl.get(b, b) for b in blocks]
 
     def intrinsic_block(self, lags, basis: Basis):
-        return _kron_rows(eq.lagged(self.p, lags), basis.evaluate(self.rho))
+        return eq.kron_rows(eq.lagged(self.p, lags), basis.evaluate(self.rho))
 
     def reflex_block(self, delay, velocity_basis: Basis, rho_basis: Basis):
         """Reflex columns at ``delay`` (samples): every basis function of the nonlinearity

@@ -58,7 +58,7 @@ dynamics miss of it is taken for stiffness (docs/design_notes.md, "Structural un
 ``leak`` stores the IRF refitted with the reflex dynamics free (a
 finite impulse response of :data:`LEAK_FIR_S` on each reflex input column) minus the refit
 with the model's dynamics held, both in one least squares with the model's intrinsic columns;
-:func:`lpvpc.models.uncertainty.reflex_leak_shift` evaluates it for :data:`LEAK_QUANTITIES`,
+:func:`lpvpc.models.uncertainty.reflex_leak_shift` evaluates it for :data:`~lpvpc.models.modelfile.LEAK_QUANTITIES`,
 and the intrinsic intervals add it to the other two bias bounds (separate parts of the
 structure: the biases add).
 
@@ -414,7 +414,6 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
     """
     import scipy.signal
 
-    from ..diagnosis.cv import _kron_rows
     from ..models import equations as eq
     from ..models.reflex import reflex_input_regressor
 
@@ -428,7 +427,7 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
         p, rho = np.asarray(data.position[a:b], float), np.asarray(data.scheduling[a:b], float)
         dvel = eq.delayed_velocity(p, model.fs, model.delay)
         U = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
-        Xi.append(_kron_rows(eq.lagged(p, model.lags), model.intrinsic_basis.evaluate(rho)))
+        Xi.append(eq.kron_rows(eq.lagged(p, model.lags), model.intrinsic_basis.evaluate(rho)))
         Xp.append(scipy.signal.lfilter(num[0], den, U, axis=0))
         Xf.append(np.hstack([eq.lagged(U[:, j], list(range(n_fir + 1))) for j in range(U.shape[1])]))
         y.append(np.asarray(data.torque[a:b], float))

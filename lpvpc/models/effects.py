@@ -1033,11 +1033,6 @@ def predict_effects(model, position, scheduling, signals=None, *, causal=False, 
 # --------------------------------------------------------------------------- regressors
 
 
-def _kron_rows(a, b):
-    """Row-wise Kronecker product: row k is a[k] kron b[k]."""
-    return (a[:, :, None] * b[:, None, :]).reshape(len(a), -1)
-
-
 def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, Gi_val, basis: Basis | None):
     """Regressor columns of one effect over a record: (irf_columns or None, static or None).
 
@@ -1046,11 +1041,11 @@ def effect_columns(effect: Effect, options: dict, ctx: Context, position, lags, 
     irf = static = None
     if effect.channels is not None:
         sched = np.column_stack([c * Gi_val for c in effect.channels(ctx, NUMPY)])
-        irf = _kron_rows(eq.lagged(position, lags), sched)
+        irf = eq.kron_rows(eq.lagged(position, lags), sched)
     if effect.features is not None:
         F = np.column_stack(effect.features(ctx, NUMPY, options))
         G = basis.evaluate(ctx.rho[:, 0])
-        static = _kron_rows(F, G if effect.feature_constant else G[:, 1:])
+        static = eq.kron_rows(F, G if effect.feature_constant else G[:, 1:])
     return irf, static
 
 
@@ -1092,7 +1087,7 @@ def causal_irf(position, fs, causal_lags, sched_values, two_sided_torque, stenci
     """Causal IRF coefficients (Lc + 3, n_s) fitted to a two-sided IRF torque (as the
     base model's H_causal; ``stencil`` of the velocity and acceleration as the model's)."""
     S_c = eq.causal_signals(position, fs, causal_lags, stencil=stencil)
-    Psi_c = _kron_rows(S_c, sched_values)
+    Psi_c = eq.kron_rows(S_c, sched_values)
     return np.linalg.lstsq(Psi_c, two_sided_torque, rcond=None)[0].reshape(S_c.shape[1], sched_values.shape[1])
 
 

@@ -146,6 +146,16 @@ def lagged(signal, lags):
     return out
 
 
+def kron_rows(a, b):
+    """Row-wise Kronecker product: row k is ``a[k]`` kron ``b[k]`` (the LPV regressor of
+    lagged signals ``a`` whose weights vary with the scheduling basis values ``b``).
+
+    >>> kron_rows(np.array([[1.0, 2.0]]), np.array([[1.0, 10.0]]))
+    array([[ 1., 10.,  2., 20.]])
+    """
+    return (a[:, :, None] * b[:, None, :]).reshape(len(a), -1)
+
+
 def _padded(position):
     """The record with one sample of edge padding: zero before, the last value after."""
     p = np.asarray(position, dtype=float)
