@@ -226,20 +226,6 @@ def _fmpy_me(path, inputs, T):
     return res["torque"][np.r_[res["time"][1:] != res["time"][:-1], True]]
 
 
-_RUN_SSP = """
-import sys
-from OMSimulator import SSP
-im = SSP(sys.argv[1]).instantiate()
-if sys.argv[2] != "default":
-    im.setFixedStepSize(float(sys.argv[2]))
-im.setResultFile(sys.argv[3])
-im.initialize()
-im.simulate()
-im.terminate()
-print("finished")
-"""
-
-
 def _ssp_rows(OMS, model, work):
     """validate on 120 s of the novel record; each SSP in OMSimulator (its own process: it keeps
     model names per process) and in fmpy's simulate_ssp."""
@@ -252,6 +238,7 @@ def _ssp_rows(OMS, model, work):
     from lpvpc.models.model import vaf
     from lpvpc.validation import validate
     from lpvpc.validation.harness import load_record
+    from test_foreign_masters import _RUN_SSP  # the test's OMSimulator SSP run, in its own process
 
     pair = simulate_pair("novel", seed=1)
     n = min(int(SECONDS * 1000), len(pair.pt.time))
