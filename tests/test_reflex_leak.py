@@ -59,10 +59,10 @@ def test_the_leak_term_covers_what_the_other_terms_miss(leaky):
     before = _without_leak(model).elastic_stiffness_interval(rho)
     covered = lambda iv: np.mean((iv.lower <= K) & (K <= iv.upper))  # noqa: E731
     assert covered(before) <= 0.5 and covered(after) >= 0.75
-    # it widens K and viscosity; inertia keeps its interval
-    assert np.all(reflex_leak_shift(model, "inertia", rho) == 0)
+    # it widens K only: viscosity and inertia keep their intervals
+    for q in ("viscosity", "inertia"):
+        assert np.all(reflex_leak_shift(model, q, rho) == 0)
     assert np.all(reflex_leak_shift(model, "stiffness", rho) > 0)
-    assert np.all(reflex_leak_shift(model, "viscosity", rho) > 0)
 
 
 def test_the_stored_shift_is_the_refit_difference(leaky):
@@ -87,5 +87,5 @@ def test_the_model_file_round_trips_the_leak_and_refuses_a_bad_one(leaky, tmp_pa
     d = json.loads(path.read_text())
     d["uncertainty"]["structural"]["leak"]["quantities"] = ["reflex_gain"]
     path.write_text(json.dumps(d))
-    with pytest.raises(ModelFileError, match=r"uncertainty\.structural\.leak\.quantities must be a list drawn from stiffness, viscosity"):
+    with pytest.raises(ModelFileError, match=r"uncertainty\.structural\.leak\.quantities must be a list drawn from stiffness"):
         LPVPCModel.load(path)

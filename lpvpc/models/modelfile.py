@@ -39,7 +39,7 @@ MAX_STRUCTURES = 24
 PATH_QUANTITIES = ("viscosity",)
 #: Quantities whose intervals count the reflex-dynamics leak (``leak``: the IRF's shift when the
 #: reflex dynamics are left free; lpvpc.identification.structural_uncertainty.reflex_leak_shift).
-LEAK_QUANTITIES = ("stiffness", "viscosity")
+LEAK_QUANTITIES = ("stiffness",)
 
 FORMAT = "lpvpc-model"
 FORMAT_VERSION = 1
