@@ -57,3 +57,14 @@ def test_command_line_options_match_the_estimator_settings():
 def test_help_quotes_the_signature_default(name):
     default = inspect.signature(LPVPCEstimator.__init__).parameters[name].default
     assert f"default {default:g}" in identify_options()[name].help
+
+
+def test_improve_steps_default_is_the_library_s():
+    """``lpvpc improve --max-steps`` defaults to None (the library's MAX_STEPS applies) and its
+    help quotes that value."""
+    from lpvpc.diagnosis.improve import MAX_STEPS
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, type(parser._subparsers._group_actions[0])))
+    option = next(a for a in sub.choices["improve"]._actions if a.dest == "max_steps")
+    assert option.default is None and f"(default {MAX_STEPS})" in option.help

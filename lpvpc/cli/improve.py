@@ -73,8 +73,8 @@ def run(args) -> int:
             print(f"      diagnosis: {r.diagnosis.answer() if top is None else top.effect + ' significant, +' + format(top.vaf_gain, '.2f') + ' pp held-out'}",
                   flush=True)
 
-    ladder = improve(ident, held, settings={"effects": effects} if effects else None, max_steps=args.max_steps,
-                     progress=show)
+    steps = {} if args.max_steps is None else {"max_steps": args.max_steps}  # else the library's MAX_STEPS
+    ladder = improve(ident, held, settings={"effects": effects} if effects else None, progress=show, **steps)
     first, last = ladder.rungs[0], ladder.final
     changed = {k: v for k, v in last.settings.items() if first.settings.get(k) != v}  # from the base's structure
     print(f"stopped:   {ladder.stopped}")
@@ -128,7 +128,7 @@ def add_parser(sub):
                         "-o even if it is not a model file")
     p.add_argument("--json", metavar="LADDER.json", help="write the ladder as JSON")
     p.add_argument("-o", "--output", metavar="MODEL.json", help="save the final model")
-    p.add_argument("--max-steps", type=int, default=6, metavar="N", help="at most N refits (default 6)")
+    p.add_argument("--max-steps", type=int, metavar="N", help="at most N refits (default 6)")
     p.add_argument("--effect", action="extend", nargs="+", default=[], metavar="NAME",
                    help="effects the starting model already has (repeatable): " + ", ".join(_effect_names()))
     _add_convention_args(p, from_model=False)

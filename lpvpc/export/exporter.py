@@ -343,6 +343,7 @@ def _coefficient_blocks(model, variant):
 
 def parameter_vector(model, variant="causal") -> np.ndarray:
     """The identified coefficients the variant uses, as one vector (row-major blocks
+    H_causal or H, Omega, A, B, C, D), the ``params`` input of the parametric step.
 
     Parameters
     ----------
@@ -361,6 +362,7 @@ def parameter_vector(model, variant="causal") -> np.ndarray:
 
 def parameter_names(model, variant="causal") -> list:
     """Names matching :func:`parameter_vector`: ``"H_causal[2,1]"``, ``"Omega[0,3]"``,
+    ``"A[0,1]"``, ``"B[0]"``, ``"C[0]"``, ``"D"``.
 
     Parameters
     ----------
@@ -388,6 +390,7 @@ def parameter_names(model, variant="causal") -> list:
 def parameter_info(model, variant="causal") -> list:
     """(description, unit) of each parameter, matching :func:`parameter_names`. Units are
     FMI unit names ("" where a coefficient has no physical unit of its own, e.g. the
+    reflex nonlinearity scale, which is shared between Omega and B, C, D).
 
     Parameters
     ----------
@@ -1080,6 +1083,7 @@ def system_functions(model, variant="causal"):
     acceleration]) and y = (torque, torque_intrinsic, torque_reflex). They call the
     parametric :func:`step_function` (:func:`step_system_functions`). Returns (initial,
     output, update, output_dependencies) where ``output_dependencies[name]`` lists the
+    inputs an output depends on directly.
 
     Parameters
     ----------
@@ -1099,6 +1103,7 @@ def system_functions(model, variant="causal"):
 
 def generate_c(model, folder, variant="causal") -> list:
     """Write the CasADi-generated C code (``lpvpc_model_casadi.c`` and ``.h``) into
+    ``folder``; returns the paths.
 
     Parameters
     ----------
@@ -1121,6 +1126,7 @@ def generate_c(model, folder, variant="causal") -> list:
 def write_system_c(functions, folder) -> list:
     """Generate C for the three system functions (initial, output, update, named as in
     :func:`system_functions`) into ``folder`` as ``lpvpc_model_casadi.c`` and ``.h``, the
+    files the adapter ``model_system.c`` includes; returns the paths.
 
     Parameters
     ----------
@@ -1216,6 +1222,7 @@ def build_step_fmu(path, step, *, model_identifier: str, fmi_type: str = "cs", p
 
 def ticks_per_sample(model) -> int:
     """Base ticks per sample period of the sampled FMU: the tick closest to 1 ms that
+    divides the period (10 at 100 Hz), so that masters can step at about 1 ms.
 
     Parameters
     ----------
@@ -1234,6 +1241,7 @@ def fmu_constants(model, variant="causal"):
     """Constant outputs that state the timing contract in the FMU itself: ``latency`` (s,
     the delay of a sample's torque in sample periods times the period) and
     ``sample_period`` (s); the causal variant adds ``derivative_points`` (3 or 5: the central
+    differences its velocity and acceleration inputs must be).
 
     Parameters
     ----------
