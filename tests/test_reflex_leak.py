@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.signal
 
 import lpvpc
 from lpvpc.errors import ModelFileError
@@ -70,11 +71,31 @@ def test_the_stored_shift_is_the_refit_difference(leaky):
     shift = refit_shift(model, data)
     G = model.intrinsic_basis.evaluate(rho)
     by_hand = np.abs(G @ shift.sum(axis=0))  # K is the IRF's sum over lags
-    assert np.allclose(reflex_leak_shift(model, "stiffness", rho), by_hand, rtol=1e-9, atol=1e-12)
+    # the same solve on the same record (a Gram-matrix solve: the last digits follow the model's)
+    assert np.allclose(reflex_leak_shift(model, "stiffness", rho), by_hand, rtol=1e-5)
     # the free dynamics lower K here, toward the truth
     assert np.all(G @ shift.sum(axis=0) < 0)
     _, _, bias = intrinsic_interval_parts(model, "stiffness", rho)
     assert np.array_equal(bias["reflex_leak"], reflex_leak_shift(model, "stiffness", rho))
+
+
+def test_the_shift_noise_is_what_repeated_noise_gives(leaky):
+    """The shift's noise covariance (``covariance=True``) is right: the shift is linear in the
+    torque, so adding independent coloured noise to the same record many times spreads K's
+    shift by the variance it predicts."""
+    data, model, rho, _ = leaky
+    rng = np.random.default_rng(5)
+    c = np.kron(np.ones(len(model.lags)), model.intrinsic_basis.evaluate(rho[4:5])[0])  # K at mid-range
+    scale = 2.0 * np.std(np.diff(np.asarray(data.torque)))  # larger than the record's own residual
+    assert np.array_equal(refit_shift(model, data, covariance=True)[0], refit_shift(model, data))
+    shifts, predicted = [], []
+    for _ in range(40):
+        noise = scipy.signal.lfilter([1.0], [1.0, -0.8], rng.standard_normal(len(data.torque))) * scale
+        shift, cov = refit_shift(model, dataclasses.replace(data, torque=np.asarray(data.torque) + noise),
+                                 covariance=True)
+        shifts.append(c @ shift.ravel())
+        predicted.append(c @ cov @ c)
+    assert 0.6 < np.median(predicted) / np.var(shifts, ddof=1) < 1.6
 
 
 def test_the_model_file_round_trips_the_leak_and_refuses_a_bad_one(leaky, tmp_path):

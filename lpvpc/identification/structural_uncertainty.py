@@ -371,7 +371,7 @@ def effect_variant_shifts(search, chosen: dict, candidates: dict) -> list:
             for sc in sorted(out, key=lambda sc: -sc.cv_vaf)][:MAX_STRUCTURES]
 
 
-def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
+def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S, covariance: bool = False):
     """How far the model's IRF moves when the reflex's linear dynamics are left free.
 
     Both refits are one least squares on ``data`` (the record the model was identified from,
@@ -380,6 +380,17 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
     through the model's reflex dynamics, once through a free finite impulse response of
     ``fir_s`` s each. The IRF's difference is what the held dynamics may have put into the
     intrinsic pathway (module docstring).
+
+    The difference is also noise: the free refit has many more reflex columns and its IRF
+    is the noisier of the two. ``covariance=True`` returns that noise's covariance, a
+    Hausman-style HAC estimate: each refit's IRF weights are linear in the torque, ``M y``,
+    so the difference's error is ``(M_free - M_held) e`` with the free refit's residual
+    ``e``, whose long-run covariance (:func:`lpvpc.models.uncertainty.long_run_covariance`,
+    batches of :data:`lpvpc.models.uncertainty.BLOCK_LENGTH`) the residual's colour does not
+    bias. It is what showed the viscosity's shift to be mostly noise (a standard deviation
+    of about 20 % of the viscosity on every subject tried) and K's to be signal where K is
+    biased; the intervals count the raw shift (docs/design_notes.md, "Structural
+    uncertainty").
 
     Parameters
     ----------
@@ -390,12 +401,16 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
         least squares.
     fir_s : float, default LEAK_FIR_S
         Length of the free reflex impulse response (s).
+    covariance : bool, default False
+        Also return the shift's noise covariance.
 
     Returns
     -------
     numpy.ndarray or None
         len(model.lags) x n_basis IRF weights (N m/rad per sample); None for a model without
-        a reflex pathway or a record too short for the free refit.
+        a reflex pathway or a record too short for the free refit. With ``covariance``, a
+        pair (shift, covariance): the covariance is over the shift's weights flattened row by
+        row (lag-major), (N m/rad per sample)^2.
 
     Examples
     --------
@@ -411,11 +426,15 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
     >>> shift = reflex_leak_shift(model, d)
     >>> shift.shape == model.H.shape, bool(np.all(np.isfinite(shift)))
     (True, True)
+    >>> shift, cov = reflex_leak_shift(model, d, covariance=True)
+    >>> cov.shape == (shift.size, shift.size), bool(np.all(np.diag(cov) > 0))
+    (True, True)
     """
     import scipy.signal
 
     from ..models import equations as eq
     from ..models.reflex import reflex_input_regressor
+    from ..models.uncertainty import BLOCK_LENGTH, long_run_covariance
 
     if model.A is None or np.size(model.A) == 0:
         return None
@@ -433,13 +452,35 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S):
         y.append(np.asarray(data.torque[a:b], float))
     Xi, y = np.vstack(Xi), np.concatenate(y)
     n_i = Xi.shape[1]
-    H = []
+    H, M, e = [], [], None
     for Xr in (np.vstack(Xp), np.vstack(Xf)):
         X = np.hstack([Xi, Xr, np.ones((len(y), 1))])
         if X.shape[0] < 2 * X.shape[1]:
             return None
-        H.append(np.linalg.lstsq(X, y, rcond=None)[0][:n_i].reshape(model.H.shape))
-    return H[1] - H[0]
+        Ginv = _normal_pseudo_inverse(X)
+        beta = Ginv @ (X.T @ y)
+        H.append(beta[:n_i].reshape(model.H.shape))
+        if covariance:  # the rows of M^T: X (X^T X)^+ on the IRF's columns
+            M.append(X @ Ginv[:, :n_i])
+            e = y - X @ beta  # ends as the free refit's residual
+    shift = H[1] - H[0]
+    if not covariance:
+        return shift
+    block = max(1, int(round(BLOCK_LENGTH * model.fs)))
+    return shift, long_run_covariance((M[1] - M[0]) * e[:, None], block)
+
+
+def _normal_pseudo_inverse(X):
+    """(X^T X)^+ of a least squares whose columns are scaled to unit RMS first: the free
+    reflex columns are nearly collinear, so eigenvalues below 1e-12 of the largest are
+    dropped (as :func:`numpy.linalg.lstsq` drops small singular values); one Gram product
+    gives both the refit and its noise."""
+    s = np.sqrt(np.mean(X**2, axis=0))
+    s[s == 0] = 1.0
+    Xs = X / s
+    lam, V = np.linalg.eigh(Xs.T @ Xs)
+    keep = lam > 1e-12 * lam.max()
+    return ((V[:, keep] / lam[keep]) @ V[:, keep].T) / s[:, None] / s[None, :]
 
 
 def _padded(model, H, D):
