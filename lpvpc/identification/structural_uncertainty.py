@@ -46,10 +46,19 @@ is refitted like the model's own structure, and the largest shift of the rectifi
 the term (intrinsic-only structures hardly move the gain). A structure the caller fixed, and the explicit
 1 kHz path (selection skipped), get no reflex term.
 
-On the explicit 1 kHz path (``high_rate_reflex=True`` given: the selection never compared the
-reflex velocity paths) the model-rate path is one more structure the data were not asked to
-exclude: ``path`` stores the model's IRF minus the model structure's refit with the
-model-rate reflex columns (the search's), counted for :data:`~lpvpc.models.modelfile.PATH_QUANTITIES` (viscosity).
+The model's own estimate is one more: ``path`` stores the model's IRF minus the search's refit
+of the model's structure (model-rate reflex columns through the held dynamics, intrinsic and
+reflex in one least squares), counted for :data:`~lpvpc.models.modelfile.PATH_QUANTITIES`
+(viscosity) as one more near-equivalent structure. On the 1 kHz path (``high_rate_reflex``)
+the two differ in the reflex's velocity path, which the selection did not compare when the
+caller gave it. At the model rate they differ in the reflex structure the intrinsic estimate
+sees: the model's IRF is the paper's orthogonal projection (eq. 27-28), which projects out the
+unstructured reflex space (every reflex state with its own input coefficients), the refit
+holds the rank-1 reflex. The data hardly choose between them, and the viscosity, whose viscous
+torque the reflex of delayed velocity resembles below the reflex dynamics' corner frequency,
+moves between them by up to 10 % on population subjects whose viscosity intervals missed
+(docs/design_notes.md, "Structural uncertainty"). Extended models count their structure
+without the effects instead (below).
 
 The reflex's linear dynamics are one more part of the structure the data may not pin down,
 and a misfit there moves K: under the lab's ramp-and-hold pulses the reflex torque lasts into
@@ -89,8 +98,8 @@ Stored in ``model.uncertainty["structural"]`` (the model file round-trips it)::
     structures    the near-equivalent structures' settings and CV VAF (%)
                   (those differing from the model's in INTRINSIC_SETTINGS only)
     n_scored      structures the search scored
-    path          (explicit high-rate path only) {"quantities": PATH_QUANTITIES, "shift":
-                  len(lags) x n_basis: the model's IRF minus the refit with model-rate reflex columns}
+    path          (models without effects) {"quantities": PATH_QUANTITIES, "shift":
+                  len(lags) x n_basis: the model's IRF minus the search's refit of its structure}
     leak          {"quantities": LEAK_QUANTITIES, "fir_s": LEAK_FIR_S, "shift": len(lags) x
                   n_basis: the IRF refitted with the reflex dynamics free minus the refit with
                   them held (:func:`reflex_leak_shift`)}; absent where it cannot be computed
@@ -331,10 +340,9 @@ def structural_term(model, data, search=None, selection=None, effects=None) -> d
         out["leak"] = {"quantities": list(LEAK_QUANTITIES), "fir_s": LEAK_FIR_S, "shift": padded.tolist()}
     if _reflex_selected(model):
         out["reflex"] = _reflex_term(model, search, selection, start)
-    elif getattr(model, "high_rate", None) is not None:  # the velocity path given, not chosen by CV
-        H = _model_irf(model, D)
-        if H is not None:
-            out["path"] = {"quantities": list(PATH_QUANTITIES), "shift": (H - ref).tolist()}
+    if not getattr(model, "effects", None) and (H := _model_irf(model, D)) is not None:
+        # the model's own estimate against the search's refit of its structure (module docstring)
+        out["path"] = {"quantities": list(PATH_QUANTITIES), "shift": (H - ref).tolist()}
     return out
 
 

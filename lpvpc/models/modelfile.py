@@ -34,8 +34,10 @@ from ..errors import ModelFileError
 #: The near-equivalent structures a model file may carry for its intervals' structural term
 #: (closest in cross-validation error first).
 MAX_STRUCTURES = 24
-#: Quantities whose intervals count the velocity path's shift (``path``): on the 1 kHz path
-#: given explicitly, the model-rate reflex is a structure the selection never compared.
+#: Quantities whose intervals count the shift between the model's own estimate and the search's
+#: refit of its structure (``path``: the reflex's velocity path on the 1 kHz path, the reflex
+#: structure the intrinsic estimate sees at the model rate;
+#: lpvpc.identification.structural_uncertainty).
 PATH_QUANTITIES = ("viscosity",)
 #: Quantities whose intervals count the reflex-dynamics leak (``leak``: the IRF's shift when the
 #: reflex dynamics are left free; lpvpc.identification.structural_uncertainty.reflex_leak_shift).

@@ -528,7 +528,8 @@ def structural_shift(model, quantity: str, rho) -> np.ndarray:
     """Largest absolute shift of an intrinsic quantity (its units) at ``rho`` over the
     near-equivalent structures stored by
     :func:`lpvpc.identification.structural_uncertainty.add_structural_uncertainty` (and, for the quantities
-    it names, the stored reflex velocity path's shift); zeros when the model stores none.
+    it names, the shift between the model's own estimate and the search's refit of its
+    structure, ``path``); zeros when the model stores none.
 
     >>> import warnings
     >>> from lpvpc.io import pair_trials
@@ -555,7 +556,7 @@ def structural_shift(model, quantity: str, rho) -> np.ndarray:
     st = (getattr(model, "uncertainty", None) or {}).get("structural")
     shifts = list(st["shifts"]) if st else []
     path = (st or {}).get("path")
-    if path and quantity in path["quantities"]:  # the reflex velocity path the selection never compared
+    if path and quantity in path["quantities"]:  # the model's estimate against the refit of its structure
         shifts.append(path["shift"])
     if not shifts:
         return np.zeros(len(rho))
