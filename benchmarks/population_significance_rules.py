@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from lpvpc.diagnosis.candidates import ALPHA, MIN_GAIN, SMALL_GAIN, STRONG_EVIDENCE, TIE_P  # noqa: E402
+from lpvpc.diagnosis.candidates import ALPHA, EMG_SIGNALS, MIN_GAIN, SMALL_GAIN, STRONG_EVIDENCE, TIE_P  # noqa: E402
 from lpvpc.models.effects import CATALOG, SETTINGS  # noqa: E402
 from _results import RESULTS, write_results  # noqa: E402
 
@@ -71,15 +71,17 @@ class Rule:
     the Bonferroni family (None: the candidates available)."""
 
     def __init__(self, name, floor=MIN_GAIN, small=SMALL_GAIN, strong=STRONG_EVIDENCE, small_p="mean",
-                 floors=None, tier3=None, family=None, alpha=ALPHA, reflex_floor=None):
+                 floors=None, tier3=None, family=None, alpha=ALPHA, reflex_floor=None,
+                 reflex_emg=False):
         self.name, self.floor, self.small, self.strong, self.small_p = name, floor, small, strong, small_p
-        self.reflex_floor = reflex_floor
+        self.reflex_floor, self.reflex_emg = reflex_floor, reflex_emg
         self.floors, self.tier3, self.family, self.alpha = floors or {}, tier3, family, alpha
 
     def passes(self, name, gain, p, p_mean, level):
         if not (np.isfinite(gain) and np.isfinite(p)) or p > level:
             return False
-        if self.reflex_floor is not None and name in CATALOG and pathway(name) == "reflex" and gain >= self.reflex_floor:
+        if (self.reflex_floor is not None and name in CATALOG and pathway(name) == "reflex" and gain >= self.reflex_floor
+                and (self.reflex_emg or not set(CATALOG[name].signals) & set(EMG_SIGNALS))):
             return True
         f = self.floors.get(pathway(name), self.floor)
         ps = p_mean if self.small_p == "mean" else p
@@ -167,7 +169,8 @@ def rules():
             out.append(Rule(f"floors intrinsic {fi:g} / reflex {fr:g}; 0.6x with p_mean <= level/{st:g}",
                             floors={"intrinsic": fi, "reflex": fr}, strong=st))
     for fr in (0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.1):
-        out.append(Rule(f"current + reflex-pathway effects at {fr:g} pp", reflex_floor=fr))
+        out.append(Rule(f"current + reflex-pathway effects at {fr:g} pp", reflex_floor=fr, reflex_emg=True))
+        out.append(Rule(f"current + reflex-pathway effects not reading the EMG at {fr:g} pp", reflex_floor=fr))
     for g3, s3 in itertools.product((0.02, 0.03, 0.04, 0.05, 0.06), (100, 1000, 1e4, 1e5)):
         out.append(Rule(f"current + tier {g3:g} pp with p_mean <= level/{s3:g}", tier3=(g3, s3)))
     for fam in (5, 10, 14, 20):
@@ -257,7 +260,8 @@ def main(argv=None):
     best = sorted(ok, key=lambda i: (-tune[i]["named"], tune[i]["alarms"], nears[i], -i))  # then the later (stricter) of a grid
     # the best few of each family on the tuning half (a family's first members tie often)
     shown = [0]
-    for fam in ("floor ", "floors ", "current + reflex", "current + tier", "current, Bonferroni"):
+    for fam in ("floor ", "floors ", "current + reflex-pathway effects at", "current + reflex-pathway effects not",
+                "current + tier", "current, Bonferroni"):
         shown += [i for i in best if cands[i].name.startswith(fam) and i not in shown][:4]
     # the strictest rules that keep all clean draws silent on all data, for contrast
     lines = [f"# Significance rules replayed on the population's candidates (python "

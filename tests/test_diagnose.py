@@ -233,10 +233,13 @@ def test_reflex_pathway_effects_pass_at_a_lower_floor():
     assert not passes(g, 2e-2, 0.15, 1e-2, reflex=True)  # the level still holds
     assert not passes(REFLEX_GAIN * 0.15 - 0.005, 1e-13, 0.15, 1e-2, reflex=True)  # under the floor
     assert passes(2 * g, 5e-3, 0.3, 1e-2, reflex=True) and not passes(g, 5e-3, 0.3, 1e-2, reflex=True)  # scales
-    kinds = {("effect", "reflex"): True, ("effect", "intrinsic"): False, ("setting", "reflex"): False}
-    for (kind, pathway), expected in kinds.items():
-        r = CandidateResult("x", kind, pathway, "", p_value=5e-3, p_mean=5e-3)
-        assert _passes(r, g, 0.15, 1e-2) is expected, (kind, pathway)
+    # an EMG-derived signal carries the reflex's own output: such a reflex effect keeps min_gain
+    kinds = {("effect", "reflex", ("trial_time",)): True, ("effect", "reflex", ()): True,
+             ("effect", "intrinsic", ()): False, ("setting", "reflex", ()): False,
+             ("effect", "reflex", ("activation",)): False}
+    for (kind, pathway, signals), expected in kinds.items():
+        r = CandidateResult("x", kind, pathway, "", p_value=5e-3, p_mean=5e-3, signals=signals)
+        assert _passes(r, g, 0.15, 1e-2) is expected, (kind, pathway, signals)
 
 
 def test_improve_report(tmp_path):

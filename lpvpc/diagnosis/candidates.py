@@ -3,7 +3,7 @@ fitted on the surrogate and scored on held-out data, then ranked.
 
 A candidate is significant when its p-value is below alpha / n_candidates (Bonferroni) and
 its held-out VAF gain at least ``min_gain`` pp (0.4 x that for a catalog effect on the reflex
-pathway), or 0.6 x that with a p-value ten times smaller (:func:`passes`); the significant ones are ranked by forward
+pathway reading no EMG-derived signal), or 0.6 x that with a p-value ten times smaller (:func:`passes`); the significant ones are ranked by forward
 selection (what each adds given those above it), candidates reading a signal the model's
 reflex drive explains are not named, and pairs the data cannot tell apart (:data:`TIES`)
 are marked, or settled by the EMG where it can.
@@ -29,18 +29,20 @@ MIN_GAIN = 0.15  # pp of held-out VAF: smaller gains need stronger evidence (SMA
 # (docs/design_notes.md, "Diagnosis significance"; benchmarks/results/diagnose_significance.txt).
 SMALL_GAIN = 0.6
 STRONG_EVIDENCE = 10.0
-# A catalog effect on the reflex pathway passes with REFLEX_GAIN x min_gain (0.06 pp) at the
-# level itself. The reflex carries a small share of the torque: over a population of virtual
-# subjects (30 draws of each population effect, 100 clean; benchmarks/results/
-# population_significance_rules.txt) the right entry of a reflex effect often gained 0.04-0.10 pp
-# at p 1e-3..1e-8, under both tiers, while no clean draw's reflex-pathway candidate passing the
-# level gained more than 0.041 pp (activation_reflex_gain under PRBS). The clean alarms of lower
-# floors came from intrinsic candidates (nonlinear viscosity, amplitude dependence: up to
-# 0.055 pp at p 1e-5..1e-7 under PRBS), so the intrinsic pathway and the settings keep
-# min_gain. Chosen on half the draws (even seeds: 0.06 is the highest floor with the most named
-# and no alarm), checked on the other half and on fresh seeds (docs/design_notes.md,
-# "Diagnosis significance").
+# A catalog effect on the reflex pathway that reads no EMG-derived signal (EMG_SIGNALS) passes
+# with REFLEX_GAIN x min_gain (0.06 pp) at the level itself. The reflex carries a small share of
+# the torque: over a population of virtual subjects (30 draws of each population effect, 100
+# clean; benchmarks/results/population_significance_rules.txt) the right entry of a reflex
+# effect often gained 0.04-0.10 pp at p 1e-3..1e-8, under both tiers. The clean records' near
+# alarms are intrinsic (nonlinear viscosity, amplitude dependence: to 0.055 pp at p 1e-5..1e-7
+# under PRBS), so the intrinsic pathway and the settings keep min_gain; and activation-scaled
+# reflex gain, whose EMG-derived signal carries the reflex's own output (clean: 0.04 pp at p
+# ~3e-4 under PRBS, 0.05-0.10 pp at the level on the own subject's lab pulses), keeps it too.
+# Chosen on half the draws (even seeds: 0.06 is the highest floor with the most named and no
+# alarm), checked on the other half and on fresh seeds (docs/design_notes.md, "Diagnosis
+# significance").
 REFLEX_GAIN = 0.4
+EMG_SIGNALS = ("emg", "emg_ut", "activation")  # signals derived from the EMG
 ALPHA = 0.1  # family-wise level (Bonferroni over the candidates tested)
 LEAK_R2 = 0.2  # a signal this well explained by the model's reflex drive is not used to name an effect
 #: Candidates the data may not tell apart, and what to say when they tie. At 100 Hz, behind the
@@ -237,7 +239,7 @@ def reflex_leak(sur: Surrogate, x) -> float:
 def signal_leaks(sur: Surrogate) -> dict:
     """{signal: R^2 explained by the model's reflex drive} for the measured channels an
     effect may read (EMG-derived ones)."""
-    return {k: round(reflex_leak(sur, sur.signals[k]), 4) for k in ("emg", "emg_ut", "activation")
+    return {k: round(reflex_leak(sur, sur.signals[k]), 4) for k in EMG_SIGNALS
             if k in sur.signals}
 
 
@@ -257,8 +259,8 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None, reflex=False) -
     p_mean : float, optional
         The t test's p of the mean gain; None: ``p``.
     reflex : bool, default False
-        The candidate is a catalog effect on the reflex pathway: a gain of at least
-        REFLEX_GAIN x ``min_gain`` passes at ``level`` too.
+        The candidate is a catalog effect on the reflex pathway reading no EMG-derived signal:
+        a gain of at least REFLEX_GAIN x ``min_gain`` passes at ``level`` too.
 
     Returns
     -------
@@ -270,8 +272,8 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None, reflex=False) -
     -----
     The small-gain tier rests on the mean alone: the signed-rank half of the robust p says
     most blocks improve, which a tiny systematic gain does too. The reflex floor: the reflex
-    carries a small share of the torque, and the clean records' near alarms are intrinsic
-    (docs/design_notes.md, "Diagnosis significance").
+    carries a small share of the torque, and the clean records' near alarms are intrinsic or
+    read the EMG (docs/design_notes.md, "Diagnosis significance").
 
     Examples
     --------
@@ -296,8 +298,9 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None, reflex=False) -
 
 def _passes(r, gain, min_gain, level) -> bool:
     """:func:`passes` for candidate ``r`` (its p-values; the reflex floor for a reflex-pathway
-    catalog effect) at ``gain``."""
-    return passes(gain, r.p_value, min_gain, level, p_mean=r.p_mean, reflex=r.kind == "effect" and r.pathway == "reflex")
+    catalog effect reading no EMG-derived signal) at ``gain``."""
+    reflex = r.kind == "effect" and r.pathway == "reflex" and not set(r.signals) & set(EMG_SIGNALS)
+    return passes(gain, r.p_value, min_gain, level, p_mean=r.p_mean, reflex=reflex)
 
 
 def score_candidates(sur: Surrogate, *, candidates=None, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
