@@ -29,7 +29,8 @@ clean alarms at ten times the level, then the later,
 stricter, rule of its grid) and checked on the odd ones; both halves are reported.
 The right share is also tabulated against the effect's cost (clean VAF minus base VAF).
 
-Run: python benchmarks/population_significance_rules.py [--run COMMAND-KEY]
+Run: python benchmarks/population_significance_rules.py [--run COMMAND-KEY] [--check-run COMMAND-KEY]
+[--own RECORDS] [--tune-alarms N]
 """
 
 from __future__ import annotations
@@ -264,8 +265,11 @@ def main(argv=None):
                 "current + tier", "current, Bonferroni"):
         shown += [i for i in best if cands[i].name.startswith(fam) and i not in shown][:4]
     # the strictest rules that keep all clean draws silent on all data, for contrast
+    import shlex
+
+    argv_text = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     lines = [f"# Significance rules replayed on the population's candidates (python "
-             f"benchmarks/population_significance_rules.py{' --run ' + repr(args.run) if args.run else ''})", "",
+             f"benchmarks/population_significance_rules.py{' ' + argv_text if argv_text else ''})", "",
              f"Data: {path.name}, run `{key}` (git {runs[key].get('git', '?')}): {len(eff)} effect draws, "
              f"{len(clean)} clean draws. The current rule replayed: right {bench_named - 0 if not mism else '?'} "
              f"recorded by the bench, {sum(right(r, t) and not r.get('error') for r, t in zip(eff, cur['tops']))} "
