@@ -44,7 +44,12 @@ its 95 % Wilson score interval.
 
 Seeds: DEVELOPMENT_SEEDS by default; ``--record`` uses RECORD_SEEDS (for results recorded after
 the methods are settled). Effect k of POPULATION_EFFECTS draws seeds start + k * SEED_BLOCK
-onward, the clean draws start + 5 * SEED_BLOCK onward, so no subject repeats across effects.
+onward, the clean draws start + 5 * SEED_BLOCK onward, so no subject repeats across effects;
+``--first-seed I`` starts each at its start + I instead (a fresh range: a run with it is recorded
+as its own section). Every run also writes its rows, with every candidate of each base
+diagnosis over the base alone (gain, p, p_mean, whether its signal leaks), to
+benchmarks/results/population_diagnosis_candidates.json (one entry per command), so that
+significance rules can be compared offline (benchmarks/population_significance_rules.py).
 A development run at the defaults writes benchmarks/results/population_diagnosis.txt
 (a record run population_diagnosis_record.txt); a run with other numbers of draws is recorded
 as its own section below the default run's table (replacing an earlier section of the same
@@ -54,7 +59,7 @@ from the measured time per draw (``--draws 1 --clean 1`` measures one draw per e
 ``--profile EFFECT`` profiles one draw of EFFECT ("clean" for a clean draw) with cProfile and
 writes its largest costs to benchmarks/results/population_diagnosis_profile.txt.
 
-Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population_diagnosis.py [--draws N] [--clean N] [--jobs N] [--record]
+Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population_diagnosis.py [--draws N] [--clean N] [--first-seed I] [--jobs N] [--record]
 """
 
 from __future__ import annotations
@@ -79,6 +84,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import lpvpc  # noqa: E402
+from lpvpc.diagnosis.candidates import LEAK_R2, TIES, _tie_p  # noqa: E402
+from lpvpc.diagnosis.cv import robust_paired_test  # noqa: E402
 from lpvpc.models.effects import CATALOG, signals_from_data  # noqa: E402
 from lpvpc.simulation.population import (DEVELOPMENT_SEEDS, POPULATION_EFFECTS, RECORD_SEEDS,  # noqa: E402
                                          draw_subject, simulate_subject)
@@ -141,6 +148,33 @@ def heldout_vaf(model, data):
                                                 signals=signals_from_data(data)).total)
 
 
+def candidate_records(d):
+    """Every candidate of diagnosis ``d`` over the base alone, for judging significance rules
+    offline: {"cands": {name: [gain, p, p_mean, leaky, significant] or None (not available)},
+    "ties": {"a|b": two-sided tie p}, "n_available": n}. ``gain`` is the marginal held-out VAF
+    gain (pp); ``p``, ``p_mean`` its test recomputed from the marginal residual (the forward
+    selection overwrites a ranked candidate's p with its conditional one); ``leaky``: 1 when
+    the candidate reads a signal the model's reflex drive explains (not named); the ties are
+    the :data:`TIES` pairs' marginal residuals compared. Pathway and signals: the catalog's."""
+    block_s = (d.settings or {}).get("block_s", 2.0)
+    cands = {}
+    for c in d.candidates:
+        if not (c.available and c.residual is not None and d.base_residual is not None):
+            cands[c.effect] = None
+            continue
+        t, p, pm = robust_paired_test(d.base_residual, c.residual, d.fs, block_s)
+        leaky = any(d.leaks.get(k, 0.0) >= LEAK_R2 for k in c.signals)
+        cands[c.effect] = [float(f"{c.vaf_gain:.4g}"), float(f"{p:.3g}"), float(f"{pm:.3g}"), int(leaky),
+                           int(c.significant)]
+    by = {c.effect: c for c in d.candidates}
+    ties = {}
+    for pair in TIES:
+        a, b = sorted(pair)
+        if a in by and b in by and by[a].residual is not None and by[b].residual is not None:
+            ties[f"{a}|{b}"] = float(f"{_tie_p(by[a].residual, by[b].residual, d.fs, block_s):.3g}")
+    return {"cands": cands, "ties": ties, "n_available": sum(c.available for c in d.candidates)}
+
+
 def _effect_draw(seed, effect, out):
     s = draw_subject(seed, effect=effect)
     out.update(form=s.form, design=s.design, stiffness=s.stiffness_form)
@@ -182,6 +216,11 @@ def _effect_draw(seed, effect, out):
     out["final_vaf"] = ladder.final.heldout_vaf
     out["steps"] = " -> ".join(r.label for r in ladder.rungs[1:] if r.kept) or "none"
     out["ladder"] = out["clean_vaf"] - out["final_vaf"] <= WITHIN
+    out["base_candidates"] = candidate_records(d)
+    out["accepted"] = list(ok)
+    out["in_model_list"] = in_model
+    out["rungs"] = [{"label": r.label, "change": r.change, "kept": bool(r.kept), "vaf": r.heldout_vaf}
+                    for r in ladder.rungs]
 
 
 def _clean_draw(seed, out):
@@ -203,6 +242,7 @@ def _clean_draw(seed, out):
     out["top"] = (f"{top.effect} ({top.pathway}; {', '.join(top.signals) or 'position'}; "
                   f"{'significant' if sig else 'not significant'})")
     out["top_gain"], out["top_p"] = top.vaf_gain, top.p_value
+    out["base_candidates"] = candidate_records(d)
 
 
 def one_draw(task):
@@ -384,17 +424,22 @@ def main(argv=None):
     ap.add_argument("--clean", type=int, default=DEFAULT_CLEAN, help=f"clean draws (default {DEFAULT_CLEAN})")
     ap.add_argument("--jobs", type=int, default=1, help="processes (default 1)")
     ap.add_argument("--record", action="store_true", help="draw from RECORD_SEEDS (recorded results)")
+    ap.add_argument("--first-seed", type=int, default=0, metavar="I",
+                    help="draw i of each effect (and of the clean draws) from start + k x SEED_BLOCK + I + i: a "
+                         "seed range not used before (default 0)")
     ap.add_argument("--profile", metavar="EFFECT", choices=EFFECTS + ("clean",),
                     help="profile one draw of EFFECT ('clean': a clean draw) and stop")
     args = ap.parse_args(argv)
-    if not 0 <= args.draws <= SEED_BLOCK or not 0 <= args.clean <= SEED_BLOCK or args.jobs < 1:
-        ap.error(f"--draws and --clean must be 0..{SEED_BLOCK}, --jobs at least 1")
+    if (not 0 <= args.draws <= SEED_BLOCK or not 0 <= args.clean <= SEED_BLOCK or args.jobs < 1
+            or not 0 <= args.first_seed <= SEED_BLOCK - max(args.draws, args.clean)):
+        ap.error(f"--draws and --clean must be 0..{SEED_BLOCK}, --jobs at least 1, --first-seed plus the draws "
+                 f"at most {SEED_BLOCK}")
     seeds_set, name = (RECORD_SEEDS, "RECORD_SEEDS") if args.record else (DEVELOPMENT_SEEDS, "DEVELOPMENT_SEEDS")
     if args.profile:
         return profile(args.profile, seeds_set)
 
     def seeds_of(k):
-        return seeds_set.start + k * SEED_BLOCK
+        return seeds_set.start + k * SEED_BLOCK + args.first_seed
 
     tasks = [(seeds_of(k) + i, effect) for i in range(args.draws) for k, effect in enumerate(EFFECTS)]
     tasks += [(seeds_of(len(EFFECTS)) + i, None) for i in range(args.clean)]
@@ -403,6 +448,7 @@ def main(argv=None):
     cmd = ("OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population_diagnosis.py"
            + (f" --draws {args.draws}" if args.draws != DEFAULT_DRAWS else "")
            + (f" --clean {args.clean}" if args.clean != DEFAULT_CLEAN else "")
+           + (f" --first-seed {args.first_seed}" if args.first_seed else "")
            + (f" --jobs {args.jobs}" if args.jobs != 1 else "") + (" --record" if args.record else ""))
 
     def progress(r):
@@ -416,7 +462,8 @@ def main(argv=None):
     total = time.perf_counter() - t0
     lines = summarise(rows, args, name, seeds_of, total, cmd)
     target = RESULTS / ("population_diagnosis_record.txt" if args.record else "population_diagnosis.txt")
-    if args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN:  # another run: its own section
+    save_candidates(rows, cmd, "population_diagnosis_record" if args.record else "population_diagnosis")
+    if args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN or args.first_seed:  # another run: its own section
         head = f"## Run: {cmd}"
         section = ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
         lines = replace_section(target.read_text().split("\n") if target.exists() else [], head, section)
@@ -425,6 +472,40 @@ def main(argv=None):
         runs = next((k for k, x in enumerate(old) if x.startswith("## Run: ")), len(old))
         lines = replace_section(lines, None, [""] + old[runs:]) if runs < len(old) else lines
     write_results(target, lines, echo=True)
+
+
+def save_candidates(rows, cmd, stem):
+    """Every draw's row with its base diagnosis's candidates (:func:`candidate_records`) to
+    benchmarks/results/<stem>_candidates.json, one entry per command (an earlier run of the
+    same command replaced): significance rules can be judged on them offline
+    (benchmarks/population_significance_rules.py)."""
+    import json
+
+    path = RESULTS / f"{stem}_candidates.json"
+    runs = json.loads(path.read_text()) if path.exists() else {}
+    def tidy(v):
+        if isinstance(v, float):
+            return float(f"{v:.6g}") if np.isfinite(v) else None
+        if isinstance(v, dict):
+            return {k: tidy(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [tidy(x) for x in v]
+        return v
+
+    clean = [tidy(r) for r in rows]
+    runs[cmd] = {"git": _git_head(), "rows": clean}
+    path.write_text(json.dumps(runs, separators=(",", ":"), sort_keys=True) + "\n")
+    print(f"candidates written to {path}")
+
+
+def _git_head():
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, timeout=10).stdout.strip()
+    except Exception:  # no git: the record stands without it
+        return ""
 
 
 def replace_section(old, head, section):

@@ -18,7 +18,7 @@ from lpvpc.cli.diagnose import run as cmd_diagnose
 from lpvpc.cli.improve import run as cmd_improve
 from lpvpc.io import Trial, pair_trials
 from lpvpc.diagnosis.diagnose import BlockCV, diagnose, paired_test, robust_paired_test, write_report
-from lpvpc.diagnosis.candidates import passes
+from lpvpc.diagnosis.candidates import SMALL_GAIN as SMALL_GAIN_SHARE, passes
 from lpvpc.models.effects import signals_from_data
 from lpvpc.identification.identify import identify
 from lpvpc.diagnosis.improve import Ladder, Rung, improve
@@ -220,6 +220,26 @@ def test_small_gains_are_judged_on_the_mean_test_alone():
     assert not passes(0.12, 5e-4, 0.15, 1e-2, p_mean=5e-3)
     assert passes(0.12, 5e-4, 0.15, 1e-2, p_mean=5e-4)
     assert passes(0.2, 5e-3, 0.15, 1e-2, p_mean=0.2)  # a large gain: the robust p decides
+
+
+def test_reflex_pathway_effects_pass_at_a_lower_floor():
+    # a catalog effect on the reflex pathway passes with REFLEX_GAIN x min_gain at the level;
+    # an intrinsic effect or a reflex setting with the same gain and p does not
+    from lpvpc.diagnosis.candidates import REFLEX_GAIN, CandidateResult, _passes
+
+    g = REFLEX_GAIN * 0.15 + 0.005
+    assert 0 < REFLEX_GAIN < SMALL_GAIN_SHARE
+    assert passes(g, 5e-3, 0.15, 1e-2, reflex=True) and not passes(g, 5e-3, 0.15, 1e-2)
+    assert not passes(g, 2e-2, 0.15, 1e-2, reflex=True)  # the level still holds
+    assert not passes(REFLEX_GAIN * 0.15 - 0.005, 1e-13, 0.15, 1e-2, reflex=True)  # under the floor
+    assert passes(2 * g, 5e-3, 0.3, 1e-2, reflex=True) and not passes(g, 5e-3, 0.3, 1e-2, reflex=True)  # scales
+    # an EMG-derived signal carries the reflex's own output: such a reflex effect keeps min_gain
+    kinds = {("effect", "reflex", ("trial_time",)): True, ("effect", "reflex", ()): True,
+             ("effect", "intrinsic", ()): False, ("setting", "reflex", ()): False,
+             ("effect", "reflex", ("activation",)): False}
+    for (kind, pathway, signals), expected in kinds.items():
+        r = CandidateResult("x", kind, pathway, "", p_value=5e-3, p_mean=5e-3, signals=signals)
+        assert _passes(r, g, 0.15, 1e-2) is expected, (kind, pathway, signals)
 
 
 def test_improve_report(tmp_path):
