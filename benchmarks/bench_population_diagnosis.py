@@ -48,7 +48,7 @@ onward, the clean draws start + 5 * SEED_BLOCK onward, so no subject repeats acr
 ``--first-seed I`` starts each at its start + I instead (a fresh range: a run with it is recorded
 as its own section). Every run also writes its rows, with every candidate of each base
 diagnosis over the base alone (gain, p, p_mean, whether its signal leaks), to
-benchmarks/results/population_diagnosis_candidates.json (one entry per command), so that
+benchmarks/out/population_diagnosis_candidates.json (git-ignored data) (one entry per command), so that
 significance rules can be compared offline (benchmarks/population_significance_rules.py).
 A development run at the defaults writes benchmarks/results/population_diagnosis.txt
 (a record run population_diagnosis_record.txt); a run with other numbers of draws is recorded
@@ -476,12 +476,13 @@ def main(argv=None):
 
 def save_candidates(rows, cmd, stem):
     """Every draw's row with its base diagnosis's candidates (:func:`candidate_records`) to
-    benchmarks/results/<stem>_candidates.json, one entry per command (an earlier run of the
+    benchmarks/out/<stem>_candidates.json (git-ignored data), one entry per command (an earlier run of the
     same command replaced): significance rules can be judged on them offline
     (benchmarks/population_significance_rules.py)."""
     import json
 
-    path = RESULTS / f"{stem}_candidates.json"
+    path = RESULTS.parent / "out" / f"{stem}_candidates.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     runs = json.loads(path.read_text()) if path.exists() else {}
     def tidy(v):
         if isinstance(v, float):

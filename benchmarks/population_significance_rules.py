@@ -2,7 +2,7 @@
 
 benchmarks/bench_population_diagnosis.py saves, per draw, every candidate of the base
 diagnosis over the base alone (held-out VAF gain, robust p, p of the mean, whether its signal
-leaks into the reflex drive) to benchmarks/results/population_diagnosis_candidates.json. This
+leaks into the reflex drive) to benchmarks/out/population_diagnosis_candidates.json (git-ignored data). This
 script replays the diagnosis's choice of its first significant candidate under other rules
 (:func:`lpvpc.diagnosis.candidates.passes` with other constants, per-pathway floors, another
 Bonferroni family) without refitting anything:
@@ -229,7 +229,10 @@ def main(argv=None):
     ap.add_argument("--tune-alarms", type=int, default=0, help="clean alarms allowed on the tuning half (default 0: "
                     "the target's 2 %% of the full 100 leaves one per half, none is the margin)")
     args = ap.parse_args(argv)
-    path = RESULTS / "population_diagnosis_candidates.json"
+    path = RESULTS.parent / "out" / "population_diagnosis_candidates.json"
+    if not path.exists():
+        sys.exit(f"{path} is missing: run benchmarks/bench_population_diagnosis.py first (it saves every draw's "
+                 "candidates there)")
     runs = json.loads(path.read_text())
     key = args.run or next(k for k in runs if "--draws" not in k and "--clean" not in k and "--first-seed" not in k)
     rows = runs[key]["rows"]
