@@ -1045,8 +1045,12 @@ def reflex_interval(model, rho, level: float = 0.95):
     thresholds t whose own shift s(t) (``_threshold_shift_curve``) leaves them inside it:
     the test of each t inverted (s taken at the estimate instead covered 97.2-99.4 % at every
     default and 93.1-95.0 % on the 1 kHz path; this 95.8-98.9 % and 94.7-96.4 %, 40 seeds per
-    stiffness family: benchmarks/results/threshold_alternatives.txt). The gain's interval takes the
-    rounding's gain shift at the estimate, either sign. The rectifier's knee makes the threshold a
+    stiffness family: benchmarks/results/threshold_alternatives.txt). The gain's rounding is a
+    factor of the true gain that depends on the true threshold as well: its bias range is taken
+    over the thresholds of that interval (:func:`_gain_rounding_range`) when the model file
+    stores the rounding measured through the record's regressors (:func:`knee_rounding`; the
+    reported estimate, mapped back through it by :func:`unrounded_rectifier`, is put inside both
+    intervals); files without it take the gain's shift at the estimate, either sign. The rectifier's knee makes the threshold a
     nonlinear, kinked function of the curve: linearising it there (the former delta method)
     gave intervals ~25 % too narrow (threshold coverage 77 % over 20 seeds of the virtual
     subject; this: benchmarks/results/uncertainty.txt).
