@@ -197,7 +197,12 @@ def test_a_reflex_basis_chosen_too_simple_is_covered_through_the_next_richer_one
     before = _without_reflex_term(model).reflex_gain_interval(rho)
     after = model.reflex_gain_interval(rho)
     assert np.all(after.lower <= before.lower) and np.all(after.upper >= before.upper)
-    assert _covered(before, g_true).sum() <= 5  # the trend the constant basis cannot follow
+    # the trend the linear basis cannot follow, read plainly: the knee's rounding measured on the
+    # record (uncertainty.knee_rounding) maps the plantarflexed end's gain most of the way back
+    # here (1.74 -> 2.10 N m s/rad, truth 2.28) and its interval then covers 8 of 9 without the term
+    plain = _without_reflex_term(model)
+    plain.uncertainty.pop("knee_rounding")
+    assert _covered(plain.reflex_gain_interval(rho), g_true).sum() <= 5
     assert _covered(after, g_true).sum() >= 8
     # the threshold's interval does not take the term
     a, b = model.reflex_threshold_interval(rho), _without_reflex_term(model).reflex_threshold_interval(rho)
@@ -216,7 +221,7 @@ def test_the_reflex_term_refits_the_model_structure_alike(piecewise):
     v, _ = model.rectifier_velocity_grid()
     C = np.asarray(term["reference"]["coefficients"])
     g_ref = rectifier_fit(v, G @ C.T @ Basis.from_dict(term["reference"]["velocity_basis"]).evaluate(v).T)[0]
-    g = model.reflex_gain_threshold(rho)[0]
+    g = model.reflex_gain_threshold(rho, knee_corrected=False)[0]  # read alike
     assert np.max(np.abs(g_ref / g - 1)) < 0.05
     # the shift is the largest difference of the alternatives' gains to that reference
     shifts = []

@@ -1214,6 +1214,12 @@ class LPVPCEstimator:
                                   else eq.elastic_curvature_torque(p, Gi_val, model.curvature)),
                 # the elastic torque's second-order term, free (not tied to the IRF's K')
                 free_curvature=(p ** 2)[:, None] * Gi_val, n_base=n_base)
+            if reg.high is not None:  # the rectifier's knee as this record's regressors round it
+                from ..models.uncertainty import knee_rounding
+
+                model.uncertainty["knee_rounding"] = knee_rounding(
+                    model, reg.U_r, reg.high.dvel, int(round(reg.high.fs / reg.fs)),
+                    segments=getattr(reg.data.high_rate, "segments", None))
         except np.linalg.LinAlgError as exc:  # the model stands; only its intervals are missing
             from ..errors import LpvpcWarning
 

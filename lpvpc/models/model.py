@@ -794,16 +794,29 @@ class LPVPCModel:
         v_top = self.fit.get("velocity_p99", self.nonlinearity()[0].hi)
         return np.linspace(0.0, v_top, n_velocity), v_top
 
-    def reflex_gain_threshold(self, rho, n_velocity: int = 200):
+    def reflex_gain_threshold(self, rho, n_velocity: int = 200, knee_corrected: bool = True):
         """Fit a half-wave rectifier G * max(v - th, 0) + c to the identified nonlinearity.
 
         Returns (gain in N m s/rad, threshold in rad/s) for each rho, fitted from zero to
         the 99th percentile of the positive delayed velocities seen at identification
         (where the data determine the curve; the sparse extreme tail bends polynomials).
+
+        A polynomial velocity basis rounds the rectifier's knee: a low threshold is read
+        high and its gain high, a high one's gain low (:func:`lpvpc.models.uncertainty.knee_rounding`).
+        When the model file stores how this record's regressors round a true rectifier
+        (``uncertainty["knee_rounding"]``, 1 kHz path), the reading is mapped back through it
+        (``knee_corrected``; False gives the plain fit to the curve): the threshold whose
+        rounded reading is the fit's, and the gain divided by that threshold's rounding factor
+        (:func:`lpvpc.models.uncertainty.unrounded_rectifier`).
         """
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
         v, _ = self.rectifier_velocity_grid(n_velocity)
-        return rectifier_fit(v, self.reflex_nonlinearity(v, rho))
+        gain, threshold = rectifier_fit(v, self.reflex_nonlinearity(v, rho))
+        if not knee_corrected:
+            return gain, threshold
+        from .uncertainty import unrounded_rectifier
+
+        return unrounded_rectifier(self, gain, threshold)
 
     # -- confidence intervals (lpvpc.models.uncertainty; stored in the model file) -----------------
     @property
