@@ -252,10 +252,10 @@ def passes(gain, p, min_gain=MIN_GAIN, level=ALPHA, p_mean=None, reflex=False) -
         Held-out VAF gain (pp).
     p : float
         One-sided p-value of the gain (:func:`lpvpc.diagnosis.cv.robust_paired_test`).
-    min_gain : float, default MIN_GAIN
-        The gain floor (pp).
-    level : float, default ALPHA
-        The Bonferroni level (ALPHA over the candidates tested).
+    min_gain : float, optional
+        The gain floor (pp); default ``MIN_GAIN``.
+    level : float, optional
+        The Bonferroni level (``ALPHA`` over the candidates tested); default ``ALPHA``.
     p_mean : float, optional
         The t test's p of the mean gain; None: ``p``.
     reflex : bool, default False

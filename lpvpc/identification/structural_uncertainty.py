@@ -394,7 +394,7 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S, covariance: bool =
     Hausman-style HAC estimate: each refit's IRF weights are linear in the torque, ``M y``,
     so the difference's error is ``(M_free - M_held) e`` with the free refit's residual
     ``e``, whose long-run covariance (:func:`lpvpc.models.uncertainty.long_run_covariance`,
-    batches of :data:`lpvpc.models.uncertainty.BLOCK_LENGTH`) the residual's colour does not
+    batches of ``lpvpc.models.uncertainty.BLOCK_LENGTH``) the residual's colour does not
     bias. It is what showed the viscosity's shift to be mostly noise (a standard deviation
     of about 20 % of the viscosity on every subject tried) and K's to be signal where K is
     biased; the intervals count the raw shift (docs/design_notes.md, "Structural

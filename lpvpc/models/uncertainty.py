@@ -898,7 +898,7 @@ def knee_rounding(model, U_r, dvel, q: int, segments=None, n: int = N_KNEE_ROUND
     Why the record's regressors and not the velocity histogram: the nonlinearity is fitted to
     the decimated (50 Hz low-passed) drive, which weighs each ~20 ms velocity pulse as a whole,
     not each sample. On population draws (seeds 100-189, Chebyshev order 4 on the 1 kHz path)
-    the histogram-weighted projection (:func:`_rounded_rectifier_fit` without this) gave gain
+    the histogram-weighted projection (``_rounded_rectifier_fit`` without this) gave gain
     factors 1.03-1.12 at every threshold, where noise-free drives fitted on the record's
     regressors gave 0.71 at a threshold of 0.78 rad/s and 1.16 at 0.05 rad/s (the fitted
     models alike): the threshold falls toward dorsiflexion, so the gain slope came out 1.1-1.4
@@ -973,7 +973,7 @@ def _rounded_rectifier_fit(model, gains, thresholds, measured: bool = True):
 def _gain_rounding_range(model, gain, t_lo, t_hi, n: int = 50):
     """(lowest, highest) bias (N m s/rad, estimate minus truth) of the gain ``gain`` from the
     knee's rounding when the true threshold lies in [``t_lo``, ``t_hi``] (rad/s, one pair per
-    position): the rounding multiplies the true gain by r(t) (:func:`_rounded_rectifier_fit`
+    position): the rounding multiplies the true gain by r(t) (``_rounded_rectifier_fit``
     at unit gain), so the truth is gain / r(t) and the bias gain (1 - 1 / r(t)). Taken over
     the thresholds the data allow rather than at the estimate's: the estimate's threshold is
     itself rounded (a polynomial basis reads a true 0.05 rad/s near 0.3), and r falls from
@@ -1070,7 +1070,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     default and 93.1-95.0 % on the 1 kHz path; this 95.8-98.9 % and 94.7-96.4 %, 40 seeds per
     stiffness family: benchmarks/results/threshold_alternatives.txt). The gain's rounding is a
     factor of the true gain that depends on the true threshold as well: its bias range is taken
-    over the thresholds of that interval (:func:`_gain_rounding_range`) when the model file
+    over the thresholds of that interval (``_gain_rounding_range``) when the model file
     stores the rounding measured through the record's regressors (:func:`knee_rounding`; the
     reported estimate, mapped back through it by :func:`unrounded_rectifier`, is put inside both
     intervals); files without it take the gain's shift at the estimate, either sign. The rectifier's knee makes the threshold a
