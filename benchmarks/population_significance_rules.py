@@ -73,16 +73,17 @@ class Rule:
 
     def __init__(self, name, floor=MIN_GAIN, small=SMALL_GAIN, strong=STRONG_EVIDENCE, small_p="mean",
                  floors=None, tier3=None, family=None, alpha=ALPHA, reflex_floor=None,
-                 reflex_emg=False):
+                 reflex_emg=False, reflex_strong=1.0):
         self.name, self.floor, self.small, self.strong, self.small_p = name, floor, small, strong, small_p
-        self.reflex_floor, self.reflex_emg = reflex_floor, reflex_emg
+        self.reflex_floor, self.reflex_emg, self.reflex_strong = reflex_floor, reflex_emg, reflex_strong
         self.floors, self.tier3, self.family, self.alpha = floors or {}, tier3, family, alpha
 
     def passes(self, name, gain, p, p_mean, level):
         if not (np.isfinite(gain) and np.isfinite(p)) or p > level:
             return False
         if (self.reflex_floor is not None and name in CATALOG and pathway(name) == "reflex" and gain >= self.reflex_floor
-                and (self.reflex_emg or not set(CATALOG[name].signals) & set(EMG_SIGNALS))):
+                and (self.reflex_emg or not set(CATALOG[name].signals) & set(EMG_SIGNALS))
+                and p_mean <= level / self.reflex_strong):
             return True
         f = self.floors.get(pathway(name), self.floor)
         ps = p_mean if self.small_p == "mean" else p
