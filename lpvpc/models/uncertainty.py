@@ -887,24 +887,55 @@ N_KNEE_ROUNDING = 40
 
 def knee_rounding(model, U_r, dvel, q: int, segments=None, n: int = N_KNEE_ROUNDING) -> dict:
     """What the identification makes of a true half-wave rectifier, measured through the
-    record's own reflex regressors: for each threshold t of a grid over the rectifier fit's
-    range, the drive max(v - t, 0) of the record's high-rate delayed velocity ``dvel``
-    (rad/s), decimated by ``q`` as the regressors are (trial by trial, ``segments`` at the
-    high rate), fitted by least squares on the model-rate regressor ``U_r`` (eq. 17, the
-    columns the nonlinearity was identified on) and read by the rectifier fit, averaged over
-    five positions. Returns the model file's ``uncertainty["knee_rounding"]``:
-    {"threshold": t, "gain_factor": fitted gain per unit true gain, "fitted_threshold"}.
+    record's own reflex regressors.
 
-    Why the record's regressors and not the velocity histogram: the nonlinearity is fitted to
-    the decimated (50 Hz low-passed) drive, which weighs each ~20 ms velocity pulse as a whole,
-    not each sample. On population draws (seeds 100-189, Chebyshev order 4 on the 1 kHz path)
-    the histogram-weighted projection (``_rounded_rectifier_fit`` without this) gave gain
-    factors 1.03-1.12 at every threshold, where noise-free drives fitted on the record's
-    regressors gave 0.71 at a threshold of 0.78 rad/s and 1.16 at 0.05 rad/s (the fitted
-    models alike): the threshold falls toward dorsiflexion, so the gain slope came out 1.1-1.4
-    times the truth's and the rounding bias bound missed it (docs/design_notes.md).
-    The fit's threshold does not depend on the gain, and its gain is proportional to it
-    (the fit is linear in the drive), so one curve serves every gain.
+    For each threshold t of a grid over the rectifier fit's range, the drive max(v - t, 0) of
+    the record's high-rate delayed velocity is decimated as the regressors are, fitted by
+    least squares on the model-rate reflex regressor (eq. 17, the columns the nonlinearity
+    was identified on) and read by the rectifier fit, averaged over five positions. Why the
+    record's regressors and not the velocity histogram: the nonlinearity is fitted to the
+    decimated drive, which weighs each ~20 ms velocity pulse as a whole, not each sample, and
+    a polynomial velocity basis rounds the knee by an amount that depends on where the knee
+    is (a low threshold read high with its gain too high, a high one's gain too low;
+    docs/design_notes.md). The fit's threshold does not depend on the gain, and its gain is
+    proportional to it (the fit is linear in the drive), so one curve serves every gain.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        The model being identified (its nonlinearity's basis and scheduling range).
+    U_r : numpy.ndarray
+        The model-rate reflex regressor, samples x (n_v n_r).
+    dvel : numpy.ndarray
+        The record's delayed velocity at the file's rate (rad/s).
+    q : int
+        The decimation factor from the file's rate to the model's.
+    segments : list of (int, int), optional
+        Trials joined end to end, at the file's rate.
+    n : int, default N_KNEE_ROUNDING
+        Thresholds of the grid.
+
+    Returns
+    -------
+    dict
+        The model file's ``uncertainty["knee_rounding"]``: {"threshold": t, "gain_factor":
+        the fitted gain per unit true gain, "fitted_threshold": the fitted threshold}.
+
+    Examples
+    --------
+    ``identify`` measures it on the 1 kHz path and stores it:
+
+    >>> import warnings
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0)  # 1 kHz files
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(pair_trials(sim.pt, sim.ut), high_rate_reflex=True)
+    >>> kr = model.uncertainty["knee_rounding"]
+    >>> sorted(kr), len(kr["threshold"]) == N_KNEE_ROUNDING
+    (['fitted_threshold', 'gain_factor', 'threshold'], True)
     """
     from ..io import decimate_signal
     from ..io.segments import Segments
@@ -927,15 +958,42 @@ def knee_rounding(model, U_r, dvel, q: int, segments=None, n: int = N_KNEE_ROUND
 
 
 def unrounded_rectifier(model, gain, threshold):
-    """(gain N m s/rad, threshold rad/s) of the true rectifier whose reading through the
-    record's regressors (:func:`knee_rounding`) is ``gain``, ``threshold``: the threshold t
-    whose rounded reading is ``threshold`` (the fitted thresholds' running maximum inverted;
-    clipped to the measured range) and ``gain`` / r(t). Unchanged when the model file stores
-    no knee rounding (model-rate nonlinearity, 100 Hz files, files before it).
+    """The true rectifier whose reading through the record's regressors
+    (:func:`knee_rounding`) is ``gain``, ``threshold``.
 
-    On population draws whose gain changes at least two-fold (seeds 100-189, 1 kHz path, 34
-    draws) the gain slope over the determined positions was 1.14 times the truth's (median;
-    8 draws more than 20 % off) as read, 0.98 (4 more than 20 % off, both signs) mapped back.
+    The threshold is the t whose rounded reading is ``threshold`` (the fitted thresholds'
+    running maximum inverted, clipped to the measured range), the gain ``gain`` / r(t).
+    Mapped back this way, the gain slope over population draws is right on average where the
+    reading was about 1.15 times too steep (docs/design_notes.md).
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        An identified model; unchanged values when its file stores no knee rounding
+        (model-rate nonlinearity, 100 Hz files, files written before it).
+    gain : float or numpy.ndarray
+        The gain as read (N m s/rad).
+    threshold : float or numpy.ndarray
+        The threshold as read (rad/s).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        (gain N m s/rad, threshold rad/s) of the true rectifier.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0)  # 1 kHz files
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(pair_trials(sim.pt, sim.ut), high_rate_reflex=True)
+    >>> g, t = unrounded_rectifier(model, 5.0, 0.3)
+    >>> bool(np.isfinite(g) and 0.0 <= t <= 0.3 + 1e-9)
+    True
     """
     kr = (getattr(model, "uncertainty", None) or {}).get("knee_rounding")
     gain, threshold = np.asarray(gain, dtype=float), np.asarray(threshold, dtype=float)
@@ -977,7 +1035,7 @@ def _gain_rounding_range(model, gain, t_lo, t_hi, n: int = 50):
     at unit gain), so the truth is gain / r(t) and the bias gain (1 - 1 / r(t)). Taken over
     the thresholds the data allow rather than at the estimate's: the estimate's threshold is
     itself rounded (a polynomial basis reads a true 0.05 rad/s near 0.3), and r falls from
-    about 1.2 to 0.7 over the range (population seeds 100-189; :func:`knee_rounding`)."""
+    about 1.2 to 0.7 over the range (:func:`knee_rounding`)."""
     gain = np.asarray(gain, dtype=float)
     t_lo, t_hi = np.asarray(t_lo, dtype=float), np.asarray(t_hi, dtype=float)
     tt = t_lo[:, None] + (t_hi - t_lo)[:, None] * np.linspace(0.0, 1.0, n)[None, :]
