@@ -910,8 +910,8 @@ def knee_rounding(model, U_r, dvel, q: int, segments=None, n: int = N_KNEE_ROUND
         The record's delayed velocity at the file's rate (rad/s).
     q : int
         The decimation factor from the file's rate to the model's.
-    segments : list of (int, int), optional
-        Trials joined end to end, at the file's rate.
+    segments : list of tuple, optional
+        Trials joined end to end, (start, stop) sample pairs at the file's rate.
     n : int, default N_KNEE_ROUNDING
         Thresholds of the grid.
 
