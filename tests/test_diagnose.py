@@ -223,22 +223,25 @@ def test_small_gains_are_judged_on_the_mean_test_alone():
 
 
 def test_reflex_pathway_effects_pass_at_a_lower_floor():
-    # a catalog effect on the reflex pathway passes with REFLEX_GAIN x min_gain at the level;
-    # an intrinsic effect or a reflex setting with the same gain and p does not
-    from lpvpc.diagnosis.candidates import REFLEX_GAIN, CandidateResult, _passes
+    # a catalog effect on the reflex pathway passes with REFLEX_GAIN x min_gain when its mean
+    # gain is strongly established; an intrinsic effect or a reflex setting with the same gain
+    # and p does not, nor the reflex effect at the level alone
+    from lpvpc.diagnosis.candidates import REFLEX_GAIN, STRONG_EVIDENCE, CandidateResult, _passes
 
     g = REFLEX_GAIN * 0.15 + 0.005
+    strong = 0.5e-2 / STRONG_EVIDENCE  # below level / STRONG_EVIDENCE at level 1e-2
     assert 0 < REFLEX_GAIN < SMALL_GAIN_SHARE
-    assert passes(g, 5e-3, 0.15, 1e-2, reflex=True) and not passes(g, 5e-3, 0.15, 1e-2)
+    assert passes(g, strong, 0.15, 1e-2, reflex=True) and not passes(g, strong, 0.15, 1e-2)
+    assert not passes(g, 5e-3, 0.15, 1e-2, reflex=True)  # at the level alone: not established
     assert not passes(g, 2e-2, 0.15, 1e-2, reflex=True)  # the level still holds
     assert not passes(REFLEX_GAIN * 0.15 - 0.005, 1e-13, 0.15, 1e-2, reflex=True)  # under the floor
-    assert passes(2 * g, 5e-3, 0.3, 1e-2, reflex=True) and not passes(g, 5e-3, 0.3, 1e-2, reflex=True)  # scales
+    assert passes(2 * g, strong, 0.3, 1e-2, reflex=True) and not passes(g, strong, 0.3, 1e-2, reflex=True)  # scales
     # an EMG-derived signal carries the reflex's own output: such a reflex effect keeps min_gain
     kinds = {("effect", "reflex", ("trial_time",)): True, ("effect", "reflex", ()): True,
              ("effect", "intrinsic", ()): False, ("setting", "reflex", ()): False,
              ("effect", "reflex", ("activation",)): False}
     for (kind, pathway, signals), expected in kinds.items():
-        r = CandidateResult("x", kind, pathway, "", p_value=5e-3, p_mean=5e-3, signals=signals)
+        r = CandidateResult("x", kind, pathway, "", p_value=strong, p_mean=strong, signals=signals)
         assert _passes(r, g, 0.15, 1e-2) is expected, (kind, pathway, signals)
 
 
