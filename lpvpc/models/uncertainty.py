@@ -957,6 +957,11 @@ def knee_rounding(model, U_r, dvel, q: int, segments=None, n: int = N_KNEE_ROUND
             "fitted_threshold": np.asarray(t2, float).tolist()}
 
 
+def _knee_rounding(model):
+    """The model file's ``knee_rounding`` entry (:func:`knee_rounding`), or None."""
+    return (getattr(model, "uncertainty", None) or {}).get("knee_rounding")
+
+
 def unrounded_rectifier(model, gain, threshold):
     """The true rectifier whose reading through the record's regressors
     (:func:`knee_rounding`) is ``gain``, ``threshold``.
@@ -995,7 +1000,7 @@ def unrounded_rectifier(model, gain, threshold):
     >>> bool(np.isfinite(g) and 0.0 <= t <= 0.3 + 1e-9)
     True
     """
-    kr = (getattr(model, "uncertainty", None) or {}).get("knee_rounding")
+    kr = _knee_rounding(model)
     gain, threshold = np.asarray(gain, dtype=float), np.asarray(threshold, dtype=float)
     if not kr:
         return gain, threshold
@@ -1013,7 +1018,7 @@ def _rounded_rectifier_fit(model, gains, thresholds, measured: bool = True):
     seen at identification (files before it)."""
     from .reflex import rectifier_fit
 
-    kr = (getattr(model, "uncertainty", None) or {}).get("knee_rounding")
+    kr = _knee_rounding(model)
     if kr and measured:
         t = np.asarray(kr["threshold"], dtype=float)
         th = np.asarray(thresholds, dtype=float)
@@ -1065,7 +1070,7 @@ def _threshold_shift_range(model):
     true 0.05 rad/s read near 0.3, where it says 0.1). One curve when the file stores no
     measured rounding."""
     t, s_t = _threshold_shift_curve(model)
-    if not (getattr(model, "uncertainty", None) or {}).get("knee_rounding"):
+    if not _knee_rounding(model):
         return t, (s_t, s_t)
     s_h = _rounded_rectifier_fit(model, np.ones_like(t), t, measured=False)[1] - t
     return t, (np.minimum(s_t, s_h), np.maximum(s_t, s_h))
@@ -1173,7 +1178,7 @@ def reflex_interval(model, rho, level: float = 0.95):
         bound[0] = bound[0] + _knee_softness_bound(model, rho)
     else:
         g_shift, shift = _basis_resolution_shift(model, rho, gain, th)
-        if not _stored(model).get("knee_rounding"):  # files before it: the gain's shift at the estimate, either sign
+        if not _knee_rounding(model):  # files before it: the gain's shift at the estimate, either sign
             bound[0] = bound[0] + np.abs(g_shift)
     out, noise = [], []
     for est, d, b, s in ((gain, g_d, bound[0], 0.0), (th, th_d, bound[1], shift)):
@@ -1186,13 +1191,13 @@ def reflex_interval(model, rho, level: float = 0.95):
         lower, upper = _inverted_threshold_interval(*noise[1], bound[1], t, s_t, level)
         ok = np.isfinite(lower)  # (where no threshold is consistent, the shift at the estimate stands)
         out[1][0], out[1][1] = np.where(ok, lower, out[1][0]), np.where(ok, upper, out[1][1])
-        if _stored(model).get("knee_rounding"):  # the gain's rounding factor belongs to the true threshold
+        if _knee_rounding(model):  # the gain's rounding factor belongs to the true threshold
             # too: its bias range over the thresholds the data allow (measured through the record's regressors)
             a1, a2 = _gain_rounding_range(model, gain, np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6]))
             out[0] = list(_bias_range_interval(noise[0][0] - 0.5 * (a1 + a2), noise[0][1] - 0.5 * (a1 + a2),
                                                bound[0] + 0.5 * (a2 - a1), 0.0, level))
     th_lo, th_hi = np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6])
-    if not biased and _stored(model).get("knee_rounding"):  # the reported (mapped-back) estimate inside its interval
+    if not biased and _knee_rounding(model):  # the reported (mapped-back) estimate inside its interval
         g_c, th_c = unrounded_rectifier(model, gain, th)
         out[0] = [np.minimum(out[0][0], g_c), np.maximum(out[0][1], g_c)]
         th_lo, th_hi = np.minimum(th_lo, th_c), np.maximum(th_hi, th_c)
