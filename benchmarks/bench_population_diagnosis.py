@@ -233,7 +233,7 @@ def _clean_draw(seed, out):
     model = lpvpc.identify(ident)
     out["t_fit"] = time.perf_counter() - t
     t = time.perf_counter()
-    d = lpvpc.diagnose(model, novel)
+    d = lpvpc.diagnose(model, novel, reference=ident)  # as improve diagnoses: between records too
     out["t_diagnose"] = time.perf_counter() - t
     out["base_vaf"] = d.vaf
     sig = d.significant
@@ -320,6 +320,32 @@ def profile(effect, seeds_set):
     write_results("population_diagnosis_profile.txt", lines, echo=True)
 
 
+#: Bins (points of held-out VAF) of an effect's cost to the base model, for the detection table.
+COST_BINS = (0.1, 0.25, 0.5, 1.0)
+
+
+def precision_lines(rows):
+    """What the diagnosis says when it names something, and how often it names anything, by
+    the effect's cost to the base model (clean VAF minus base VAF, points): an effect that
+    costs the model less than the clean records' own systematic gains cannot be told from
+    them, and a miss there says nothing was found rather than something wrong."""
+    named = [r for r in rows if r.get("top", "none significant") != "none significant" or r.get("in_model")]
+    right = sum(bool(r["named"]) for r in named)
+    out = ["", f"when the base diagnosis names a significant candidate, it names the right pathway and signal on "
+               f"{share(right, len(named))}; it names nothing on {len(rows) - len(named)}/{len(rows)} draws", "",
+           "| effect's cost to the base model (points) | draws | right | wrong | nothing significant |",
+           "|---|---|---|---|---|"]
+    edges = (-np.inf,) + COST_BINS + (np.inf,)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        g = [r for r in rows if lo <= r["clean_vaf"] - r["base_vaf"] < hi]
+        k_named = [r for r in g if r in named]
+        k_right = sum(bool(r["named"]) for r in k_named)
+        what = f"< {hi:g}" if lo == -np.inf else (f">= {lo:g}" if hi == np.inf else f"{lo:g}-{hi:g}")
+        out.append(f"| {what} | {len(g)} | {share(k_right, len(g))} | {len(k_named) - k_right} | "
+                   f"{len(g) - len(k_named)} |")
+    return out
+
+
 def summarise(rows, args, name, seeds_of, total, cmd):
     eff_rows = [r for r in rows if r["effect"] != "none"]
     clean_rows = [r for r in rows if r["effect"] == "none"]
@@ -383,6 +409,7 @@ def summarise(rows, args, name, seeds_of, total, cmd):
                   f"base VAF): median {np.median(cost):+.2f}, max {cost.max():+.2f} points",
                   f"effect draws whose clean model is more than {WITHIN:g} point under its own noise ceiling (the "
                   f"reference is off there): {off}/{len(ok_rows)}"]
+        lines += precision_lines(ok_rows)
     lines += ["", "## Clean draws", "",
               "| seed | design | K form | held-out VAF | ceiling | top candidate | gain (pp) | p | s | error |",
               "|---|---|---|---|---|---|---|---|---|---|"]
@@ -427,6 +454,8 @@ def main(argv=None):
     ap.add_argument("--first-seed", type=int, default=0, metavar="I",
                     help="draw i of each effect (and of the clean draws) from start + k x SEED_BLOCK + I + i: a "
                          "seed range not used before (default 0)")
+    ap.add_argument("--effects", metavar="NAME", nargs="+", choices=EFFECTS, default=list(EFFECTS),
+                    help="only these effects' draws (default all); the summary judges what was run")
     ap.add_argument("--profile", metavar="EFFECT", choices=EFFECTS + ("clean",),
                     help="profile one draw of EFFECT ('clean': a clean draw) and stop")
     args = ap.parse_args(argv)
@@ -441,7 +470,8 @@ def main(argv=None):
     def seeds_of(k):
         return seeds_set.start + k * SEED_BLOCK + args.first_seed
 
-    tasks = [(seeds_of(k) + i, effect) for i in range(args.draws) for k, effect in enumerate(EFFECTS)]
+    tasks = [(seeds_of(k) + i, effect) for i in range(args.draws) for k, effect in enumerate(EFFECTS)
+             if effect in args.effects]
     tasks += [(seeds_of(len(EFFECTS)) + i, None) for i in range(args.clean)]
     if tasks and tasks[-1][0] not in seeds_set:
         sys.exit(f"seeds up to {max(t[0] for t in tasks)} are not all in {name}")
@@ -449,6 +479,7 @@ def main(argv=None):
            + (f" --draws {args.draws}" if args.draws != DEFAULT_DRAWS else "")
            + (f" --clean {args.clean}" if args.clean != DEFAULT_CLEAN else "")
            + (f" --first-seed {args.first_seed}" if args.first_seed else "")
+           + (f" --effects {' '.join(args.effects)}" if list(args.effects) != list(EFFECTS) else "")
            + (f" --jobs {args.jobs}" if args.jobs != 1 else "") + (" --record" if args.record else ""))
 
     def progress(r):
@@ -463,7 +494,8 @@ def main(argv=None):
     lines = summarise(rows, args, name, seeds_of, total, cmd)
     target = RESULTS / ("population_diagnosis_record.txt" if args.record else "population_diagnosis.txt")
     save_candidates(rows, cmd, "population_diagnosis_record" if args.record else "population_diagnosis")
-    if args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN or args.first_seed:  # another run: its own section
+    if (args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN or args.first_seed
+            or list(args.effects) != list(EFFECTS)):  # another run: its own section
         head = f"## Run: {cmd}"
         section = ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
         lines = replace_section(target.read_text().split("\n") if target.exists() else [], head, section)

@@ -97,6 +97,9 @@ class CandidateResult:
     blocks: dict | None = None  # surrogate blocks: {"add": name} or {"replace": {base: block}}
     residual: np.ndarray | None = None  # held-out residual of its (marginal) fit
     p_mean: float = float("nan")  # the t test's p alone (of the mean gain): judges small gains
+    # "record": cross-validated within the diagnosed record; "between records": fitted on the
+    # identification record, scored on this one (lpvpc.diagnosis.between)
+    scope: str = "record"
 
     def __repr__(self):
         if not self.available:
@@ -121,6 +124,8 @@ class CandidateResult:
             d["signals"] = list(self.signals)
         if self.reason:
             d["reason"] = self.reason
+        if self.scope != "record":
+            d["scope"] = self.scope
         return d
 
 

@@ -78,6 +78,7 @@ from .candidates import (ALPHA, EMG_MIN_CHANGE, EMG_TIE, EMG_TREND_P, LEAK_R2, M
 from .cv import BLOCK_S, FIXED_RIDGE, FOLDS, RIDGE, BlockCV, _r, paired_test, robust_paired_test  # noqa: F401
 from .report import candidates_html, diagnosis_html, format_table, write_report  # noqa: F401
 from .signals import FORMS, TIME_KNOT_S, candidate_signals, signal_dependence, time_basis  # noqa: F401
+from .between import between_record_candidates, merge
 from .surrogate import Surrogate
 from .where import where_it_fails  # noqa: F401
 from ..io.trial import check_model_rate
@@ -202,6 +203,10 @@ class Diagnosis:
                           if top.signals else ""))
             text = (f"Missing: {top.effect}{extra}, {carried}: held-out VAF +{top.vaf_gain:.2f} pp "
                     f"(p = {top.p_value:.1e}). {top.explanation}")
+            if top.scope != "record":
+                text += (f" Found between records: fitted on the identification record and scored on this one, "
+                         f"where the model's structure refitted explains {self.surrogate_vaf - self.vaf:.2f} pp more "
+                         f"than the model itself: the {', '.join(top.signals)} differs between the two records.")
             if top.tied_with:
                 rival = next((c for c in self.candidates if c.effect == top.tied_with), None)
                 what = TIES[frozenset((top.effect, top.tied_with))]
@@ -346,7 +351,7 @@ def check_record(model, data) -> dict:
 
 
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
-             candidates=None, dependence=True, design="auto") -> Diagnosis:
+             candidates=None, dependence=True, design="auto", reference=None) -> Diagnosis:
     """Where ``model`` fails on ``data`` and which missing effect or setting would explain it.
 
     Every candidate (an effect of :data:`lpvpc.models.effects.CATALOG` or a setting of
@@ -380,6 +385,13 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         candidates fitted to its residual; "auto": refit, unless the refitted base's
         cross-validated VAF falls more than ``SANE_DROP`` pp below the model's own VAF on
         these data (a record too short or too narrow for the structure), then fixed.
+    reference : lpvpc.io.PerturbationData, optional
+        The record ``model`` was identified on. With it, the catalog effects whose signal can
+        change level between records (the background activation) are also fitted on it and
+        scored on ``data`` against the model (:mod:`lpvpc.diagnosis.between`), when the
+        structure refitted on ``data`` explains it better than the model does: an effect that
+        stays nearly constant within ``data`` but differs from the identification record is
+        invisible to the within-record candidates.
 
     Returns
     -------
@@ -454,6 +466,15 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
     results, r0 = score_candidates(sur, candidates=candidates, min_gain=min_gain, alpha=alpha, block_s=block_s,
                                    leaks=leaks)
     timings["candidates"] = time.perf_counter() - t
+    # refit: the structure refitted (cross-validated); fixed: the model itself on the samples scored
+    surrogate_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
+    if reference is not None and sur.design == "refit":
+        t = time.perf_counter()
+        between = between_record_candidates(model, reference, data, pred.total, mask=mask,
+                                            transfer_gap=surrogate_vaf - model_vaf_inside, block_s=block_s)
+        n_tested = sum(r.available for r in results) + sum(r.available for r in between)
+        results = merge(results, between, min_gain=min_gain, level=alpha / max(1, n_tested))
+        timings["between"] = time.perf_counter() - t
     t = time.perf_counter()
     dep = (signal_dependence(sur, r0, block_s=block_s, leaks=leaks, pathways=(pred.intrinsic, pred.reflex))
            if dependence else [])
@@ -462,14 +483,13 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
     where = where_it_fails(model, data, resid, signals=sig)
     timings["where"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
-    # refit: the structure refitted (cross-validated); fixed: the model itself on the samples scored
-    surrogate_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
     return Diagnosis(
         model_hash=model.model_hash, data_source=getattr(data, "source", "") or "", n_samples=len(y), fs=float(data.fs),
         vaf=vaf(y, pred.total), rmse=float(np.sqrt(np.mean(resid**2))), surrogate_vaf=surrogate_vaf,
         candidates=results, dependence=dep, where=where,
         settings={"folds": folds, "min_gain": min_gain, "alpha": alpha, "block_s": block_s, "design": design,
-                  "leak_r2": LEAK_R2,
+                  "leak_r2": LEAK_R2, "reference": None if reference is None else (getattr(reference, "source", "")
+                                                                                   or "given"),
                   "test": ("paired one-sided test on held-out squared residuals, 2-s batch means: t or Wilcoxon "
                            "signed rank, the smaller p doubled; Bonferroni over candidates")},
         timings=timings, residual=resid, prediction=pred.total, design=sur.design, design_reason=reason,

@@ -219,7 +219,9 @@ def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=N
         t0 = time.perf_counter()
         report(f"improve: step {r.index} ({r.label}): diagnosing on the held-out record (every candidate, "
                f"cross-validated)")
-        r.diagnosis = diagnose(r.model, heldout, **diagnose_kw)
+        # with the identification record: an effect whose signal differs between the two records
+        # (the background activation) is tried between them too (lpvpc.diagnosis.between)
+        r.diagnosis = diagnose(r.model, heldout, **{"reference": ident, **diagnose_kw})
         r.diagnosis_time = time.perf_counter() - t0
 
     label0 = "base model" + (f" + {', '.join(effects)}" if effects else "")
