@@ -1347,7 +1347,7 @@ def _slope_rounding_range(model, rho, w, parts, n: int = N_SLOPE_PROFILES):
 def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, tolerance: float = SLOPE_TOLERANCE) -> dict:
     """The reflex gain's change with position: the slope (N m s/rad per rad) of the
     least-squares line of the gain over ``n_positions`` positions evenly over the central
-    :data:`SLOPE_CENTRAL` of :attr:`~lpvpc.models.model.LPVPCModel.scheduling_range`, its
+    :data:`SLOPE_CENTRAL` of the model's ``scheduling_range``, its
     ``level`` confidence interval, and whether the data determine it.
 
     The slope is a fixed linear combination w of the gains at the positions, so the interval
@@ -1392,7 +1392,7 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
     dict
         ``slope`` (N m s/rad per rad, the reported gains' line), ``lower``, ``upper`` (the
         interval), ``determined`` (bool), ``rho`` (rad, the positions), ``level``,
-        ``biased`` (model-rate nonlinearity, :attr:`Interval.biased`), ``rule`` (the
+        ``biased`` (model-rate nonlinearity, as ``Interval.biased``), ``rule`` (the
         determination rule in words).
 
     Examples
