@@ -766,6 +766,13 @@ def reflex_bias_bound(model, rho):
     >>> bool(np.all(g_bound >= 0)), th_bound.shape
     (True, (2,))
     """
+    return tuple(np.abs(x) for x in _curvature_reflex_shift(model, rho))
+
+
+def _curvature_reflex_shift(model, rho):
+    """Signed shifts (gain N m s/rad, threshold rad/s) at ``rho`` of the rectifier fit when the
+    elastic torque's second-order term is fitted freely, minus the model's
+    (:func:`reflex_bias_bound` gives their sizes); zeros without that refit."""
     from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
@@ -781,7 +788,7 @@ def reflex_bias_bound(model, rho):
     f = dc * (model.reflex_rho_basis.evaluate(rho) @ Om.T @ basis.evaluate(v).T)
     g_alt, th_alt = rectifier_fit(v, f)
     g, th = model.reflex_gain_threshold(rho, knee_corrected=False)  # both read alike
-    return np.abs(g_alt - g), np.abs(th_alt - th)
+    return g_alt - g, th_alt - th
 
 
 def reflex_structural_shift(model, rho) -> np.ndarray:
@@ -811,13 +818,21 @@ def reflex_structural_shift(model, rho) -> np.ndarray:
 def _structural_spread(model, rho, which: int) -> np.ndarray:
     """Largest absolute shift of the rectifier's gain (``which`` 0) or threshold (1) at ``rho``
     over the stored reflex structures the selection could not exclude (zeros when none)."""
+    shifts = _structural_shifts(model, rho, which)
+    return np.max(np.abs(shifts), axis=0) if len(shifts) else np.zeros(len(np.atleast_1d(rho)))
+
+
+def _structural_shifts(model, rho, which: int) -> np.ndarray:
+    """Signed shifts, (structures, len(rho)), of the rectifier's gain (``which`` 0) or
+    threshold (1) at ``rho``: each stored reflex structure the selection could not exclude
+    minus the model structure's own refit (no rows when none is stored)."""
     from .basis import Basis
     from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
     term = ((getattr(model, "uncertainty", None) or {}).get("structural") or {}).get("reflex")
     if not term or not term["structures"]:
-        return np.zeros(len(rho))
+        return np.zeros((0, len(rho)))
     G_r = Basis.from_dict(term["rho_basis"])
     G = G_r.evaluate(np.clip(rho, G_r.lo, G_r.hi))
     v, _ = model.rectifier_velocity_grid()
@@ -827,7 +842,7 @@ def _structural_spread(model, rho, which: int) -> np.ndarray:
         return rectifier_fit(v, G @ C.T @ Basis.from_dict(entry["velocity_basis"]).evaluate(v).T)[which]
 
     ref = fitted(term["reference"])
-    return np.max(np.abs([fitted(s) - ref for s in term["structures"]]), axis=0)
+    return np.array([fitted(s) - ref for s in term["structures"]])
 
 
 #: Monte Carlo draws of the reflex parameters behind the gain and threshold intervals.
@@ -850,8 +865,18 @@ def _knee_softness_bound(model, rho):
     f = model.reflex_nonlinearity(v, rho)
     top = v >= 0.5 * v_top
     X = np.column_stack([v[top], np.ones(int(top.sum()))])
+    return np.abs(_knee_softness_shift(model, rho))
+
+
+def _knee_softness_shift(model, rho):
+    """Signed gain shifts (N m s/rad) whose sizes ``_knee_softness_bound`` gives: the slope of
+    the nonlinearity over the top half of the fitted velocity range minus the rectifier fit's gain."""
+    v, v_top = model.rectifier_velocity_grid()
+    f = model.reflex_nonlinearity(v, rho)
+    top = v >= 0.5 * v_top
+    X = np.column_stack([v[top], np.ones(int(top.sum()))])
     slope = np.linalg.lstsq(X, f[:, top].T, rcond=None)[0][0]
-    return np.abs(slope - model.reflex_gain_threshold(rho, knee_corrected=False)[0])
+    return slope - model.reflex_gain_threshold(rho, knee_corrected=False)[0]
 
 
 def _velocity_weight(model, vv):
@@ -1159,6 +1184,18 @@ def reflex_interval(model, rho, level: float = 0.95):
     >>> g.biased, th.biased, bool(th.determined[0])
     (True, True, False)
     """
+    return _reflex_interval_parts(model, rho, level)["intervals"]
+
+
+def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
+    """:func:`reflex_interval` and what it is made of: {"intervals": its answer, "gain": the
+    rectifier fit's reading, "draws": (:data:`N_REFLEX_DRAWS`, len(rho)) its parametric bootstrap
+    draws, "reported": the reported (knee-corrected) gain, "rounding": (lowest, highest) bias of
+    the reading from the knee's rounding (estimate minus truth, zeros where none is counted that
+    way), "shifts": list of signed gain shifts (each an alternative reading minus this one) whose
+    sizes bound the rest of the bias, either sign, "structural": (structures, len(rho)) the signed
+    shifts of the reflex structures the selection could not exclude, the largest of which in size
+    is one more bound} (gains N m s/rad, one per position)."""
     from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
@@ -1170,16 +1207,23 @@ def reflex_interval(model, rho, level: float = 0.95):
     draws = np.random.default_rng(20141).standard_normal((N_REFLEX_DRAWS, len(w))) @ (U * np.sqrt(np.clip(w, 0, None))).T
     curves = f[None] + np.einsum("np,prv->nrv", draws, J)
     g_d, th_d = (x.reshape(N_REFLEX_DRAWS, len(rho)) for x in rectifier_fit(v, curves.reshape(-1, len(v))))
-    bound = list(reflex_bias_bound(model, rho))  # |bias| <= bound, either sign
+    curv = _curvature_reflex_shift(model, rho)
+    bound = [np.abs(x) for x in curv]  # |bias| <= bound, either sign
+    structural = _structural_shifts(model, rho, 0)
+    shifts = [curv[0]]
     bound[0] = bound[0] + reflex_structural_shift(model, rho)
     shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth between 0 and shift
+    rounding = (np.zeros(len(rho)), np.zeros(len(rho)))
     biased = model.reflex_threshold_biased
     if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
-        bound[0] = bound[0] + _knee_softness_bound(model, rho)
+        soft = _knee_softness_shift(model, rho)
+        bound[0] = bound[0] + np.abs(soft)
+        shifts.append(soft)
     else:
         g_shift, shift = _basis_resolution_shift(model, rho, gain, th)
         if not _knee_rounding(model):  # files before it: the gain's shift at the estimate, either sign
             bound[0] = bound[0] + np.abs(g_shift)
+            shifts.append(g_shift)
     out, noise = [], []
     for est, d, b, s in ((gain, g_d, bound[0], 0.0), (th, th_d, bound[1], shift)):
         lo, hi = np.percentile(d, [50 * (1 - level), 50 * (1 + level)], axis=0)
@@ -1194,9 +1238,11 @@ def reflex_interval(model, rho, level: float = 0.95):
         if _knee_rounding(model):  # the gain's rounding factor belongs to the true threshold
             # too: its bias range over the thresholds the data allow (measured through the record's regressors)
             a1, a2 = _gain_rounding_range(model, gain, np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6]))
+            rounding = (a1, a2)
             out[0] = list(_bias_range_interval(noise[0][0] - 0.5 * (a1 + a2), noise[0][1] - 0.5 * (a1 + a2),
                                                bound[0] + 0.5 * (a2 - a1), 0.0, level))
     th_lo, th_hi = np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6])
+    g_c = gain
     if not biased and _knee_rounding(model):  # the reported (mapped-back) estimate inside its interval
         g_c, th_c = unrounded_rectifier(model, gain, th)
         out[0] = [np.minimum(out[0][0], g_c), np.maximum(out[0][1], g_c)]
@@ -1205,7 +1251,9 @@ def reflex_interval(model, rho, level: float = 0.95):
         th_lo, th_hi = np.full(len(rho), v[0]), np.full(len(rho), v[-6])
     g_ok, th_ok = _determined(out[0][0], th_lo, th_hi, v_top)
     note = MODEL_RATE_BIAS_NOTE if biased else ""
-    return (Interval(out[0][0], out[0][1], biased, note, g_ok), Interval(th_lo, th_hi, biased, note, th_ok))
+    return {"intervals": (Interval(out[0][0], out[0][1], biased, note, g_ok), Interval(th_lo, th_hi, biased, note, th_ok)),
+            "gain": gain, "draws": g_d, "reported": g_c, "rounding": rounding, "shifts": shifts,
+            "structural": structural}
 
 
 def _determined(gain_lo, th_lo, th_hi, v_top):
@@ -1246,6 +1294,145 @@ def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> di
                      f"99th percentile of the stretch velocities); velocity below the model's RECTIFIER_MIN_FS: "
                      f"threshold never determined")}
 
+
+#: The reflex gain slope is "determined" when every slope of its interval is within this
+#: fraction of the estimate's ratio to it (|estimate / s - 1| <= tolerance for all s inside).
+SLOPE_TOLERANCE = 0.2
+#: Share of the identified range (centred) over which the gain slope is the least-squares line.
+SLOPE_CENTRAL = 0.8
+
+
+#: Threshold values per anchor position of the smooth threshold profiles over which
+#: ``_slope_rounding_range`` takes the knee rounding's effect on the gain slope.
+N_SLOPE_PROFILES = 12
+
+
+def _slope_rounding_range(model, rho, w, parts, n: int = N_SLOPE_PROFILES):
+    """(lowest, highest) bias (estimate minus truth, N m s/rad per rad) of the gain slope w @ gains
+    from the knee's rounding measured through the record's regressors (zeros without it).
+
+    The rounding multiplies the true gain at each position by r(t) of the true threshold t
+    there (``_gain_rounding_range``), and the data give t only as an interval per position. The
+    true thresholds are one smooth function of position (the nonlinearity's coefficients are a
+    low-order basis in position), so the range is taken over the quadratic threshold profiles
+    through ``n`` values at each of three anchor positions (ends and middle) that stay inside
+    every position's threshold interval, not over each position's extremes independently (which
+    would pair the lowest factor at one end with the highest at the other). Where no such profile
+    fits, the per-position extremes are combined (the widest range w allows)."""
+    a1, a2 = parts["rounding"]
+    box = (float(np.sum(np.minimum(w * a1, w * a2))), float(np.sum(np.maximum(w * a1, w * a2))))
+    if not np.any(a1) and not np.any(a2):
+        return box
+    th_lo, th_hi = (np.asarray(x, dtype=float) for x in parts["intervals"][1])
+    k = [0, len(rho) // 2, len(rho) - 1]
+    if len(set(k)) < 3:
+        return box
+    q = np.linspace(0.0, 1.0, n)
+    anchors = [th_lo[i] + q * (th_hi[i] - th_lo[i]) for i in k]
+    A, B, C = (x.ravel() for x in np.meshgrid(*anchors, indexing="ij"))
+    x0, x1, x2 = rho[k]
+    L = [((rho - x1) * (rho - x2)) / ((x0 - x1) * (x0 - x2)), ((rho - x0) * (rho - x2)) / ((x1 - x0) * (x1 - x2)),
+         ((rho - x0) * (rho - x1)) / ((x2 - x0) * (x2 - x1))]  # Lagrange basis through the anchors
+    t = A[:, None] * L[0][None] + B[:, None] * L[1][None] + C[:, None] * L[2][None]  # (profiles, positions)
+    tol = 1e-9 + 1e-6 * float(np.max(th_hi - th_lo))
+    inside = np.all((t >= th_lo - tol) & (t <= th_hi + tol), axis=1)
+    if not inside.any():
+        return box
+    t = t[inside]
+    r = _rounded_rectifier_fit(model, np.ones(t.size), t.ravel())[0].reshape(t.shape)
+    bias = np.asarray(parts["gain"], dtype=float)[None] * (1.0 - 1.0 / np.where(np.abs(r) > 1e-9, r, 1e-9))
+    slopes = bias @ w
+    return float(slopes.min()), float(slopes.max())
+
+def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, tolerance: float = SLOPE_TOLERANCE) -> dict:
+    """The reflex gain's change with position: the slope (N m s/rad per rad) of the
+    least-squares line of the gain over ``n_positions`` positions evenly over the central
+    :data:`SLOPE_CENTRAL` of the model's ``scheduling_range``, its
+    ``level`` confidence interval, and whether the data determine it.
+
+    The slope is a fixed linear combination w of the gains at the positions, so the interval
+    is built from the same parts as :func:`reflex_interval`'s gain intervals, taken through w:
+
+    - noise: the percentile interval of w applied to each parametric bootstrap draw of the
+      gains (the draws are joint over the positions, so their correlation counts);
+    - biases of the reading that :func:`reflex_interval` bounds by an alternative reading
+      (the elastic curvature fitted freely, :func:`reflex_bias_bound`; the reflex structures
+      the selection could not exclude, :func:`reflex_structural_shift`; on model-rate
+      velocity the knee's softness, ``_knee_softness_bound``; in files without a measured
+      knee rounding the velocity basis's shift at the estimate): each bounds the slope's
+      bias by the size of the same alternative's slope, w applied to its signed shifts. A
+      bias that scales the gain alike at every position moves the slope by the same factor,
+      and the alternative's slope carries exactly that; one that changes sign along the
+      range moves the slope more than any single position's bound suggests, and so does it;
+    - the knee rounding measured through the record's regressors (1 kHz path,
+      :func:`knee_rounding`): its bias range at each position depends on the true threshold
+      there, which the data give only as an interval, so the slope's range is the widest w
+      allows over those per-position ranges (lowest and highest ends taken by the sign of w).
+
+    The noise interval is widened for the bias range with :func:`bias_aware_critical_value`,
+    as the per-position gains are, and holds the reported (knee-corrected) slope.
+
+    Parameters
+    ----------
+    model : lpvpc.models.model.LPVPCModel
+        An identified model with intervals (:attr:`~lpvpc.models.model.LPVPCModel.has_intervals`).
+    level : float, default 0.95
+        Confidence level of the interval.
+    n_positions : int, default 9
+        Positions the line is fitted over.
+    tolerance : float, default :data:`SLOPE_TOLERANCE`
+        The slope is determined when the estimate is within this fraction of every slope its
+        interval holds: the interval excludes 0 and lies within [estimate / (1 + tolerance),
+        estimate / (1 - tolerance)]. Then, whenever the interval covers the true slope, the
+        estimate is within ``tolerance`` of it; otherwise the answer is
+        :data:`NOT_DETERMINED` (the interval is still given).
+
+    Returns
+    -------
+    dict
+        ``slope`` (N m s/rad per rad, the reported gains' line), ``lower``, ``upper`` (the
+        interval), ``determined`` (bool), ``rho`` (rad, the positions), ``level``,
+        ``biased`` (model-rate nonlinearity, as ``Interval.biased``), ``rule`` (the
+        determination rule in words).
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     model = identify(pair_trials(sim.pt, sim.ut))
+    >>> out = reflex_gain_slope(model)  # N m s/rad per rad
+    >>> bool(out["lower"] <= out["slope"] <= out["upper"]), len(out["rho"]), type(out["determined"])
+    (True, 9, <class 'bool'>)
+    """
+    lo, hi = model.scheduling_range
+    margin = 0.5 * (1.0 - SLOPE_CENTRAL) * (hi - lo)
+    rho = np.linspace(lo + margin, hi - margin, n_positions)
+    d = rho - rho.mean()
+    w = d / max(float(d @ d), 1e-300)  # the least-squares slope is w @ gains
+    parts = _reflex_interval_parts(model, rho, level)
+    raw, slope = float(w @ parts["gain"]), float(w @ parts["reported"])
+    s_d = parts["draws"] @ w
+    n_lo, n_hi = np.percentile(s_d, [50 * (1 - level), 50 * (1 + level)])
+    n_lo, n_hi = min(n_lo, raw), max(n_hi, raw)
+    bound = sum(abs(float(w @ x)) for x in parts["shifts"])
+    if len(parts["structural"]):
+        bound += float(np.max(np.abs(parts["structural"] @ w)))
+    r_lo, r_hi = _slope_rounding_range(model, rho, w, parts)
+    c = 0.5 * (r_lo + r_hi)
+    lower, upper = (float(x) for x in _bias_range_interval(n_lo - c, n_hi - c, bound + 0.5 * (r_hi - r_lo), 0.0, level))
+    lower, upper = min(lower, slope), max(upper, slope)
+    sign = 1.0 if slope >= 0 else -1.0
+    a, b = sorted((sign * lower, sign * upper))
+    determined = bool(abs(slope) > 0 and a >= abs(slope) / (1 + tolerance) and b <= abs(slope) / (1 - tolerance))
+    return {"slope": slope, "lower": lower, "upper": upper, "determined": determined, "rho": rho, "level": level,
+            "biased": bool(model.reflex_threshold_biased),
+            "rule": (f"determined when the {level:.0%} interval excludes 0 and the estimate is within "
+                     f"{tolerance:.0%} of every slope inside it; else {NOT_DETERMINED}")}
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
