@@ -535,3 +535,20 @@ def test_improve_reads_the_records_as_identify_does(tmp_path, capsys):
             ([tmp_path / "d.csv", "--heldout", tmp_path / "d2.csv", "--heldout-pt", tmp_path / "a.csv"], "not both")):
         status, out, err = _run(["improve", *argv, "--report", tmp_path / "x"], capsys)
         assert status == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+
+
+def test_a_warning_the_command_meets_again_is_printed_once(capsys):
+    """improve fits several models and met the same note about each (three times in a row on
+    one step): each text is printed once, a different text still is, and warnings from other
+    packages go to Python's own display."""
+    from lpvpc.cli._running import _show_warning
+    from lpvpc.errors import LpvpcWarning
+
+    others = []
+    show = _show_warning(lambda *a, **k: others.append(a[0]))
+    for text in ("reflex gain is negative", "reflex gain is negative", "no intervals", "reflex gain is negative"):
+        show(text, LpvpcWarning, "x.py", 1)
+    show("deprecated", DeprecationWarning, "x.py", 1)
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["lpvpc: warning: reflex gain is negative", "lpvpc: warning: no intervals"]
+    assert others == ["deprecated"]

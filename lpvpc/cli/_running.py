@@ -13,9 +13,17 @@ from ._common import PROG, _one_line
 
 
 def _show_warning(original):
+    """A ``warnings.showwarning`` that prints the package's warnings as one line each, and each
+    text once: a command that fits several models (improve, validate) met the same note about
+    every one of them, three times in a row on one step."""
+    shown = set()
+
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, LpvpcWarning):
-            print(f"{PROG}: warning: {_one_line(command_line_syntax(message))}", file=sys.stderr)
+            text = f"{PROG}: warning: {_one_line(command_line_syntax(message))}"
+            if text not in shown:
+                shown.add(text)
+                print(text, file=sys.stderr)
         else:
             original(message, category, filename, lineno, file, line)
 

@@ -269,8 +269,13 @@ class Diagnosis:
                         f"{self.surrogate_vaf:.1f} % (cross-validated): the candidates are judged on the structure; "
                         f"the model's own parameters do not carry over to this record (identification record too "
                         f"short, or different from it: a trajectory that moves differently, e.g. faster, or another "
-                        f"state of the subject). A missing effect that stays nearly constant within this record is "
-                        f"invisible to the candidates and shows only in this gap.", True))
+                        f"state of the subject). "
+                        + ("The catalog effects whose signal can differ between the records were also fitted on the "
+                           "identification record and scored here (marked between records)."
+                           if self.settings.get("reference") else
+                           "A missing effect that stays nearly constant within this record is invisible to the "
+                           "candidates and shows only in this gap (improve, or diagnose given the identification "
+                           "record as reference, also tries the effects whose signal can differ between records)."), True))
         leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
         if leaky:
             out.append((f"Not used to name an effect: {', '.join(leaky)}; these signals follow the model's own reflex "

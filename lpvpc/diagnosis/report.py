@@ -29,6 +29,7 @@ def format_table(diag, n=None) -> str:
             lines.append(f"{i:>4}  {c.effect:44} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {c.reason}")
             continue
         name = c.effect + (" (" + ", ".join(f"{k}={v:g}" for k, v in c.variant.items()) + ")" if c.variant else "")
+        name += " [between records]" if c.scope != "record" else ""
         lines.append(f"{i:>4}  {name:44} {c.kind:8} {c.pathway:9} {c.vaf_gain:>+9.3f} {c.p_value:>9.1e}  "
                      f"{'YES' if c.significant else 'no'}")
     return "\n".join(lines)
@@ -41,7 +42,7 @@ def candidates_html(diag, n=None, syntax="python") -> str:
     name options as the command line spells them."""
     rows, notes = [], []
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
-        name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}"
+        name = f"<code>{_e(c.effect)}</code>{_e(_variant_text(c.variant))}" + (" <em>(between records)</em>" if c.scope != "record" else "")
         if not c.available:
             rows.append([str(i), name, _e(c.kind), _e(c.pathway), "–", "–", "–", "n/a"])
         else:
@@ -77,10 +78,14 @@ def write_report(diag, data, folder, *, title="Diagnosis", syntax="cli") -> Path
     plt.close(fig)
     change = None
     first = next((c for c in diag.candidates if c.available and c.residual is not None), None)
-    if first is not None and diag.base_residual is not None:
+    between = first is not None and first.scope != "record"  # fitted on the identification record: the model as it is
+    before = diag.residual if between else diag.base_residual
+    if first is not None and before is not None:
         fig, axes = plt.subplots(1, 2, figsize=(9.6, 3.2))
-        plotting.plot_residual_change(data.time, data.torque, diag.base_residual, first.residual,
-                                      labels=("model (cross-validated)", f"+ {first.effect}"), fs=data.fs, axes=axes)
+        plotting.plot_residual_change(data.time, data.torque, before, first.residual,
+                                      labels=("model as it is" if between else "model (cross-validated)",
+                                              f"+ {first.effect}" + (" (between records)" if between else "")),
+                                      fs=data.fs, axes=axes)
         fig.tight_layout()
         change = folder / "residual_change.png"
         fig.savefig(change, dpi=100)
@@ -167,8 +172,7 @@ def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2, syntax=
                      "in brackets (<a href=\"#glossary\">glossary</a>):</p>")
         parts.append(physiology_table_html(model))
     if change is not None and diag.top is not None:
-        parts.append(_html_img(change, f"Held-out residual of the model (cross-validated base) and with "
-                                       f"{first.effect} added: before and after, over time and as spectra"))
+        parts.append(_html_img(change, _change_caption(first)))
     parts.append(f"<p><b>Next:</b> {_next_step(diag, syntax)}</p></section>")
     quiet = [n for n, flag in diag.notes(weighed=True) if not flag]
     n_sig = len(diag.significant)
@@ -178,11 +182,14 @@ def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2, syntax=
               f"adds (percentage points). A candidate is significant when its gain is too large to be chance (below "
               f"{diag.settings['alpha']} / number of candidates) and at least {diag.settings['min_gain']} points; "
               f"significant candidates are ranked by what each adds given the ones above it (conditional gain). See "
-              f"the <a href=\"#glossary\">glossary</a>.</p>", cand]
+              f"the <a href=\"#glossary\">glossary</a>."
+              + (" A candidate marked <em>between records</em> was fitted on the identification record and scored "
+                 "on this one: its gain is what the change of its signal's level between the two records explains, "
+                 "its conditional gain what it adds over the model as it is."
+                 if any(c.scope != "record" for c in diag.candidates) else "") + "</p>", cand]
     parts += [f'<p class="note">{_e(n)}</p>' for n in quiet]
     if change is not None and diag.top is None:
-        parts.append(_html_img(change, f"Held-out residual of the model (cross-validated base) and with "
-                                       f"{first.effect} added: before and after, over time and as spectra"))
+        parts.append(_html_img(change, _change_caption(first)))
     parts.append("</details>")
     if figs is not None:
         parts += ["<details><summary>Where the model fails: residual over time, by position, velocity and frequency, "
@@ -198,6 +205,14 @@ def diagnosis_html(diag, figs=None, change=None, first=None, *, level=2, syntax=
                                                  "R² by reflex drive"], rows, left=(0, 1, 2)) + "</div>",
                   "</details>"]
     return "\n".join(parts)
+
+
+def _change_caption(first) -> str:
+    if first.scope != "record":
+        return (f"Residual of the model as it is and with {first.effect} added (fitted on the identification "
+                f"record, scored on this one): before and after, over time and as spectra")
+    return (f"Held-out residual of the model (cross-validated base) and with {first.effect} added: before and "
+            f"after, over time and as spectra")
 
 
 def _write_html(diag, path, title, figs, change, first, syntax="cli"):
