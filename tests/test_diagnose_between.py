@@ -91,3 +91,15 @@ def test_refit_settings_refit_the_same_model(drifting):
     again = lpvpc.LPVPCEstimator(**st, effects=eff).fit(pairs["multilevel"]).model_
     rho = np.linspace(*model.scheduling_range, 5)
     assert np.allclose(again.elastic_stiffness(rho), model.elastic_stiffness(rho), rtol=1e-4)  # the poles refined again from their start
+
+
+def test_a_reference_that_is_not_the_models_record_is_refused(drifting):
+    """A reference at another rate, or not a record at all: one clear error naming it."""
+    from lpvpc.errors import DataError
+
+    _, sims, pairs, model = drifting
+    slow = lpvpc.pair_trials(sims["multilevel"].pt, sims["multilevel"].ut, target_fs=50.0)
+    with pytest.raises(DataError, match="reference record"):
+        lpvpc.diagnose(model, pairs["novel"], reference=slow)
+    with pytest.raises(TypeError, match="reference must be the identification record"):
+        lpvpc.diagnose(model, pairs["novel"], reference="ident_PT.csv")

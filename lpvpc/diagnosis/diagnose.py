@@ -407,7 +407,9 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
     Raises
     ------
     lpvpc.errors.DataError
-        Data at another rate than the model's, or joined trials.
+        Data (or ``reference``) at another rate than the model's, or joined trials.
+    TypeError
+        A ``reference`` that is not a record.
     lpvpc.errors.InsufficientExcitationError
         A record shorter than ``MIN_RECORD_S`` or mostly outside the identified range.
     ValueError
@@ -437,6 +439,12 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
 
         raise DataError(f"the diagnosis takes one trial; got {len(data.segments)} joined trials",
                         source=getattr(data, "source", None) or None)
+    if reference is not None:  # the identification record: a record at the model's rate
+        if not hasattr(reference, "torque") or not hasattr(reference, "fs"):
+            raise TypeError(f"reference must be the identification record (lpvpc.io.PerturbationData, e.g. from "
+                            f"lpvpc.load_identification_data), not {type(reference).__name__}")
+        check_model_rate(reference.fs, model.fs, what="reference record", source=getattr(reference, "source", None),
+                         tolerance=1e-6)
     # the EMG's reflex bursts explained by this model's own reflex drive (not the measured velocity)
     data = with_model_activation(data, model)
     cov = check_record(model, data)
