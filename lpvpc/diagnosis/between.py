@@ -90,7 +90,7 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
 
     Returns
     -------
-    list of CandidateResult
+    list of lpvpc.diagnosis.candidates.CandidateResult
         ``scope`` "between records", ``vaf_gain`` the held-out VAF gain (pp) of the level's
         change, ``conditional_gain`` the fit's gain over ``model`` on ``data``, ``p_value``
         the paired test of the level's two residuals (:func:`lpvpc.diagnosis.cv.robust_paired_test`);
