@@ -76,3 +76,19 @@ def test_little_reflex_excitation_is_not_determined(weak):
     assert not out["determined"], out
     truth = _true_slope(params, out["rho"])
     assert out["lower"] <= truth <= out["upper"], (out, truth)  # wide, and still honest
+
+
+def test_the_summary_prints_the_slope_and_says_when_its_size_is_not_determined(normal, weak):
+    """What `lpvpc identify` and ``model.summary()`` print: the library's slope and interval,
+    and "not determined" exactly when the library says so."""
+    from lpvpc.models.summary import physiology_lines
+    from lpvpc.models.uncertainty import NOT_DETERMINED
+
+    for model, _ in (normal, weak):
+        sl = reflex_gain_slope(model)
+        line = [ln for ln in physiology_lines(model) if ln.startswith("gain slope:")]
+        assert len(line) == 1, physiology_lines(model)
+        assert f"{sl['slope']:+.1f} N m s/rad per rad" in line[0]
+        assert f"{sl['lower']:+.1f}..{sl['upper']:+.1f}" in line[0]
+        assert (NOT_DETERMINED in line[0]) == (not sl["determined"])
+        assert line[0] in str(model.summary())

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .uncertainty import NOT_DETERMINED
+from .uncertainty import NOT_DETERMINED, SLOPE_TOLERANCE
 
 __all__ = ["ModelSummary"]
 
@@ -225,9 +225,32 @@ def physiology_lines(model) -> list:
         f"stiffness:   K(theta) {at(K, rho)} N m/rad",
         f"viscosity:   {viscosity}",
         f"reflex gain: {reflex}",
+    ] + gain_slope_lines(model) + [
         f"orders:      IRF lags {model.lags[0]}..{model.lags[-1]}, basis orders in position {s.get('intrinsic_order')} "
         f"(intrinsic), {s.get('reflex_order')} (reflex), velocity {s.get('velocity_order')}",
     ]
+
+
+def gain_slope_lines(model, level=0.95) -> list:
+    """The reflex gain's change with position (:func:`lpvpc.models.uncertainty.reflex_gain_slope`)
+    as one line, its interval always given: the two ends the ``reflex gain`` line prints
+    suggest a slope, and the data often bound its sign but not its size. Empty for a model of
+    one operating position or without intervals.
+
+    >>> from lpvpc import identify, pair_trials
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> gain_slope_lines(identify(pair_trials(sim.pt, sim.ut)))[0].startswith("gain slope:  ")
+    True
+    """
+    from .uncertainty import reflex_gain_slope
+
+    if len(summary_positions(model)) < 2 or not model.has_intervals:
+        return []
+    sl = reflex_gain_slope(model, level)
+    text = (f"gain slope:  {sl['slope']:+.1f} N m s/rad per rad over position ({100 * level:g} % interval "
+            f"{sl['lower']:+.1f}..{sl['upper']:+.1f})")
+    return [text if sl["determined"] else f"{text}: its size {NOT_DETERMINED} to within {100 * SLOPE_TOLERANCE:g} %"]
 
 
 def physiology_table_html(model, level=0.95) -> str:
