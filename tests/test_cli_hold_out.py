@@ -66,6 +66,23 @@ def test_diagnose_takes_the_stretch_the_model_recorded(record, capsys):
     d = json.loads(out_json.read_text())
     assert d["n_samples"] == record["held"].n and d["data"].endswith("[5600:8000]")
     assert d["vaf"] == pytest.approx(record["vaf"], abs=1e-3)  # (the file keeps 3 decimals)
+    # the earlier stretch is the model's identification record (its data hash): given as the
+    # reference, as in Python diagnose(model, held, reference=ident)
+    assert "reference: the rest of the record, which the model was identified on" in out
+    assert d["settings"]["reference"]
+    py = lpvpc.diagnose(record["model"], record["held"], reference=record["ident"])
+    assert [c["effect"] for c in d["candidates"]] == [c.effect for c in py.candidates]
+    assert d["surrogate_cv_vaf"] == pytest.approx(py.surrogate_vaf, abs=1e-3)
+    # a model identified elsewhere: the earlier stretch is not its record, so no reference
+    other = record["folder"] / "other.json"
+    assert main(["-q", "identify", "--pt", str(record["pt"]), "--ut", str(record["ut"]), "--hold-out", "0.3",
+                 "--structure", "fixed", "--irf-length", "0.03", "-o", str(other)]) == 0
+    m = LPVPCModel.load(other)
+    m.provenance["data_hash"] = "0" * 64
+    m.save(other)
+    status, out, err = _cli(["-q", "diagnose", other, "--pt", record["pt"], "--ut", record["ut"], "--hold-out"],
+                            capsys)
+    assert status == 0 and "reference:" not in out, out
 
 
 def test_validate_on_the_held_out_stretch(record, capsys):

@@ -22,18 +22,26 @@ def run(args) -> int:
     model = LPVPCModel.load(args.model)
     held_out = None if args.hold_out is None else _held_out_for_model(args, model)
     data = _load_for_model(args, model)
+    reference = None
     if held_out is not None:  # the held-out record: a later stretch of the one record given
         from ..io import hold_out
 
-        data = hold_out(data, held_out)[1]
+        earlier, data = hold_out(data, held_out)
+        if earlier.data_hash == (model.provenance or {}).get("data_hash"):
+            # the stretch the model was identified on (its hash): the effects whose signal can
+            # differ between the two stretches are tried between them too, as improve does
+            reference = earlier
     progress(f"diagnose: fitting and scoring every candidate of the catalog by cross-validation on {data.n} "
              f"samples")
-    diag = diagnose(model, data)
+    diag = diagnose(model, data, reference=reference)
     print(f"data:      {data.n} samples at {data.fs:g} Hz ({data.source})")
     if held_out is not None:
         part = data.meta["part"]
         print(f"held out:  {part['start_s']:.1f}..{part['stop_s']:.1f} s of the {part['record_s']:.1f} s record "
               f"(--hold-out {_hold_out_text(held_out)})")
+        if reference is not None:
+            print("reference: the rest of the record, which the model was identified on (its data hash): effects "
+                  "whose signal can differ between the two stretches are tried between them too")
     print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
     print(format_table(diag))
     print(f"answer:    {diag.answer()}")
