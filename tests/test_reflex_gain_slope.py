@@ -92,3 +92,17 @@ def test_the_summary_prints_the_slope_and_says_when_its_size_is_not_determined(n
         assert f"{sl['lower']:+.1f}..{sl['upper']:+.1f}" in line[0]
         assert (NOT_DETERMINED in line[0]) == (not sl["determined"])
         assert line[0] in str(model.summary())
+
+
+def test_the_reports_physiology_table_carries_the_slope(normal):
+    """The validation, diagnosis and improve reports open with the physiology table; the slope
+    line `lpvpc identify` prints sits under it."""
+    from html import escape
+
+    from lpvpc.models.summary import gain_slope_lines, physiology_table_html
+    from lpvpc.validation.report import _physiology_parts
+
+    model, _ = normal
+    text = escape(gain_slope_lines(model)[0].split(":", 1)[1].strip())
+    assert f"Reflex gain slope: {text}" in physiology_table_html(model)
+    assert f"Reflex gain slope: {text}" in _physiology_parts(model)[0]

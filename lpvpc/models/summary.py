@@ -284,4 +284,20 @@ def physiology_table_html(model, level=0.95) -> str:
              cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
     head = ["position (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)", "reflex gain (N m s/rad)",
             "reflex threshold (rad/s)"]
-    return table(head, rows)
+    return table(head, rows) + gain_slope_html(model, level)
+
+
+def gain_slope_html(model, level=0.95) -> str:
+    """:func:`gain_slope_lines` as a small paragraph under a report's physiology table (empty
+    when there is no line).
+
+    >>> from lpvpc import identify, pair_trials
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> gain_slope_html(identify(pair_trials(sim.pt, sim.ut))).startswith('<p class="small">Reflex gain slope:')
+    True
+    """
+    from html import escape
+
+    lines = gain_slope_lines(model, level)
+    return "".join(f'<p class="small">Reflex gain slope: {escape(ln.split(":", 1)[1].strip())}</p>' for ln in lines)

@@ -426,7 +426,9 @@ def _physiology_parts(model, level=0.95) -> tuple:
                  "relaxed stiffness remains. The short-range stiffness trades with that time, which a record hardly "
                  "determines" + ("; its interval counts the neighbouring times." if chosen else
                                  ": with an effect asked for, the interval does not count that."))
-    return _table(head, rows), f"<p class=\"small\">{note}</p>"
+    from lpvpc.models.summary import gain_slope_html
+
+    return _table(head, rows) + gain_slope_html(model, level), f"<p class=\"small\">{note}</p>"
 
 
 def _relaxed_stiffness(model, rho):
