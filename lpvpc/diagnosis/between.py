@@ -91,14 +91,16 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
     Returns
     -------
     list of lpvpc.diagnosis.candidates.CandidateResult
-        ``scope`` "between records", ``vaf_gain`` the held-out VAF gain (pp) of the level's
+        One per catalog effect whose signal both records carry (none without it): ``scope``
+        "between records", ``vaf_gain`` the held-out VAF gain (pp) of the level's
         change, ``conditional_gain`` the fit's gain over ``model`` on ``data``, ``p_value``
         the paired test of the level's two residuals (:func:`lpvpc.diagnosis.cv.robust_paired_test`);
         ``significant`` is left for the caller, who knows the Bonferroni level.
 
     Examples
     --------
-    A record whose trials carry no EMG has no activation to carry between records:
+    A record whose trials carry no EMG has no activation to carry between records, so no
+    candidate:
 
     >>> import dataclasses
     >>> from lpvpc import identify, pair_trials
@@ -107,9 +109,8 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
     >>> data = pair_trials(sim.pt, sim.ut)
     >>> model = identify(data)
     >>> bare = dataclasses.replace(data, extra={})
-    >>> [c.available for c in between_record_candidates(model, bare, bare, model.predict(bare).total,
-    ...                                                 transfer_gap=1.0)]
-    [False, False]
+    >>> between_record_candidates(model, bare, bare, model.predict(bare).total, transfer_gap=1.0)
+    []
     """
     from ..identification.identify import LPVPCEstimator
 
@@ -128,12 +129,10 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
     out = []
     for name in names:
         e = CATALOG[name]
+        if any(s not in sig or s not in have for s in e.signals):
+            continue  # a record without the signal: nothing to carry between them (its within-record entry says so)
         res = CandidateResult(name, "effect", e.pathway, e.explanation, signals=tuple(e.signals), scope=SCOPE)
         out.append(res)
-        missing = [s for s in e.signals if s not in sig or s not in have]
-        if missing:
-            res.available, res.reason = False, f"needs channel(s) {', '.join(missing)} in both records"
-            continue
         try:
             fitted = LPVPCEstimator(**st, effects=eff + (name,)).fit(ref).model_
         except LpvpcError as exc:
