@@ -43,7 +43,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from .errors import LpvpcError, OutOfRangeWarning, UnitWarning  # noqa: E402
+from .errors import LpvpcError, LpvpcWarning, OutOfRangeWarning, UnitWarning  # noqa: E402
 
 N_TABLE_POSITIONS = 7
 CENTRAL_FRACTION = 0.8
@@ -365,8 +365,8 @@ def _validate(outdir, paths, fmu_path, v_ceiling):
 
 def main(argv=None) -> int:
     """The command line ``python -m lpvpc.demo [OUTDIR]`` (what ``make demo`` runs): the
-    steps of :func:`run` into OUTDIR (default demo_out), the model's out-of-range and unit
-    warnings printed as lines; returns the exit status (an error: one line on stderr).
+    steps of :func:`run` into OUTDIR (default demo_out), the package's warnings printed as
+    lines; returns the exit status (an error: one line on stderr).
 
     >>> try:  # doctest: +ELLIPSIS
     ...     main(["--help"])
@@ -388,7 +388,7 @@ def main(argv=None) -> int:
             original = warnings.showwarning
 
             def show(message, category, *rest, **kw):
-                if issubclass(category, (OutOfRangeWarning, UnitWarning)):
+                if issubclass(category, LpvpcWarning):  # the package's notes: a line, not a source line
                     print(f"warning: {message}", flush=True)
                 else:
                     original(message, category, *rest, **kw)
