@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .candidates import CandidateResult, passes
+from .candidates import CandidateResult, _passes
 from .cv import robust_paired_test
 from ..errors import LpvpcError
 from ..models.effects import CATALOG, signals_from_data, with_model_activation
@@ -159,9 +159,9 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
 
 def merge(results, between, *, min_gain, level) -> list:
     """The within-record ranking ``results`` with the between-record candidates ``between``
-    judged at ``level`` (:func:`lpvpc.diagnosis.candidates.passes`) and put in: a significant
-    one before the first within-record candidate that is not significant or gains less, the
-    others after every available candidate that gains more.
+    judged at ``level`` as the within-record ones are (:func:`lpvpc.diagnosis.candidates.passes`)
+    and put in: a significant one before the first within-record candidate that is not
+    significant or gains less, the others after every available candidate that gains more.
 
     >>> a = CandidateResult("a", "effect", "intrinsic", "", vaf_gain=0.5, p_value=1e-6, significant=True)
     >>> b = CandidateResult("b", "effect", "intrinsic", "", vaf_gain=2.0, p_value=1e-6, scope=SCOPE)
@@ -170,8 +170,7 @@ def merge(results, between, *, min_gain, level) -> list:
     """
     out = list(results)
     for r in sorted(between, key=lambda r: -(r.vaf_gain if np.isfinite(r.vaf_gain) else -1e9)):
-        r.significant = bool(r.available and not r.reason and passes(r.vaf_gain, r.p_value, min_gain, level,
-                                                                          p_mean=r.p_mean))
+        r.significant = bool(r.available and not r.reason and _passes(r, r.vaf_gain, min_gain, level))
         if r.significant:
             i = next((k for k, c in enumerate(out) if not c.significant or c.vaf_gain < r.vaf_gain), len(out))
         else:

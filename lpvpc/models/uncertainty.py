@@ -855,22 +855,12 @@ THRESHOLD_UNDETERMINED_FRACTION = 2 / 3
 NOT_DETERMINED = "not determined by these data"
 
 
-def _knee_softness_bound(model, rho):
-    """Bound (N m s/rad) on the gain bias of a rectifier seen on smoothed (model-rate)
-    velocity: the gain of the rectifier fit minus the slope of the nonlinearity over the
-    top half of the fitted velocity range, where smoothing the knee no longer reaches. A
-    true half-wave rectifier has both equal; the smoothed one's knee fit lowers the gain in
-    plantarflexion and raises it in dorsiflexion (benchmarks/results/uncertainty.txt)."""
-    v, v_top = model.rectifier_velocity_grid()
-    f = model.reflex_nonlinearity(v, rho)
-    top = v >= 0.5 * v_top
-    X = np.column_stack([v[top], np.ones(int(top.sum()))])
-    return np.abs(_knee_softness_shift(model, rho))
-
-
 def _knee_softness_shift(model, rho):
-    """Signed gain shifts (N m s/rad) whose sizes ``_knee_softness_bound`` gives: the slope of
-    the nonlinearity over the top half of the fitted velocity range minus the rectifier fit's gain."""
+    """Signed gain shift (N m s/rad) of a rectifier seen on smoothed (model-rate) velocity,
+    whose size bounds its gain bias: the slope of the nonlinearity over the top half of the
+    fitted velocity range, where smoothing the knee no longer reaches, minus the rectifier
+    fit's gain. A true half-wave rectifier has both equal; the smoothed one's knee fit lowers
+    the gain in plantarflexion and raises it in dorsiflexion (benchmarks/results/uncertainty.txt)."""
     v, v_top = model.rectifier_velocity_grid()
     f = model.reflex_nonlinearity(v, rho)
     top = v >= 0.5 * v_top
@@ -1169,7 +1159,7 @@ def reflex_interval(model, rho, level: float = 0.95):
     On a model whose nonlinearity saw velocity below ``RECTIFIER_MIN_FS`` (model rate,
     ``Interval.biased``) the ~20 ms reflex-evoking pulses are smoothed: the threshold is
     not observable (its interval is the whole fitted range, so "not determined"), and the
-    gain's interval is widened for ``_knee_softness_bound``.
+    gain's interval is widened for the knee's softness (``_knee_softness_shift``).
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -1211,7 +1201,8 @@ def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
     bound = [np.abs(x) for x in curv]  # |bias| <= bound, either sign
     structural = _structural_shifts(model, rho, 0)
     shifts = [curv[0]]
-    bound[0] = bound[0] + reflex_structural_shift(model, rho)
+    if len(structural):  # reflex_structural_shift: the largest in size
+        bound[0] = bound[0] + np.max(np.abs(structural), axis=0)
     shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth between 0 and shift
     rounding = (np.zeros(len(rho)), np.zeros(len(rho)))
     biased = model.reflex_threshold_biased
@@ -1300,8 +1291,6 @@ def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> di
 SLOPE_TOLERANCE = 0.2
 #: Share of the identified range (centred) over which the gain slope is the least-squares line.
 SLOPE_CENTRAL = 0.8
-
-
 #: Threshold values per anchor position of the smooth threshold profiles over which
 #: ``_slope_rounding_range`` takes the knee rounding's effect on the gain slope.
 N_SLOPE_PROFILES = 12
@@ -1344,6 +1333,7 @@ def _slope_rounding_range(model, rho, w, parts, n: int = N_SLOPE_PROFILES):
     slopes = bias @ w
     return float(slopes.min()), float(slopes.max())
 
+
 def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, tolerance: float = SLOPE_TOLERANCE) -> dict:
     """The reflex gain's change with position: the slope (N m s/rad per rad) of the
     least-squares line of the gain over ``n_positions`` positions evenly over the central
@@ -1358,16 +1348,17 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
     - biases of the reading that :func:`reflex_interval` bounds by an alternative reading
       (the elastic curvature fitted freely, :func:`reflex_bias_bound`; the reflex structures
       the selection could not exclude, :func:`reflex_structural_shift`; on model-rate
-      velocity the knee's softness, ``_knee_softness_bound``; in files without a measured
+      velocity the knee's softness, ``_knee_softness_shift``; in files without a measured
       knee rounding the velocity basis's shift at the estimate): each bounds the slope's
       bias by the size of the same alternative's slope, w applied to its signed shifts. A
       bias that scales the gain alike at every position moves the slope by the same factor,
       and the alternative's slope carries exactly that; one that changes sign along the
       range moves the slope more than any single position's bound suggests, and so does it;
     - the knee rounding measured through the record's regressors (1 kHz path,
-      :func:`knee_rounding`): its bias range at each position depends on the true threshold
-      there, which the data give only as an interval, so the slope's range is the widest w
-      allows over those per-position ranges (lowest and highest ends taken by the sign of w).
+      :func:`knee_rounding`): its bias at each position depends on the true threshold there,
+      which the data give only as an interval; the slope's bias range is taken over smooth
+      (quadratic) threshold profiles inside those intervals (``_slope_rounding_range``; the
+      per-position extremes combined where no profile fits).
 
     The noise interval is widened for the bias range with :func:`bias_aware_critical_value`,
     as the per-position gains are, and holds the reported (knee-corrected) slope.
@@ -1433,6 +1424,7 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
             "biased": bool(model.reflex_threshold_biased),
             "rule": (f"determined when the {level:.0%} interval excludes 0 and the estimate is within "
                      f"{tolerance:.0%} of every slope inside it; else {NOT_DETERMINED}")}
+
 
 def nonlinearity_band(model, velocity, rho, level: float = 0.95):
     """Pointwise band (lower, upper) of the scaled reflex nonlinearity (N m), shape
