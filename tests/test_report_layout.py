@@ -136,6 +136,22 @@ def test_report_positions_are_the_command_lines(reports, kind):
     assert in_report == pytest.approx(summary_positions(model), abs=5e-4)
 
 
+def test_every_report_shows_the_one_physiology_table(reports):
+    """The validation and diagnosis reports of one model open with the same physiology table,
+    and the improve report folds the same table of its final model: one builder
+    (:func:`lpvpc.models.summary.physiology_table_html`), so a value reads the same in each."""
+    from lpvpc.models.summary import physiology_table_html
+
+    def first_table(html):
+        return re.search(r"<table>.*?</table>", html, re.S).group(0)
+
+    validate, diagnose = first_table(_answer(reports["validate"])), first_table(_answer(reports["diagnose"]))
+    assert validate == diagnose
+    assert physiology_table_html(reports["model"]) in reports["validate"]
+    final = LPVPCModel.load(reports["root"] / "final.json")
+    assert physiology_table_html(final) in reports["improve"]
+
+
 def test_improve_positions_are_the_command_lines(reports):
     printed = _identify_positions(reports["identify_out"])
     assert "at " + ", ".join(f"{x:+.3f}" for x in printed) + " rad" in _words(_answer(reports["improve"]))

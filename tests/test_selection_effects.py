@@ -173,6 +173,21 @@ def test_validation_report_table_shows_both_stiffnesses(relaxation_run):
     assert f"{SHORT_RANGE_LABEL}, K (N m/rad)" in html and f"{RELAXED_LABEL} (N m/rad)" in html
 
 
+def test_diagnosis_report_table_is_the_validation_reports(relaxation_run, tmp_path):
+    """The diagnosis report of a model with stress relaxation opens with the validation
+    report's physiology table, both stiffnesses included (the two reports once built it each
+    their own way, and only the validation report's had the relaxed stiffness)."""
+    from lpvpc.validation.report import _physiology_parts
+
+    path = relaxation_run[0]
+    sim = path.parent / "sim"
+    assert main(["diagnose", str(path), "--pt", str(sim / "novel_PT.csv"), "--ut", str(sim / "novel_UT.csv"),
+                 "--report", str(tmp_path / "diagnosis"), "-q"]) == 0
+    table = _physiology_parts(LPVPCModel.load(path))[0]
+    assert f"{RELAXED_LABEL} (N m/rad)" in table
+    assert table in (tmp_path / "diagnosis" / "report.html").read_text()
+
+
 def test_not_chosen_on_a_clean_record():
     sim = simulate_pair("multilevel", seed=SEED, duration=120.0, fs_out=100.0)
     model = _quiet_identify(pair_trials(sim.pt, sim.ut))

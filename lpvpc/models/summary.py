@@ -4,6 +4,9 @@ with "not determined" where the data do not determine them), the structure chose
 cross-validation, and both stiffnesses of a model with stress relaxation.
 
 ``lpvpc identify`` prints these lines; :meth:`lpvpc.LPVPCModel.summary <lpvpc.models.model.LPVPCModel.summary>` returns them.
+The physiology table the validation, diagnosis and improve reports open with is built here
+too (``physiology_table_html``), once for all three, so that a value reads the same in each
+report and as the command line prints it.
 """
 
 from __future__ import annotations
@@ -254,12 +257,38 @@ def gain_slope_lines(model, level=0.95) -> list:
 
 
 def physiology_table_html(model, level=0.95) -> str:
-    """An HTML table of the elastic stiffness K, viscosity, reflex gain and threshold at the
-    positions the command line prints (:func:`summary_positions`), with their ``level``
-    intervals in brackets when the model carries them and "not determined by these data"
-    where an interval spans most of the plausible range: the answer's table in the
-    validation, diagnosis and improve reports."""
+    """The physiology table every report opens with: elastic stiffness K, viscosity B,
+    reflex gain and threshold at the positions the command line prints.
+
+    The one builder of the table in the validation, diagnosis and improve reports, so that a
+    value reads the same in each of them and as ``lpvpc identify`` prints it
+    (:func:`summary_positions`).
+
+    Parameters
+    ----------
+    model : lpvpc.LPVPCModel
+        The fitted model.
+    level : float
+        Confidence level of the intervals in brackets.
+
+    Returns
+    -------
+    str
+        HTML: the table, then the gain slope line (:func:`gain_slope_html`).
+
+    Notes
+    -----
+    Each value has its ``level`` interval in brackets when the model carries intervals. A
+    value whose interval spans most of its plausible range reads "not determined by these
+    data"; for the reflex gain and threshold that is also the rule of
+    :meth:`lpvpc.LPVPCModel.reflex_determined <lpvpc.models.model.LPVPCModel.reflex_determined>`,
+    which the summary lines and the figures follow, so no report quotes a gain another
+    calls undetermined. A model with stress relaxation has two elastic stiffnesses: the K
+    column is then the short-range one and a relaxed-stiffness column follows it
+    (:func:`relaxed_stiffness_cells`).
+    """
     from ..report_html import table
+    from .effects import RELAXED_LABEL, SHORT_RANGE_LABEL
 
     rho = summary_positions(model)
     K, B = model.elastic_stiffness(rho), model.viscosity(rho)
@@ -284,7 +313,46 @@ def physiology_table_html(model, level=0.95) -> str:
              cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
     head = ["position (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)", "reflex gain (N m s/rad)",
             "reflex threshold (rad/s)"]
+    if has_relaxed_stiffness(model):  # both stiffnesses, each labelled as the summary's lines are
+        head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
+        for row, relaxed in zip(rows, relaxed_stiffness_cells(model, rho, level)):
+            row.insert(2, relaxed)
     return table(head, rows) + gain_slope_html(model, level)
+
+
+def has_relaxed_stiffness(model) -> bool:
+    """Whether ``model`` has stress relaxation, hence a relaxed stiffness besides the
+    short-range one (the physiology table's extra column, the reports' note on it)."""
+    return any(fe.name == "stress_relaxation" for fe in getattr(model, "effects", None) or ())
+
+
+def relaxed_stiffness_cells(model, rho, level=0.95) -> list:
+    """The relaxed-stiffness column of :func:`physiology_table_html`: one HTML cell per
+    position ``rho`` (rad) of a model with stress relaxation.
+
+    Each cell is the relaxed stiffness (:func:`lpvpc.models.effects.relaxation_stiffnesses`),
+    with its ``level`` interval in brackets when the model carries intervals and stress
+    relaxation is its one effect (:func:`lpvpc.models.uncertainty.relaxed_stiffness_interval`;
+    beside another effect there is none). Outside (0, short-range] the value is the slow
+    averages extrapolated beyond the record's holds, the rule of the model file's
+    ``fit.stiffness`` entry (:func:`lpvpc.models.effects.relaxation_stiffness_entry`): it is
+    shown, marked not determined by these data, as the summary line shows it.
+    """
+    from .effects import relaxation_stiffnesses
+    from .uncertainty import relaxed_stiffness_interval
+
+    short, relaxed = relaxation_stiffnesses(model, rho)
+    band = None
+    if model.has_intervals:
+        try:
+            band = relaxed_stiffness_interval(model, rho, level)[1:]
+        except ValueError:  # another effect beside stress relaxation: no interval for it
+            band = None
+    cells = []
+    for i, (k, s) in enumerate(zip(relaxed, short)):
+        ci_k = "" if band is None else f" <span class=\"small\">({band[0][i]:.1f}–{band[1][i]:.1f})</span>"
+        cells.append(f"{k:.1f}{ci_k}" if 0.0 < k <= s else f"{k:.1f} <em>({NOT_DETERMINED})</em>")
+    return cells
 
 
 def gain_slope_html(model, level=0.95) -> str:

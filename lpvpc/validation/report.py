@@ -27,6 +27,7 @@ from lpvpc.report_html import new_figure as _fig
 from lpvpc.report_html import num as _num
 from lpvpc.report_html import save_figure as _save
 from lpvpc.report_html import table as _table
+from lpvpc.models.summary import has_relaxed_stiffness, physiology_table_html, summary_positions
 from lpvpc.models.uncertainty import NOT_DETERMINED
 
 __all__ = ["write_report", "write_metrics", "FIGURES"]
@@ -186,7 +187,7 @@ def _draw_figures(folder: Path, m: dict, model, record, pred) -> dict:
 
     # the answer: K and the reflex gain over position, each on its own axis
     fig = _fig(9, 2.9)
-    plotting.plot_stiffness_and_reflex(model, fig.subplots(1, 2), marks=_table_positions(model))
+    plotting.plot_stiffness_and_reflex(model, fig.subplots(1, 2), marks=summary_positions(model))
     _save(fig, out("answer.png"))
 
     # Figs. 4 and 5
@@ -331,14 +332,6 @@ window.addEventListener('load', function () {
 """
 
 
-def _table_positions(model):
-    """The positions (rad) of the physiology table: the ones ``lpvpc identify`` prints
-    (:func:`lpvpc.models.summary.summary_positions`), so that the two can be compared."""
-    from lpvpc.models.summary import summary_positions
-
-    return summary_positions(model)
-
-
 def _physiology_sentence(model) -> str:
     rho = np.array(model.scheduling_range)
     K = model.elastic_stiffness(rho)
@@ -365,44 +358,10 @@ def _physiology_table(model, level=0.95) -> str:
 
 def _physiology_parts(model, level=0.95) -> tuple:
     """(table HTML, note HTML) of :func:`_physiology_table`: the table opens the report, the
-    note is folded."""
-    rho = _table_positions(model)
-    K, B = model.elastic_stiffness(rho), model.viscosity(rho)
-    G, th = model.reflex_gain_threshold(rho)
-    has = model.has_intervals
-    if has:
-        ci = {"K": model.elastic_stiffness_interval(rho, level), "B": model.viscosity_interval(rho, level),
-              "G": model.reflex_gain_interval(rho, level), "th": model.reflex_threshold_interval(rho, level)}
-
-    def cell(key, est, i, fmt):
-        if not has:
-            return fmt.format(est[i])
-        if not ci[key].determined[i]:  # the interval spans most of the plausible range (lpvpc.models.uncertainty)
-            return f"<em>{NOT_DETERMINED}</em>"
-        lo, hi = ci[key][0][i], ci[key][1][i]
-        return f"{fmt.format(est[i])} <span class=\"small\">({fmt.format(lo)}–{fmt.format(hi)})</span>"
-
-    rows = [[f"{r:+.3f} ({np.degrees(r):+.0f}°)", cell("K", K, i, "{:.1f}"), cell("B", B, i, "{:.2f}"),
-             cell("G", G, i, "{:.2f}"), cell("th", th, i, "{:.2f}")] for i, r in enumerate(rho)]
-    head = ["position (rad)", "elastic stiffness K (N m/rad)", "viscosity B (N m s/rad)",
-            "reflex gain (N m s/rad)", "reflex threshold (rad/s)"]
-    relaxed = _relaxed_stiffness(model, rho)
-    if relaxed is not None:  # stress relaxation chosen: both stiffnesses, each labelled
-        from lpvpc.models.effects import RELAXED_LABEL, SHORT_RANGE_LABEL
-
-        head[1:2] = [f"{SHORT_RANGE_LABEL}, K (N m/rad)", f"{RELAXED_LABEL} (N m/rad)"]
-        band = None
-        if has:  # lpvpc.models.uncertainty.relaxed_stiffness_interval: stress relaxation the model's one effect
-            from lpvpc.models.uncertainty import relaxed_stiffness_interval
-
-            try:
-                band = relaxed_stiffness_interval(model, rho, level)[1:]
-            except ValueError:
-                band = None
-        for i, (row, k, short) in enumerate(zip(rows, relaxed, K)):
-            ci_k = "" if band is None else f" <span class=\"small\">({band[0][i]:.1f}–{band[1][i]:.1f})</span>"
-            row.insert(2, f"{k:.1f}{ci_k}" if 0.0 < k <= short else f"{k:.1f} <em>(not determined by these data)</em>")
-    if has:
+    note is folded. The table is the one the diagnosis and improve reports show
+    (:func:`lpvpc.models.summary.physiology_table_html`); the note is this report's text on it
+    (what the brackets mean, the VAF interval, the reflex's bias, the stress relaxation)."""
+    if model.has_intervals:
         v_lo, v_hi = model.vaf_interval()
         note = (f"In brackets: {level:.0%} confidence intervals (<a href=\"#glossary\">glossary</a>); "
                 f"a value whose interval spans most of its plausible range reads \"{NOT_DETERMINED}\". "
@@ -414,7 +373,7 @@ def _physiology_parts(model, level=0.95) -> tuple:
                 f"short-range stiffness's.")
     else:
         note = _no_intervals_note(model)
-    if relaxed is not None:
+    if has_relaxed_stiffness(model):
         chosen = "stress_relaxation" in (((model.fit or {}).get("structure_selection") or {}).get("effects")
                                          or {}).get("chosen", ())
         from lpvpc.models.effects import model_relaxation_times
@@ -426,19 +385,7 @@ def _physiology_parts(model, level=0.95) -> tuple:
                  "relaxed stiffness remains. The short-range stiffness trades with that time, which a record hardly "
                  "determines" + ("; its interval counts the neighbouring times." if chosen else
                                  ": with an effect asked for, the interval does not count that."))
-    from lpvpc.models.summary import gain_slope_html
-
-    return _table(head, rows) + gain_slope_html(model, level), f"<p class=\"small\">{note}</p>"
-
-
-def _relaxed_stiffness(model, rho):
-    """The relaxed (steady-state) stiffness (N m/rad) at ``rho`` of a model with stress
-    relaxation, else None."""
-    if not any(fe.name == "stress_relaxation" for fe in getattr(model, "effects", None) or ()):
-        return None
-    from lpvpc.models.effects import relaxation_stiffnesses
-
-    return relaxation_stiffnesses(model, rho)[1]
+    return physiology_table_html(model, level), f"<p class=\"small\">{note}</p>"
 
 
 def _no_intervals_note(model) -> str:
