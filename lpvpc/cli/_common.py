@@ -122,7 +122,7 @@ def _load_for_model(args, model):
 
 
 def _second_record_flags(args, option) -> list:
-    """The options of a command's second record (:func:`_second_record`) that were given."""
+    """The options of a command's second record (``_second_record``) that were given."""
     dest = option.replace("-", "_")
     return [f"--{option}{s.replace('_', '-')}" for s in ("", "_pt", "_ut") if getattr(args, dest + s, None)]
 
@@ -132,7 +132,7 @@ def _second_record(args, option, what, n, *, required):
     with --stationary the stationary trial) or ``--OPTION-pt PT<n>`` and ``--OPTION-ut UT<n>``
     (improve's ``--heldout``, the held-out record; diagnose's ``--reference``, the record the
     model was identified on). Returns ``args`` with those files as DATA, --pt and --ut, for
-    the loaders that read the first (:func:`_load_data`, :func:`_load_for_model`: the same
+    the loaders that read the first (``_load_data``, ``_load_for_model``: the same
     --stationary, units and file choices); None when none is given and not ``required``. A
     file and a pair together, or half a pair, are refused in one line; ``what`` names the
     record in those lines ("held-out": "missing the held-out record")."""
