@@ -105,12 +105,17 @@ BASE = {
     "diagnose": {"MODEL": "model.json", "--pt": "PT.csv", "--ut": "UT.csv", "--json": "new.json",
                  "--report": "newrep"},
     "diagnose DATA": {"MODEL": "model.json", "DATA": "D.csv", "--json": "new.json", "--report": "newrep"},
+    "diagnose reference": {"MODEL": "model.json", "--pt": "PT2.csv", "--ut": "UT2.csv", "--reference-pt": "PT.csv",
+                           "--reference-ut": "UT.csv", "--json": "new.json", "--report": "newrep"},
+    "diagnose reference DATA": {"MODEL": "model.json", "DATA": "D2.csv", "--reference": "D.csv",
+                                "--json": "new.json", "--report": "newrep"},
     "improve": {"--pt": "PT.csv", "--ut": "UT.csv", "--heldout-pt": "PT2.csv", "--heldout-ut": "UT2.csv",
                 "--report": "newrep", "--json": "new.json", "-o": "new2.json", "--max-steps": "0"},
     "improve DATA": {"DATA": "D.csv", "--heldout": "D2.csv", "--report": "newrep", "--json": "new.json",
                      "-o": "new2.json", "--max-steps": "0"},
 }
-DATA_OPTIONS = ("DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut")
+DATA_OPTIONS = ("DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut", "--reference", "--reference-pt",
+                "--reference-ut")
 
 
 def _argv(command, values):
@@ -170,7 +175,8 @@ OUTPUTS = {
     "diagnose": [("--json", "file"), ("--report", "folder")],
     "improve": [("-o", "file"), ("--json", "file"), ("--report", "folder")],
 }
-INPUTS = {"MODEL", "DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut", "--fmu", "--actuator-fmu",
+INPUTS = {"MODEL", "DATA", "--pt", "--ut", "--heldout", "--heldout-pt", "--heldout-ut", "--reference",
+          "--reference-pt", "--reference-ut", "--fmu", "--actuator-fmu",
           "--whole-joint"}
 
 
@@ -268,7 +274,7 @@ def test_every_command_declares_its_files():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.choices and "identify" in a.choices)
     assert set(sub.choices) == set(COMMAND_IO)
-    path_like = re.compile(r"\.(json|csv|fmu|casadi|mat)$|^(DIR|PT2?|UT2?|DATA2?|F\.fmu|FILE\..*)$")
+    path_like = re.compile(r"\.(json|csv|fmu|casadi|mat)$|^(DIR|PT[02]?|UT[02]?|DATA[02]?|F\.fmu|FILE\..*)$")
     for name, p in sub.choices.items():
         io = COMMAND_IO[name]
         declared = {*io.inputs.values(), *io.files.values(), *io.folders.values()}

@@ -23,7 +23,8 @@
                    [--coupling iterate|delay] [--no-band-limit-command] [--fmu-variant exact|causal]
                    [--route-tolerance TOL] [--whole-joint whole.json] [--hold-out [FRACTION|START:STOP]]
     lpvpc diagnose model.json (--pt PT.csv --ut UT.csv | DATA.csv) [--json diagnosis.json] [--report DIR]
-                   [--hold-out [FRACTION|START:STOP]]
+                   [--hold-out [FRACTION|START:STOP] | --reference-pt PT0.csv --reference-ut UT0.csv |
+                   --reference DATA0.csv]
     lpvpc improve (--pt PT.csv --ut UT.csv | DATA.csv) (--heldout-pt PT2.csv --heldout-ut UT2.csv |
                   --heldout DATA2.csv | --hold-out FRACTION|START:STOP) --report DIR [--stationary]
                   [--json ladder.json] [--max-steps N] [--effect NAME ...]
@@ -46,7 +47,9 @@ of ours unless ``--force``. SIGTERM takes the Ctrl-C clean-up path (exit 143; Ct
 ``--hold-out`` (identify, validate, diagnose, improve) keeps a later stretch of one record out
 of identification and uses it as the held-out record (:func:`lpvpc.io.hold_out`); identify
 records it in the model file (``fit["hold_out"]``), and a bare ``--hold-out`` in validate and
-diagnose takes that stretch.
+diagnose takes that stretch. ``diagnose --reference`` (or ``--reference-pt``/``--reference-ut``)
+gives the record the model was identified on, as improve has it, to try the effects whose
+signal can differ between records (:func:`lpvpc.diagnosis.diagnose.diagnose`'s ``reference``).
 
 Layout: each command is a module of this package (:mod:`lpvpc.cli.identify`, ...) with
 ``add_parser(sub)``, which registers its options, and ``run(args) -> int``, which checks them,
@@ -93,8 +96,9 @@ COMMAND_IO = {
     "validate": CommandIO(inputs={"MODEL": "model", "DATA": "data", "--pt": "pt", "--ut": "ut", "--fmu": "fmu",
                                   "--actuator-fmu": "actuator_fmu", "--whole-joint": "whole_joint"},
                           folders={"--report": "report"}),
-    "diagnose": CommandIO(inputs={"MODEL": "model", **_DATA}, files={"--json": "json"},
-                          folders={"--report": "report"}),
+    "diagnose": CommandIO(inputs={"MODEL": "model", **_DATA, "--reference": "reference",
+                                  "--reference-pt": "reference_pt", "--reference-ut": "reference_ut"},
+                          files={"--json": "json"}, folders={"--report": "report"}),
     "improve": CommandIO(inputs={**_DATA, "--heldout": "heldout", "--heldout-pt": "heldout_pt",
                                  "--heldout-ut": "heldout_ut"},
                          files={"-o": "output", "--json": "json"}, folders={"--report": "report"}, models=("-o",)),

@@ -110,8 +110,6 @@ def _load_data(args, *, target_fs, position_unit, torque_sign, time_unit=None, c
             raise
         raise DataError(problems, source=exc.source) from None
 
-# (lpvpc.io.outputs.CommandIO) checks these before the command runs. A new command or file
-
 
 def _load_for_model(args, model):
     """Data for a saved model: decimated to its rate, with its units and sign conventions."""
@@ -121,6 +119,38 @@ def _load_for_model(args, model):
     data = _load_data(args, target_fs=model.fs, position_unit=position_unit, torque_sign=torque_sign,
                       time_unit=conv.get("time_unit"), channel_skew=conv.get("channel_skew_s", 0.0))
     return data
+
+
+def _second_record_flags(args, option) -> list:
+    """The options of a command's second record (``_second_record``) that were given."""
+    dest = option.replace("-", "_")
+    return [f"--{option}{s.replace('_', '-')}" for s in ("", "_pt", "_ut") if getattr(args, dest + s, None)]
+
+
+def _second_record(args, option, what, n, *, required):
+    """A command's second record, given as its first is: ``--OPTION DATA<n>`` (a PT - UT file;
+    with --stationary the stationary trial) or ``--OPTION-pt PT<n>`` and ``--OPTION-ut UT<n>``
+    (improve's ``--heldout``, the held-out record; diagnose's ``--reference``, the record the
+    model was identified on). Returns ``args`` with those files as DATA, --pt and --ut, for
+    the loaders that read the first (``_load_data``, ``_load_for_model``: the same
+    --stationary, units and file choices); None when none is given and not ``required``. A
+    file and a pair together, or half a pair, are refused in one line; ``what`` names the
+    record in those lines ("held-out": "missing the held-out record")."""
+    dest = option.replace("-", "_")
+    data, pt, ut = (getattr(args, dest + s, None) for s in ("", "_pt", "_ut"))
+    flag, file, pair = f"--{option}", f"--{option} DATA{n}", f"--{option}-pt PT{n} --{option}-ut UT{n}"
+    if data and (pt or ut):
+        raise _UsageError(f"give either {file} or {flag}-pt and {flag}-ut, not both")
+    if not (data or pt or ut) and not required:
+        return None
+    if not data:
+        if args.stationary and (ut or not pt):
+            raise _UsageError(f"--stationary: give the {what} stationary trial with {flag}-pt PT{n} (or {file}), "
+                              f"without {flag}-ut")
+        if not args.stationary and not (pt and ut):
+            raise _UsageError(f"missing the {what} record: give {pair} (or a PT - UT file with a scheduling column "
+                              f"as {file})")
+    return argparse.Namespace(**{**vars(args), "data": data, "pt": pt, "ut": ut})
 
 
 def check_report_folder(folder, markers, force) -> None:

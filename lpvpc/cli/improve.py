@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 from ..io.outputs import write_text
 from ._common import (
     MODEL_HOLD_OUT, _UsageError, _add_convention_args, _add_data_args, _add_hold_out_arg, _add_quiet_arg,
     _channel_skew, _check_effect_names, _effect_names, _hold_out_text, _hold_out_value, _load_data, _rate,
-    _record_files, check_report_folder, write_report_folder)
+    _record_files, _second_record, _second_record_flags, check_report_folder, write_report_folder)
 
 
 def run(args) -> int:
@@ -21,27 +20,19 @@ def run(args) -> int:
     effects = _check_effect_names(args.effect)
     target_fs = None if args.fs == 0 else args.fs
     check_report_folder(args.report, ("improve.md",), args.force)
-    # the held-out record as the identification record is given: a PT - UT file, a PT/UT pair or a stationary trial
-    if args.heldout and (args.heldout_pt or args.heldout_ut):
-        raise _UsageError("give either --heldout DATA2 or --heldout-pt and --heldout-ut, not both")
     held_out = None
-    if args.hold_out is not None:  # or a later stretch of the one record given
+    if args.hold_out is not None:  # a later stretch of the one record given
         if args.hold_out == MODEL_HOLD_OUT:
             raise _UsageError("improve --hold-out needs FRACTION or START:STOP (without a value it takes a saved "
                               "model's stretch, in validate and diagnose)")
-        if args.heldout or args.heldout_pt or args.heldout_ut:
+        if _second_record_flags(args, "heldout"):
             raise _UsageError("give either --hold-out (a later stretch of the record held out) or a held-out record "
                               "(--heldout, --heldout-pt/--heldout-ut), not both")
         held_out = _hold_out_value(args.hold_out)
         if len(_record_files(args)) > (1 if args.data or args.stationary else 2):
             raise _UsageError("improve --hold-out splits one record: give one DATA file or one --pt/--ut pair")
-    elif not args.heldout:
-        if args.stationary and (args.heldout_ut or not args.heldout_pt):
-            raise _UsageError("--stationary: give the held-out stationary trial with --heldout-pt PT2 (or --heldout "
-                              "DATA2), without --heldout-ut")
-        if not args.stationary and not (args.heldout_pt and args.heldout_ut):
-            raise _UsageError("missing the held-out record: give --heldout-pt PT2 --heldout-ut UT2 (or a PT - UT "
-                              "file with a scheduling column as --heldout DATA2)")
+    # or the held-out record as the identification record is given: a PT - UT file, a PT/UT pair or a stationary trial
+    held_args = _second_record(args, "heldout", "held-out", 2, required=held_out is None)
     units = dict(position_unit=args.position_unit, torque_sign=args.torque_sign, time_unit="s")
     # a late torque channel lined up in both records as identify does (the rig's: found on the identification record)
     ident = _load_data(args, target_fs=target_fs, channel_skew=_channel_skew(args.channel_skew_ms), **units)
@@ -54,8 +45,6 @@ def run(args) -> int:
         print(f"held out:  {a:.1f}..{b:.1f} s of the {held.meta['part']['record_s']:.1f} s record (--hold-out "
               f"{_hold_out_text(held_out)}); identified on 0.0..{a:.1f} s", flush=True)
     else:
-        held_args = argparse.Namespace(**{**vars(args), "data": args.heldout, "pt": args.heldout_pt,
-                                          "ut": args.heldout_ut})
         held = _load_data(held_args, target_fs=ident.fs, channel_skew=skew, **units)
     if skew:
         print(f"skew:      torque channel {skew * 1e3:+.2f} ms behind position, lined up in both records", flush=True)

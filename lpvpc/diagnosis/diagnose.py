@@ -396,7 +396,8 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
         scored on ``data`` against the model (:mod:`lpvpc.diagnosis.between`), when the
         structure refitted on ``data`` explains it better than the model does: an effect that
         stays nearly constant within ``data`` but differs from the identification record is
-        invisible to the within-record candidates.
+        invisible to the within-record candidates. On the command line: ``lpvpc diagnose
+        --reference DATA0`` (or ``--reference-pt PT0 --reference-ut UT0``).
 
     Returns
     -------
