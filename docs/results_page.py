@@ -101,6 +101,7 @@ TABLES = {
     "diagnose_relaxation.txt": ("Why a PRBS design hides stress relaxation",
                                 "python benchmarks/bench_diagnose.py --relaxation-why"),
     "diagnose_speed.txt": ("Diagnosis speed", "python benchmarks/bench_diagnose.py --speed"),
+    "blas_threads.txt": ("Diagnosis in a Python session: BLAS threads", "env -u OPENBLAS_NUM_THREADS python benchmarks/bench_blas_threads.py"),
     "fuzz_model.txt": ("Fuzzing the model-file loader", "python benchmarks/bench_fuzz_model.py"),
     "effect_size.txt": ("Torque each simulated effect carries, per perturbation design",
                         "python benchmarks/bench_effect_size.py 3"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from contextlib import contextmanager
 
@@ -41,6 +42,30 @@ def one_blas_thread():
         return
     with threadpool_limits(limits=1, user_api="blas"):
         yield
+
+
+def on_one_blas_thread(func):
+    """Decorate ``func`` to run inside :func:`one_blas_thread`.
+
+    For the library's long entry points that are many small least-squares fits (the
+    diagnosis's cross-validated candidates, the improve loop), which BLAS threads slow down
+    as they slow identification (docs/design_notes.md, "One BLAS thread"). The command line
+    already runs on one thread; this gives a Python session the same speed.
+
+    >>> from threadpoolctl import threadpool_info
+    >>> @on_one_blas_thread
+    ... def blas_threads():
+    ...     return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    >>> blas_threads() <= {1} or any(v in os.environ for v in BLAS_THREAD_VARIABLES)
+    True
+    >>> blas_threads.__name__
+    'blas_threads'
+    """
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with one_blas_thread():
+            return func(*args, **kwargs)
+    return wrapper
 
 
 def pivoted_qr(M):

@@ -605,3 +605,39 @@ def test_amplitude_dependence_is_not_a_candidate_when_every_step_has_one_size():
                  if c.effect == "amplitude_dependent_stiffness")
         assert c.available is available, (design, c.reason)
         assert available or "one size" in c.reason
+
+
+def _blas_threads_seen(monkeypatch, module, name, call):
+    """BLAS thread counts seen inside ``module.name`` while ``call()`` runs with BLAS set to 2
+    threads around it, no thread variable set (a notebook's session after BLAS started)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    seen, inner = [], getattr(module, name)
+
+    def spy(*args, **kwargs):
+        seen.extend(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, spy)
+    with threadpool_limits(limits=2, user_api="blas"):
+        call()
+        after = {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    return set(seen), after
+
+
+def test_diagnose_and_improve_run_on_one_blas_thread_and_restore_the_callers(monkeypatch):
+    # the candidates' many small least-squares fits took three times as long on OpenBLAS's
+    # default threads in a Python session as from the command line (which runs on one)
+    import lpvpc.diagnosis.diagnose as diagnose_module
+    import lpvpc.diagnosis.improve as improve_module
+
+    model, novel, _ = clean(0)
+    inside, after = _blas_threads_seen(monkeypatch, diagnose_module, "score_candidates",
+                                       lambda: diagnose(model, novel))
+    assert inside == {1} and after == {2}
+    ident, held = _pairs(0)
+    inside, after = _blas_threads_seen(monkeypatch, improve_module, "_evaluate",
+                                       lambda: improve(ident, held, settings={"structure": "fixed"}, max_steps=1))
+    assert inside == {1} and after == {2}

@@ -82,6 +82,7 @@ from .between import between_record_candidates, merge
 from .surrogate import Surrogate
 from .where import where_it_fails  # noqa: F401
 from ..io.trial import check_model_rate
+from ..linalg import on_one_blas_thread
 from ..models.effects import signals_from_data, with_model_activation
 from ..models.model import vaf
 
@@ -355,6 +356,7 @@ def check_record(model, data) -> dict:
     return cov
 
 
+@on_one_blas_thread
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
              candidates=None, dependence=True, design="auto", reference=None) -> Diagnosis:
     """Where ``model`` fails on ``data`` and which missing effect or setting would explain it.

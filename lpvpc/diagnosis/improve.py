@@ -25,6 +25,7 @@ from .diagnose import Diagnosis, diagnose, format_table
 from .candidates import _variant_text
 from ..models.effects import CATALOG, reads_activation, signals_from_data, with_model_activation
 from ..identification.identify import LPVPCEstimator, WarmStart
+from ..linalg import on_one_blas_thread
 from ..models.model import vaf
 from ..progress import report
 
@@ -144,6 +145,7 @@ def _evaluate(model, data):
     return vaf(data.torque, pred.total), float(np.sqrt(np.mean(r**2))), r
 
 
+@on_one_blas_thread
 def improve(ident, heldout, *, settings=None, max_steps=MAX_STEPS, diagnose_kw=None, progress=None) -> Ladder:
     """Fit, diagnose on held-out data, add the top significant effect, refit, until none is left.
 
