@@ -103,3 +103,15 @@ def test_a_reference_that_is_not_the_models_record_is_refused(drifting):
         lpvpc.diagnose(model, pairs["novel"], reference=slow)
     with pytest.raises(TypeError, match="reference must be the identification record"):
         lpvpc.diagnose(model, pairs["novel"], reference="ident_PT.csv")
+
+
+def test_the_between_record_fits_say_nothing_about_the_users_model(drifting):
+    """The candidates' fits on the identification record are the diagnosis's own: their notes
+    (no intervals, a negative reflex gain) would read as if about the model diagnosed."""
+    _, _, pairs, model = drifting
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = lpvpc.diagnose(model, pairs["novel"], reference=pairs["multilevel"])
+    assert any(c.scope == SCOPE for c in d.significant)  # the fits ran
+    notes = [str(w.message) for w in caught if issubclass(w.category, lpvpc.LpvpcWarning)]
+    assert notes == [], notes

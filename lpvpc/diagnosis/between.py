@@ -14,11 +14,13 @@ Units: torque N m, VAF gains in percentage points (pp).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .candidates import CandidateResult, _passes
 from .cv import robust_paired_test
-from ..errors import LpvpcError
+from ..errors import LpvpcError, LpvpcWarning
 from ..models.effects import CATALOG, signals_from_data, with_model_activation
 
 #: Signals that can change level between two records of one subject while staying nearly
@@ -134,7 +136,9 @@ def between_record_candidates(model, reference, data, prediction, *, transfer_ga
         res = CandidateResult(name, "effect", e.pathway, e.explanation, signals=tuple(e.signals), scope=SCOPE)
         out.append(res)
         try:
-            fitted = LPVPCEstimator(**st, effects=eff + (name,)).fit(ref).model_
+            with warnings.catch_warnings():  # notes on this scoring fit, not on the user's model
+                warnings.simplefilter("ignore", LpvpcWarning)
+                fitted = LPVPCEstimator(**st, effects=eff + (name,)).fit(ref).model_
         except LpvpcError as exc:
             res.available, res.reason = False, f"its fit on the identification record failed: {exc}"
             continue
