@@ -1180,12 +1180,13 @@ def reflex_interval(model, rho, level: float = 0.95):
 def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
     """:func:`reflex_interval` and what it is made of: {"intervals": its answer, "gain": the
     rectifier fit's reading, "draws": (:data:`N_REFLEX_DRAWS`, len(rho)) its parametric bootstrap
-    draws, "reported": the reported (knee-corrected) gain, "rounding": (lowest, highest) bias of
-    the reading from the knee's rounding (estimate minus truth, zeros where none is counted that
-    way), "shifts": list of signed gain shifts (each an alternative reading minus this one) whose
-    sizes bound the rest of the bias, either sign, "structural": (structures, len(rho)) the signed
+    draws, "reported": the reported (knee-corrected) gain, "shifts": list of signed gain shifts
+    (each an alternative reading minus this one) whose sizes bound the rest of the bias, either
+    sign, "structural": (structures, len(rho)) the signed
     shifts of the reflex structures the selection could not exclude, the largest of which in size
-    is one more bound} (gains N m s/rad, one per position)."""
+    is one more bound, "threshold_draws": the bootstrap draws' thresholds (rad/s, paired with
+    "draws"), "threshold_bound": the threshold reading's bias bound of either sign} (gains
+    N m s/rad, one per position)."""
     from .reflex import rectifier_fit
 
     rho = np.atleast_1d(np.asarray(rho, dtype=float))
@@ -1204,7 +1205,6 @@ def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
     if len(structural):  # reflex_structural_shift: the largest in size
         bound[0] = bound[0] + np.max(np.abs(structural), axis=0)
     shift = np.zeros(len(rho))  # the threshold's bias of known sign: estimate minus truth between 0 and shift
-    rounding = (np.zeros(len(rho)), np.zeros(len(rho)))
     biased = model.reflex_threshold_biased
     if biased:  # the knee's softness, whatever rounds it (smoothed pulses, the basis), bounds the gain's bias
         soft = _knee_softness_shift(model, rho)
@@ -1229,7 +1229,6 @@ def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
         if _knee_rounding(model):  # the gain's rounding factor belongs to the true threshold
             # too: its bias range over the thresholds the data allow (measured through the record's regressors)
             a1, a2 = _gain_rounding_range(model, gain, np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6]))
-            rounding = (a1, a2)
             out[0] = list(_bias_range_interval(noise[0][0] - 0.5 * (a1 + a2), noise[0][1] - 0.5 * (a1 + a2),
                                                bound[0] + 0.5 * (a2 - a1), 0.0, level))
     th_lo, th_hi = np.clip(out[1][0], v[0], v[-6]), np.clip(out[1][1], v[0], v[-6])
@@ -1243,8 +1242,8 @@ def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
     g_ok, th_ok = _determined(out[0][0], th_lo, th_hi, v_top)
     note = MODEL_RATE_BIAS_NOTE if biased else ""
     return {"intervals": (Interval(out[0][0], out[0][1], biased, note, g_ok), Interval(th_lo, th_hi, biased, note, th_ok)),
-            "gain": gain, "draws": g_d, "reported": g_c, "rounding": rounding, "shifts": shifts,
-            "structural": structural}
+            "gain": gain, "draws": g_d, "reported": g_c, "shifts": shifts,
+            "structural": structural, "threshold_draws": th_d, "threshold_bound": bound[1]}
 
 
 def _determined(gain_lo, th_lo, th_hi, v_top):
@@ -1291,47 +1290,6 @@ def reflex_determination(model, n_positions: int = 9, level: float = 0.95) -> di
 SLOPE_TOLERANCE = 0.2
 #: Share of the identified range (centred) over which the gain slope is the least-squares line.
 SLOPE_CENTRAL = 0.8
-#: Threshold values per anchor position of the smooth threshold profiles over which
-#: ``_slope_rounding_range`` takes the knee rounding's effect on the gain slope.
-N_SLOPE_PROFILES = 12
-
-
-def _slope_rounding_range(model, rho, w, parts, n: int = N_SLOPE_PROFILES):
-    """(lowest, highest) bias (estimate minus truth, N m s/rad per rad) of the gain slope w @ gains
-    from the knee's rounding measured through the record's regressors (zeros without it).
-
-    The rounding multiplies the true gain at each position by r(t) of the true threshold t
-    there (``_gain_rounding_range``), and the data give t only as an interval per position. The
-    true thresholds are one smooth function of position (the nonlinearity's coefficients are a
-    low-order basis in position), so the range is taken over the quadratic threshold profiles
-    through ``n`` values at each of three anchor positions (ends and middle) that stay inside
-    every position's threshold interval, not over each position's extremes independently (which
-    would pair the lowest factor at one end with the highest at the other). Where no such profile
-    fits, the per-position extremes are combined (the widest range w allows)."""
-    a1, a2 = parts["rounding"]
-    box = (float(np.sum(np.minimum(w * a1, w * a2))), float(np.sum(np.maximum(w * a1, w * a2))))
-    if not np.any(a1) and not np.any(a2):
-        return box
-    th_lo, th_hi = (np.asarray(x, dtype=float) for x in parts["intervals"][1])
-    k = [0, len(rho) // 2, len(rho) - 1]
-    if len(set(k)) < 3:
-        return box
-    q = np.linspace(0.0, 1.0, n)
-    anchors = [th_lo[i] + q * (th_hi[i] - th_lo[i]) for i in k]
-    A, B, C = (x.ravel() for x in np.meshgrid(*anchors, indexing="ij"))
-    x0, x1, x2 = rho[k]
-    L = [((rho - x1) * (rho - x2)) / ((x0 - x1) * (x0 - x2)), ((rho - x0) * (rho - x2)) / ((x1 - x0) * (x1 - x2)),
-         ((rho - x0) * (rho - x1)) / ((x2 - x0) * (x2 - x1))]  # Lagrange basis through the anchors
-    t = A[:, None] * L[0][None] + B[:, None] * L[1][None] + C[:, None] * L[2][None]  # (profiles, positions)
-    tol = 1e-9 + 1e-6 * float(np.max(th_hi - th_lo))
-    inside = np.all((t >= th_lo - tol) & (t <= th_hi + tol), axis=1)
-    if not inside.any():
-        return box
-    t = t[inside]
-    r = _rounded_rectifier_fit(model, np.ones(t.size), t.ravel())[0].reshape(t.shape)
-    bias = np.asarray(parts["gain"], dtype=float)[None] * (1.0 - 1.0 / np.where(np.abs(r) > 1e-9, r, 1e-9))
-    slopes = bias @ w
-    return float(slopes.min()), float(slopes.max())
 
 
 def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, tolerance: float = SLOPE_TOLERANCE) -> dict:
@@ -1355,12 +1313,13 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
       and the alternative's slope carries exactly that; one that changes sign along the
       range moves the slope more than any single position's bound suggests, and so does it;
     - the knee rounding measured through the record's regressors (1 kHz path,
-      :func:`knee_rounding`): its bias at each position depends on the true threshold there,
-      which the data give only as an interval; the slope's bias range is taken over smooth
-      (quadratic) threshold profiles inside those intervals (``_slope_rounding_range``; the
-      per-position extremes combined where no profile fits).
+      :func:`knee_rounding`): the reported gains are the readings mapped back through it
+      (:func:`unrounded_rectifier`), and so is each bootstrap draw, its gain with its own
+      threshold. The threshold's noise then reaches the slope jointly with the gain's (the two
+      readings are correlated), and the threshold reading's own bias bound enters as a shift
+      of the draws' thresholds either way (the widest of the three percentile intervals).
 
-    The noise interval is widened for the bias range with :func:`bias_aware_critical_value`,
+    The noise interval is widened for the bias bounds with :func:`bias_aware_critical_value`,
     as the per-position gains are, and holds the reported (knee-corrected) slope.
 
     Parameters
@@ -1407,15 +1366,24 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
     w = d / max(float(d @ d), 1e-300)  # the least-squares slope is w @ gains
     parts = _reflex_interval_parts(model, rho, level)
     raw, slope = float(w @ parts["gain"]), float(w @ parts["reported"])
-    s_d = parts["draws"] @ w
-    n_lo, n_hi = np.percentile(s_d, [50 * (1 - level), 50 * (1 + level)])
-    n_lo, n_hi = min(n_lo, raw), max(n_hi, raw)
     bound = sum(abs(float(w @ x)) for x in parts["shifts"])
     if len(parts["structural"]):
         bound += float(np.max(np.abs(parts["structural"] @ w)))
-    r_lo, r_hi = _slope_rounding_range(model, rho, w, parts)
-    c = 0.5 * (r_lo + r_hi)
-    lower, upper = (float(x) for x in _bias_range_interval(n_lo - c, n_hi - c, bound + 0.5 * (r_hi - r_lo), 0.0, level))
+    q = [50 * (1 - level), 50 * (1 + level)]
+    if not parts["intervals"][0].biased and _knee_rounding(model):
+        # each bootstrap draw's (gain, threshold) reading mapped back through the record's
+        # rounding, as the estimate is: the threshold's noise reaches the slope jointly with
+        # the gain's (they are correlated), and the threshold's own bias bound is a shift of
+        # its readings either way
+        tb = np.asarray(parts["threshold_bound"], dtype=float)
+        ends = [np.percentile(unrounded_rectifier(model, parts["draws"], parts["threshold_draws"] + k * tb)[0] @ w, q)
+                for k in (-1.0, 0.0, 1.0)]
+        n_lo, n_hi = min(min(e[0] for e in ends), slope), max(max(e[1] for e in ends), slope)
+        lower, upper = (float(x) for x in _bias_range_interval(n_lo, n_hi, bound, 0.0, level))
+    else:  # the reading is the reported gain: its draws as they are
+        n_lo, n_hi = np.percentile(parts["draws"] @ w, q)
+        n_lo, n_hi = min(n_lo, raw), max(n_hi, raw)
+        lower, upper = (float(x) for x in _bias_range_interval(n_lo, n_hi, bound, 0.0, level))
     lower, upper = min(lower, slope), max(upper, slope)
     sign = 1.0 if slope >= 0 else -1.0
     a, b = sorted((sign * lower, sign * upper))
