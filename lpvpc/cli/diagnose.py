@@ -67,7 +67,7 @@ def run(args) -> int:
                   + ("; the model was identified on part of a record, which diagnose --hold-out takes as the "
                      "reference" if split else ""))
     print(f"model:     VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m on these data; {diag.base_description()}")
-    print(format_table(diag))
+    print(format_table(diag, syntax="cli"))
     print(f"answer:    {diag.answer()}")
     for note in diag.notes():
         print(f"note:      {note}")

@@ -357,7 +357,7 @@ def write_report(ladder: Ladder, heldout, folder, *, syntax: str = "cli") -> Pat
             write_diagnosis(r.diagnosis, heldout, sub, title=f"Diagnosis after step {r.index} ({r.label})",
                             syntax=syntax)
             lines += [f"Diagnosis: {r.diagnosis.answer()} ([details](step{r.index}/diagnosis.md))", "",
-                      "```", format_table(r.diagnosis, 5), "```", ""]
+                      "```", format_table(r.diagnosis, 5, syntax=syntax), "```", ""]
         if r.kept:
             prev = r
     (folder / "improve.md").write_text("\n".join(lines))

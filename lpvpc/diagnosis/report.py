@@ -21,12 +21,15 @@ from ..report_html import page as _html_page
 from ..report_html import table as _table
 
 
-def format_table(diag, n=None) -> str:
-    """Plain-text ranking table of the candidates."""
+def format_table(diag, n=None, syntax="python") -> str:
+    """Plain-text ranking table of the candidates (the first ``n``, or all). ``syntax``: "cli"
+    to name options in the reasons a candidate is not available as the command line spells
+    them (``--structure fixed``), as ``lpvpc diagnose`` prints it; "python" as keywords."""
     lines = [f"{'rank':>4}  {'candidate':44} {'kind':8} {'pathway':9} {'gain (pp)':>9} {'p':>9}  significant"]
     for i, c in enumerate(diag.candidates[:n] if n else diag.candidates, 1):
         if not c.available:
-            lines.append(f"{i:>4}  {c.effect:44} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {c.reason}")
+            reason = command_line_syntax(c.reason) if syntax == "cli" else c.reason
+            lines.append(f"{i:>4}  {c.effect:44} {c.kind:8} {c.pathway:9} {'-':>9} {'-':>9}  n/a: {reason}")
             continue
         name = c.effect + (" (" + ", ".join(f"{k}={v:g}" for k, v in c.variant.items()) + ")" if c.variant else "")
         name += " [between records]" if c.scope != "record" else ""
@@ -94,7 +97,7 @@ def write_report(diag, data, folder, *, title="Diagnosis", syntax="cli") -> Path
     w = diag.where
     lines = [f"# {title}", "", f"Model `{diag.model_hash[:12]}` on `{diag.data_source}` ({diag.n_samples} samples at "
              f"{diag.fs:g} Hz): VAF {diag.vaf:.2f} %, RMSE {diag.rmse:.4g} N m; {diag.base_description()}.", "",
-             "## Answer", "", diag.answer(), "", "## Candidates (held-out VAF gain)", "", "```", format_table(diag), "```", "",
+             "## Answer", "", diag.answer(), "", "## Candidates (held-out VAF gain)", "", "```", format_table(diag, syntax=syntax), "```", "",
              "Significant: p below alpha / number of candidates (alpha = "
              f"{diag.settings['alpha']}) and a gain of at least {diag.settings['min_gain']} pp.", "",
              "## Signal dependence (top 8)", "", "| signal | form | pathway | gain (pp) | p |", "|---|---|---|---|---|"]
