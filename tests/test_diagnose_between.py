@@ -51,6 +51,8 @@ def test_between_records_names_the_activation_the_record_alone_cannot(drifting):
     _, _, pairs, model = drifting
     alone = lpvpc.diagnose(model, pairs["novel"])
     assert not any(c.effect in ("background_activation", "activation_reflex_gain") for c in alone.significant)
+    # the gap the record alone leaves says how to give the identification record, in both doors
+    assert any("--reference DATA0" in n and "reference=" in n for n in alone.notes()), alone.notes()
     d = lpvpc.diagnose(model, pairs["novel"], reference=pairs["multilevel"])
     top = d.top
     assert top is not None and top.scope == SCOPE and top.signals == ("activation",)

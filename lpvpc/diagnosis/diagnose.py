@@ -276,7 +276,9 @@ class Diagnosis:
                            if self.settings.get("reference") else
                            "A missing effect that stays nearly constant within this record is invisible to the "
                            "candidates and shows only in this gap (improve, or diagnose given the identification "
-                           "record as reference, also tries the effects whose signal can differ between records)."), True))
+                           "record as reference: lpvpc diagnose --reference DATA0 or --reference-pt/--reference-ut, "
+                           "diagnose(..., reference=) in Python, also tries the effects whose signal can differ "
+                           "between records)."), True))
         leaky = [f"{k} (R^2 {v:.2f})" for k, v in self.leaks.items() if v >= LEAK_R2]
         if leaky:
             out.append((f"Not used to name an effect: {', '.join(leaky)}; these signals follow the model's own reflex "
