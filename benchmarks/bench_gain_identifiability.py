@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 import lpvpc  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
-from lpvpc.models.reflex import HighRateReflexInput, reflex_input_regressor  # noqa: E402
+from lpvpc.models.reflex import reflex_input_regressor  # noqa: E402
 from lpvpc.models.uncertainty import knee_rounding  # noqa: E402
 from lpvpc.simulation.population import STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
 from _results import write_results  # noqa: E402
@@ -59,7 +59,8 @@ def model_rate_reading(seed, form):
     U_r = reflex_input_regressor(model.velocity_basis.evaluate(dvel),
                                  model.reflex_rho_basis.evaluate(np.asarray(data.scheduling, float)))
     q = int(round(data.high_rate.fs / fs))
-    dvel_1k = HighRateReflexInput(data.high_rate, q, delay / fs, "hinge", 8).dvel
+    hr = data.high_rate  # one trial: its delayed velocity at the file's rate, as the 1 kHz path sees it
+    dvel_1k = eq.delayed_velocity(np.asarray(hr.position, float), fs=hr.fs, delay=delay * q)
     kr = knee_rounding(model, U_r, dvel_1k, q)
     t, fitted, factor = (np.asarray(kr[k], float) for k in ("threshold", "fitted_threshold", "gain_factor"))
     lo, hi = model.scheduling_range

@@ -16,19 +16,10 @@ from lpvpc.cli import main
 from lpvpc.diagnosis.between import SCOPE
 from lpvpc.diagnosis.diagnose import format_table
 from lpvpc.io import load_identification_data, write_perturbation_csv
-from lpvpc.linalg import one_blas_thread
 from lpvpc.models.model import LPVPCModel
 
 pytestmark = pytest.mark.filterwarnings("ignore")
 ACTIVATION = ("background_activation", "activation_reflex_gain")
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One BLAS thread, as the command line runs as a program (the diagnoses take a fifth of
-    the time on a busy 2-core machine)."""
-    with one_blas_thread():
-        yield
 
 
 @pytest.fixture(scope="module")

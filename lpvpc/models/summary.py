@@ -246,14 +246,22 @@ def gain_slope_lines(model, level=0.95) -> list:
     >>> gain_slope_lines(identify(pair_trials(sim.pt, sim.ut)))[0].startswith("gain slope:  ")
     True
     """
+    text = _gain_slope_text(model, level)
+    return [] if text is None else [f"gain slope:  {text}"]
+
+
+def _gain_slope_text(model, level=0.95):
+    """The slope, its interval and whether its size is determined, in words (the one text of
+    :func:`gain_slope_lines` and :func:`gain_slope_html`); None for a model of one operating
+    position or without intervals."""
     from .uncertainty import reflex_gain_slope
 
     if len(summary_positions(model)) < 2 or not model.has_intervals:
-        return []
+        return None
     sl = reflex_gain_slope(model, level)
-    text = (f"gain slope:  {sl['slope']:+.1f} N m s/rad per rad over position ({100 * level:g} % interval "
+    text = (f"{sl['slope']:+.1f} N m s/rad per rad over position ({100 * level:g} % interval "
             f"{sl['lower']:+.1f}..{sl['upper']:+.1f})")
-    return [text if sl["determined"] else f"{text}: its size {NOT_DETERMINED} to within {100 * SLOPE_TOLERANCE:g} %"]
+    return text if sl["determined"] else f"{text}: its size {NOT_DETERMINED} to within {100 * SLOPE_TOLERANCE:g} %"
 
 
 def physiology_table_html(model, level=0.95) -> str:
@@ -356,8 +364,8 @@ def relaxed_stiffness_cells(model, rho, level=0.95) -> list:
 
 
 def gain_slope_html(model, level=0.95) -> str:
-    """:func:`gain_slope_lines` as a small paragraph under a report's physiology table (empty
-    when there is no line).
+    """The gain slope :func:`gain_slope_lines` prints, as a small paragraph under a report's
+    physiology table (empty when there is no line).
 
     >>> from lpvpc import identify, pair_trials
     >>> from lpvpc.simulation.simulate import simulate_pair
@@ -367,5 +375,5 @@ def gain_slope_html(model, level=0.95) -> str:
     """
     from html import escape
 
-    lines = gain_slope_lines(model, level)
-    return "".join(f'<p class="small">Reflex gain slope: {escape(ln.split(":", 1)[1].strip())}</p>' for ln in lines)
+    text = _gain_slope_text(model, level)
+    return "" if text is None else f'<p class="small">Reflex gain slope: {escape(text)}</p>'

@@ -1182,9 +1182,8 @@ def _reflex_interval_parts(model, rho, level: float = 0.95) -> dict:
     rectifier fit's reading, "draws": (:data:`N_REFLEX_DRAWS`, len(rho)) its parametric bootstrap
     draws, "reported": the reported (knee-corrected) gain, "shifts": list of signed gain shifts
     (each an alternative reading minus this one) whose sizes bound the rest of the bias, either
-    sign, "structural": (structures, len(rho)) the signed
-    shifts of the reflex structures the selection could not exclude, the largest of which in size
-    is one more bound, "threshold_draws": the bootstrap draws' thresholds (rad/s, paired with
+    sign, "structural": (structures, len(rho)) the signed shifts of the reflex structures the
+    selection could not exclude, the largest of which in size is one more bound, "threshold_draws": the bootstrap draws' thresholds (rad/s, paired with
     "draws"), "threshold_bound": the threshold reading's bias bound of either sign} (gains
     N m s/rad, one per position)."""
     from .reflex import rectifier_fit
@@ -1365,25 +1364,22 @@ def reflex_gain_slope(model, level: float = 0.95, n_positions: int = 9, toleranc
     d = rho - rho.mean()
     w = d / max(float(d @ d), 1e-300)  # the least-squares slope is w @ gains
     parts = _reflex_interval_parts(model, rho, level)
-    raw, slope = float(w @ parts["gain"]), float(w @ parts["reported"])
+    slope = float(w @ parts["reported"])
     bound = sum(abs(float(w @ x)) for x in parts["shifts"])
     if len(parts["structural"]):
         bound += float(np.max(np.abs(parts["structural"] @ w)))
-    q = [50 * (1 - level), 50 * (1 + level)]
+    draw_sets = [parts["draws"]]  # the reading is the reported gain: its draws as they are
     if not parts["intervals"][0].biased and _knee_rounding(model):
         # each bootstrap draw's (gain, threshold) reading mapped back through the record's
         # rounding, as the estimate is: the threshold's noise reaches the slope jointly with
         # the gain's (they are correlated), and the threshold's own bias bound is a shift of
         # its readings either way
         tb = np.asarray(parts["threshold_bound"], dtype=float)
-        ends = [np.percentile(unrounded_rectifier(model, parts["draws"], parts["threshold_draws"] + k * tb)[0] @ w, q)
-                for k in (-1.0, 0.0, 1.0)]
-        n_lo, n_hi = min(min(e[0] for e in ends), slope), max(max(e[1] for e in ends), slope)
-        lower, upper = (float(x) for x in _bias_range_interval(n_lo, n_hi, bound, 0.0, level))
-    else:  # the reading is the reported gain: its draws as they are
-        n_lo, n_hi = np.percentile(parts["draws"] @ w, q)
-        n_lo, n_hi = min(n_lo, raw), max(n_hi, raw)
-        lower, upper = (float(x) for x in _bias_range_interval(n_lo, n_hi, bound, 0.0, level))
+        draw_sets = [unrounded_rectifier(model, parts["draws"], parts["threshold_draws"] + k * tb)[0]
+                     for k in (-1.0, 0.0, 1.0)]
+    ends = [np.percentile(g @ w, [50 * (1 - level), 50 * (1 + level)]) for g in draw_sets]
+    n_lo, n_hi = min(min(e[0] for e in ends), slope), max(max(e[1] for e in ends), slope)
+    lower, upper = (float(x) for x in _bias_range_interval(n_lo, n_hi, bound, 0.0, level))
     lower, upper = min(lower, slope), max(upper, slope)
     sign = 1.0 if slope >= 0 else -1.0
     a, b = sorted((sign * lower, sign * upper))
