@@ -24,7 +24,10 @@ run writes benchmarks/results/population.txt, a record run population_record.txt
 with another number of draws or --first-seed is recorded as its own section below the
 default run's table (replacing an earlier section of the same command).
 
-Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py [n_draws] [--first-seed S] [--record]
+``--position-noise RAD``: the position sensor's noise floor in every trial (the population has
+none; the lab's pilot trial about 5e-5 rad), recorded as its own section.
+
+Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py [n_draws] [--first-seed S] [--record] [--position-noise RAD]
 """
 
 from __future__ import annotations
@@ -49,10 +52,10 @@ N_POS = 9
 LEVEL = 0.95
 
 
-def one_draw(seed, form):
+def one_draw(seed, form, position_noise=0.0):
     s = draw_subject(seed, stiffness=form)
     truth = s.params
-    ident, novel = simulate_subject(s), simulate_subject(s, "novel")
+    ident, novel = (simulate_subject(s, t, position_noise=position_noise) for t in ("multilevel", "novel"))
     d = lpvpc.pair_trials(ident.pt, ident.ut)
     nv = lpvpc.pair_trials(novel.pt, novel.ut)
     ceiling = lpvpc.vaf(nv.torque, lpvpc.pair_trials(novel.pt_clean, novel.ut_clean).torque)
@@ -100,6 +103,9 @@ def main(argv=None):
     ap.add_argument("n", nargs="?", type=int, default=9, help="draws (default 9: 3 per stiffness form)")
     ap.add_argument("--first-seed", type=int, default=None, help="first seed (default: the set's first)")
     ap.add_argument("--record", action="store_true", help="draw from RECORD_SEEDS (recorded results)")
+    ap.add_argument("--position-noise", type=float, default=0.0, metavar="RAD",
+                    help="white noise of this RMS in each trial's recorded position (default none; the lab's "
+                         "pilot: about 5e-5)")
     args = ap.parse_args(argv)
     seeds_set, name = (RECORD_SEEDS, "RECORD_SEEDS") if args.record else (DEVELOPMENT_SEEDS, "DEVELOPMENT_SEEDS")
     first = seeds_set.start if args.first_seed is None else args.first_seed
@@ -107,16 +113,20 @@ def main(argv=None):
     if seeds.start not in seeds_set or seeds[-1] not in seeds_set:
         sys.exit(f"seeds {seeds.start}..{seeds[-1]} are not all in {name} ({seeds_set.start}..{seeds_set.stop - 1})")
     t0 = time.perf_counter()
-    rows = [one_draw(seed, STIFFNESS_FORMS[i % len(STIFFNESS_FORMS)]) for i, seed in enumerate(seeds)]
+    rows = [one_draw(seed, STIFFNESS_FORMS[i % len(STIFFNESS_FORMS)], args.position_noise)
+            for i, seed in enumerate(seeds)]
     total = time.perf_counter() - t0
     cmd = "OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py" + (f" {args.n}" if args.n != 9 else "") \
-        + (f" --first-seed {args.first_seed}" if args.first_seed is not None else "") + (" --record" if args.record else "")
+        + (f" --first-seed {args.first_seed}" if args.first_seed is not None else "") + (" --record" if args.record else "") \
+        + (f" --position-noise {args.position_noise:g}" if args.position_noise else "")
+    noise = (f" Position sensor noise: white, {args.position_noise:g} rad RMS in each trial's recorded position "
+             "(the lab's pilot trial's floor, docs/design_notes.md, \"Position noise floor\")." if args.position_noise else "")
     lines = [f"# Identification over population draws ({cmd})", "",
              f"{args.n} clean subjects from {name}, seeds {seeds.start}..{seeds[-1]}; stiffness form cycling "
              f"{', '.join(STIFFNESS_FORMS)}; everything else drawn (docs/guide/population.md). 2-minute identification "
              "and novel pairs at 1 kHz, paired and decimated as the loaders do, lpvpc.identify(data) at every default, "
              f"model.predict on the novel pair. K error and coverage at {N_POS} positions over the central 80 % of the "
-             "identified range, truth = the stiffness at the perturbation's amplitude; 95 % intervals.", "",
+             "identified range, truth = the stiffness at the perturbation's amplitude; 95 % intervals." + noise, "",
              "| seed | K form | design | SNR dB | threshold at +0.2 rad/s | novel VAF | ceiling | gap | K worst err % | "
              "K median err % | K covered | B covered | gain slope ratio (the estimate's where not determined) | gain covered / determined | "
              "threshold covered / determined | identify+predict s |",
@@ -166,7 +176,8 @@ def main(argv=None):
     lines += ["", f"total run time {total:.0f} s ({total / len(rows):.1f} s per draw, simulation included)"]
     lines += targets(a)
     target = RESULTS / ("population_record.txt" if args.record else "population.txt")
-    write_results(target, _merged(target, cmd, lines, default=args.n == 9 and args.first_seed is None), echo=True)
+    write_results(target, _merged(target, cmd, lines, default=args.n == 9 and args.first_seed is None
+                                  and not args.position_noise), echo=True)
 
 
 def targets(a) -> list:

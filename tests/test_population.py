@@ -208,3 +208,21 @@ def test_cli_and_python_write_the_same_files(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lpvpc.cli", "simulate", "--population-seed", "21", "--seed", "3",
                         "--out", str(tmp_path / "x")], capture_output=True, text=True)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--seed" in r.stderr
+
+
+def test_position_noise_floor_is_in_the_recorded_position_only():
+    """``position_noise``: white noise of that RMS in each trial's recorded position; the
+    joint's motion, the torque and the EMG are those of the same pair without it."""
+    s = draw_subject(3)
+    quiet = simulate_subject(s, duration=10.0)
+    noisy = simulate_subject(s, duration=10.0, position_noise=5e-5)
+    for a, b in ((quiet.pt, noisy.pt), (quiet.ut, noisy.ut)):
+        e = b.position - a.position
+        assert np.std(e) == pytest.approx(5e-5, rel=0.05) and abs(np.mean(e)) < 5e-6
+        assert np.array_equal(a.torque, b.torque)
+        assert np.array_equal(a.channels["emg"], b.channels["emg"])
+    assert not np.allclose(noisy.pt.position - quiet.pt.position, noisy.ut.position - quiet.ut.position)
+    assert noisy.truth["position_noise"] == 5e-5 and quiet.truth["position_noise"] == 0.0
+    assert np.array_equal(noisy.pt_clean.position, noisy.pt.position)
+    with pytest.raises(ValueError, match="position_noise"):
+        simulate_subject(s, duration=10.0, position_noise=-1e-5)

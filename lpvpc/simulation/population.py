@@ -428,11 +428,13 @@ _APPLY = {
 
 
 def simulate_subject(subject: PopulationSubject, trajectory: str = "multilevel", *, duration: float = 120.0,
-                     fs_out: float = 1000.0, snr_db: float | None = None, clean: bool = False):
+                     fs_out: float = 1000.0, snr_db: float | None = None, clean: bool = False,
+                     position_noise: float = 0.0):
     """The subject's PT/UT pair (:class:`lpvpc.simulation.simulate.SimulatedPair`): exactly
     :func:`lpvpc.simulation.simulate.simulate_pair` with the subject's parameters, effect, design,
     perturbation amplitude, SNR (``snr_db`` overrides it; ``clean=True``: the effect left
-    out, the same subject otherwise) and EMG unit, seeded by the subject's seed.
+    out, the same subject otherwise) and EMG unit, seeded by the subject's seed;
+    ``position_noise``: the position sensor's noise floor (RMS, rad), none by default.
     ``trajectory``: "multilevel" (identification) or "novel" (held out).
 
     >>> s = draw_subject(4, effect="nonlinear_viscosity", form="coulomb")
@@ -446,7 +448,7 @@ def simulate_subject(subject: PopulationSubject, trajectory: str = "multilevel",
                          snr_db=subject.snr_db if snr_db is None else snr_db,
                          perturbation_amplitude=subject.perturbation_amplitude, params=subject.params,
                          effects=() if clean else subject.effects(), emg_unit=subject.emg_unit,
-                         perturbation=subject.design)
+                         perturbation=subject.design, position_noise=position_noise)
 
 
 def write_subject(subject: PopulationSubject, out_dir, *, fs_out: float = 1000.0, duration: float = 120.0) -> dict:

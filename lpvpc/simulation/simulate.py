@@ -135,11 +135,11 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
                   fs_out: float = 1000.0, snr_db: float = 18.0,
                   perturbation_amplitude: float = 0.04, params: SubjectParams | None = None,
                   effects=(), emg_unit: str = "V", perturbation: str = "pralds",
-                  stiffness_family: str | None = None) -> SimulatedPair:
+                  stiffness_family: str | None = None, position_noise: float = 0.0) -> SimulatedPair:
     """Simulate a perturbed (PT) and an unperturbed (UT) trial on the same trajectory.
 
-    Position has no sensor noise (an optical encoder's quantisation is negligible next to
-    the torque noise). Both trials carry channel 'emg'
+    Position has no sensor noise by default (``position_noise``: white noise of that RMS in
+    each trial's recorded position). Both trials carry channel 'emg'
     (:func:`~lpvpc.simulation.emg.emg_envelope`: tonic activation in both, reflex-evoked
     bursts, noise).
 
@@ -178,6 +178,13 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         None: that of ``params``, "standard" by default), set with
         :meth:`SubjectParams.with_stiffness_family <lpvpc.simulation.subject.SubjectParams.with_stiffness_family>`;
         it draws no random numbers, so a seed gives the same streams in every family.
+    position_noise : float, default 0.0
+        RMS (rad) of white noise added to each trial's recorded position at the output rate
+        (the sensor's noise floor; the joint moves as without it, and ``pt_clean`` and
+        ``ut_clean`` record the same noisy position). The lab's pilot trial's 1 kHz PT - UT
+        position has a floor of about 7e-5 rad (5e-5 in each trial; docs/design_notes.md,
+        "Position noise floor"). Its streams come after the others: the rest of the pair is
+        the same with or without it.
 
     Returns
     -------
@@ -219,6 +226,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     ss = np.random.SeedSequence([int(seed), code])
     r_traj, r_pert, r_npt, r_nut, r_ept, r_eut = (np.random.default_rng(s) for s in ss.spawn(6))
     r_mpt, r_mut = (np.random.default_rng(s) for s in ss.spawn(2))  # EMG noise (after the others: same streams)
+    r_ppt, r_put = (np.random.default_rng(s) for s in ss.spawn(2))  # position sensor noise (likewise)
 
     traj = make_traj(duration, fs, r_traj)
     pert = PERTURBATIONS[perturbation](duration, fs, r_pert, amplitude=perturbation_amplitude)
@@ -251,12 +259,15 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         scale = float(np.sqrt(np.var(d_clean) / (np.var(noise_pt - noise_ut) * 10 ** (snr_db / 10))))
     noisy = {"PT": clean["PT"] + scale * noise_pt, "UT": clean["UT"] + scale * noise_ut}
     d_noisy = noisy["PT"] - noisy["UT"]
+    if not (np.isfinite(position_noise) and position_noise >= 0):
+        raise ValueError(f"position_noise={position_noise} must be a finite RMS >= 0 (rad)")
+    recorded = {k: pos[k] + position_noise * r.standard_normal(len(pos[k])) for k, r in (("PT", r_ppt), ("UT", r_put))}
 
     def trial(key, torque, sim):
         ch = {"command": out(cmd[key])}
         ch.update({k: out(v) for k, v in sim["channels"].items()})
         ch["emg"] = np.maximum(ch["emg"], 0.0)  # an envelope: the decimation filter's ringing clipped
-        return Trial(time=t_out.copy(), position=pos[key].copy(), torque=torque, channels=ch,
+        return Trial(time=t_out.copy(), position=recorded[key].copy(), torque=torque, channels=ch,
                      name=f"{trajectory}_{key}")
 
     eff_truth = [{"name": name, "description": desc, "parameters": pt["effects"][name]}
@@ -280,7 +291,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         "reflex_zeta": params.reflex_zeta,
         "effects": eff_truth,
         "noise_scale": scale,
-        "position_noise": 0.0,
+        "position_noise": float(position_noise),
         "units": {"time": "s", "position": "rad", "torque": "N m", "command": "rad", "emg": emg_unit},
         "emg_unit": emg_unit,
         # measured on this record at the output rate; RMS values are about zero
