@@ -103,6 +103,8 @@ TABLES = {
     "diagnose_speed.txt": ("Diagnosis speed", "python benchmarks/bench_diagnose.py --speed"),
     "blas_threads.txt": ("Diagnosis in a Python session: BLAS threads", "env -u OPENBLAS_NUM_THREADS python benchmarks/bench_blas_threads.py"),
     "gain_identifiability.txt": ("Why a PRBS record does not determine the reflex gain: the model-rate path's reading", "python benchmarks/bench_gain_identifiability.py 90"),
+    "friction_rate.txt": ("Friction features at the file's rate or the model's; the lab's position noise floor",
+                          "LPVPC_REAL_DATA=/path/to/recordings nice python benchmarks/bench_friction_rate.py"),
     "fuzz_model.txt": ("Fuzzing the model-file loader", "python benchmarks/bench_fuzz_model.py"),
     "effect_size.txt": ("Torque each simulated effect carries, per perturbation design",
                         "python benchmarks/bench_effect_size.py 3"),
