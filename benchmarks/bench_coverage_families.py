@@ -86,7 +86,6 @@ def _half(bias, se):
 def _previous_bounds(model, search, sel, quantity, rho, est):
     """The last release's two bounds: the shorter IRF counted for every quantity, and the
     largest shift over every structure within one SE of the best (reflex settings too)."""
-    from lpvpc.models.basis import Basis
     from lpvpc.identification.structural_uncertainty import _start
 
     u = model.uncertainty

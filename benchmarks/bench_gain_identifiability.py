@@ -33,7 +33,6 @@ sys.path.insert(0, str(ROOT))
 
 import lpvpc  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
-from lpvpc.models.reflex import reflex_input_regressor  # noqa: E402
 from lpvpc.models.uncertainty import knee_rounding  # noqa: E402
 from lpvpc.simulation.population import STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
 from _results import write_results  # noqa: E402
@@ -55,9 +54,7 @@ def model_rate_reading(seed, form):
     if not model.reflex_threshold_biased:
         return None
     fs, delay = data.fs, model.delay
-    dvel = eq.delayed_velocity(np.asarray(data.position, float), fs=fs, delay=delay)
-    U_r = reflex_input_regressor(model.velocity_basis.evaluate(dvel),
-                                 model.reflex_rho_basis.evaluate(np.asarray(data.scheduling, float)))
+    U_r = model.reflex_input(np.asarray(data.position, float), np.asarray(data.scheduling, float))
     q = int(round(data.high_rate.fs / fs))
     hr = data.high_rate  # one trial: its delayed velocity at the file's rate, as the 1 kHz path sees it
     dvel_1k = eq.delayed_velocity(np.asarray(hr.position, float), fs=hr.fs, delay=delay * q)

@@ -34,7 +34,6 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.optimize  # noqa: E402
 
 from lpvpc.models import effects as fx  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
@@ -42,7 +41,6 @@ from lpvpc.io import pair_trials  # noqa: E402
 from lpvpc.identification.identify import identify  # noqa: E402
 from lpvpc.diagnosis.improve import improve  # noqa: E402
 from lpvpc.models.intrinsic import curvature_regressor, intrinsic_regressor  # noqa: E402
-from lpvpc.linalg import orthonormal_range  # noqa: E402
 from lpvpc.models.model import vaf  # noqa: E402
 from lpvpc.simulation.physics import _tv_lowpass, reflex_lowpass_coefficients  # noqa: E402
 from lpvpc.simulation.simulate import EFFECTS, SubjectParams, simulate_pair  # noqa: E402
@@ -91,7 +89,6 @@ def oracle(model, ident, novel, ratio=3.0):
     the base model's drive z (its nonlinearity as the LTI fit left it), "nonlinearity refitted"
     of each column of the reflex input regressor U_r (Omega free). "LTI" (a check): the
     model's LTI low-pass, Omega free."""
-    from lpvpc.models.reflex import reflex_input_regressor
 
     out = {}
     for form in ("drive held", "nonlinearity refitted", "LTI"):
@@ -102,8 +99,7 @@ def oracle(model, ident, novel, ratio=3.0):
             if form == "drive held":
                 U = model.reflex_drive(p, rho)[:, None]
             else:
-                dvel = eq.delayed_velocity(p, d.fs, model.delay)
-                U = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
+                U = model.reflex_input(p, rho)
             if form == "LTI":
                 R = np.column_stack([eq.state_trajectory(model.A, model.B, u) @ np.asarray(model.C, dtype=float)
                                      for u in U.T])

@@ -98,7 +98,6 @@ def where_it_fails(model, data, residual, *, signals=None) -> dict:
     # events: perturbation steps (velocity peaks) and trajectory transitions
     near_step = _dilate(np.abs(v) > v90, int(round(0.1 * fs)))
     moving = np.abs(vs) > 0.05
-    total = float(np.sqrt(np.mean(r**2)))
     ev_rows = {}
     for key, sel, text in (("perturbation_steps", near_step, "within 100 ms of a fast perturbation movement"),
                            ("trajectory_transitions", moving, "while the slow trajectory moves faster than 0.05 rad/s")):

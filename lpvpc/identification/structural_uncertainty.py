@@ -441,7 +441,6 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S, covariance: bool =
     import scipy.signal
 
     from ..models import equations as eq
-    from ..models.reflex import reflex_input_regressor
     from ..models.uncertainty import BLOCK_LENGTH, long_run_covariance
 
     if model.A is None or np.size(model.A) == 0:
@@ -452,8 +451,7 @@ def reflex_leak_shift(model, data, fir_s: float = LEAK_FIR_S, covariance: bool =
     Xi, Xp, Xf, y = [], [], [], []
     for a, b in bounds:
         p, rho = np.asarray(data.position[a:b], float), np.asarray(data.scheduling[a:b], float)
-        dvel = eq.delayed_velocity(p, model.fs, model.delay)
-        U = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
+        U = model.reflex_input(p, rho)
         Xi.append(eq.kron_rows(eq.lagged(p, model.lags), model.intrinsic_basis.evaluate(rho)))
         Xp.append(scipy.signal.lfilter(num[0], den, U, axis=0))
         Xf.append(np.hstack([eq.lagged(U[:, j], list(range(n_fir + 1))) for j in range(U.shape[1])]))

@@ -1218,11 +1218,8 @@ def _refit_reflex_drive(design: EffectDesign, model, fixed, y, max_iter=20, tol=
     import copy
 
     from ..linalg import orthonormal_range
-    from .reflex import reflex_input_regressor
 
-    p, rho = design.position, design.scheduling
-    dvel = eq.delayed_velocity(p, design.fs, model.delay)
-    U = reflex_input_regressor(model.velocity_basis.evaluate(dvel), model.reflex_rho_basis.evaluate(rho))
+    U = model.reflex_input(design.position, design.scheduling)
     Q0 = orthonormal_range(fixed)
     y_perp = y - Q0 @ (Q0.T @ y)
     perp = lambda X: X - Q0 @ (Q0.T @ X)  # noqa: E731

@@ -55,7 +55,6 @@ from __future__ import annotations
 import json
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import scipy.signal
@@ -739,6 +738,30 @@ class LPVPCModel:
         dvel = eq.delayed_velocity(position, self.fs, self.delay if delay is None else delay)
         return eq.reflex_drive(self.velocity_basis.evaluate(dvel), self.reflex_rho_basis.evaluate(scheduling), self.Omega)
 
+    def reflex_input(self, position, scheduling, delay=None):
+        """The model-rate reflex nonlinearity's regressor U_r (N, n_v * n_r) on a record
+        (:func:`lpvpc.models.reflex.reflex_input_regressor` of the model's velocity and
+        scheduling bases): ``U_r @ Omega.ravel()`` is :meth:`reflex_drive`'s z without
+        high-rate signals. The fits that refit the nonlinearity with the model's bases and
+        delay (``delay`` samples; default the model's) start from it.
+
+        >>> from lpvpc.identification.identify import identify
+        >>> from lpvpc.io import pair_trials
+        >>> from lpvpc.simulation.simulate import simulate_pair
+        >>> sim = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+        >>> data = pair_trials(sim.pt, sim.ut)
+        >>> model = identify(data, structure="fixed")
+        >>> U = model.reflex_input(data.position, data.scheduling)
+        >>> U.shape == (data.n, model.Omega.size)
+        True
+        >>> bool(np.allclose(U @ model.Omega.ravel(), model.reflex_drive(data.position, data.scheduling)))
+        True
+        """
+        from .reflex import reflex_input_regressor
+
+        dvel = eq.delayed_velocity(position, self.fs, self.delay if delay is None else delay)
+        return reflex_input_regressor(self.velocity_basis.evaluate(dvel), self.reflex_rho_basis.evaluate(scheduling))
+
     def _reflex_filter(self, z):
         num, den = scipy.signal.ss2tf(self.A, self.B[:, None], self.C[None, :], np.array([[self.D]]))
         return scipy.signal.lfilter(num[0], den, z)
@@ -889,7 +912,7 @@ class LPVPCModel:
 
     def vaf_interval(self, level: float = 0.95):
         """(lower, upper) VAF (%) on the identification record, moving-block bootstrap."""
-        from .uncertainty import _stored, vaf_interval
+        from .uncertainty import _stored
 
         v = _stored(self)["vaf"]
         if abs(level - v["level"]) < 1e-12:

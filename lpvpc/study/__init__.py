@@ -11,7 +11,6 @@ virtual cohort with its manifest and truth. The guide: docs/guide/study.md.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 

@@ -25,7 +25,6 @@ import sys
 import time
 import traceback
 import warnings
-from pathlib import Path
 
 import numpy as np
 
