@@ -34,6 +34,7 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
+import scipy.optimize  # noqa: E402
 
 from lpvpc.models import effects as fx  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
