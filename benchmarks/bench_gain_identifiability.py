@@ -3,7 +3,7 @@ reads it, measured through each record's own regressors.
 
 For population draws whose model took the reflex nonlinearity on the model-rate velocity
 (what the structure selection chooses on every PRBS draw), this measures with
-``lpvpc.models.uncertainty.knee_rounding`` what that path makes of a true rectifier
+``lpvpc.models.reflex_uncertainty.knee_rounding`` what that path makes of a true rectifier
 G max(v_1kHz - t, 0) for thresholds t over the rectifier fit's range: the threshold it reads
 and its gain per unit true gain. Where the read threshold hardly moves over the whole range of
 true thresholds while the gain factor changes several-fold, the data alone cannot tell the
@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 import lpvpc  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
-from lpvpc.models.uncertainty import knee_rounding  # noqa: E402
+from lpvpc.models.reflex_uncertainty import knee_rounding  # noqa: E402
 from lpvpc.simulation.population import STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
 from _results import write_results  # noqa: E402
 

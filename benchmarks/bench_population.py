@@ -11,7 +11,7 @@ the public API (``lpvpc.identify(data)``), the novel pair predicted (``model.pre
 torque on the same record) and the gap; K(theta) error over the central 80 % of the
 identified range against the stiffness a linear model sees at the perturbation's amplitude
 (``SubjectParams.incremental_stiffness``); the reflex gain slope of
-``lpvpc.models.uncertainty.reflex_gain_slope`` (a slope, or "not determined") against the
+``lpvpc.models.reflex_uncertainty.reflex_gain_slope`` (a slope, or "not determined") against the
 truth's on draws whose gain changes at least two-fold, and whether its interval covers the truth;
 (b) the 95 % intervals' coverage of K(theta) and of the viscosity at 9 positions over the
 central 80 %, pooled per stiffness form, and of the reflex gain and threshold where the model
@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 
 import lpvpc  # noqa: E402
 from lpvpc.simulation.population import DEVELOPMENT_SEEDS, RECORD_SEEDS, STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
-from lpvpc.models.uncertainty import reflex_gain_slope, reflex_interval  # noqa: E402
+from lpvpc.models.reflex_uncertainty import reflex_gain_slope, reflex_interval  # noqa: E402
 from _results import RESULTS, write_results  # noqa: E402
 
 N_POS = 9

@@ -126,7 +126,7 @@ def main():
         "Time: load + identify (s), both paths in the same run.", "",
         "'defaults, 1 kHz files': identify(data) with every default (the command line's), whatever velocity",
         "the default's structure selection gives the nonlinearity ('default path'); 'determined': fraction of 9 central",
-        "positions where the gain / threshold is determined (lpvpc.models.uncertainty.reflex_determination).", "",
+        "positions where the gain / threshold is determined (lpvpc.models.reflex_uncertainty.reflex_determination).", "",
         "| seed | gain 1 kHz | threshold 1 kHz | gain 100 Hz | threshold 100 Hz | gain defaults, 1 kHz files | "
         "threshold defaults, 1 kHz files | default path | determined gain/threshold: defaults | 1 kHz | "
         "novel VAF 1 kHz | novel VAF 1 kHz model, 100 Hz files | novel VAF 100 Hz | time 1 kHz | time 100 Hz | "

@@ -1,6 +1,6 @@
 """Reflex threshold intervals: the shipped rule against the rules tried before and beside it.
 
-The shipped threshold interval (lpvpc.models.uncertainty.reflex_interval) inverts the test of each
+The shipped threshold interval (lpvpc.models.reflex_uncertainty.reflex_interval) inverts the test of each
 candidate threshold t with the velocity basis's knee-rounding shift s(t) of that t. Before, s
 was taken at the estimate, and the interval covered 97-99.4 % at every default from 1 kHz files
 (over the 99 % ceiling on the piecewise family) and 93-95 % on the explicit 1 kHz path. This

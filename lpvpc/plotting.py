@@ -372,7 +372,7 @@ def plot_reflex_nonlinearity(model, ax=None, *, positions=5, velocity=None, trut
 
     g_ok, th_ok = model.reflex_determined(rho, level)  # all True without intervals
     if model.has_intervals:
-        from .models.uncertainty import nonlinearity_band
+        from .models.reflex_uncertainty import nonlinearity_band
 
         band = nonlinearity_band(model, velocity, rho, level)
     for k, (r, f, c) in enumerate(zip(rho, curves, _position_colours(len(rho)))):

@@ -1,4 +1,4 @@
-"""The reflex gain's slope over position (lpvpc.models.uncertainty.reflex_gain_slope): on the
+"""The reflex gain's slope over position (lpvpc.models.reflex_uncertainty.reflex_gain_slope): on the
 virtual subject, whose true gain is known, its interval covers the true slope and says the
 slope is determined; on a record that hardly excites the reflex it says "not determined"."""
 
@@ -9,7 +9,7 @@ import pytest
 
 from lpvpc.identification.identify import identify
 from lpvpc.io import pair_trials
-from lpvpc.models.uncertainty import SLOPE_TOLERANCE, reflex_gain_slope
+from lpvpc.models.reflex_uncertainty import SLOPE_TOLERANCE, reflex_gain_slope
 from lpvpc.simulation.simulate import simulate_pair
 from lpvpc.simulation.subject import SubjectParams
 

@@ -1,4 +1,4 @@
-"""The rectifier's knee as the record's regressors round it (lpvpc.models.uncertainty.knee_rounding).
+"""The rectifier's knee as the record's regressors round it (lpvpc.models.reflex_uncertainty.knee_rounding).
 
 A Chebyshev order-4 velocity basis on the 1 kHz path cannot hold the rectifier's knee: read
 off the fitted curve, a low threshold comes out high with a high gain and a high threshold

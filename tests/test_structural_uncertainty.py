@@ -22,7 +22,8 @@ from lpvpc.identification.structural_uncertainty import (
     structural_term,
     structure_search,
 )
-from lpvpc.models.uncertainty import intrinsic_interval_parts, reflex_structural_shift, structural_shift
+from lpvpc.models.uncertainty import intrinsic_interval_parts, structural_shift
+from lpvpc.models.reflex_uncertainty import reflex_structural_shift
 
 N_POS = 9
 

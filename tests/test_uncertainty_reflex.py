@@ -1,4 +1,4 @@
-"""Reflex gain and threshold intervals (lpvpc.models.uncertainty.reflex_interval): the delta
+"""Reflex gain and threshold intervals (lpvpc.models.reflex_uncertainty.reflex_interval): the delta
 method through the identifiable product of nonlinearity and dynamics, checked against the
 spread of the estimate over noise realisations of the same trials."""
 
@@ -15,7 +15,8 @@ from lpvpc.identification.identify import identify
 from lpvpc.models.model import LPVPCModel
 from lpvpc.simulation.simulate import coloured_noise
 from lpvpc.identification.subspace import companion_form
-from lpvpc.models.uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, reflex_bias_bound, z_value
+from lpvpc.models.uncertainty import z_value
+from lpvpc.models.reflex_uncertainty import MODEL_RATE_BIAS_NOTE, nonlinearity_jacobian, reflex_bias_bound
 
 
 def central_rho(model, n=9):
@@ -93,7 +94,7 @@ def test_the_knee_rounding_widens_the_threshold_interval_on_its_own_side_only(mo
     """The velocity basis's rounding of the knee has a known sign (estimate minus truth within
     [0, shift]): the threshold interval reaches further by it on that side and no further on
     the other, where a bias of unknown sign would widen both."""
-    import lpvpc.models.uncertainty as unc
+    import lpvpc.models.reflex_uncertainty as unc
 
     rho = central_rho(model_1k, 9)
     v = model_1k.rectifier_velocity_grid()[0]
@@ -108,7 +109,7 @@ def test_the_knee_rounding_widens_the_threshold_interval_on_its_own_side_only(mo
         return np.asarray(g_lo), np.asarray(lo), np.asarray(hi)
 
     # the threshold's shift reaches the gain's interval only through the thresholds it allows
-    # (the rounding factor's range over them, :func:`lpvpc.models.uncertainty._gain_rounding_range`)
+    # (the rounding factor's range over them, :func:`lpvpc.models.reflex_uncertainty._gain_rounding_range`)
     monkeypatch.setattr(unc, "_gain_rounding_range", lambda model, gain, t_lo, t_hi: (0 * gain, 0 * gain))
     g0, lo0, hi0 = with_shift(0.0)
     g_up, lo_up, hi_up = with_shift(0.1)  # the estimate above the truth by up to 0.1 rad/s
@@ -193,7 +194,7 @@ def model_weak(tmp_path_factory):
 def test_a_normal_record_determines_gain_and_threshold(model_1k):
     """2 minutes of +-0.04 rad from 1 kHz files, reflex on the 1 kHz velocity: over the
     central 80 % of the range both are determined, and the intervals are the ones shown."""
-    from lpvpc.models.uncertainty import THRESHOLD_UNDETERMINED_FRACTION
+    from lpvpc.models.reflex_uncertainty import THRESHOLD_UNDETERMINED_FRACTION
 
     rho = central_rho(model_1k)
     g_ok, th_ok = model_1k.reflex_determined(rho)
@@ -268,7 +269,7 @@ def test_the_threshold_interval_keeps_a_truth_whose_knee_the_basis_rounds_into_t
     rounds up by 0.3 is fitted at ~0.6, inside the data's interval [0.5, 0.7], so 0.3 stays in
     the threshold's interval; a shift taken at the estimate (0 at 0.6) would have dropped it.
     Thresholds consistent with no shift stay in; those fitted outside the data's interval do not."""
-    from lpvpc.models.uncertainty import _inverted_threshold_interval
+    from lpvpc.models.reflex_uncertainty import _inverted_threshold_interval
 
     t = np.linspace(0.0, 1.5, 301)  # rad/s
     s_t = np.where(t < 0.4, 0.3, 0.0)  # the basis rounds low knees up by 0.3 rad/s

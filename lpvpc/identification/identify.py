@@ -1215,7 +1215,7 @@ class LPVPCEstimator:
                 # the elastic torque's second-order term, free (not tied to the IRF's K')
                 free_curvature=(p ** 2)[:, None] * Gi_val, n_base=n_base)
             if reg.high is not None:  # the rectifier's knee as this record's regressors round it
-                from ..models.uncertainty import knee_rounding
+                from ..models.reflex_uncertainty import knee_rounding
 
                 model.uncertainty["knee_rounding"] = knee_rounding(
                     model, reg.U_r, reg.high.dvel, int(round(reg.high.fs / reg.fs)),

@@ -34,7 +34,7 @@ holds richer structures that follow the curve more closely. So:
   dynamics' term below) covers K within the target on every family, file rate and seed
   range (``benchmarks/results/coverage_families.txt``).
 
-The reflex gain has a term of its own (``reflex``; :func:`lpvpc.models.uncertainty.reflex_interval`
+The reflex gain has a term of its own (``reflex``; :func:`lpvpc.models.reflex_uncertainty.reflex_interval`
 adds it to the gain's bias bound), stored only when the model's structure was chosen by
 identify's cross-validation. Why: the one-standard-error rule picks the simplest reflex
 structure within noise of the best, which can be a constant or linear reflex scheduling basis

@@ -825,19 +825,19 @@ class LPVPCModel:
         (where the data determine the curve; the sparse extreme tail bends polynomials).
 
         A polynomial velocity basis rounds the rectifier's knee: a low threshold is read
-        high and its gain high, a high one's gain low (:func:`lpvpc.models.uncertainty.knee_rounding`).
+        high and its gain high, a high one's gain low (:func:`lpvpc.models.reflex_uncertainty.knee_rounding`).
         When the model file stores how this record's regressors round a true rectifier
         (``uncertainty["knee_rounding"]``, 1 kHz path), the reading is mapped back through it
         (``knee_corrected``; False gives the plain fit to the curve): the threshold whose
         rounded reading is the fit's, and the gain divided by that threshold's rounding factor
-        (:func:`lpvpc.models.uncertainty.unrounded_rectifier`).
+        (:func:`lpvpc.models.reflex_uncertainty.unrounded_rectifier`).
         """
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
         v, _ = self.rectifier_velocity_grid(n_velocity)
         gain, threshold = rectifier_fit(v, self.reflex_nonlinearity(v, rho))
         if not knee_corrected:
             return gain, threshold
-        from .uncertainty import unrounded_rectifier
+        from .reflex_uncertainty import unrounded_rectifier
 
         return unrounded_rectifier(self, gain, threshold)
 
@@ -881,11 +881,11 @@ class LPVPCModel:
     def reflex_gain_interval(self, theta, level: float = 0.95):
         """(lower, upper) arrays (N m s/rad) of the confidence interval of the reflex
         rectifier gain at positions ``theta`` (rad): parametric bootstrap of the rectifier
-        fit with bounds for structural bias (:func:`lpvpc.models.uncertainty.reflex_interval`); an
+        fit with bounds for structural bias (:func:`lpvpc.models.reflex_uncertainty.reflex_interval`); an
         :class:`lpvpc.models.uncertainty.Interval` whose ``biased`` is True for a model-rate
         nonlinearity (:attr:`reflex_threshold_biased`; the interval then includes a bound
         for the smoothed knee) and whose ``determined`` is False where it reaches zero."""
-        from .uncertainty import reflex_interval
+        from .reflex_uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[0]
 
@@ -893,19 +893,19 @@ class LPVPCModel:
         """(lower, upper) arrays (rad/s) of the confidence interval of the reflex velocity
         threshold (an :class:`lpvpc.models.uncertainty.Interval`, ``biased`` as for the gain; a
         model-rate nonlinearity's spans the fitted velocity range, ``determined`` False)."""
-        from .uncertainty import reflex_interval
+        from .reflex_uncertainty import reflex_interval
 
         return reflex_interval(self, theta, level)[1]
 
     def reflex_determined(self, theta, level: float = 0.95):
         """(gain, threshold) bool arrays at positions ``theta`` (rad): False where the
         quantity's interval spans most of its plausible range, so the data do not determine
-        it there ("not determined by these data"; rule: :func:`lpvpc.models.uncertainty.reflex_determination`).
+        it there ("not determined by these data"; rule: :func:`lpvpc.models.reflex_uncertainty.reflex_determination`).
         All True for a model without intervals (nothing to judge by)."""
         theta = np.atleast_1d(np.asarray(theta, dtype=float))
         if not self.has_intervals:
             return np.ones(len(theta), dtype=bool), np.ones(len(theta), dtype=bool)
-        from .uncertainty import reflex_interval
+        from .reflex_uncertainty import reflex_interval
 
         g, th = reflex_interval(self, theta, level)
         return g.determined, th.determined
@@ -962,7 +962,7 @@ class LPVPCModel:
         if self.uncertainty:
             d["uncertainty"] = self.uncertainty
             if derived:  # where the data determine the reflex gain and threshold, recorded for readers of the file
-                from .uncertainty import reflex_determination
+                from .reflex_uncertainty import reflex_determination
 
                 d["uncertainty"] = {**self.uncertainty, "reflex_determined": reflex_determination(self)}
         return d

@@ -478,7 +478,7 @@ def _check_uncertainty(x, where, problems, d, budget):
         for key, size in (("omega", n["omega"]), ("bd", m + 1)):
             _shape(_array(c.get(key), f"{where}.curvature_reflex.{key}", problems, 1, [0]), (size,),
                    f"{where}.curvature_reflex.{key}", problems)
-    if "knee_rounding" in u:  # lpvpc.models.uncertainty.knee_rounding: one curve over thresholds
+    if "knee_rounding" in u:  # lpvpc.models.reflex_uncertainty.knee_rounding: one curve over thresholds
         kr = _dict(u["knee_rounding"], f"{where}.knee_rounding", problems, required=True)
         t = _array(kr.get("threshold"), f"{where}.knee_rounding.threshold", problems, 1, [0])
         if len(t) < 2 or np.any(np.diff(t) <= 0):
@@ -486,7 +486,7 @@ def _check_uncertainty(x, where, problems, d, budget):
         for key in ("gain_factor", "fitted_threshold"):
             _shape(_array(kr.get(key), f"{where}.knee_rounding.{key}", problems, 1, [0]), (len(t),),
                    f"{where}.knee_rounding.{key}", problems)
-    if "reflex_determined" in u:  # lpvpc.models.uncertainty.reflex_determination: derived, rewritten on save
+    if "reflex_determined" in u:  # lpvpc.models.reflex_uncertainty.reflex_determination: derived, rewritten on save
         r = _dict(u["reflex_determined"], f"{where}.reflex_determined", problems, required=True)
         if r:
             rho = _array(r.get("rho"), f"{where}.reflex_determined.rho", problems, 1, [0])

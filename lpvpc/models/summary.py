@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .uncertainty import NOT_DETERMINED, SLOPE_TOLERANCE
+from .uncertainty import NOT_DETERMINED
+from .reflex_uncertainty import SLOPE_TOLERANCE
 
 __all__ = ["ModelSummary"]
 
@@ -235,7 +236,7 @@ def physiology_lines(model) -> list:
 
 
 def gain_slope_lines(model, level=0.95) -> list:
-    """The reflex gain's change with position (:func:`lpvpc.models.uncertainty.reflex_gain_slope`)
+    """The reflex gain's change with position (:func:`lpvpc.models.reflex_uncertainty.reflex_gain_slope`)
     as one line, its interval always given: the two ends the ``reflex gain`` line prints
     suggest a slope, and the data often bound its sign but not its size. Empty for a model of
     one operating position or without intervals.
@@ -254,7 +255,7 @@ def _gain_slope_text(model, level=0.95):
     """The slope, its interval and whether its size is determined, in words (the one text of
     :func:`gain_slope_lines` and :func:`gain_slope_html`); None for a model of one operating
     position or without intervals."""
-    from .uncertainty import reflex_gain_slope
+    from .reflex_uncertainty import reflex_gain_slope
 
     if len(summary_positions(model)) < 2 or not model.has_intervals:
         return None
