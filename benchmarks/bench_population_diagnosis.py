@@ -59,7 +59,10 @@ from the measured time per draw (``--draws 1 --clean 1`` measures one draw per e
 ``--profile EFFECT`` profiles one draw of EFFECT ("clean" for a clean draw) with cProfile and
 writes its largest costs to benchmarks/results/population_diagnosis_profile.txt.
 
-Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population_diagnosis.py [--draws N] [--clean N] [--first-seed I] [--jobs N] [--record]
+``--position-noise RAD``: the position sensor's noise floor in every trial (the population has
+none; the lab's pilot trial about 5e-5 rad), recorded as its own section.
+
+Run: OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population_diagnosis.py [--draws N] [--clean N] [--first-seed I] [--jobs N] [--record] [--position-noise RAD]
 """
 
 from __future__ import annotations
@@ -133,10 +136,15 @@ def _one_line(text, limit=200):
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
+#: rad: white noise in each trial's recorded position (``--position-noise``; the forked workers
+#: inherit it)
+POSITION_NOISE = 0.0
+
+
 def _pairs(s, clean=False):
     """The identification and novel PerturbationData of subject ``s`` and the novel pair's
     noise ceiling (VAF % of its noise-free torque)."""
-    ident, novel = simulate_subject(s, "multilevel", clean=clean), simulate_subject(s, "novel", clean=clean)
+    ident, novel = (simulate_subject(s, t, clean=clean, position_noise=POSITION_NOISE) for t in ("multilevel", "novel"))
     nv = lpvpc.pair_trials(novel.pt, novel.ut)
     ceiling = lpvpc.vaf(nv.torque, lpvpc.pair_trials(novel.pt_clean, novel.ut_clean).torque)
     return lpvpc.pair_trials(ident.pt, ident.ut), nv, ceiling
@@ -361,7 +369,9 @@ def summarise(rows, args, name, seeds_of, total, cmd):
               "against lpvpc.identify on the same subject without its effect, held-out VAF on its novel pair. "
               "Right: the base diagnosis's first significant candidate is a catalog effect with the pathway and signals "
               "of the effect's catalog entry (background activation: the pathway its form scales); entry: the entry "
-              "itself or the one it is tied with. Shares with 95 % Wilson intervals.", ""]
+              "itself or the one it is tied with. Shares with 95 % Wilson intervals."
+              + (f" Position sensor noise: white, {args.position_noise:g} rad RMS in each trial's recorded position."
+                 if args.position_noise else ""), ""]
     lines += ["## Effect draws", "",
               "| seed | effect | form | design | K form | first significant candidate | gain (pp) | p | right | entry | "
               "right entry in the base diagnosis | base VAF | ladder VAF | ceiling | clean VAF | clean ceiling | gap | "
@@ -456,6 +466,9 @@ def main(argv=None):
                          "seed range not used before (default 0)")
     ap.add_argument("--effects", metavar="NAME", nargs="+", choices=EFFECTS, default=list(EFFECTS),
                     help="only these effects' draws (default all); the summary judges what was run")
+    ap.add_argument("--position-noise", type=float, default=0.0, metavar="RAD",
+                    help="white noise of this RMS in each trial's recorded position (default none; the lab's "
+                         "pilot: about 5e-5)")
     ap.add_argument("--profile", metavar="EFFECT", choices=EFFECTS + ("clean",),
                     help="profile one draw of EFFECT ('clean': a clean draw) and stop")
     args = ap.parse_args(argv)
@@ -464,6 +477,8 @@ def main(argv=None):
         ap.error(f"--draws and --clean must be 0..{SEED_BLOCK}, --jobs at least 1, --first-seed plus the draws "
                  f"at most {SEED_BLOCK}")
     seeds_set, name = (RECORD_SEEDS, "RECORD_SEEDS") if args.record else (DEVELOPMENT_SEEDS, "DEVELOPMENT_SEEDS")
+    global POSITION_NOISE
+    POSITION_NOISE = args.position_noise
     if args.profile:
         return profile(args.profile, seeds_set)
 
@@ -480,7 +495,8 @@ def main(argv=None):
            + (f" --clean {args.clean}" if args.clean != DEFAULT_CLEAN else "")
            + (f" --first-seed {args.first_seed}" if args.first_seed else "")
            + (f" --effects {' '.join(args.effects)}" if list(args.effects) != list(EFFECTS) else "")
-           + (f" --jobs {args.jobs}" if args.jobs != 1 else "") + (" --record" if args.record else ""))
+           + (f" --jobs {args.jobs}" if args.jobs != 1 else "") + (" --record" if args.record else "")
+           + (f" --position-noise {args.position_noise:g}" if args.position_noise else ""))
 
     def progress(r):
         what = (f"alarm {r.get('alarm')}" if r["effect"] == "none" else
@@ -494,7 +510,7 @@ def main(argv=None):
     lines = summarise(rows, args, name, seeds_of, total, cmd)
     target = RESULTS / ("population_diagnosis_record.txt" if args.record else "population_diagnosis.txt")
     save_candidates(rows, cmd, "population_diagnosis_record" if args.record else "population_diagnosis")
-    if (args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN or args.first_seed
+    if (args.draws != DEFAULT_DRAWS or args.clean != DEFAULT_CLEAN or args.first_seed or args.position_noise
             or list(args.effects) != list(EFFECTS)):  # another run: its own section
         head = f"## Run: {cmd}"
         section = ["", head, ""] + [x.replace("## ", "### ", 1) if x.startswith("## ") else x for x in lines[2:]]
