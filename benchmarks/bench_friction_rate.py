@@ -43,9 +43,10 @@ from lpvpc.diagnosis.cv import robust_paired_test  # noqa: E402
 from lpvpc.diagnosis.surrogate import Surrogate  # noqa: E402
 from lpvpc.io import decimate_signal  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
-from lpvpc.models.effects import CATALOG, FRICTION_SCALES, effect_basis, signals_from_data  # noqa: E402
+from lpvpc.models.basis import NUMPY  # noqa: E402
+from lpvpc.models.effects import CATALOG, FRICTION_SCALES, effect_basis, record_context, signals_from_data  # noqa: E402
 from lpvpc.simulation.population import draw_subject, simulate_subject  # noqa: E402
-from _results import RESULTS, write_results  # noqa: E402
+from _results import PILOT_POSITION_NOISE, RESULTS, add_position_noise_option, write_results  # noqa: E402
 from real_data import real_data_dir  # noqa: E402
 
 FRICTION_SEEDS = range(20000, 20006)  # development seeds of the friction draws
@@ -59,6 +60,27 @@ def file_rate_features(data):
     return np.column_stack([decimate_signal(eq.friction_difference(v, v_slow, s), q) for s in FRICTION_SCALES])
 
 
+def model_rate_features(data):
+    """The catalog entry's own friction features of a record (model-rate velocities)."""
+    ctx = record_context(data.position, data.scheduling, data.fs, signals_from_data(data))
+    return np.column_stack(CATALOG["nonlinear_viscosity"].features(ctx, NUMPY, {}))
+
+
+def candidate_gains(model, data, fine):
+    """(the catalog candidate, the file-rate features' gain (pp) and p-value, the surrogate and
+    its base residual): both sets of friction features scored on ``data`` as the diagnosis
+    scores a candidate (the base structure refitted with them, blocked cross-validation);
+    ``fine``: the file-rate features of ``data``."""
+    sur = Surrogate(model, data)
+    r0, _ = sur.cv.fit(sur.base)
+    (cand,), _ = score_candidates(sur, candidates=["nonlinear_viscosity"])
+    G = effect_basis(CATALOG["nonlinear_viscosity"], model.intrinsic_basis).evaluate(data.scheduling)
+    sur.cv.add("fine", eq.kron_rows(fine, G))  # the entry's columns, file-rate features
+    r1, _ = sur.cv.fit(sur.base + ["fine"])
+    _, p_fine, _ = robust_paired_test(r0, r1, data.fs)
+    return cand, 100.0 * (r0 @ r0 - r1 @ r1) / sur.sst, p_fine, sur, r0
+
+
 def r2(X, y):
     beta = np.linalg.lstsq(X, y, rcond=None)[0]
     e = y - X @ beta
@@ -70,24 +92,17 @@ def draw(seed, noise, effect=True):
     ident, novel = (simulate_subject(s, t, position_noise=noise) for t in ("multilevel", "novel"))
     I, N = lpvpc.pair_trials(ident.pt, ident.ut), lpvpc.pair_trials(novel.pt, novel.ut)
     model = lpvpc.identify(I)
-    sur = Surrogate(model, N)
-    r0, _ = sur.cv.fit(sur.base)
-    gain = lambda r: 100.0 * (r0 @ r0 - r @ r) / sur.sst  # noqa: E731
-    (cand,), _ = score_candidates(sur, candidates=["nonlinear_viscosity"])  # the catalog's (model rate)
-    G = effect_basis(CATALOG["nonlinear_viscosity"], model.intrinsic_basis).evaluate(N.scheduling)
-    sur.cv.add("fine", eq.kron_rows(file_rate_features(N), G))  # the entry's columns, file-rate features
-    out = {"seed": seed, "form": s.form or "-", "design": s.design, "model": cand.vaf_gain,
-           "fine": gain(sur.cv.fit(sur.base + ["fine"])[0])}
+    fine = file_rate_features(N)
+    cand, gain_fine, _, sur, r0 = candidate_gains(model, N, fine)
+    out = {"seed": seed, "form": s.form or "-", "design": s.design, "model": cand.vaf_gain, "fine": gain_fine}
     if effect:
         clean = simulate_subject(s, "novel", clean=True, position_noise=noise)
         friction = (lpvpc.pair_trials(novel.pt_clean, novel.ut_clean).torque
                     - lpvpc.pair_trials(clean.pt_clean, clean.ut_clean).torque)
         sur.cv.add("truth", friction)
-        coarse = np.column_stack([eq.friction_difference(eq.velocity(N.position, N.fs),
-                                                         signals_from_data(N)["scheduling_velocity"], s)
-                                  for s in FRICTION_SCALES])
-        out.update(truth=gain(sur.cv.fit(sur.base + ["truth"])[0]), r2_model=r2(coarse, friction),
-                   r2_fine=r2(file_rate_features(N), friction))
+        r1, _ = sur.cv.fit(sur.base + ["truth"])
+        out.update(truth=100.0 * (r0 @ r0 - r1 @ r1) / sur.sst, r2_model=r2(model_rate_features(N), friction),
+                   r2_fine=r2(fine, friction))
     return out
 
 
@@ -106,28 +121,21 @@ def pilot_lines() -> list:
     data = lpvpc.load_identification_data(data=path, torque_sign=-1)
     k = int(0.7 * data.n)
     ident, held = data.segment(0, k), data.segment(k, None)
-    model = lpvpc.identify(ident)
-    sur = Surrogate(model, held)
-    r0, _ = sur.cv.fit(sur.base)
-    (cand,), _ = score_candidates(sur, candidates=["nonlinear_viscosity"])
-    G = effect_basis(CATALOG["nonlinear_viscosity"], model.intrinsic_basis).evaluate(held.scheduling)
-    sur.cv.add("fine", eq.kron_rows(file_rate_features(held), G))
-    r1, _ = sur.cv.fit(sur.base + ["fine"])
-    _, p_fine, _ = robust_paired_test(r0, r1, held.fs)
+    cand, gain_fine, p_fine, _, _ = candidate_gains(lpvpc.identify(ident), held, file_rate_features(held))
     return ["", f"The lab's pilot trial ({path.name}, 1 kHz PT - UT position): PSD over 300-450 Hz {floor:.2e} rad^2/Hz, "
                 f"a white floor of {np.sqrt(floor * 500.0):.1e} rad RMS ({np.sqrt(floor * 250.0):.1e} in each of the two "
                 f"trials); coherence of position and torque: {coh} (sensor noise is incoherent with the torque).",
             f"Its development split (identified on the first 70 %, the candidates scored on the last 30 %): model-rate "
             f"features (the catalog's) {cand.vaf_gain:+.3f} pp (p {cand.p_value:.1e}), file-rate features "
-            f"{100.0 * (r0 @ r0 - r1 @ r1) / sur.sst:+.3f} pp (p {p_fine:.1e})."]
+            f"{gain_fine:+.3f} pp (p {p_fine:.1e})."]
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--position-noise", type=float, default=5e-5, metavar="RAD")
+    add_position_noise_option(ap, default=PILOT_POSITION_NOISE)
     args = ap.parse_args(argv)
     cmd = "OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_friction_rate.py" + (
-        f" --position-noise {args.position_noise:g}" if args.position_noise != 5e-5 else "")
+        f" --position-noise {args.position_noise:g}" if args.position_noise != PILOT_POSITION_NOISE else "")
     lines = [f"# Friction features at the file's rate or the model's ({cmd})", "",
              "Held-out VAF gains (pp) as diagnosis candidates on 2-minute population pairs; R^2 of the true friction "
              "torque by each set of features (benchmarks/bench_friction_rate.py's docstring).", "",

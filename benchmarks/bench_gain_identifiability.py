@@ -70,7 +70,8 @@ def model_rate_reading(seed, form):
     s_true = np.polyfit(rho, g_true, 1)[0]
     raw = np.polyfit(rho, model.reflex_gain_threshold(rho)[0], 1)[0] / s_true
     return {"two_fold": bool(g_true.max() >= 2 * g_true.min()), "slope_raw": float(raw),
-            "slope_mid": float(raw / r_mid), "plaus_lo": float(plaus.min()), "plaus_hi": float(plaus.max()),"seed": seed, "design": s.design, "th_true": th_true, "t_top": float(t[-1]),
+            "slope_mid": float(raw / r_mid), "plaus_lo": float(plaus.min()), "plaus_hi": float(plaus.max()),
+            "seed": seed, "design": s.design, "th_true": th_true, "t_top": float(t[-1]),
             "read_span": float(fitted.max() - fitted.min()), "read_lo": float(fitted.min()),
             "factor_ratio": float(pos.max() / pos.min()) if len(pos) else float("inf"),
             "factor_lo": float(factor.min()), "factor_hi": float(factor.max())}

@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 import lpvpc  # noqa: E402
 from lpvpc.simulation.population import DEVELOPMENT_SEEDS, RECORD_SEEDS, STIFFNESS_FORMS, draw_subject, simulate_subject  # noqa: E402
 from lpvpc.models.reflex_uncertainty import reflex_gain_slope, reflex_interval  # noqa: E402
-from _results import RESULTS, write_results  # noqa: E402
+from _results import RESULTS, add_position_noise_option, position_noise_text, write_results  # noqa: E402
 
 N_POS = 9
 LEVEL = 0.95
@@ -103,9 +103,7 @@ def main(argv=None):
     ap.add_argument("n", nargs="?", type=int, default=9, help="draws (default 9: 3 per stiffness form)")
     ap.add_argument("--first-seed", type=int, default=None, help="first seed (default: the set's first)")
     ap.add_argument("--record", action="store_true", help="draw from RECORD_SEEDS (recorded results)")
-    ap.add_argument("--position-noise", type=float, default=0.0, metavar="RAD",
-                    help="white noise of this RMS in each trial's recorded position (default none; the lab's "
-                         "pilot: about 5e-5)")
+    add_position_noise_option(ap)
     args = ap.parse_args(argv)
     seeds_set, name = (RECORD_SEEDS, "RECORD_SEEDS") if args.record else (DEVELOPMENT_SEEDS, "DEVELOPMENT_SEEDS")
     first = seeds_set.start if args.first_seed is None else args.first_seed
@@ -119,14 +117,12 @@ def main(argv=None):
     cmd = "OPENBLAS_NUM_THREADS=1 nice python benchmarks/bench_population.py" + (f" {args.n}" if args.n != 9 else "") \
         + (f" --first-seed {args.first_seed}" if args.first_seed is not None else "") + (" --record" if args.record else "") \
         + (f" --position-noise {args.position_noise:g}" if args.position_noise else "")
-    noise = (f" Position sensor noise: white, {args.position_noise:g} rad RMS in each trial's recorded position "
-             "(the lab's pilot trial's floor, docs/design_notes.md, \"Position noise floor\")." if args.position_noise else "")
     lines = [f"# Identification over population draws ({cmd})", "",
              f"{args.n} clean subjects from {name}, seeds {seeds.start}..{seeds[-1]}; stiffness form cycling "
              f"{', '.join(STIFFNESS_FORMS)}; everything else drawn (docs/guide/population.md). 2-minute identification "
              "and novel pairs at 1 kHz, paired and decimated as the loaders do, lpvpc.identify(data) at every default, "
              f"model.predict on the novel pair. K error and coverage at {N_POS} positions over the central 80 % of the "
-             "identified range, truth = the stiffness at the perturbation's amplitude; 95 % intervals." + noise, "",
+             "identified range, truth = the stiffness at the perturbation's amplitude; 95 % intervals." + position_noise_text(args.position_noise), "",
              "| seed | K form | design | SNR dB | threshold at +0.2 rad/s | novel VAF | ceiling | gap | K worst err % | "
              "K median err % | K covered | B covered | gain slope ratio (the estimate's where not determined) | gain covered / determined | "
              "threshold covered / determined | identify+predict s |",

@@ -92,7 +92,7 @@ from lpvpc.diagnosis.cv import robust_paired_test  # noqa: E402
 from lpvpc.models.effects import CATALOG, signals_from_data  # noqa: E402
 from lpvpc.simulation.population import (DEVELOPMENT_SEEDS, POPULATION_EFFECTS, RECORD_SEEDS,  # noqa: E402
                                          draw_subject, simulate_subject)
-from _results import RESULTS, write_results  # noqa: E402
+from _results import RESULTS, add_position_noise_option, position_noise_text, write_results  # noqa: E402
 
 SEED_BLOCK = 10_000  # seeds per effect (and for the clean draws)
 DEFAULT_DRAWS, DEFAULT_CLEAN = 30, 100
@@ -370,8 +370,7 @@ def summarise(rows, args, name, seeds_of, total, cmd):
               "Right: the base diagnosis's first significant candidate is a catalog effect with the pathway and signals "
               "of the effect's catalog entry (background activation: the pathway its form scales); entry: the entry "
               "itself or the one it is tied with. Shares with 95 % Wilson intervals."
-              + (f" Position sensor noise: white, {args.position_noise:g} rad RMS in each trial's recorded position."
-                 if args.position_noise else ""), ""]
+              + position_noise_text(args.position_noise), ""]
     lines += ["## Effect draws", "",
               "| seed | effect | form | design | K form | first significant candidate | gain (pp) | p | right | entry | "
               "right entry in the base diagnosis | base VAF | ladder VAF | ceiling | clean VAF | clean ceiling | gap | "
@@ -466,9 +465,7 @@ def main(argv=None):
                          "seed range not used before (default 0)")
     ap.add_argument("--effects", metavar="NAME", nargs="+", choices=EFFECTS, default=list(EFFECTS),
                     help="only these effects' draws (default all); the summary judges what was run")
-    ap.add_argument("--position-noise", type=float, default=0.0, metavar="RAD",
-                    help="white noise of this RMS in each trial's recorded position (default none; the lab's "
-                         "pilot: about 5e-5)")
+    add_position_noise_option(ap)
     ap.add_argument("--profile", metavar="EFFECT", choices=EFFECTS + ("clean",),
                     help="profile one draw of EFFECT ('clean': a clean draw) and stop")
     args = ap.parse_args(argv)

@@ -196,7 +196,7 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
     ------
     ValueError
         An unknown trajectory, perturbation, effect or EMG unit, a rate that does not
-        divide 1000 Hz, or fewer than 100 output samples.
+        divide 1000 Hz, fewer than 100 output samples, or a negative position noise.
 
     Examples
     --------
@@ -210,6 +210,8 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         raise ValueError(f"unknown trajectory {trajectory!r}; use one of {sorted(_TRAJECTORIES)}")
     if perturbation not in PERTURBATIONS:
         raise ValueError(f"unknown perturbation {perturbation!r}; use one of {sorted(PERTURBATIONS)}")
+    if not (np.isfinite(position_noise) and position_noise >= 0):
+        raise ValueError(f"position_noise={position_noise} must be a finite RMS >= 0 (rad)")
     effects = _check_effects(effects)
     params = params or SubjectParams()
     if stiffness_family is not None:
@@ -259,8 +261,6 @@ def simulate_pair(trajectory: str = "multilevel", *, seed: int = 0, duration: fl
         scale = float(np.sqrt(np.var(d_clean) / (np.var(noise_pt - noise_ut) * 10 ** (snr_db / 10))))
     noisy = {"PT": clean["PT"] + scale * noise_pt, "UT": clean["UT"] + scale * noise_ut}
     d_noisy = noisy["PT"] - noisy["UT"]
-    if not (np.isfinite(position_noise) and position_noise >= 0):
-        raise ValueError(f"position_noise={position_noise} must be a finite RMS >= 0 (rad)")
     recorded = {k: pos[k] + position_noise * r.standard_normal(len(pos[k])) for k, r in (("PT", r_ppt), ("UT", r_put))}
 
     def trial(key, torque, sim):
