@@ -358,6 +358,79 @@ def check_record(model, data) -> dict:
     return cov
 
 
+@dataclass
+class SurrogateSetup:
+    """What :func:`diagnosis_surrogate` prepares: the record with its activation estimates
+    (``data``), its coverage of the identified range (``coverage``, and ``outside``: the
+    samples left out), the model's prediction, its VAF inside the range, the surrogate and
+    why it holds the model fixed ("" when it refits)."""
+
+    data: object
+    coverage: dict
+    outside: np.ndarray
+    prediction: object
+    model_vaf_inside: float
+    surrogate: Surrogate
+    reason: str
+    timings: dict
+
+
+def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSetup:
+    """The surrogate :func:`diagnose` scores every candidate on (``design`` as it takes it):
+    the model's structure refitted on ``data`` in ``folds`` blocks, or the model held
+    ("fixed") when asked or when the refit's cross-validated VAF falls more than
+    ``SANE_DROP`` pp below the model's own on the samples inside the identified range.
+
+    The EMG's reflex bursts are explained by the model's own reflex drive (not the measured
+    velocity), once, for every fit on the record (:func:`lpvpc.models.effects.with_model_activation`).
+
+    >>> from lpvpc.io import pair_trials
+    >>> from lpvpc.identification.identify import identify
+    >>> from lpvpc.simulation.simulate import simulate_pair
+    >>> train = simulate_pair("multilevel", seed=0, duration=30.0, fs_out=100.0)
+    >>> model = identify(pair_trials(train.pt, train.ut))
+    >>> test = simulate_pair("multilevel", seed=1, duration=60.0, fs_out=100.0)
+    >>> setup = diagnosis_surrogate(model, pair_trials(test.pt, test.ut))
+    >>> setup.surrogate.design, setup.surrogate.base, setup.reason
+    ('refit', ['intrinsic', 'reflex'], '')
+
+    A 24-s record is too short to refit the structure on: the model is held, and the reason
+    says why.
+
+    >>> short = simulate_pair("multilevel", seed=1, duration=24.0, fs_out=100.0)
+    >>> setup = diagnosis_surrogate(model, pair_trials(short.pt, short.ut))
+    >>> setup.surrogate.design, setup.reason.startswith("refitting the model's structure on this record (24 s")
+    ('fixed', True)
+    """
+    t0 = time.perf_counter()
+    data = with_model_activation(data, model)
+    cov = check_record(model, data)
+    outside = cov.pop("outside_mask")
+    mask = ~outside if outside.any() else None
+    pred = model.predict(data, warn=False, signals=signals_from_data(data))  # as every door predicts it
+    y = np.asarray(data.torque, dtype=float)
+    model_vaf_inside = vaf(y[~outside], pred.total[~outside])
+    timings = {"predict": time.perf_counter() - t0}
+    t = time.perf_counter()
+    reason = ""
+    sur = Surrogate(model, data, folds, design="fixed" if design == "fixed" else "refit", mask=mask,
+                    prediction=pred.total)
+    if design == "fixed":
+        reason = "requested."
+    if design == "auto":
+        r0, _ = sur.cv.fit(sur.base)
+        base_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
+        if base_vaf < model_vaf_inside - SANE_DROP:
+            reason = (f"refitting the model's structure on this record ({cov['duration_s']:.0f} s, "
+                      f"{100 * cov['covered_fraction_of_range']:.0f} % of the identified range) gives a "
+                      f"cross-validated VAF of {base_vaf:.1f} % against {model_vaf_inside:.1f} % for the model itself: "
+                      f"the record is too short or narrow for a refit (each fold must see positions the others "
+                      f"visit too), or a large missing effect makes the refit unstable.")
+            sur = Surrogate(model, data, folds, design="fixed", mask=mask, prediction=pred.total)
+    timings["design"] = time.perf_counter() - t
+    return SurrogateSetup(data, cov, outside, pred, model_vaf_inside, sur, reason, timings)
+
+
 @on_one_blas_thread
 def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_s=BLOCK_S,
              candidates=None, dependence=True, design="auto", reference=None) -> Diagnosis:
@@ -450,35 +523,14 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
                             f"lpvpc.load_identification_data), not {type(reference).__name__}")
         check_model_rate(reference.fs, model.fs, what="reference record", source=getattr(reference, "source", None),
                          tolerance=1e-6)
-    # the EMG's reflex bursts explained by this model's own reflex drive (not the measured velocity)
-    data = with_model_activation(data, model)
-    cov = check_record(model, data)
-    outside = cov.pop("outside_mask")
-    mask = ~outside if outside.any() else None
+    setup = diagnosis_surrogate(model, data, folds, design)
+    data, cov, pred, sur, reason = setup.data, setup.coverage, setup.prediction, setup.surrogate, setup.reason
+    mask = ~setup.outside if setup.outside.any() else None
     sig = signals_from_data(data)
-    pred = model.predict(data, warn=False, signals=sig)  # as every door predicts the record (its file-rate reflex)
     y = np.asarray(data.torque, dtype=float)
     resid = y - pred.total
-    inside = ~outside
-    model_vaf_inside = vaf(y[inside], pred.total[inside])
-    timings["predict"] = time.perf_counter() - t0
-    t = time.perf_counter()
-    reason = ""
-    sur = Surrogate(model, data, folds, design="fixed" if design == "fixed" else "refit", mask=mask,
-                    prediction=pred.total)
-    if design == "fixed":
-        reason = "requested."
-    if design == "auto":
-        r0, _ = sur.cv.fit(sur.base)
-        base_vaf = 100 * (1 - float(r0 @ r0) / sur.sst)
-        if base_vaf < model_vaf_inside - SANE_DROP:
-            reason = (f"refitting the model's structure on this record ({cov['duration_s']:.0f} s, "
-                      f"{100 * cov['covered_fraction_of_range']:.0f} % of the identified range) gives a "
-                      f"cross-validated VAF of {base_vaf:.1f} % against {model_vaf_inside:.1f} % for the model itself: "
-                      f"the record is too short or narrow for a refit (each fold must see positions the others "
-                      f"visit too), or a large missing effect makes the refit unstable.")
-            sur = Surrogate(model, data, folds, design="fixed", mask=mask, prediction=pred.total)
-    timings["design"] = time.perf_counter() - t
+    model_vaf_inside = setup.model_vaf_inside
+    timings.update(setup.timings)
     t = time.perf_counter()
     leaks = signal_leaks(sur)
     results, r0 = score_candidates(sur, candidates=candidates, min_gain=min_gain, alpha=alpha, block_s=block_s,
