@@ -169,10 +169,6 @@ def best_monotone_rule(dominating, allowed):
     return best
 
 
-def _pct(k, n):
-    return bpd.share(k, n)
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=bpd.DEFAULT_DRAWS, help="draws per effect (default 30)")
@@ -237,9 +233,9 @@ def main(argv=None):
         g = [r for r in rows if effect in ("all", r["effect"])]
         caps = [r["capture"] for r in g if np.isfinite(r["capture"])]
         lines.append(f"| {'**all effects**' if effect == 'all' else effect} | {len(g)} | "
-                     f"{_pct(sum(r['passes'] for r in g), len(g))} | "
-                     f"{_pct(sum(len(r['dominating']) <= allowed for r in g), len(g))} | "
-                     f"{_pct(sum(r['named'] for r in g), len(g))} | "
+                     f"{bpd.share(sum(r['passes'] for r in g), len(g))} | "
+                     f"{bpd.share(sum(len(r['dominating']) <= allowed for r in g), len(g))} | "
+                     f"{bpd.share(sum(r['named'] for r in g), len(g))} | "
                      f"{np.median(caps) if caps else float('nan'):.2f} |")
     lines += ["", "| effect's cost to the base model (points) | draws | nameable | named right | median oracle gain |",
               "|---|---|---|---|---|"]
@@ -247,15 +243,15 @@ def main(argv=None):
         g = [r for r in rows if lo <= r["cost"] < hi]
         label = f"< {hi:g}" if lo == -math.inf else (f">= {lo:g}" if hi == math.inf else f"{lo:g}-{hi:g}")
         med = np.median([r["gain"] for r in g if "gain" in r]) if g else float("nan")
-        lines.append(f"| {label} | {len(g)} | {_pct(sum(len(r['dominating']) <= allowed for r in g), len(g))} | "
-                     f"{_pct(sum(r['named'] for r in g), len(g))} | {med:+.3f} |")
+        lines.append(f"| {label} | {len(g)} | {bpd.share(sum(len(r['dominating']) <= allowed for r in g), len(g))} | "
+                     f"{bpd.share(sum(r['named'] for r in g), len(g))} | {med:+.3f} |")
     best = best_monotone_rule([r["dominating"] for r in rows], allowed)
     best_entry = best_monotone_rule([r["dominating_entry"] for r in rows], allowed)
     lines += ["", f"One rule for all candidates (monotone in gain, p and p of the mean; at most {allowed} clean "
-                  f"draws with an alarm) names at most {_pct(best, len(rows))} of the effect draws, if its candidates "
+                  f"draws with an alarm) names at most {bpd.share(best, len(rows))} of the effect draws, if its candidates "
                   f"capture no more than the oracle; a rule of its own for each catalog entry (alarms counted on "
                   f"the clean draws' candidates of the entries that are right for the draw) at most "
-                  f"{_pct(best_entry, len(rows))}."]
+                  f"{bpd.share(best_entry, len(rows))}."]
     lines += ["", f"wall time {wall:.0f} s with {args.jobs} job(s)"]
     name = "diagnosis_oracle_record.txt" if args.record else "diagnosis_oracle.txt"
     write_results(name, lines)
