@@ -191,8 +191,9 @@ def main(argv=None):
     lines = [f"# The diagnosis's oracle: each effect's own torque as the candidate ({cmd})", "",
              f"Seeds: {'RECORD_SEEDS' if args.record else 'DEVELOPMENT_SEEDS'}, the draws of "
              f"bench_population_diagnosis.py; its saved candidates: `{key}` (commit {saved['git']}), "
-             f"{n_clean} clean draws. Oracle: the draw's true effect torque as one column in the diagnosis's refit "
-             f"surrogate of the base model on the novel pair (gain pp, robust p, p of the mean). capture: the "
+             f"{n_clean} clean draws. Oracle: the draw's true effect torque as one column in the diagnosis's "
+             f"surrogate of the base model on the novel pair (refit, or the model held where diagnose holds it; "
+             f"gain pp, robust p, p of the mean). capture: the "
              f"right entry's gain in the base diagnosis over the oracle's. clean >=: clean draws with a "
              f"non-leaking candidate at least as strong on gain, p and p of the mean; at most {allowed} "
              f"({100 * ALARM_SHARE:.0f} %) leaves the draw nameable by a rule monotone in gain and p. "

@@ -363,7 +363,12 @@ class SurrogateSetup:
     """What :func:`diagnosis_surrogate` prepares: the record with its activation estimates
     (``data``), its coverage of the identified range (``coverage``, and ``outside``: the
     samples left out), the model's prediction, its VAF inside the range, the surrogate and
-    why it holds the model fixed ("" when it refits)."""
+    why it holds the model fixed ("" when it refits).
+
+    >>> import dataclasses
+    >>> [f.name for f in dataclasses.fields(SurrogateSetup)]
+    ['data', 'coverage', 'outside', 'prediction', 'model_vaf_inside', 'surrogate', 'reason', 'timings']
+    """
 
     data: object
     coverage: dict
