@@ -198,15 +198,15 @@ def main(argv=None):
              f"non-leaking candidate at least as strong on gain, p and p of the mean; at most {allowed} "
              f"({100 * ALARM_SHARE:.0f} %) leaves the draw nameable by a rule monotone in gain and p. "
              f"passes: the current rule (`passes`, level ALPHA over the draw's candidates) on the oracle.", "",
-             "| seed | effect | form | design | cost (pp) | oracle gain | p | p_mean | passes | clean >= | "
+             "| seed | effect | form | design | surrogate | cost (pp) | oracle gain | p | p_mean | passes | clean >= | "
              "right entry's gain | capture | named right | error |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         d = by_draw.get((r["seed"], r["effect"]), {})
         r["cost"] = d.get("clean_vaf", float("nan")) - d.get("base_vaf", float("nan"))
         r["named"] = bool(d.get("named"))
-        right = [d["base_candidates"]["cands"].get(a) for a in bpd.accepted(r["effect"], r.get("form", "intrinsic"))
-                 ] if d.get("base_candidates") else []
+        ok = d.get("accepted") or bpd.accepted(r["effect"], r.get("form", "intrinsic"))  # as the diagnosis run judged
+        right = [d["base_candidates"]["cands"].get(a) for a in ok] if d.get("base_candidates") else []
         right = [v for v in right if v is not None]
         r["entry_gain"] = max((v[0] for v in right), default=float("nan"))
         if r["error"]:
@@ -217,10 +217,10 @@ def main(argv=None):
             r["passes"] = passes(r["gain"], r["p"], MIN_GAIN, ALPHA / n_avail, p_mean=r["p_mean"],
                                  reflex=reflex_floor(r["effect"], r["form"]))
             r["dominating"] = dominated_by((r["gain"], r["p"], r["p_mean"]), pts)
-            r["dominating_entry"] = dominated_by((r["gain"], r["p"], r["p_mean"]), pts,
-                                                 bpd.accepted(r["effect"], r["form"]))
+            r["dominating_entry"] = dominated_by((r["gain"], r["p"], r["p_mean"]), pts, ok)
             r["capture"] = r["entry_gain"] / r["gain"] if r["gain"] > 0 else float("nan")
         lines.append(f"| {r['seed']} | {r['effect']} | {r.get('form', '?')} | {r.get('design', '?')} | "
+                     f"{r.get('surrogate', '-')} | "
                      f"{r['cost']:+.2f} | {r.get('gain', float('nan')):+.3f} | {r.get('p', float('nan')):.1e} | "
                      f"{r.get('p_mean', float('nan')):.1e} | {'yes' if r['passes'] else 'no'} | {len(r['dominating'])} | "
                      f"{r['entry_gain']:+.3f} | {r['capture']:.2f} | {'yes' if r['named'] else 'no'} | "

@@ -24,7 +24,8 @@ signal reads position alone (the scheduling variable). The population effect's o
 entry (the names are shared) gives the right (pathway, signals), except background activation,
 whose form says which pathway it changes: "intrinsic" is the catalog's
 ``background_activation`` (intrinsic, activation), "reflex" its ``activation_reflex_gain``
-(reflex, activation), "both" either. The first significant candidate names the right pathway
+(reflex, activation), "both" either; so is a "reflex" form whose two trials have their own
+activation (its tonic torque is then intrinsic torque in the paired record: :func:`accepted`). The first significant candidate names the right pathway
 and signal when it is a catalog effect (not a settings candidate: those say an estimator
 setting is wrong, not what the subject does) with that pathway and those signals; so a
 position-dependent reflex delay named as position-dependent reflex dynamics (reflex,
@@ -102,9 +103,26 @@ TARGETS = {"named": 0.90, "ladder": 0.90, "alarm": 0.02}
 EFFECTS = tuple(POPULATION_EFFECTS)
 
 
-def accepted(effect, form):
-    """The catalog entries that are a right answer for a population effect in ``form``."""
+def accepted(effect, form, effect_params=None):
+    """The catalog entries that are a right answer for a population effect in ``form`` (its
+    drawn ``effect_params``: a background activation's ``shared`` and ``tonic_torque``).
+
+    Every form of background activation also adds a tonic torque in proportion to the
+    activation. Shared by the two trials it cancels in PT - UT; when each trial has its own
+    activation it is intrinsic torque in the paired record (development seed 10019, "reflex"
+    form: 48 % of the effect torque's variance), which the catalog's ``background_activation``
+    takes by its tonic-torque terms. So a "reflex" form with an unshared activation takes
+    either entry, as "both" does.
+
+    >>> accepted("background_activation", "reflex", {"shared": True, "tonic_torque": 1.0})
+    ('activation_reflex_gain',)
+    >>> accepted("background_activation", "reflex", {"shared": False, "tonic_torque": 1.0})
+    ('background_activation', 'activation_reflex_gain')
+    """
     if effect == "background_activation":
+        p = effect_params or {}
+        if form == "reflex" and p and not p.get("shared", True) and p.get("tonic_torque", 0.0) > 0:
+            form = "both"
         return {"intrinsic": ("background_activation",), "reflex": ("activation_reflex_gain",),
                 "both": ("background_activation", "activation_reflex_gain")}[form]
     return (effect,)
@@ -199,7 +217,7 @@ def _effect_draw(seed, effect, out):
     clean_model = lpvpc.identify(ci)
     out["clean_vaf"] = heldout_vaf(clean_model, cn)
     out["t_clean"] = time.perf_counter() - t
-    ok = accepted(effect, s.form)
+    ok = accepted(effect, s.form, s.effect_params)
     right_where = {where(a) for a in ok}
     base = ladder.rungs[0]
     d = base.diagnosis
