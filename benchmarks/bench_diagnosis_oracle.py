@@ -18,11 +18,13 @@ Two questions per draw:
 * detectability: how many clean draws have a candidate (available, its signal not leaking
   into the reflex drive) at least as strong as the oracle on all three counts (gain at least
   the oracle's, p and p of the mean at most its). A significance rule that only grows with
-  gain and shrinks with p (every rule benchmarks/population_significance_rules.py replays)
-  and names the oracle also names those clean candidates; when more than 2 % of the clean
-  draws hold one, no such rule can name this draw within the false-alarm target. The draws
-  for which at most 2 % do bound the share any such rule can name from above, for
-  candidates that capture no more than the oracle.
+  gain and shrinks with p and names the oracle also names those clean candidates; when more
+  than 2 % of the clean draws hold one, no such rule can name this draw within the
+  false-alarm target. The draws for which at most 2 % do bound the share any such rule can
+  name from above, for candidates that capture no more than the oracle. A rule with
+  thresholds of its own per catalog entry (the current rule's reflex floor; every rule
+  benchmarks/population_significance_rules.py replays) is bounded the same way by the clean
+  candidates of the draw's right entries alone.
 
 Needs the diagnosis run's saved candidates (benchmarks/out/population_diagnosis_candidates.json,
 or ..._record_candidates.json with ``--record``; run benchmarks/bench_population_diagnosis.py

@@ -350,10 +350,10 @@ def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path
     from lpvpc.io import PerturbationData
     from lpvpc.errors import InsufficientExcitationError
 
-    def cut(data, a, b):
-        extra = {k: v[a:b] for k, v in data.extra.items()}
-        return PerturbationData(data.position[a:b], data.torque[a:b], data.scheduling[a:b], data.fs, extra,
-                                data.source, data.meta)
+    def cut(data, a, b):  # copies: the record is shared with the other tests (clean's cache)
+        extra = {k: v[a:b].copy() for k, v in data.extra.items()}
+        return PerturbationData(data.position[a:b].copy(), data.torque[a:b].copy(), data.scheduling[a:b].copy(),
+                                data.fs, extra, data.source, data.meta)
 
     with pytest.raises(InsufficientExcitationError, match=r"too short for a diagnosis: 15.0 s.*at least 20 s"):
         diagnose(model, cut(novel, 0, 1500))
@@ -371,6 +371,32 @@ def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path
     far.scheduling[:] = hi + 0.2
     with pytest.raises(InsufficientExcitationError, match="outside the model's identified range"):
         diagnose(model, far)
+
+
+def test_the_surrogate_set_up_is_the_one_diagnose_scores_against():
+    """diagnosis_surrogate is diagnose's own set-up: the same base residual (hence the same
+    gains) on a record it refits and on one it holds fixed; a column of the truth added to it
+    is scored like any candidate; an unknown design is refused by name."""
+    from lpvpc.diagnosis.diagnose import diagnosis_surrogate
+
+    model, novel, d = clean(0)
+    for data, design in ((novel, "refit"), (first_samples(novel, 3200), "fixed")):
+        setup = diagnosis_surrogate(model, data, design="auto")
+        r0, _ = setup.surrogate.cv.fit(setup.surrogate.base)
+        dd = d if data is novel else diagnose(model, data)
+        assert setup.surrogate.design == dd.design == design
+        assert np.allclose(r0, dd.base_residual)
+        assert setup.reason == dd.design_reason
+    with pytest.raises(ValueError, match="design must be 'auto', 'refit' or 'fixed', not 'bogus'"):
+        diagnosis_surrogate(model, novel, design="bogus")
+
+
+def first_samples(data, n):
+    """A copy of the first ``n`` samples of a record (every channel)."""
+    from lpvpc.io import PerturbationData
+
+    return PerturbationData(data.position[:n].copy(), data.torque[:n].copy(), data.scheduling[:n].copy(), data.fs,
+                            {k: v[:n].copy() for k, v in data.extra.items()}, data.source, data.meta)
 
 
 def test_diagnose_and_improve_reports_render_in_chromium(tmp_path):

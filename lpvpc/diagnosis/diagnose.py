@@ -388,6 +388,8 @@ def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSet
 
     The EMG's reflex bursts are explained by the model's own reflex drive (not the measured
     velocity), once, for every fit on the record (:func:`lpvpc.models.effects.with_model_activation`).
+    A record too short or mostly outside the identified range raises as :func:`diagnose` says;
+    a ``design`` other than "auto", "refit" or "fixed" raises ValueError.
 
     >>> from lpvpc.io import pair_trials
     >>> from lpvpc.identification.identify import identify
@@ -407,6 +409,8 @@ def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSet
     >>> setup.surrogate.design, setup.reason.startswith("refitting the model's structure on this record (24 s")
     ('fixed', True)
     """
+    if design not in ("auto", "refit", "fixed"):
+        raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()
     data = with_model_activation(data, model)
     cov = check_record(model, data)
@@ -512,8 +516,6 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
     >>> diagnosis.significant, bool(diagnosis.vaf > 90.0)
     ([], True)
     """
-    if design not in ("auto", "refit", "fixed"):
-        raise ValueError(f"design must be 'auto', 'refit' or 'fixed', not {design!r}")
     t0 = time.perf_counter()
     timings = {}
     check_model_rate(data.fs, model.fs, source=getattr(data, "source", None), tolerance=1e-6)
