@@ -67,12 +67,12 @@ ALARM_SHARE = bpd.TARGETS["alarm"]
 COST_BINS = (-math.inf, 0.1, 0.25, 0.5, 1.0, math.inf)
 
 
-def effect_torque(subject):
-    """The subject's effect torque on its novel pair (N m, paired and decimated as the loaders do):
-    the noise-free pair with the effect minus the same pair without it (same seed, trajectory and
-    streams)."""
-    with_effect, without = (simulate_subject(subject, "novel", clean=c) for c in (False, True))
-    return (lpvpc.pair_trials(with_effect.pt_clean, with_effect.ut_clean).torque
+def effect_torque(subject, novel):
+    """The subject's effect torque on its novel pair ``novel`` (N m, paired and decimated as the
+    loaders do): the pair's noise-free torque minus that of the same pair simulated without the
+    effect (same seed, trajectory and streams)."""
+    without = simulate_subject(subject, "novel", clean=True)
+    return (lpvpc.pair_trials(novel.pt_clean, novel.ut_clean).torque
             - lpvpc.pair_trials(without.pt_clean, without.ut_clean).torque)
 
 
@@ -100,7 +100,7 @@ def one_draw(task):
             ident = simulate_subject(s, "multilevel")
             novel = simulate_subject(s, "novel")
             model = lpvpc.identify(lpvpc.pair_trials(ident.pt, ident.ut))
-            scored = oracle_score(model, lpvpc.pair_trials(novel.pt, novel.ut), effect_torque(s))
+            scored = oracle_score(model, lpvpc.pair_trials(novel.pt, novel.ut), effect_torque(s, novel))
             out["gain"], out["p"], out["p_mean"], out["surrogate"] = scored
     except Exception as exc:  # a draw's failure is its own row
         out["error"] = bpd._one_line(f"{type(exc).__name__}: {exc}")
@@ -134,11 +134,10 @@ def saved_run(record):
     return keys[-1], runs[keys[-1]]
 
 
-def reflex_floor(effect, form):
-    """Whether the rule's reflex floor applies to the draw's right entry (catalog effect on the
-    reflex pathway reading no EMG-derived signal)."""
-    e = CATALOG[bpd.accepted(effect, form)[0]]
-    return e.pathway == "reflex" and not set(e.signals) & set(EMG_SIGNALS)
+def reflex_floor(entries):
+    """Whether the rule's reflex floor applies to one of the draw's right entries (a catalog
+    effect on the reflex pathway reading no EMG-derived signal)."""
+    return any(CATALOG[n].pathway == "reflex" and not set(CATALOG[n].signals) & set(EMG_SIGNALS) for n in entries)
 
 
 def clean_points(rows):
@@ -217,7 +216,7 @@ def main(argv=None):
         else:
             n_avail = (d.get("base_candidates") or {}).get("n_available") or 1
             r["passes"] = passes(r["gain"], r["p"], MIN_GAIN, ALPHA / n_avail, p_mean=r["p_mean"],
-                                 reflex=reflex_floor(r["effect"], r["form"]))
+                                 reflex=reflex_floor(ok))
             r["dominating"] = dominated_by((r["gain"], r["p"], r["p_mean"]), pts)
             r["dominating_entry"] = dominated_by((r["gain"], r["p"], r["p_mean"]), pts, ok)
             r["capture"] = r["entry_gain"] / r["gain"] if r["gain"] > 0 else float("nan")

@@ -34,7 +34,6 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.optimize  # noqa: E402
 
 from lpvpc.models import effects as fx  # noqa: E402
 from lpvpc.models import equations as eq  # noqa: E402
@@ -90,7 +89,6 @@ def oracle(model, ident, novel, ratio=3.0):
     the base model's drive z (its nonlinearity as the LTI fit left it), "nonlinearity refitted"
     of each column of the reflex input regressor U_r (Omega free). "LTI" (a check): the
     model's LTI low-pass, Omega free."""
-
     out = {}
     for form in ("drive held", "nonlinearity refitted", "LTI"):
         cols = []

@@ -37,6 +37,15 @@ def _pairs(seed, effects=(), modify=None):
     return out
 
 
+def cut(data, a, b):
+    """A copy of samples ``a:b`` of a record, every channel (a copy: ``clean``'s records are
+    shared by the tests)."""
+    from lpvpc.io import PerturbationData
+
+    return PerturbationData(data.position[a:b].copy(), data.torque[a:b].copy(), data.scheduling[a:b].copy(),
+                            data.fs, {k: v[a:b].copy() for k, v in data.extra.items()}, data.source, data.meta)
+
+
 def _heldout_vaf(model, data):
     pred = model.predict(data.position, data.scheduling, warn=False, signals=signals_from_data(data))
     return vaf(data.torque, pred.total)
@@ -347,13 +356,7 @@ def test_conditional_ranking_names_both_pathways_of_activation():
 
 def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path, capsys):
     model, novel, _ = clean(0)
-    from lpvpc.io import PerturbationData
     from lpvpc.errors import InsufficientExcitationError
-
-    def cut(data, a, b):  # copies: the record is shared with the other tests (clean's cache)
-        extra = {k: v[a:b].copy() for k, v in data.extra.items()}
-        return PerturbationData(data.position[a:b].copy(), data.torque[a:b].copy(), data.scheduling[a:b].copy(),
-                                data.fs, extra, data.source, data.meta)
 
     with pytest.raises(InsufficientExcitationError, match=r"too short for a diagnosis: 15.0 s.*at least 20 s"):
         diagnose(model, cut(novel, 0, 1500))
@@ -374,29 +377,28 @@ def test_short_record_is_refused_and_a_narrow_one_holds_the_model_fixed(tmp_path
 
 
 def test_the_surrogate_set_up_is_the_one_diagnose_scores_against():
-    """diagnosis_surrogate is diagnose's own set-up: the same base residual (hence the same
-    gains) on a record it refits and on one it holds fixed; a column of the truth added to it
-    is scored like any candidate; an unknown design is refused by name."""
+    """diagnosis_surrogate is diagnose's own set-up: the same base residual on a record it
+    refits and on one it holds fixed, and a candidate's columns added to it gain what diagnose
+    reports; an unknown design is refused by name."""
+    from lpvpc.diagnosis.candidates import _effect_candidate
     from lpvpc.diagnosis.diagnose import diagnosis_surrogate
 
     model, novel, d = clean(0)
-    for data, design in ((novel, "refit"), (first_samples(novel, 3200), "fixed")):
+    for data, design in ((novel, "refit"), (cut(novel, 0, 3200), "fixed")):
         setup = diagnosis_surrogate(model, data, design="auto")
         r0, _ = setup.surrogate.cv.fit(setup.surrogate.base)
         dd = d if data is novel else diagnose(model, data)
         assert setup.surrogate.design == dd.design == design
         assert np.allclose(r0, dd.base_residual)
         assert setup.reason == dd.design_reason
+        # a column added to it is scored as diagnose scores its candidates: its marginal gain
+        c = next(c for c in dd.candidates if c.effect == "nonlinear_viscosity")
+        X, _ = _effect_candidate(setup.surrogate, "nonlinear_viscosity")
+        setup.surrogate.cv.add("column", X)
+        r1, _ = setup.surrogate.cv.fit(setup.surrogate.base + ["column"])
+        assert 100 * (r0 @ r0 - r1 @ r1) / setup.surrogate.sst == pytest.approx(c.vaf_gain, rel=1e-9, abs=1e-12)
     with pytest.raises(ValueError, match="design must be 'auto', 'refit' or 'fixed', not 'bogus'"):
         diagnosis_surrogate(model, novel, design="bogus")
-
-
-def first_samples(data, n):
-    """A copy of the first ``n`` samples of a record (every channel)."""
-    from lpvpc.io import PerturbationData
-
-    return PerturbationData(data.position[:n].copy(), data.torque[:n].copy(), data.scheduling[:n].copy(), data.fs,
-                            {k: v[:n].copy() for k, v in data.extra.items()}, data.source, data.meta)
 
 
 def test_diagnose_and_improve_reports_render_in_chromium(tmp_path):

@@ -361,16 +361,17 @@ def check_record(model, data) -> dict:
 @dataclass
 class SurrogateSetup:
     """What :func:`diagnosis_surrogate` prepares: the record with its activation estimates
-    (``data``), its coverage of the identified range (``coverage``, and ``outside``: the
-    samples left out), the model's prediction, its VAF inside the range, the surrogate and
-    why it holds the model fixed ("" when it refits).
+    (``data``) and its extra signals (``signals``), its coverage of the identified range
+    (``coverage``, and ``outside``: the samples left out), the model's prediction, its VAF
+    inside the range, the surrogate and why it holds the model fixed ("" when it refits).
 
     >>> import dataclasses
     >>> [f.name for f in dataclasses.fields(SurrogateSetup)]
-    ['data', 'coverage', 'outside', 'prediction', 'model_vaf_inside', 'surrogate', 'reason', 'timings']
+    ['data', 'signals', 'coverage', 'outside', 'prediction', 'model_vaf_inside', 'surrogate', 'reason', 'timings']
     """
 
     data: object
+    signals: dict
     coverage: dict
     outside: np.ndarray
     prediction: object
@@ -378,6 +379,11 @@ class SurrogateSetup:
     surrogate: Surrogate
     reason: str
     timings: dict
+
+    @property
+    def mask(self):
+        """The samples scored (inside the identified range), or None when that is all of them."""
+        return ~self.outside if self.outside.any() else None
 
 
 def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSetup:
@@ -416,7 +422,8 @@ def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSet
     cov = check_record(model, data)
     outside = cov.pop("outside_mask")
     mask = ~outside if outside.any() else None
-    pred = model.predict(data, warn=False, signals=signals_from_data(data))  # as every door predicts it
+    sig = signals_from_data(data)
+    pred = model.predict(data, warn=False, signals=sig)  # as every door predicts it
     y = np.asarray(data.torque, dtype=float)
     model_vaf_inside = vaf(y[~outside], pred.total[~outside])
     timings = {"predict": time.perf_counter() - t0}
@@ -437,7 +444,7 @@ def diagnosis_surrogate(model, data, folds=FOLDS, design="auto") -> SurrogateSet
                       f"visit too), or a large missing effect makes the refit unstable.")
             sur = Surrogate(model, data, folds, design="fixed", mask=mask, prediction=pred.total)
     timings["design"] = time.perf_counter() - t
-    return SurrogateSetup(data, cov, outside, pred, model_vaf_inside, sur, reason, timings)
+    return SurrogateSetup(data, sig, cov, outside, pred, model_vaf_inside, sur, reason, timings)
 
 
 @on_one_blas_thread
@@ -532,8 +539,7 @@ def diagnose(model, data, *, folds=FOLDS, min_gain=MIN_GAIN, alpha=ALPHA, block_
                          tolerance=1e-6)
     setup = diagnosis_surrogate(model, data, folds, design)
     data, cov, pred, sur, reason = setup.data, setup.coverage, setup.prediction, setup.surrogate, setup.reason
-    mask = ~setup.outside if setup.outside.any() else None
-    sig = signals_from_data(data)
+    mask, sig = setup.mask, setup.signals
     y = np.asarray(data.torque, dtype=float)
     resid = y - pred.total
     model_vaf_inside = setup.model_vaf_inside
